@@ -1,0 +1,36 @@
+"""Shared test fixtures.
+
+Tests generate their own data. Tests marked ``shared_data`` use the real
+scenes of ``../shared/data`` (or ``$SEED2GS_DATA``) and skip with a reason
+when they are absent.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def shared_data_dir() -> Path | None:
+    env = os.environ.get("SEED2GS_DATA")
+    cand = Path(env) if env else REPO.parent / "shared" / "data"
+    return cand if cand.is_dir() else None
+
+
+@pytest.fixture
+def shared_data() -> Path:
+    """Directory of the real scenes; skips the test when it is not there."""
+    d = shared_data_dir()
+    if d is None:
+        pytest.skip("real scenes not found: put them in ../shared/data or set SEED2GS_DATA")
+    return d
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    return np.random.default_rng(12345)
