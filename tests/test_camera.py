@@ -1,0 +1,83 @@
+"""Camera: OpenCV convention, look_at, projection and validation."""
+
+import numpy as np
+import pytest
+
+from seed2gs_inverse import Camera, ValidationError
+
+
+def test_look_at_projects_target_to_principal_point():
+    cam = Camera.look_at([3.0, -2.0, 5.0], [0.5, 0.2, -1.0], [0, -1, 0], 50, 320, 240)
+    uv, z = cam.project(np.array([[0.5, 0.2, -1.0]]))
+    np.testing.assert_allclose(uv[0], [160, 120], atol=1e-9)
+    assert z[0] > 0
+    np.testing.assert_allclose(np.linalg.norm(cam.center - [3, -2, 5]), 0, atol=1e-12)
+
+
+def test_look_at_up_appears_up_and_right_is_right():
+    up = np.array([0.0, 0.0, 1.0])  # deliberately +z up
+    cam = Camera.look_at([5.0, 0, 0], [0, 0, 0], up, 60, 100, 80)
+    (u0, v0), (u_up, v_up) = cam.project(np.array([[0, 0, 0], [0, 0, 1.0]]))[0]
+    assert v_up < v0 and abs(u_up - u0) < 1e-9          # image y grows downwards
+    np.testing.assert_allclose(cam.up, up, atol=1e-12)
+    np.testing.assert_allclose(cam.forward, [-1, 0, 0], atol=1e-12)
+    # right-handed OpenCV frame: x = y cross z
+    r = cam.rotation
+    np.testing.assert_allclose(np.cross(r[1], r[2]), r[0], atol=1e-12)
+
+
+def test_fov_and_intrinsics():
+    cam = Camera.from_fov(200, 100, 90.0)
+    assert np.isclose(cam.fy, 50.0) and np.isclose(np.degrees(cam.fov_y), 90.0)
+    assert cam.image_shape == (100, 200)
+    half = cam.scaled(0.5)
+    assert (half.width, half.height) == (100, 50)
+    assert np.isclose(half.fx, 25.0) and np.isclose(half.cx, 50.0)
+
+
+def test_pixel_centre_convention():
+    # A point on the ray through the centre of pixel (0, 0) projects to (0.5, 0.5).
+    cam = Camera(4, 4, 2.0, 2.0, 2.0, 2.0)
+    uv, _ = cam.project(np.array([[(0.5 - 2.0) / 2.0, (0.5 - 2.0) / 2.0, 1.0]]))
+    np.testing.assert_allclose(uv[0], [0.5, 0.5])
+
+
+def test_dict_round_trip():
+    cam = Camera.look_at([1, 2, 3], [0, 0, 0], [0, 1, 0], 40, 64, 48, name="ref")
+    back = Camera.from_dict(cam.to_dict())
+    np.testing.assert_array_equal(back.world_to_camera, cam.world_to_camera)
+    assert back.name == "ref" and back.width == 64
+
+
+def test_camera_to_world_inverse():
+    cam = Camera.look_at([1, 2, 3], [0, 0, 0], [0, 1, 0], 40, 64, 48)
+    np.testing.assert_allclose(cam.camera_to_world @ cam.world_to_camera, np.eye(4), atol=1e-12)
+    again = Camera.from_camera_to_world(64, 48, cam.fx, cam.fy, cam.cx, cam.cy, cam.camera_to_world)
+    np.testing.assert_allclose(again.world_to_camera, cam.world_to_camera, atol=1e-12)
+
+
+@pytest.mark.parametrize("kw,match", [
+    (dict(width=0), "width must be positive"),
+    (dict(height=-3), "height"),
+    (dict(fx=0.0), "focal"),
+    (dict(fy=np.nan), "not finite"),
+    (dict(world_to_camera=np.diag([1.0, 1, 1, 1]) * 2), "orthonormal"),
+    (dict(world_to_camera=np.diag([1.0, 1, -1, 1])), "orthonormal"),
+    (dict(world_to_camera=np.full((4, 4), np.inf)), "non-finite"),
+    (dict(world_to_camera=np.eye(3)), "4x4"),
+    (dict(width=2.5), "integer"),
+])
+def test_degenerate_cameras_rejected(kw, match):
+    args = dict(width=10, height=10, fx=5.0, fy=5.0, cx=5.0, cy=5.0, world_to_camera=np.eye(4))
+    args.update(kw)
+    with pytest.raises(ValidationError, match=match):
+        Camera(**args)
+
+
+def test_look_at_degenerate():
+    with pytest.raises(ValidationError, match="coincide"):
+        Camera.look_at([0, 0, 0], [0, 0, 0], [0, 1, 0], 60, 10, 10)
+    with pytest.raises(ValidationError, match="parallel"):
+        Camera.look_at([0, 0, 0], [0, 1, 0], [0, 1, 0], 60, 10, 10)
+    with pytest.raises(ValidationError, match="fov"):
+        Camera.look_at([0, 0, 1], [0, 0, 0], [0, 1, 0], 180, 10, 10)

@@ -1,0 +1,138 @@
+"""GaussianScene: validation, activations, edits, SH rotation (known values)."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from seed2gs_inverse import GaussianScene, ValidationError
+from seed2gs_inverse.sh import SH_C0, eval_sh, rotate_sh, sh_basis
+
+
+def random_scene(rng, n=20, degree=3, extra=True):
+    k = (degree + 1) ** 2
+    return GaussianScene(
+        rng.normal(size=(n, 3)), rng.normal(size=(n, 4)), rng.normal(size=(n, 3)) - 2,
+        rng.normal(size=n), rng.normal(size=(n, k, 3)) * 0.3,
+        {"nx": np.zeros(n, np.float32), "label": np.arange(n)} if extra else {})
+
+
+def unit(rng, n):
+    d = rng.normal(size=(n, 3))
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def test_arrays_are_float32_and_len(rng):
+    s = random_scene(rng)
+    assert len(s) == 20 and s.sh_degree == 3
+    for arr in (s.means, s.quats, s.log_scales, s.opacity_logits, s.sh):
+        assert arr.dtype == np.float32 and arr.flags.c_contiguous
+
+
+def test_activations_known_values():
+    s = GaussianScene(np.zeros((3, 3)), [[2, 0, 0, 0], [0, 0, 0, 3], [1, 1, 1, 1]],
+                      np.log([[1, 2, 4]] * 3), [0.0, np.log(3.0), -np.log(3.0)], np.zeros((3, 1, 3)))
+    np.testing.assert_allclose(s.opacities, [0.5, 0.75, 0.25], rtol=1e-6)
+    np.testing.assert_allclose(s.scales, [[1, 2, 4]] * 3, rtol=1e-6)
+    np.testing.assert_allclose(s.rotations, [[1, 0, 0, 0], [0, 0, 0, 1], [0.5] * 4], atol=1e-7)
+
+
+def test_covariance_matches_scipy_rotation(rng):
+    s = random_scene(rng, extra=False)
+    q = s.quats.astype(np.float64)
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    rot = Rotation.from_quat(q[:, [1, 2, 3, 0]]).as_matrix()  # scipy is scalar-last
+    sig = np.exp(2 * s.log_scales.astype(np.float64))
+    expected = np.einsum("nij,nj,nkj->nik", rot, sig, rot)
+    np.testing.assert_allclose(s.covariances(), expected, rtol=1e-6, atol=1e-12)
+
+
+@pytest.mark.parametrize("field,value,match", [
+    ("means", np.zeros((4, 2)), "means"),
+    ("quats", np.zeros((4, 4)), "zero-length"),
+    ("log_scales", np.full((4, 3), np.nan), "non-finite values in 4 of 4"),
+    ("opacity_logits", np.zeros(3), "has 3 rows"),
+    ("sh", np.zeros((4, 5, 3)), "sh"),
+    ("means", np.array([["a"] * 3] * 4), "dtype"),
+])
+def test_validation_names_the_array(field, value, match):
+    kw = dict(means=np.zeros((4, 3)), quats=np.tile([1.0, 0, 0, 0], (4, 1)),
+              log_scales=np.zeros((4, 3)), opacity_logits=np.zeros(4), sh=np.zeros((4, 1, 3)))
+    kw[field] = value
+    with pytest.raises(ValidationError, match=match):
+        GaussianScene(**kw)
+
+
+def test_extra_length_checked():
+    with pytest.raises(ValidationError, match="extra property 'foo'"):
+        GaussianScene(np.zeros((2, 3)), np.tile([1.0, 0, 0, 0], (2, 1)), np.zeros((2, 3)),
+                      np.zeros(2), np.zeros((2, 1, 3)), {"foo": np.zeros(3)})
+
+
+def test_subset_and_concat(rng):
+    a, b = random_scene(rng), random_scene(rng, n=5, degree=1, extra=False)
+    sub = a.subset(np.arange(20) % 2 == 0)
+    assert len(sub) == 10
+    np.testing.assert_array_equal(sub.extra["label"], np.arange(0, 20, 2))
+    np.testing.assert_array_equal(a.subset([3, 1]).means, a.means[[3, 1]])
+    with pytest.raises(ValidationError):
+        a.subset(np.ones(19, bool))
+    with pytest.raises(ValidationError):
+        a.subset([20])
+    c = GaussianScene.concat([a, b])
+    assert len(c) == 25 and c.sh_degree == 3
+    np.testing.assert_array_equal(c.sh[20:, :4], b.sh)
+    assert not c.sh[20:, 4:].any()
+    assert c.extra == {}  # extras not present in every part are dropped
+    d = GaussianScene.concat([a, a])
+    np.testing.assert_array_equal(d.extra["label"], np.r_[np.arange(20), np.arange(20)])
+
+
+def test_sh_degree1_rotation_known_value(rng):
+    # Degree 1 is linear in d: C1 * (-y c1 + z c2 - x c3) = C1 v.d with
+    # v = (-c3, -c1, c2). Rotating the object rotates v: v' = R v.
+    rot = Rotation.random(random_state=3).as_matrix()
+    sh = rng.normal(size=(4, 4, 3))
+    out = rotate_sh(sh, rot)
+    v = np.stack([-sh[:, 3], -sh[:, 1], sh[:, 2]], axis=1)  # (n, 3 xyz, 3 rgb)
+    v_rot = np.einsum("ij,njc->nic", rot, v)
+    np.testing.assert_allclose(out[:, 3], -v_rot[:, 0], atol=1e-12)
+    np.testing.assert_allclose(out[:, 1], -v_rot[:, 1], atol=1e-12)
+    np.testing.assert_allclose(out[:, 2], v_rot[:, 2], atol=1e-12)
+    np.testing.assert_allclose(out[:, 0], sh[:, 0], atol=1e-12)
+
+
+def test_transformed_scene_colour_follows_object(rng):
+    # Rendering-free check: the moved scene seen along R d shows what the
+    # original showed along d, for every SH degree.
+    for degree in range(4):
+        s = random_scene(rng, degree=degree)
+        rot = Rotation.random(random_state=degree).as_matrix()
+        moved = s.transformed(rot, [0.5, -1.0, 2.0], scale=1.7)
+        d = unit(rng, len(s))
+        np.testing.assert_allclose(eval_sh(moved.sh, d @ rot.T), eval_sh(s.sh, d), atol=2e-5)
+
+
+def test_transformed_geometry(rng):
+    s = random_scene(rng)
+    rot = Rotation.random(random_state=7).as_matrix()
+    t = np.array([1.0, 2.0, 3.0])
+    m = s.transformed(rot, t, scale=2.0)
+    np.testing.assert_allclose(m.means, 2.0 * s.means @ rot.T + t, atol=1e-5)
+    np.testing.assert_allclose(m.covariances(), 4.0 * rot @ s.covariances() @ rot.T,
+                               rtol=1e-4, atol=1e-6)
+    np.testing.assert_array_equal(m.opacity_logits, s.opacity_logits)
+    np.testing.assert_array_equal(m.extra["label"], s.extra["label"])
+    with pytest.raises(ValidationError, match="rotation"):
+        s.transformed(np.diag([1.0, 1.0, -1.0]))
+    with pytest.raises(ValidationError, match="scale"):
+        s.transformed(scale=0.0)
+
+
+def test_sh_basis_normalisation():
+    # Real SH are orthonormal on the sphere: (4 pi / M) sum Y_i Y_j ~ I.
+    rng = np.random.default_rng(0)
+    d = unit(rng, 200000)
+    y = sh_basis(d, 3)
+    gram = 4 * np.pi * (y.T @ y) / len(d)
+    np.testing.assert_allclose(gram, np.eye(16), atol=0.03)
+    assert np.isclose(y[0, 0], SH_C0)
