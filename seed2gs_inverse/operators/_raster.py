@@ -1,0 +1,335 @@
+"""Numba kernels of the tile rasterizer (private; use :mod:`.render`).
+
+Three stages, each a kernel over plain arrays:
+
+``project``     per Gaussian (parallel): EWA projection, culling, conic,
+                3-sigma radius, tile rectangle, SH colour, effective opacity.
+``bin_tiles``   Gaussians in (depth, index) order are appended to the list
+                of every tile their rectangle covers (counting sort, serial,
+                so each tile list stays in front-to-back order).
+``composite``   per tile (parallel): front-to-back alpha compositing of the
+                tile's pixels; optionally writes the compositing weights
+                ``alpha_i(u) T_i(u)`` straight into CSR arrays.
+
+All arithmetic is float64; the public wrapper converts outputs to float32.
+See :mod:`seed2gs_inverse.operators.render` for the exact semantics.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+TILE = 16
+ALPHA_MAX = 0.99
+ALPHA_MIN = 1.0 / 255.0
+T_MIN = 1e-4
+
+_C0 = 0.28209479177387814
+_C1 = 0.4886025119029199
+_C20, _C21, _C22, _C23, _C24 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005,
+                               -1.0925484305920792, 0.5462742152960396)
+_C30, _C31, _C32, _C33, _C34, _C35, _C36 = (
+    -0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154,
+    -0.4570457994644658, 1.445305721320277, -0.5900435899266435)
+
+# Columns of the per-tile gathered Gaussian table used by ``composite``.
+_G_X, _G_Y, _G_A, _G_B, _G_C, _G_O, _G_PMIN, _G_R, _G_G, _G_BL, _G_Z, _G_NCOL = range(12)
+
+
+@njit(cache=True, inline="always")
+def _sh_basis(x, y, z, k, out):
+    """Real SH basis (3DGS ordering and signs) at unit direction, first k terms."""
+    out[0] = _C0
+    if k > 1:
+        out[1] = -_C1 * y
+        out[2] = _C1 * z
+        out[3] = -_C1 * x
+    if k > 4:
+        xx, yy, zz = x * x, y * y, z * z
+        out[4] = _C20 * x * y
+        out[5] = _C21 * y * z
+        out[6] = _C22 * (2.0 * zz - xx - yy)
+        out[7] = _C23 * x * z
+        out[8] = _C24 * (xx - yy)
+        if k > 9:
+            out[9] = _C30 * y * (3.0 * xx - yy)
+            out[10] = _C31 * x * y * z
+            out[11] = _C32 * y * (4.0 * zz - xx - yy)
+            out[12] = _C33 * z * (2.0 * zz - 3.0 * xx - 3.0 * yy)
+            out[13] = _C34 * x * (4.0 * zz - xx - yy)
+            out[14] = _C35 * z * (xx - yy)
+            out[15] = _C36 * x * (xx - 3.0 * yy)
+
+
+@njit(cache=True, parallel=True)
+def project(means, quats, log_scales, opacity_logits, sh, rot, trans, center,
+            fx, fy, cx, cy, width, height, near, eps2d, antialiased,
+            means2d, conics, radii, depths, colors, opacities, rects):
+    """Project N Gaussians; see ``render.project_gaussians`` for the maths.
+
+    Inputs are the raw scene arrays (float32) and the camera (float64).
+    Outputs (preallocated, float64 unless noted): means2d (N,2), conics (N,3)
+    (a, b, c of the inverse 2D covariance), radii (N,) int32 (0 = culled),
+    depths (N,) view z, colors (N,3), opacities (N,) (times the antialiasing
+    compensation), rects (N,4) int32 tile rectangle [tx0, ty0, tx1, ty1).
+    """
+    n = means.shape[0]
+    k = sh.shape[1]
+    tiles_x = (width + TILE - 1) // TILE
+    tiles_y = (height + TILE - 1) // TILE
+    tan_fovx = 0.5 * width / fx
+    tan_fovy = 0.5 * height / fy
+    lim_x_pos = (width - cx) / fx + 0.3 * tan_fovx
+    lim_x_neg = cx / fx + 0.3 * tan_fovx
+    lim_y_pos = (height - cy) / fy + 0.3 * tan_fovy
+    lim_y_neg = cy / fy + 0.3 * tan_fovy
+    for i in prange(n):
+        basis = np.empty(16)
+        px = np.float64(means[i, 0])
+        py = np.float64(means[i, 1])
+        pz = np.float64(means[i, 2])
+        x = rot[0, 0] * px + rot[0, 1] * py + rot[0, 2] * pz + trans[0]
+        y = rot[1, 0] * px + rot[1, 1] * py + rot[1, 2] * pz + trans[1]
+        z = rot[2, 0] * px + rot[2, 1] * py + rot[2, 2] * pz + trans[2]
+        depths[i] = z
+
+        # View-dependent colour, for every Gaussian (callers use it for W @ colors).
+        dx = px - center[0]
+        dy = py - center[1]
+        dz = pz - center[2]
+        nrm = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if nrm > 0.0:
+            dx /= nrm
+            dy /= nrm
+            dz /= nrm
+        _sh_basis(dx, dy, dz, k, basis)
+        for ch in range(3):
+            acc = 0.0
+            for j in range(k):
+                acc += basis[j] * sh[i, j, ch]
+            colors[i, ch] = max(acc + 0.5, 0.0)
+
+        opacities[i] = 1.0 / (1.0 + math.exp(-np.float64(opacity_logits[i])))
+        radii[i] = 0
+        means2d[i, 0] = 0.0
+        means2d[i, 1] = 0.0
+        conics[i, 0] = 0.0
+        conics[i, 1] = 0.0
+        conics[i, 2] = 0.0
+        for j in range(4):
+            rects[i, j] = 0
+        if not z >= near:  # also rejects NaN
+            continue
+
+        # World covariance Sigma = M M^T with M = R(q) diag(s).
+        qw = np.float64(quats[i, 0])
+        qx = np.float64(quats[i, 1])
+        qy = np.float64(quats[i, 2])
+        qz = np.float64(quats[i, 3])
+        qn = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+        qw /= qn
+        qx /= qn
+        qy /= qn
+        qz /= qn
+        s0 = math.exp(np.float64(log_scales[i, 0]))
+        s1 = math.exp(np.float64(log_scales[i, 1]))
+        s2 = math.exp(np.float64(log_scales[i, 2]))
+        m00 = (1.0 - 2.0 * (qy * qy + qz * qz)) * s0
+        m01 = 2.0 * (qx * qy - qw * qz) * s1
+        m02 = 2.0 * (qx * qz + qw * qy) * s2
+        m10 = 2.0 * (qx * qy + qw * qz) * s0
+        m11 = (1.0 - 2.0 * (qx * qx + qz * qz)) * s1
+        m12 = 2.0 * (qy * qz - qw * qx) * s2
+        m20 = 2.0 * (qx * qz - qw * qy) * s0
+        m21 = 2.0 * (qy * qz + qw * qx) * s1
+        m22 = (1.0 - 2.0 * (qx * qx + qy * qy)) * s2
+
+        # EWA Jacobian, with the view-space x/y clamped to 1.3 x the field of
+        # view so Gaussians far outside the image do not blow up (gsplat persp_proj).
+        tx = z * min(lim_x_pos, max(-lim_x_neg, x / z))
+        ty = z * min(lim_y_pos, max(-lim_y_neg, y / z))
+        j00 = fx / z
+        j02 = -fx * tx / (z * z)
+        j11 = fy / z
+        j12 = -fy * ty / (z * z)
+        # T = J R_cam (2x3); cov2d = (T M)(T M)^T.
+        t00 = j00 * rot[0, 0] + j02 * rot[2, 0]
+        t01 = j00 * rot[0, 1] + j02 * rot[2, 1]
+        t02 = j00 * rot[0, 2] + j02 * rot[2, 2]
+        t10 = j11 * rot[1, 0] + j12 * rot[2, 0]
+        t11 = j11 * rot[1, 1] + j12 * rot[2, 1]
+        t12 = j11 * rot[1, 2] + j12 * rot[2, 2]
+        u0 = t00 * m00 + t01 * m10 + t02 * m20
+        u1 = t00 * m01 + t01 * m11 + t02 * m21
+        u2 = t00 * m02 + t01 * m12 + t02 * m22
+        v0 = t10 * m00 + t11 * m10 + t12 * m20
+        v1 = t10 * m01 + t11 * m11 + t12 * m21
+        v2 = t10 * m02 + t11 * m12 + t12 * m22
+        a = u0 * u0 + u1 * u1 + u2 * u2
+        b = u0 * v0 + u1 * v1 + u2 * v2
+        c = v0 * v0 + v1 * v1 + v2 * v2
+        det_orig = a * c - b * b
+        a += eps2d
+        c += eps2d
+        det = a * c - b * b
+        if not det > 0.0:
+            continue
+        if antialiased:
+            opacities[i] *= math.sqrt(max(0.0, det_orig / det))
+        mid = 0.5 * (a + c)
+        lam = mid + math.sqrt(max(0.01, mid * mid - det))
+        radius = math.ceil(3.0 * math.sqrt(lam))
+        mx = fx * x / z + cx
+        my = fy * y / z + cy
+        # Tile rectangle of [mean - r, mean + r] as getRect of the reference code.
+        rx0 = min(tiles_x, max(0, int(math.floor((mx - radius) / TILE))))
+        ry0 = min(tiles_y, max(0, int(math.floor((my - radius) / TILE))))
+        rx1 = min(tiles_x, max(0, int(math.floor((mx + radius + TILE - 1) / TILE))))
+        ry1 = min(tiles_y, max(0, int(math.floor((my + radius + TILE - 1) / TILE))))
+        if rx1 <= rx0 or ry1 <= ry0:
+            continue
+        radii[i] = np.int32(radius)
+        means2d[i, 0] = mx
+        means2d[i, 1] = my
+        conics[i, 0] = c / det
+        conics[i, 1] = -b / det
+        conics[i, 2] = a / det
+        rects[i, 0] = rx0
+        rects[i, 1] = ry0
+        rects[i, 2] = rx1
+        rects[i, 3] = ry1
+
+
+@njit(cache=True)
+def bin_tiles(order, rects, tiles_x, n_tiles):
+    """Tile lists by counting sort.
+
+    ``order`` lists the Gaussians to bin in front-to-back order. Returns
+    ``tile_start`` (n_tiles+1,) int64 and ``tile_gauss`` (M,) int32 where tile
+    t owns ``tile_gauss[tile_start[t]:tile_start[t+1]]``, still in that order
+    (the scatter below is stable because it walks ``order`` sequentially).
+    """
+    counts = np.zeros(n_tiles + 1, np.int64)
+    for g in order:
+        for ty in range(rects[g, 1], rects[g, 3]):
+            for tx in range(rects[g, 0], rects[g, 2]):
+                counts[ty * tiles_x + tx + 1] += 1
+    tile_start = np.cumsum(counts)
+    cursor = tile_start[:-1].copy()
+    tile_gauss = np.empty(tile_start[-1], np.int32)
+    for g in order:
+        for ty in range(rects[g, 1], rects[g, 3]):
+            for tx in range(rects[g, 0], rects[g, 2]):
+                t = ty * tiles_x + tx
+                tile_gauss[cursor[t]] = g
+                cursor[t] += 1
+    return tile_start, tile_gauss
+
+
+@njit(cache=True, parallel=True)
+def composite(tile_start, tile_gauss, tile_order, means2d, conics, opacities, colors, depths,
+              width, height, roi, background, min_weight, fill,
+              rgb, alpha, depth, n_contrib, n_kept, indptr, indices, data):
+    """Front-to-back compositing of every tile (parallel over tiles).
+
+    For pixel centre ``p = (x + 0.5, y + 0.5)`` and each Gaussian g of the
+    tile's list in order: ``d = mean2d_g - p``, ``power = -(a dx^2 + c dy^2)/2
+    - b dx dy``; skip ``power > 0``; ``alpha = min(0.99, o exp(power))``; skip
+    ``alpha < 1/255``; stop (without adding g) when ``T (1 - alpha) < 1e-4``;
+    else weight ``w = alpha T``, accumulate, ``T *= 1 - alpha``.
+
+    ``roi`` (H, W) uint8: pixels where it is 0 are not composited (all
+    outputs 0). ``n_contrib`` counts all contributors, ``n_kept`` (H*W,)
+    those with ``w >= min_weight``. With ``fill`` the kept weights go to
+    ``indices[indptr[u]:...]`` / ``data`` in compositing order; ``indptr``
+    must then be the cumulative sum of a previous pass's ``n_kept``.
+    """
+    tiles_x = (width + TILE - 1) // TILE
+    n_tiles = tile_order.shape[0]
+    for it in prange(n_tiles):
+        t = tile_order[it]
+        ty = t // tiles_x
+        tx = t - ty * tiles_x
+        x0 = tx * TILE
+        y0 = ty * TILE
+        x1 = min(x0 + TILE, width)
+        y1 = min(y0 + TILE, height)
+        active = False
+        for yy in range(y0, y1):
+            for xx in range(x0, x1):
+                if roi[yy, xx]:
+                    active = True
+        if not active:
+            continue
+        s = tile_start[t]
+        ln = tile_start[t + 1] - s
+        # Gather the tile's Gaussians into one contiguous table: every pixel
+        # of the tile scans it, so locality matters more than the copy.
+        g = np.empty((ln, _G_NCOL))
+        for j in range(ln):
+            gi = tile_gauss[s + j]
+            o = opacities[gi]
+            g[j, _G_X] = means2d[gi, 0]
+            g[j, _G_Y] = means2d[gi, 1]
+            g[j, _G_A] = conics[gi, 0]
+            g[j, _G_B] = conics[gi, 1]
+            g[j, _G_C] = conics[gi, 2]
+            g[j, _G_O] = o
+            # power below this can never reach alpha >= 1/255: skip exp().
+            # The margin keeps the exact test below authoritative.
+            g[j, _G_PMIN] = math.log(ALPHA_MIN / o) - 1e-6
+            g[j, _G_R] = colors[gi, 0]
+            g[j, _G_G] = colors[gi, 1]
+            g[j, _G_BL] = colors[gi, 2]
+            g[j, _G_Z] = depths[gi]
+        for yy in range(y0, y1):
+            pyc = yy + 0.5
+            for xx in range(x0, x1):
+                if not roi[yy, xx]:
+                    continue
+                pxc = xx + 0.5
+                pix = yy * width + xx
+                T = 1.0
+                cr = 0.0
+                cg = 0.0
+                cb = 0.0
+                cd = 0.0
+                cnt = 0
+                kept = 0
+                pos = indptr[pix] if fill else 0
+                for j in range(ln):
+                    dx = g[j, _G_X] - pxc
+                    dy = g[j, _G_Y] - pyc
+                    power = -0.5 * (g[j, _G_A] * dx * dx + g[j, _G_C] * dy * dy) - g[j, _G_B] * dx * dy
+                    if power > 0.0 or power < g[j, _G_PMIN]:
+                        continue
+                    a = min(ALPHA_MAX, g[j, _G_O] * math.exp(power))
+                    if a < ALPHA_MIN:
+                        continue
+                    nt = T * (1.0 - a)
+                    if nt < T_MIN:
+                        break
+                    w = a * T
+                    cr += w * g[j, _G_R]
+                    cg += w * g[j, _G_G]
+                    cb += w * g[j, _G_BL]
+                    cd += w * g[j, _G_Z]
+                    cnt += 1
+                    if w >= min_weight:
+                        if fill:
+                            indices[pos] = tile_gauss[s + j]
+                            data[pos] = w
+                            pos += 1
+                        kept += 1
+                    T = nt
+                al = 1.0 - T
+                rgb[yy, xx, 0] = cr + T * background[0]
+                rgb[yy, xx, 1] = cg + T * background[1]
+                rgb[yy, xx, 2] = cb + T * background[2]
+                alpha[yy, xx] = al
+                depth[yy, xx] = cd / al if cnt > 0 else 0.0
+                n_contrib[yy, xx] = cnt
+                n_kept[pix] = kept

@@ -1,0 +1,341 @@
+"""Tile rasterization of a frozen 3DGS scene: images and the operator W(c).
+
+One pass of the rasterizer gives the image of a view and, optionally, the
+sparse matrix ``W(c)`` of shape ``(H*W, N)`` whose entry ``(u, i)`` is the
+weight ``alpha_i(u) T_i(u)`` with which Gaussian ``i`` reaches pixel ``u``.
+
+Semantics ("classic" = the reference 3DGS rasterizer and gsplat)
+----------------------------------------------------------------
+Camera in the OpenCV convention; ``x_c = R x + t`` with ``z`` the view depth.
+
+* Culling: Gaussians with ``z < camera.near`` are dropped.
+* Projection (gsplat convention): the 2D mean is
+  ``mu = (fx x/z + cx, fy y/z + cy)`` in pixel coordinates where pixel
+  ``(px, py)`` has its centre at ``(px + 0.5, py + 0.5)``. (The reference
+  3DGS code maps NDC with ``ndc2Pix`` and samples at integer pixel
+  coordinates, i.e. a half-pixel shift of both; gsplat, and this module, use
+  ``cx`` directly and sample at ``px + 0.5``.)
+* EWA: ``Sigma2D = J R Sigma R^T J^T`` with
+  ``J = [[fx/z, 0, -fx tx/z^2], [0, fy/z, -fy ty/z^2]]`` where
+  ``tx = z clamp(x/z, -(cx/fx + 0.3 tan_x), (W - cx)/fx + 0.3 tan_x)``,
+  ``tan_x = W / (2 fx)`` (and likewise y), which is the clamp at
+  ``1.3 tan(fov/2)`` of the reference code for a centred principal point
+  (gsplat ``persp_proj``). ``Sigma = R(q) S S^T R(q)^T``.
+* Low-pass: ``Sigma2D + 0.3 I``. Mode "antialiased" (gsplat) additionally
+  multiplies the opacity by ``sqrt(det Sigma2D / det(Sigma2D + 0.3 I))``.
+  Gaussians with ``det(Sigma2D + 0.3 I) <= 0`` are culled.
+* Conic ``(a, b, c)``: the entries ``[[a, b], [b, c]]`` of the inverse.
+* Radius: ``r = ceil(3 sqrt(lambda_max))``, ``lambda_max = m +
+  sqrt(max(0.01, m^2 - det))``, ``m = (Sigma_xx + Sigma_yy)/2`` (gsplat).
+* Tiles: 16x16. A Gaussian is binned to the tiles
+  ``[floor((mu - r)/16), floor((mu + r + 15)/16))`` per axis, clamped to the
+  grid (``getRect`` of the reference code); Gaussians with an empty
+  rectangle are culled (radius 0). A Gaussian reaches only pixels of its
+  tiles. Each tile's list is ordered by view depth ``z`` (stable: ties by
+  Gaussian index).
+* Compositing, per pixel front to back, starting from ``T = 1``: with
+  ``d = mu - p`` and ``p`` the pixel centre,
+  ``power = -(a dx^2 + c dy^2)/2 - b dx dy``; skip if ``power > 0``;
+  ``alpha = min(0.99, o exp(power))``; skip if ``alpha < 1/255``; stop if
+  ``T (1 - alpha) < 1e-4`` (that Gaussian is not added); else the weight is
+  ``w = alpha T`` and ``T <- T (1 - alpha)``.
+* Colour: ``max(eval_sh(sh, d) + 0.5, 0)`` with ``d`` the unit vector from
+  the camera centre to the Gaussian mean.
+
+Outputs: ``rgb = sum_i w_i c_i + T_final * background``,
+``alpha = 1 - T_final = sum_i w_i``, expected depth
+``depth = sum_i w_i z_i / alpha`` (0 where nothing contributes), and
+``n_contrib`` the number of Gaussians with ``w > 0`` at the pixel.
+Hence, on every view, ``W @ 1 == alpha``, ``W @ colors == rgb - T_final
+background`` and ``W @ z == depth * alpha`` to float32 precision.
+
+Computation is float64 inside the kernels (Numba, parallel over Gaussians
+and tiles); outputs are float32.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+import scipy.sparse as sp
+
+from .. import scene as _scene_mod
+from ..camera import Camera
+from ..errors import ValidationError
+from . import _raster
+
+__all__ = ["Rendering", "Projection", "project_gaussians", "render", "build_operator", "MODES"]
+
+MODES = ("classic", "antialiased")
+_EPS2D = 0.3
+
+
+@dataclass(eq=False)
+class Rendering:
+    """The image of one view.
+
+    Attributes
+    ----------
+    rgb : (H, W, 3) float32
+        Composited colour, background added with the remaining transmittance.
+    alpha : (H, W) float32
+        Accumulated opacity ``1 - T_final`` in [0, 1].
+    depth : (H, W) float32
+        Expected view depth ``sum_i w_i z_i / alpha``; 0 where ``alpha == 0``.
+    n_contrib : (H, W) int32
+        Number of Gaussians that contributed a nonzero weight to the pixel.
+    """
+
+    rgb: np.ndarray
+    alpha: np.ndarray
+    depth: np.ndarray
+    n_contrib: np.ndarray
+
+    @property
+    def image_shape(self) -> tuple[int, int]:
+        return tuple(self.alpha.shape)
+
+
+class Projection(NamedTuple):
+    """Per-Gaussian screen-space quantities of one view (see module docstring).
+
+    Attributes
+    ----------
+    means2d : (N, 2) float32
+        Pixel coordinates of the projected means (0 where culled).
+    conics : (N, 3) float32
+        ``(a, b, c)`` of the inverse 2D covariance (0 where culled).
+    radii : (N,) int32
+        3-sigma radius in pixels; 0 marks a culled Gaussian.
+    depths : (N,) float32
+        View depth ``z`` of every Gaussian (also the culled ones).
+    colors : (N, 3) float32
+        View-dependent colour ``max(eval_sh + 0.5, 0)`` of every Gaussian.
+    opacities : (N,) float32
+        Opacity used for compositing (sigmoid of the logit, times the
+        antialiasing compensation in mode "antialiased").
+    """
+
+    means2d: np.ndarray
+    conics: np.ndarray
+    radii: np.ndarray
+    depths: np.ndarray
+    colors: np.ndarray
+    opacities: np.ndarray
+
+
+def _check_inputs(scene, camera, mode):
+    if not isinstance(scene, _scene_mod.GaussianScene):
+        raise ValidationError(f"scene must be a GaussianScene, got {type(scene).__name__}")
+    if len(scene) == 0:
+        raise ValidationError("scene is empty (0 Gaussians): there is nothing to render")
+    if not isinstance(camera, Camera):
+        raise ValidationError(f"camera must be a Camera, got {type(camera).__name__}")
+    if mode not in MODES:
+        raise ValidationError(f"mode must be one of {MODES}, got {mode!r}")
+
+
+def _project(scene, camera, mode):
+    """Run the projection kernel; float64 arrays plus tile rectangles."""
+    n = len(scene)
+    rot = np.ascontiguousarray(camera.rotation, dtype=np.float64)
+    trans = np.ascontiguousarray(camera.translation, dtype=np.float64)
+    center = np.ascontiguousarray(camera.center, dtype=np.float64)
+    means2d = np.empty((n, 2))
+    conics = np.empty((n, 3))
+    radii = np.empty(n, np.int32)
+    depths = np.empty(n)
+    colors = np.empty((n, 3))
+    opac = np.empty(n)
+    rects = np.empty((n, 4), np.int32)
+    _raster.project(scene.means, scene.quats, scene.log_scales, scene.opacity_logits, scene.sh,
+                    rot, trans, center, camera.fx, camera.fy, camera.cx, camera.cy,
+                    camera.width, camera.height, camera.near, _EPS2D, mode == "antialiased",
+                    means2d, conics, radii, depths, colors, opac, rects)
+    return means2d, conics, radii, depths, colors, opac, rects
+
+
+def project_gaussians(scene, camera, mode: str = "classic") -> Projection:
+    """Project every Gaussian of ``scene`` into ``camera``.
+
+    Parameters
+    ----------
+    scene : GaussianScene
+    camera : Camera
+    mode : {"classic", "antialiased"}
+
+    Returns
+    -------
+    Projection
+        ``means2d, conics, radii, depths, colors, opacities`` as float32
+        (radii int32); culled Gaussians have ``radii == 0``.
+    """
+    _check_inputs(scene, camera, mode)
+    means2d, conics, radii, depths, colors, opac, _ = _project(scene, camera, mode)
+    f32 = np.float32
+    return Projection(means2d.astype(f32), conics.astype(f32), radii, depths.astype(f32),
+                      colors.astype(f32), opac.astype(f32))
+
+
+def _roi_mask(roi, shape):
+    """(H, W) uint8 mask of the pixels to composite, from a box or a mask."""
+    h, w = shape
+    if roi is None:
+        return np.ones(shape, np.uint8)
+    arr = np.asarray(roi)
+    if arr.ndim == 2:
+        if arr.shape != (h, w):
+            raise ValidationError(f"roi mask has shape {arr.shape}; expected the image shape {(h, w)} "
+                                  "(at the operator's scale)")
+        if arr.dtype != bool:
+            raise ValidationError(f"roi mask must be boolean, got dtype {arr.dtype}")
+        return arr.astype(np.uint8)
+    if arr.shape != (4,) or arr.dtype.kind not in "iuf" or not np.all(np.isfinite(arr)):
+        raise ValidationError(f"roi must be a box (x0, y0, x1, y1) or an (H, W) bool mask, got {roi!r}")
+    if np.any(arr != np.round(arr)):
+        raise ValidationError(f"roi box must have integer pixel bounds, got {arr.tolist()}")
+    x0, y0, x1, y1 = (int(v) for v in arr)
+    if not (0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h):
+        raise ValidationError(
+            f"roi box {(x0, y0, x1, y1)} is empty or outside the {w}x{h} image; "
+            f"need 0 <= x0 < x1 <= {w} and 0 <= y0 < y1 <= {h}")
+    mask = np.zeros(shape, np.uint8)
+    mask[y0:y1, x0:x1] = 1
+    return mask
+
+
+def _check_background(background):
+    if background is None:
+        return np.zeros(3)
+    bg = np.asarray(background, dtype=np.float64)
+    if bg.shape == ():
+        bg = np.full(3, float(bg))
+    if bg.shape != (3,) or not np.all(np.isfinite(bg)):
+        raise ValidationError(f"background must be a finite RGB triple or scalar, got {background!r}")
+    return bg
+
+
+def _rasterize(scene, camera, background, mode, roi, min_weight, build_w):
+    """One rasterizer pass; returns (Rendering, W or None)."""
+    h, w = camera.height, camera.width
+    roi_mask = _roi_mask(roi, (h, w))
+    bg = _check_background(background)
+    means2d, conics, radii, depths, colors, opac, rects = _project(scene, camera, mode)
+
+    # Front-to-back order of the binned Gaussians: by depth, ties by index
+    # (stable sort of an ascending index list). Gaussians whose opacity is
+    # below 1/255 can never pass the alpha test, so they are not binned.
+    vis = np.flatnonzero((radii > 0) & (opac >= _raster.ALPHA_MIN))
+    order = vis[np.argsort(depths[vis], kind="stable")]
+    tiles_x = (w + _raster.TILE - 1) // _raster.TILE
+    tiles_y = (h + _raster.TILE - 1) // _raster.TILE
+    n_tiles = tiles_x * tiles_y
+    tile_start, tile_gauss = _raster.bin_tiles(order, rects, tiles_x, n_tiles)
+    # Tiles differ a lot in cost and prange splits the range into equal
+    # contiguous chunks, so visit them in a fixed shuffled order.
+    tile_order = np.random.default_rng(0).permutation(n_tiles).astype(np.int64)
+
+    rgb = np.zeros((h, w, 3), np.float32)
+    alpha = np.zeros((h, w), np.float32)
+    depth = np.zeros((h, w), np.float32)
+    n_contrib = np.zeros((h, w), np.int32)
+    n_kept = np.zeros(h * w, np.int64)
+    dummy_ptr = np.zeros(1, np.int64)
+    args = (tile_start, tile_gauss, tile_order, means2d, conics, opac, colors, depths,
+            w, h, roi_mask, bg, float(min_weight))
+    _raster.composite(*args, False, rgb, alpha, depth, n_contrib, n_kept,
+                      dummy_ptr, np.zeros(0, np.int32), np.zeros(0, np.float32))
+    rendering = Rendering(rgb, alpha, depth, n_contrib)
+    if not build_w:
+        return rendering, None
+
+    indptr = np.zeros(h * w + 1, np.int64)
+    np.cumsum(n_kept, out=indptr[1:])
+    nnz = int(indptr[-1])
+    indices = np.empty(nnz, np.int32)
+    data = np.empty(nnz, np.float32)
+    # Second pass recomputes the same pixels (bit-identical arithmetic) and
+    # writes the weights into the rows sized by the first pass.
+    scratch = (np.empty_like(rgb), np.empty_like(alpha), np.empty_like(depth),
+               np.empty_like(n_contrib), np.empty_like(n_kept))
+    _raster.composite(*args, True, *scratch, indptr, indices, data)
+    if nnz <= np.iinfo(np.int32).max:
+        indptr = indptr.astype(np.int32)
+    W = sp.csr_matrix((data, indices, indptr), shape=(h * w, len(scene)), copy=False)
+    # Columns within a row are in compositing (depth) order, not sorted.
+    W.has_sorted_indices = False
+    return rendering, W
+
+
+def render(scene, camera, background=None, mode: str = "classic") -> Rendering:
+    """Render ``scene`` from ``camera`` with the tile rasterizer.
+
+    Parameters
+    ----------
+    scene : GaussianScene
+        Non-empty.
+    camera : Camera
+    background : None, float or (3,) array
+        Colour added with the final transmittance; ``None`` is black.
+    mode : {"classic", "antialiased"}
+        See the module docstring.
+
+    Returns
+    -------
+    Rendering
+        ``rgb`` (H, W, 3), ``alpha`` (H, W), ``depth`` (H, W) float32 and
+        ``n_contrib`` (H, W) int32.
+    """
+    _check_inputs(scene, camera, mode)
+    return _rasterize(scene, camera, background, mode, None, 0.0, build_w=False)[0]
+
+
+def build_operator(scene, camera, scale: float = 1.0, roi=None, min_weight: float = 0.0,
+                   mode: str = "classic"):
+    """Rasterize once and return the view's linear operator.
+
+    ``W[u, i] = alpha_i(u) T_i(u)`` (float32, CSR, int32 indices), so that a
+    per-Gaussian quantity ``x`` (N,) composites as ``W @ x`` (pixels
+    row-major, ``u = y * width + x``). With the rendering ``r`` of the same
+    pass: ``W @ 1 == r.alpha``, ``W @ colors == r.rgb`` (black background)
+    and ``W @ depths == r.depth * r.alpha``.
+
+    Parameters
+    ----------
+    scene : GaussianScene
+        Non-empty.
+    camera : Camera
+    scale : float
+        Resolution factor; the operator is built for ``camera.scaled(scale)``.
+    roi : None, (x0, y0, x1, y1) or (H, W) bool array
+        Pixels to composite, as a half-open box or a mask at the scaled
+        resolution. ``W`` keeps all ``H*W`` rows so that it matches full
+        masks; rows outside the roi are empty (they cost only ``indptr``),
+        and the rendering is 0 there.
+    min_weight : float
+        Entries with ``w < min_weight`` are left out of ``W`` (the rendering
+        keeps them). The identities then become bounds: per pixel
+        ``0 <= alpha - W @ 1 <= k min_weight`` where k is the number of
+        dropped entries, and likewise for any ``x`` in [0, 1]. ``0`` keeps
+        every contributor.
+    mode : {"classic", "antialiased"}
+
+    Returns
+    -------
+    ViewOperator
+        ``W``, ``camera`` (the scaled one), ``image_shape`` and the
+        ``rendering`` (black background) of the pass.
+    """
+    from .operator import ViewOperator
+
+    _check_inputs(scene, camera, mode)
+    if not isinstance(scale, (int, float, np.integer, np.floating)) or isinstance(scale, bool):
+        raise ValidationError(f"scale must be a positive number, got {scale!r}")
+    mw = float(min_weight) if isinstance(min_weight, (int, float, np.integer, np.floating)) else np.nan
+    if not (np.isfinite(mw) and 0.0 <= mw <= 1.0):
+        raise ValidationError(f"min_weight must be a number in [0, 1], got {min_weight!r}")
+    cam = camera if float(scale) == 1.0 else camera.scaled(scale)
+    rendering, W = _rasterize(scene, cam, None, mode, roi, mw, build_w=True)
+    return ViewOperator(W, cam, cam.image_shape, rendering)
