@@ -1,0 +1,99 @@
+"""Image and box helpers shared by the ONNX model wrappers (pre/post-processing)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from ..errors import ValidationError
+
+__all__ = ["IMAGENET_MEAN", "IMAGENET_STD", "CLIP_MEAN", "CLIP_STD", "as_rgb",
+           "resize_normalize", "resize_map", "cxcywh_to_xyxy", "mask_box", "box_iou",
+           "as_box"]
+
+IMAGENET_MEAN = (0.485, 0.456, 0.406)
+IMAGENET_STD = (0.229, 0.224, 0.225)
+CLIP_MEAN = (0.48145466, 0.4578275, 0.40821073)
+CLIP_STD = (0.26862954, 0.26130258, 0.27577711)
+
+
+def as_rgb(image, name: str = "image") -> np.ndarray:
+    """Validate an RGB image and return it as (H, W, 3) float32 in [0, 1].
+
+    uint8 images are divided by 255; float images must already lie in [0, 1].
+    """
+    img = np.asarray(image)
+    if img.ndim != 3 or img.shape[2] != 3 or img.shape[0] < 1 or img.shape[1] < 1:
+        raise ValidationError(f"{name}: expected an (H, W, 3) RGB image, got shape {img.shape}")
+    if img.dtype == np.uint8:
+        return img.astype(np.float32) / 255.0
+    img = img.astype(np.float32)
+    if not np.all(np.isfinite(img)) or img.min() < -1e-6 or img.max() > 1 + 1e-6:
+        raise ValidationError(f"{name}: float RGB values must be finite and in [0, 1]")
+    return np.clip(img, 0.0, 1.0)
+
+
+def resize_normalize(image: np.ndarray, size_hw, mean, std) -> np.ndarray:
+    """Resize an RGB image (bilinear) and normalise it per channel.
+
+    ``x' = (resize(x) - mean) / std`` with ``x`` in [0, 1]; returns the
+    (1, 3, h, w) float32 NCHW tensor most vision exports take.
+    """
+    h, w = int(size_hw[0]), int(size_hw[1])
+    img = image if image.shape[:2] == (h, w) else cv2.resize(image, (w, h), interpolation=cv2.INTER_LINEAR)
+    img = (img - np.asarray(mean, np.float32)) / np.asarray(std, np.float32)
+    return np.ascontiguousarray(img.transpose(2, 0, 1)[None], dtype=np.float32)
+
+
+def resize_map(values: np.ndarray, size_hw) -> np.ndarray:
+    """Bilinear resize of a 2-D float map (mask logits) to ``size_hw`` = (H, W).
+
+    cv2's INTER_LINEAR with half-pixel centres, the same sampling as
+    ``torch.nn.functional.interpolate(..., mode="bilinear", align_corners=False)``
+    that the reference predictors use.
+    """
+    h, w = int(size_hw[0]), int(size_hw[1])
+    v = np.asarray(values, dtype=np.float32)
+    if v.shape == (h, w):
+        return v.copy()
+    return cv2.resize(v, (w, h), interpolation=cv2.INTER_LINEAR)
+
+
+def cxcywh_to_xyxy(boxes, width: float, height: float) -> np.ndarray:
+    """Normalised (cx, cy, w, h) boxes to pixel (x0, y0, x1, y1), clipped to the image."""
+    b = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+    out = np.stack([(b[:, 0] - b[:, 2] / 2) * width, (b[:, 1] - b[:, 3] / 2) * height,
+                    (b[:, 0] + b[:, 2] / 2) * width, (b[:, 1] + b[:, 3] / 2) * height], axis=1)
+    out[:, [0, 2]] = np.clip(out[:, [0, 2]], 0, width)
+    out[:, [1, 3]] = np.clip(out[:, [1, 3]], 0, height)
+    return out
+
+
+def mask_box(mask: np.ndarray) -> np.ndarray | None:
+    """Tight (x0, y0, x1, y1) pixel box of a boolean mask (exclusive max), None if empty."""
+    ys, xs = np.nonzero(mask)
+    if xs.size == 0:
+        return None
+    return np.array([xs.min(), ys.min(), xs.max() + 1, ys.max() + 1], dtype=np.float64)
+
+
+def box_iou(a, b) -> float:
+    """Intersection over union of two (x0, y0, x1, y1) boxes."""
+    ix = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
+    iy = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+    inter = ix * iy
+    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
+    return float(inter / union) if union > 0 else 0.0
+
+
+def as_box(box, shape_hw, name: str = "box") -> np.ndarray:
+    """Validate an (x0, y0, x1, y1) pixel box inside an image of ``shape_hw``."""
+    b = np.asarray(box, dtype=np.float64).reshape(-1)
+    if b.size != 4 or not np.all(np.isfinite(b)):
+        raise ValidationError(f"{name}: expected 4 finite numbers x0, y0, x1, y1, got {box!r}")
+    h, w = shape_hw
+    b = np.array([np.clip(b[0], 0, w), np.clip(b[1], 0, h), np.clip(b[2], 0, w), np.clip(b[3], 0, h)])
+    if b[2] <= b[0] or b[3] <= b[1]:
+        raise ValidationError(f"{name}: box {list(np.round(box, 2))} is empty inside the "
+                              f"{w}x{h} image; give x0 < x1 and y0 < y1 in pixels")
+    return b

@@ -1,0 +1,231 @@
+"""ONNX Runtime sessions with signature checks, shared by every model wrapper.
+
+A *layout* is the list of input and output tensors (name, element types,
+rank, fixed sizes) that one public export of a model produces. Opening a
+file checks it against the layouts a role accepts and turns every failure
+(missing file, corrupt bytes, wrong names, ranks or dtypes) into a
+:class:`~seed2gs_inverse.errors.FormatError` that names the file and shows
+the expected and the found signature; onnxruntime exceptions never escape.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from ..errors import FormatError
+
+__all__ = ["Port", "Layout", "OnnxModel", "format_ports"]
+
+# onnxruntime's type strings and the numpy dtype each one is fed with.
+_ORT_TO_NUMPY = {
+    "tensor(float)": np.float32,
+    "tensor(float16)": np.float16,
+    "tensor(double)": np.float64,
+    "tensor(int64)": np.int64,
+    "tensor(int32)": np.int32,
+    "tensor(uint8)": np.uint8,
+    "tensor(int8)": np.int8,
+    "tensor(bool)": np.bool_,
+}
+_SHORT = {"tensor(float)": "float32", "tensor(float16)": "float16",
+          "tensor(double)": "float64", "tensor(int64)": "int64",
+          "tensor(int32)": "int32", "tensor(uint8)": "uint8", "tensor(int8)": "int8",
+          "tensor(bool)": "bool"}
+
+
+@dataclass(frozen=True)
+class Port:
+    """One expected input or output tensor of a layout.
+
+    Parameters
+    ----------
+    name : str
+        Tensor name in the ONNX graph.
+    dtypes : tuple of str
+        Accepted element types (``"float32"``, ``"int64"``, ``"bool"``...).
+        Inputs are cast to the type the file declares, so variants of one
+        export that differ only in an integer width are all accepted.
+    rank : int or None
+        Number of dimensions; None accepts any rank.
+    dims : tuple or None
+        Required sizes per axis (None = any). Checked only where the file
+        declares a fixed size, since dynamic axes match anything.
+    optional : bool
+        The layout works without it (it is fed or read only when present).
+    """
+
+    name: str
+    dtypes: tuple = ("float32",)
+    rank: int | None = None
+    dims: tuple | None = None
+    optional: bool = False
+
+    def describe(self) -> str:
+        shape = "?" if self.rank is None else (
+            "[" + ",".join("*" if d is None else str(d)
+                           for d in (self.dims or (None,) * self.rank)) + "]")
+        opt = " (optional)" if self.optional else ""
+        return f"{self.name}:{'|'.join(self.dtypes)}{shape}{opt}"
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Named input/output signature of one supported export."""
+
+    name: str
+    inputs: tuple
+    outputs: tuple
+
+    def describe(self) -> str:
+        return (f"{self.name}: inputs ({', '.join(p.describe() for p in self.inputs)}) "
+                f"-> outputs ({', '.join(p.describe() for p in self.outputs)})")
+
+
+def _arg_describe(arg) -> str:
+    shape = "[" + ",".join(str(d) if isinstance(d, int) else "*" for d in (arg.shape or [])) + "]"
+    return f"{arg.name}:{_SHORT.get(arg.type, arg.type)}{shape}"
+
+
+def format_ports(args) -> str:
+    """``name:dtype[shape]`` list of onnxruntime NodeArgs (found signature)."""
+    return ", ".join(_arg_describe(a) for a in args)
+
+
+def _mismatch(port: Port, arg) -> str | None:
+    """Why the file's NodeArg ``arg`` does not satisfy ``port`` (None if it does)."""
+    found = _SHORT.get(arg.type, arg.type)
+    if found not in port.dtypes:
+        return f"{port.name} has dtype {found}, expected {'|'.join(port.dtypes)}"
+    shape = arg.shape
+    if port.rank is not None and shape is not None and len(shape) != port.rank:
+        return f"{port.name} has rank {len(shape)}, expected {port.rank}"
+    if port.dims is not None and shape is not None:
+        for axis, (want, got) in enumerate(zip(port.dims, shape)):
+            if want is not None and isinstance(got, int) and got > 0 and got != want:
+                return f"{port.name} axis {axis} has size {got}, expected {want}"
+    return None
+
+
+def _check(session, layout: Layout) -> list[str]:
+    """Problems of ``session`` against ``layout`` (empty when it matches)."""
+    problems = []
+    ins = {a.name: a for a in session.get_inputs()}
+    outs = {a.name: a for a in session.get_outputs()}
+    for port in layout.inputs:
+        if port.name not in ins:
+            if not port.optional:
+                problems.append(f"missing input {port.name}")
+            continue
+        why = _mismatch(port, ins[port.name])
+        if why:
+            problems.append(why)
+    known = {p.name for p in layout.inputs}
+    for name in ins:
+        if name not in known:
+            problems.append(f"unexpected input {name}")
+    for port in layout.outputs:
+        if port.name not in outs:
+            if not port.optional:
+                problems.append(f"missing output {port.name}")
+            continue
+        why = _mismatch(port, outs[port.name])
+        if why:
+            problems.append(why)
+    return problems
+
+
+class OnnxModel:
+    """An onnxruntime session whose signature matched one accepted layout.
+
+    Parameters
+    ----------
+    path : str or Path
+        The ONNX file.
+    role : str
+        What the file is for, used in messages (``"sam2.encoder"``).
+    layouts : sequence of Layout
+        Accepted layouts; the first one that matches is used (``.layout``).
+    providers : sequence of str, optional
+        onnxruntime execution providers; default CPU.
+
+    Raises
+    ------
+    FormatError
+        The file is missing, unreadable, not a valid ONNX model, or matches
+        none of the layouts; the message names the file, the expected
+        layout(s) and the found signature.
+    """
+
+    def __init__(self, path, role: str, layouts: Sequence[Layout], providers=None):
+        self.path = Path(path)
+        self.role = role
+        if not self.path.is_file():
+            raise FormatError(f"{self.path}: ONNX file for {role} not found "
+                              "(check the path in the models configuration)")
+        import onnxruntime as ort
+
+        opts = ort.SessionOptions()
+        opts.log_severity_level = 3  # our own messages replace onnxruntime's warnings
+        try:
+            self.session = ort.InferenceSession(
+                str(self.path), opts, providers=list(providers or ["CPUExecutionProvider"]))
+        except Exception as exc:  # onnxruntime raises its own pybind exception types
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise FormatError(f"{self.path}: cannot load the ONNX model for {role}: {first}") from None
+        reports = []
+        for layout in layouts:
+            problems = _check(self.session, layout)
+            if not problems:
+                self.layout = layout
+                break
+            reports.append(f"{layout.describe()} [{'; '.join(problems)}]")
+        else:
+            raise FormatError(
+                f"{self.path}: the ONNX signature does not match {role}; expected "
+                + " or ".join(reports)
+                + f"; found inputs ({format_ports(self.session.get_inputs())}) -> "
+                f"outputs ({format_ports(self.session.get_outputs())})")
+        self._inputs = {a.name: a for a in self.session.get_inputs()}
+        self._outputs = [a.name for a in self.session.get_outputs()]
+
+    def has_input(self, name: str) -> bool:
+        return name in self._inputs
+
+    def has_output(self, name: str) -> bool:
+        return name in self._outputs
+
+    def input_dim(self, name: str, axis: int, default: int | None = None) -> int | None:
+        """Fixed size of ``axis`` of input ``name``, or ``default`` when dynamic."""
+        shape = self._inputs[name].shape
+        if shape is None or axis >= len(shape) or not isinstance(shape[axis], int) or shape[axis] <= 0:
+            return default
+        return int(shape[axis])
+
+    def input_dtype(self, name: str):
+        return _ORT_TO_NUMPY.get(self._inputs[name].type, np.float32)
+
+    def run(self, feeds: Mapping[str, np.ndarray], outputs: Sequence[str] | None = None) -> dict:
+        """Run the model; feeds are cast to the declared dtypes, unknown names dropped.
+
+        Returns a dict of output name -> array. A failure inside onnxruntime
+        (shape mismatch in the graph...) is a FormatError naming the file.
+        """
+        cast = {name: np.ascontiguousarray(np.asarray(v), dtype=self.input_dtype(name))
+                for name, v in feeds.items() if name in self._inputs}
+        missing = [n for n in self._inputs if n not in cast]
+        if missing:
+            raise FormatError(f"{self.path}: {self.role} needs inputs {missing} that this "
+                              "toolkit does not provide; use one of the documented layouts")
+        names = [n for n in (outputs or self._outputs) if n in self._outputs]
+        try:
+            values = self.session.run(names, cast)
+        except Exception as exc:
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            shapes = ", ".join(f"{k}{list(v.shape)}" for k, v in cast.items())
+            raise FormatError(f"{self.path}: {self.role} failed at run time with inputs "
+                              f"({shapes}): {first}") from None
+        return dict(zip(names, values))

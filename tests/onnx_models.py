@@ -1,0 +1,213 @@
+"""Tiny ONNX models with the signatures of the supported exports, built in the test run.
+
+Nothing here comes from a real export: every graph is a few deterministic
+ops (average pools, a box-distance mask, token lookups) whose outputs the
+tests can predict by hand, with the same input/output names, ranks and
+dtypes as the real files (dynamic axes where the real ones have them).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import onnx
+from onnx import TensorProto, helper, numpy_helper
+
+F32, I64, I32, BOOL, U8 = (TensorProto.FLOAT, TensorProto.INT64, TensorProto.INT32,
+                           TensorProto.BOOL, TensorProto.UINT8)
+
+# SAM2 tiny geometry: encoder input S, low-res masks S/4.
+S = 64
+LOW = S // 4
+IOU = np.array([[0.5, 0.9, 0.7]], np.float32)   # multimask scores: mask 1 (eroded) wins
+ERODE = 4.0                                      # mask 1 = box eroded by 4 encoder pixels
+
+
+def vi(name, dtype, shape):
+    return helper.make_tensor_value_info(name, dtype, shape)
+
+
+def const(name, array):
+    return numpy_helper.from_array(np.asarray(array), name)
+
+
+def save(path, nodes, inputs, outputs, inits=(), opset=17) -> Path:
+    graph = helper.make_graph(list(nodes), Path(path).stem, list(inputs), list(outputs), list(inits))
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", opset)])
+    model.ir_version = 8
+    onnx.checker.check_model(model)
+    onnx.save(model, str(path))
+    return Path(path)
+
+
+def pool(src, dst, k):
+    return helper.make_node("AveragePool", [src], [dst], kernel_shape=[k, k], strides=[k, k])
+
+
+def _grid(n, step):
+    """Pixel-centre coordinates of an n x n low-res grid in encoder pixels."""
+    c = (np.arange(n, dtype=np.float32) + 0.5) * step
+    return np.broadcast_to(c[None, :], (n, n))[None, None].copy(), np.broadcast_to(c[:, None], (n, n))[None, None].copy()
+
+
+def box_distance_nodes(coords, prefix=""):
+    """Nodes computing d = min(X - x0, x1 - X, Y - y0, y1 - Y) on the LOW grid.
+
+    Box corners are points 0 and 1 of ``coords`` (L, P, 2); output ``{prefix}d``
+    has shape (L, 1, LOW, LOW).
+    """
+    p = prefix
+    xg, yg = _grid(LOW, S / LOW)
+    inits = [const(p + "xg", xg), const(p + "yg", yg), const(p + "i0", np.array(0, np.int64)),
+             const(p + "i1", np.array(1, np.int64)), const(p + "shp", np.array([-1, 1, 1, 1], np.int64))]
+    nodes = [
+        helper.make_node("Gather", [coords, p + "i0"], [p + "p0"], axis=1),
+        helper.make_node("Gather", [coords, p + "i1"], [p + "p1"], axis=1),
+    ]
+    for corner, pt in (("0", "p0"), ("1", "p1")):
+        for ax, axis_idx in (("x", "i0"), ("y", "i1")):
+            nodes.append(helper.make_node("Gather", [p + pt, p + axis_idx], [p + ax + corner + "f"], axis=1))
+            nodes.append(helper.make_node("Reshape", [p + ax + corner + "f", p + "shp"], [p + ax + corner]))
+    nodes += [
+        helper.make_node("Sub", [p + "xg", p + "x0"], [p + "dx0"]),
+        helper.make_node("Sub", [p + "x1", p + "xg"], [p + "dx1"]),
+        helper.make_node("Sub", [p + "yg", p + "y0"], [p + "dy0"]),
+        helper.make_node("Sub", [p + "y1", p + "yg"], [p + "dy1"]),
+        helper.make_node("Min", [p + "dx0", p + "dx1", p + "dy0", p + "dy1"], [p + "d"]),
+    ]
+    return nodes, inits
+
+
+def sam2_encoder(path, layout="samexporter", size=S):
+    names = (["high_res_feats_0", "high_res_feats_1", "image_embed"] if layout == "samexporter"
+             else ["image_features_0", "image_features_1", "image_embeddings"])
+    nodes = [pool("image", names[0], 4), pool("image", names[1], 8), pool("image", names[2], 16)]
+    return save(path, nodes, [vi("image", F32, [1, 3, size, size])],
+                [vi(names[0], F32, [1, 3, size // 4, size // 4]), vi(names[1], F32, [1, 3, size // 8, size // 8]),
+                 vi(names[2], F32, [1, 3, size // 16, size // 16])])
+
+
+def _multimask_nodes(d):
+    inits = [const("erode", np.array(ERODE, np.float32))]
+    nodes = [helper.make_node("Sub", [d, "erode"], ["d_er"]),
+             helper.make_node("Add", [d, "erode"], ["d_di"]),
+             helper.make_node("Concat", [d, "d_er", "d_di"], ["low"], axis=1)]
+    return nodes, inits
+
+
+def sam2_decoder(path, layout="samexporter", with_orig=False, label_type=F32, scores_name="iou_predictions"):
+    """SAM2 decoder whose masks are box distances: [d, d - 4, d + 4], IoU [.5, .9, .7]."""
+    n1, i1 = box_distance_nodes("point_coords")
+    n2, i2 = _multimask_nodes("d")
+    inits = i1 + i2 + [const("iou", IOU)]
+    if layout == "samexporter":
+        inputs = [vi("image_embed", F32, [1, 3, 4, 4]), vi("high_res_feats_0", F32, [1, 3, 16, 16]),
+                  vi("high_res_feats_1", F32, [1, 3, 8, 8]), vi("point_coords", F32, ["L", "P", 2]),
+                  vi("point_labels", label_type, ["L", "P"]), vi("mask_input", F32, ["L", 1, LOW, LOW]),
+                  vi("has_mask_input", F32, ["L"])]
+        if with_orig:
+            inputs.append(vi("orig_im_size", F32, [2]))
+        nodes = n1 + n2 + [helper.make_node("Identity", ["low"], ["masks"]),
+                           helper.make_node("Identity", ["iou"], [scores_name])]
+        outputs = [vi("masks", F32, ["L", 3, LOW, LOW]), vi(scores_name, F32, ["L", 3])]
+    else:
+        inputs = [vi("image_features_0", F32, [1, 3, 16, 16]), vi("image_features_1", F32, [1, 3, 8, 8]),
+                  vi("image_embeddings", F32, [1, 3, 4, 4]), vi("point_coords", F32, ["L", "P", 2]),
+                  vi("point_labels", I32, ["L", "P"]), vi("input_masks", F32, ["L", 1, LOW, LOW]),
+                  vi("has_input_masks", F32, ["L"]), vi("original_image_size", I32, [2])]
+        inits += [const("s0", np.array([0], np.int64)), const("s2", np.array([2], np.int64))]
+        nodes = n1 + n2 + [
+            helper.make_node("Shape", ["low"], ["lowshape"]),
+            helper.make_node("Slice", ["lowshape", "s0", "s2"], ["lm"]),
+            helper.make_node("Cast", ["original_image_size"], ["hw"], to=I64),
+            helper.make_node("Concat", ["lm", "hw"], ["sizes"], axis=0),
+            helper.make_node("Resize", ["low", "", "", "sizes"], ["big"], mode="linear",
+                             coordinate_transformation_mode="half_pixel"),
+            helper.make_node("Constant", [], ["zero"], value=numpy_helper.from_array(np.array(0, np.float32))),
+            helper.make_node("Greater", ["big", "zero"], ["masks"]),
+            helper.make_node("Identity", ["iou"], ["iou_predictions"]),
+            helper.make_node("Identity", ["low"], ["low_res_masks"]),
+        ]
+        outputs = [vi("masks", BOOL, ["L", 3, "H", "W"]), vi("iou_predictions", F32, ["L", 3]),
+                   vi("low_res_masks", F32, ["L", 3, LOW, LOW])]
+    return save(path, nodes, inputs, outputs, inits)
+
+
+# ---------------------------------------------------------------- SAM2 video
+# Encoder: pools of the image; decoder: "red pixels" mask (10 x normalised red).
+def video_encoder(path):
+    inits = [const("shp", np.array([1, 3, 16], np.int64)), const("zero", np.array(0, np.float32))]
+    nodes = [pool("input", "image_embeddings", 16), pool("input", "high_res_features1", 4),
+             pool("input", "high_res_features2", 8),
+             helper.make_node("Identity", ["image_embeddings"], ["current_vision_feat"]),
+             helper.make_node("Reshape", ["image_embeddings", "shp"], ["flat"]),
+             helper.make_node("Transpose", ["flat"], ["tr"], perm=[2, 0, 1]),
+             helper.make_node("Mul", ["tr", "zero"], ["vision_pos_embed"])]
+    return save(path, nodes, [vi("input", F32, [1, 3, S, S])],
+                [vi("image_embeddings", F32, [1, 3, 4, 4]), vi("high_res_features1", F32, [1, 3, 16, 16]),
+                 vi("high_res_features2", F32, [1, 3, 8, 8]), vi("current_vision_feat", F32, [1, 3, 4, 4]),
+                 vi("vision_pos_embed", F32, [16, 1, 3])], inits)
+
+
+def video_decoder(path):
+    inits = [const("st", np.array([0], np.int64)), const("en", np.array([1], np.int64)),
+             const("ax", np.array([1], np.int64)), const("ten", np.array(10, np.float32)),
+             const("msz", np.array([1, 1, S, S], np.int64)), const("twenty", np.array(20, np.float32)),
+             const("mten", np.array(-10, np.float32))]
+    nodes = [helper.make_node("Slice", ["high_res_feats_0", "st", "en", "ax"], ["red"]),
+             helper.make_node("Mul", ["red", "ten"], ["pred_mask"]),
+             helper.make_node("Resize", ["pred_mask", "", "", "msz"], ["hi"], mode="linear"),
+             helper.make_node("Sigmoid", ["hi"], ["sg"]),
+             helper.make_node("Mul", ["sg", "twenty"], ["sg20"]),
+             helper.make_node("Add", ["sg20", "mten"], ["mask_for_mem"]),
+             helper.make_node("ReduceMean", ["image_embed"], ["obj_ptr"], keepdims=0)]
+    return save(path, nodes,
+                [vi("point_coords", F32, ["L", "P", 2]), vi("point_labels", F32, ["L", "P"]),
+                 vi("image_embed", F32, [1, 3, 4, 4]), vi("high_res_feats_0", F32, [1, 3, 16, 16]),
+                 vi("high_res_feats_1", F32, [1, 3, 8, 8])],
+                [vi("obj_ptr", F32, []), vi("mask_for_mem", F32, [1, 1, S, S]),
+                 vi("pred_mask", F32, [1, 1, LOW, LOW])], inits)
+
+
+def video_attention(path):
+    """fused_feat = current_vision_feat; the graph still reshapes memory_pos_embed
+    to (F, 16, 1, C) with F from memory_1, so a bank whose two tensors disagree fails."""
+    inits = [const("s0", np.array([0], np.int64)), const("s1", np.array([1], np.int64)),
+             const("rest", np.array([16, 1, -1], np.int64)), const("zero", np.array(0, np.float32))]
+    nodes = [helper.make_node("Shape", ["memory_1"], ["m1s"]),
+             helper.make_node("Slice", ["m1s", "s0", "s1"], ["nf"]),
+             helper.make_node("Concat", ["nf", "rest"], ["tshape"], axis=0),
+             helper.make_node("Reshape", ["memory_pos_embed", "tshape"], ["mp4"]),
+             helper.make_node("ReduceSum", ["mp4"], ["mps"], keepdims=0),
+             helper.make_node("ReduceSum", ["memory_1"], ["m1sum"], keepdims=0),
+             helper.make_node("ReduceSum", ["memory_0"], ["m0sum"], keepdims=0),
+             helper.make_node("Add", ["mps", "m1sum"], ["s_a"]),
+             helper.make_node("Add", ["s_a", "m0sum"], ["s_b"]),
+             helper.make_node("Mul", ["s_b", "zero"], ["z"]),
+             helper.make_node("Add", ["current_vision_feat", "z"], ["fused_feat"])]
+    return save(path, nodes,
+                [vi("current_vision_feat", F32, [1, 3, 4, 4]), vi("current_vision_pos_embed", F32, [16, 1, 3]),
+                 vi("memory_0", F32, ["n_ptr", 3]), vi("memory_1", F32, ["n_mem", 1, 4, 4]),
+                 vi("memory_pos_embed", F32, ["buff", 1, 1])], [vi("fused_feat", F32, [1, 3, 4, 4])], inits)
+
+
+def video_memory_encoder(path, n_mem=7):
+    inits = [const("shp", np.array([1, 1, 16], np.int64)), const("zero", np.array(0, np.float32)),
+             const("code", np.arange(n_mem, dtype=np.float32).reshape(n_mem, 1, 1, 1))]
+    nodes = [pool("mask_for_mem", "maskmem_features", 16),
+             helper.make_node("Reshape", ["maskmem_features", "shp"], ["flat"]),
+             helper.make_node("Transpose", ["flat"], ["tr"], perm=[2, 0, 1]),
+             helper.make_node("Mul", ["tr", "zero"], ["maskmem_pos_enc"]),
+             helper.make_node("Identity", ["code"], ["temporal_code"])]
+    return save(path, nodes, [vi("mask_for_mem", F32, [1, 1, S, S]), vi("pix_feat", F32, [1, 3, 4, 4])],
+                [vi("maskmem_features", F32, [1, 1, 4, 4]), vi("maskmem_pos_enc", F32, [16, 1, 1]),
+                 vi("temporal_code", F32, [n_mem, 1, 1, 1])], inits)
+
+
+def video_set(tmp):
+    tmp = Path(tmp)
+    return dict(image_encoder=video_encoder(tmp / "image_encoder.onnx"),
+                image_decoder=video_decoder(tmp / "image_decoder.onnx"),
+                memory_attention=video_attention(tmp / "memory_attention.onnx"),
+                memory_encoder=video_memory_encoder(tmp / "memory_encoder.onnx"))
