@@ -1,0 +1,309 @@
+"""Prompts that need no model: masks, boxes and clicks in the reference view.
+
+A prompt turns the rendered reference canvas into the seed mask ``m*`` of
+Algorithm 1. Three kinds work without any learned model:
+
+``MaskPrompt``
+    the mask itself, as an array or an image file (non-zero = object).
+``BoxPrompt``
+    a box ``x0, y0, x1, y1`` in pixels (exclusive max, like ``Candidate.box``),
+    turned into a mask with OpenCV GrabCut on the rendered reference.
+``PointPrompt``
+    positive/negative clicks, turned into a mask with GrabCut started from a
+    colour- and depth-consistent region grown around the positive clicks.
+
+``TextPrompt`` needs a grounding model (``Grounder``); without one,
+:func:`seed_mask_from_prompt` fails with a message listing the model-free
+alternatives. Plain strings are read as text prompts.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..errors import FormatError, ValidationError
+from .base import Candidate
+
+__all__ = ["MaskPrompt", "BoxPrompt", "PointPrompt", "TextPrompt", "as_prompt",
+           "seed_mask_from_prompt", "TEXT_NEEDS_GROUNDER"]
+
+TEXT_NEEDS_GROUNDER = (
+    "a text prompt needs a grounding model (configure one with --models FILE or "
+    "extract(..., grounder=...)); without models use a mask, box or point prompt "
+    "(--mask PNG, --box X0 Y0 X1 Y1, --point X Y)")
+
+
+def _to_uint8(image: np.ndarray) -> np.ndarray:
+    img = np.asarray(image, dtype=np.float32)
+    if img.ndim != 3 or img.shape[2] != 3:
+        raise ValidationError(f"reference image must be (H, W, 3) RGB, got shape {img.shape}")
+    # OpenCV works on BGR uint8; GrabCut's colour models only see relative colours.
+    return np.ascontiguousarray((np.clip(np.nan_to_num(img), 0, 1) * 255 + 0.5).astype(np.uint8)[..., ::-1])
+
+
+def _grabcut(image: np.ndarray, init: np.ndarray, iterations: int) -> np.ndarray:
+    """GrabCut from a label image of cv2.GC_{BGD,FGD,PR_BGD,PR_FGD}; returns bool fg."""
+    import cv2
+
+    labels = np.ascontiguousarray(init.astype(np.uint8))
+    fg_any = np.isin(labels, (cv2.GC_FGD, cv2.GC_PR_FGD)).any()
+    bg_any = np.isin(labels, (cv2.GC_BGD, cv2.GC_PR_BGD)).any()
+    if not (fg_any and bg_any):
+        # GrabCut needs samples of both colour models; without background
+        # samples the initial labelling is the only evidence there is.
+        return np.isin(labels, (cv2.GC_FGD, cv2.GC_PR_FGD))
+    bgd = np.zeros((1, 65), np.float64)
+    fgd = np.zeros((1, 65), np.float64)
+    cv2.grabCut(_to_uint8(image), labels, None, bgd, fgd, int(iterations), cv2.GC_INIT_WITH_MASK)
+    return np.isin(labels, (cv2.GC_FGD, cv2.GC_PR_FGD))
+
+
+@dataclass
+class MaskPrompt:
+    """The seed mask given directly.
+
+    Parameters
+    ----------
+    mask : (H, W) array or str or os.PathLike
+        Boolean/numeric array (values > 0.5 are the object) or an image file
+        (PNG/JPEG...; a pixel is the object when its grey value exceeds 127,
+        or, for images with an alpha channel, when its alpha does).
+    """
+
+    mask: Any
+
+    def to_mask(self, image: np.ndarray, **_) -> np.ndarray:
+        h, w = np.asarray(image).shape[:2]
+        if isinstance(self.mask, (str, os.PathLike)):
+            arr = read_mask_image(self.mask)
+            name = f"mask file {os.fspath(self.mask)}"
+        else:
+            arr = np.asarray(self.mask)
+            name = "mask"
+            if arr.dtype.kind not in "biuf":
+                raise ValidationError(f"{name} must be a boolean or numeric array, got dtype {arr.dtype}")
+            arr = np.nan_to_num(arr.astype(np.float64), nan=0.0) > 0.5
+        if arr.shape != (h, w):
+            raise ValidationError(
+                f"{name} has shape {arr.shape} but the reference view is {h}x{w} (H, W); "
+                f"draw the mask at the reference camera's resolution")
+        if not arr.any():
+            raise ValidationError(f"{name} is empty: mark the object with non-zero pixels")
+        return arr
+
+
+def read_mask_image(path) -> np.ndarray:
+    """Read a mask image: (H, W) bool, alpha channel if present, else grey > 127."""
+    import cv2
+
+    p = os.fspath(path)
+    if not os.path.isfile(p):
+        raise FileNotFoundError(2, "No such file", p)
+    img = cv2.imread(p, cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise FormatError(f"mask file {p}: not an image OpenCV can read (use PNG)")
+    if img.ndim == 3 and img.shape[2] == 4:
+        img = img[..., 3]
+    elif img.ndim == 3:
+        img = img.max(axis=2)
+    scale = 65535 if img.dtype == np.uint16 else 255
+    return img.astype(np.float64) / scale > 0.5
+
+
+@dataclass
+class BoxPrompt:
+    """A box ``(x0, y0, x1, y1)`` in pixels, exclusive max, turned into a mask by GrabCut.
+
+    The box is clipped to the image. Pixels outside it are background;
+    inside, GrabCut (``iterations`` rounds) separates the object from what
+    the box also covers. Where the reference rendering is transparent
+    (alpha < ``alpha_min``) there is nothing to select, so those pixels are
+    fixed to background.
+    """
+
+    box: Sequence[float]
+    iterations: int = 5
+    alpha_min: float = 0.05
+
+    def to_mask(self, image: np.ndarray, alpha: np.ndarray | None = None, **_) -> np.ndarray:
+        import cv2
+
+        h, w = np.asarray(image).shape[:2]
+        b = np.asarray(self.box, dtype=np.float64)
+        if b.shape != (4,) or not np.all(np.isfinite(b)):
+            raise ValidationError(f"box must be 4 finite numbers x0 y0 x1 y1, got {self.box!r}")
+        x0, y0, x1, y1 = b
+        if x1 <= x0 or y1 <= y0:
+            raise ValidationError(f"box {b.tolist()} is empty: need x0 < x1 and y0 < y1")
+        ix0, iy0 = int(np.clip(np.floor(x0), 0, w)), int(np.clip(np.floor(y0), 0, h))
+        ix1, iy1 = int(np.clip(np.ceil(x1), 0, w)), int(np.clip(np.ceil(y1), 0, h))
+        if ix1 - ix0 < 2 or iy1 - iy0 < 2:
+            raise ValidationError(
+                f"box {b.tolist()} lies outside the {w}x{h} reference image (or covers < 2 px); "
+                f"give pixel coordinates inside the image")
+        init = np.full((h, w), cv2.GC_BGD, np.uint8)
+        init[iy0:iy1, ix0:ix1] = cv2.GC_PR_FGD
+        if alpha is not None:
+            init[np.asarray(alpha) < self.alpha_min] = cv2.GC_BGD
+        mask = _grabcut(image, init, self.iterations)
+        if not mask.any():
+            raise ValidationError(f"box {b.tolist()} selects nothing visible in the reference view")
+        return mask
+
+
+@dataclass
+class PointPrompt:
+    """Clicks ``(x, y)`` in pixels with labels 1 (object) or 0 (not the object).
+
+    Turned into a mask without a model: the pixels reachable from a positive
+    click without crossing a colour edge (flood fill with tolerance
+    ``color_tol`` on the RGB canvas) or a depth jump (relative depth change
+    above ``depth_tol`` between neighbours) form the probable object; the
+    pixels reachable from negative clicks and transparent pixels are
+    background; GrabCut then refines the result. Discs of ``radius`` pixels
+    around the clicks are fixed to their label.
+    """
+
+    points: Sequence[Sequence[float]]
+    labels: Sequence[int] | None = None
+    color_tol: float = 0.08
+    depth_tol: float = 0.03
+    radius: int = 3
+    iterations: int = 5
+    alpha_min: float = 0.05
+
+    def _checked(self, h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
+        pts = np.asarray(self.points, dtype=np.float64).reshape(-1, 2) if len(self.points) else np.zeros((0, 2))
+        if pts.shape[0] == 0 or not np.all(np.isfinite(pts)):
+            raise ValidationError("point prompt needs at least one finite click (x, y)")
+        labels = np.ones(len(pts), int) if self.labels is None else np.asarray(self.labels, dtype=int).ravel()
+        if labels.shape != (len(pts),) or not np.all(np.isin(labels, (0, 1))):
+            raise ValidationError(f"point labels must be 0/1, one per click; got {self.labels!r}")
+        if not labels.any():
+            raise ValidationError("point prompt needs at least one positive click (label 1)")
+        outside = (pts[:, 0] < 0) | (pts[:, 0] >= w) | (pts[:, 1] < 0) | (pts[:, 1] >= h)
+        if outside.any():
+            raise ValidationError(
+                f"click {pts[np.argmax(outside)].tolist()} is outside the {w}x{h} reference image")
+        return pts.astype(int), labels
+
+    def to_mask(self, image: np.ndarray, depth: np.ndarray | None = None,
+                alpha: np.ndarray | None = None, **_) -> np.ndarray:
+        import cv2
+
+        img = np.asarray(image, dtype=np.float32)
+        h, w = img.shape[:2]
+        pts, labels = self._checked(h, w)
+        solid = np.ones((h, w), bool) if alpha is None else np.asarray(alpha) >= self.alpha_min
+        # Edges that stop the region growing: depth jumps between 4-neighbours.
+        barrier = ~solid
+        if depth is not None:
+            d = np.where(solid, np.asarray(depth, np.float64), np.nan)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                gx = np.abs(np.diff(d, axis=1)) / np.minimum(d[:, 1:], d[:, :-1])
+                gy = np.abs(np.diff(d, axis=0)) / np.minimum(d[1:, :], d[:-1, :])
+            jump = np.zeros((h, w), bool)
+            jump[:, 1:] |= gx > self.depth_tol
+            jump[1:, :] |= gy > self.depth_tol
+            barrier |= jump
+        u8 = _to_uint8(img)
+        tol = int(round(self.color_tol * 255))
+
+        def grow(x, y):
+            ff = np.zeros((h + 2, w + 2), np.uint8)
+            ff[1:-1, 1:-1] = barrier
+            flags = 4 | cv2.FLOODFILL_MASK_ONLY | cv2.FLOODFILL_FIXED_RANGE | (2 << 8)
+            cv2.floodFill(u8.copy(), ff, (int(x), int(y)), (0, 0, 0), (tol,) * 3, (tol,) * 3, flags)
+            return ff[1:-1, 1:-1] == 2
+
+        pos = np.zeros((h, w), bool)
+        neg = np.zeros((h, w), bool)
+        for (x, y), lab in zip(pts, labels):
+            if lab == 1 and not barrier[y, x]:
+                pos |= grow(x, y)
+            elif lab == 0 and not barrier[y, x]:
+                neg |= grow(x, y)
+        init = np.full((h, w), cv2.GC_PR_BGD, np.uint8)
+        init[pos & ~neg] = cv2.GC_PR_FGD
+        init[neg | ~solid] = cv2.GC_BGD
+        yy, xx = np.mgrid[0:h, 0:w]
+        for (x, y), lab in zip(pts, labels):
+            disc = (xx - x) ** 2 + (yy - y) ** 2 <= self.radius ** 2
+            init[disc] = cv2.GC_FGD if lab == 1 else cv2.GC_BGD
+        mask = _grabcut(img, init, self.iterations)
+        if not mask.any():
+            raise ValidationError("point prompt selects nothing visible in the reference view")
+        return mask
+
+
+@dataclass
+class TextPrompt:
+    """An open-vocabulary description; needs a :class:`~seed2gs_inverse.frontend.base.Grounder`."""
+
+    text: str
+    info: dict = field(default_factory=dict)
+
+
+def as_prompt(prompt) -> Any:
+    """Normalise a user prompt: strings become ``TextPrompt``, arrays ``MaskPrompt``."""
+    if isinstance(prompt, (MaskPrompt, BoxPrompt, PointPrompt, TextPrompt)):
+        return prompt
+    if isinstance(prompt, str):
+        if not prompt.strip():
+            raise ValidationError("text prompt is empty")
+        return TextPrompt(prompt)
+    if isinstance(prompt, np.ndarray):
+        return MaskPrompt(prompt)
+    raise ValidationError(
+        f"prompt must be a MaskPrompt, BoxPrompt, PointPrompt, TextPrompt, a mask array or a "
+        f"string, got {type(prompt).__name__}")
+
+
+def seed_mask_from_prompt(prompt, image: np.ndarray, depth: np.ndarray | None = None,
+                          alpha: np.ndarray | None = None, grounder=None) -> tuple[np.ndarray, dict]:
+    """The seed mask ``m*`` of a prompt on the rendered reference canvas.
+
+    Parameters
+    ----------
+    prompt : MaskPrompt, BoxPrompt, PointPrompt, TextPrompt, str or (H, W) array
+    image : (H, W, 3) float32 RGB in [0, 1], the reference rendering.
+    depth, alpha : (H, W) float32, optional
+        Rendered expected depth and alpha; used by box and point prompts.
+    grounder : Grounder, optional
+        Required for text prompts. Its candidates are ranked by ``score`` and
+        the best becomes the seed (a QD-SAM3 selector returns the Eq. 3 total
+        as ``score``).
+
+    Returns
+    -------
+    mask : (H, W) bool
+    info : dict
+        ``kind`` and, for grounded prompts, every candidate's source, score,
+        box and info, best first.
+    """
+    prompt = as_prompt(prompt)
+    if isinstance(prompt, TextPrompt):
+        if grounder is None:
+            raise ValidationError(TEXT_NEEDS_GROUNDER)
+        cands = list(grounder.ground(np.asarray(image, np.float32), prompt.text))
+        if not cands:
+            raise ValidationError(f"the grounder found no candidate for the prompt {prompt.text!r}; "
+                                  f"try another wording or a box/point prompt")
+        for c in cands:
+            if not isinstance(c, Candidate):
+                raise ValidationError(f"grounder returned {type(c).__name__}, expected Candidate")
+        order = sorted(range(len(cands)), key=lambda k: -float(cands[k].score))
+        best = cands[order[0]]
+        mask = MaskPrompt(np.asarray(best.mask, bool)).to_mask(image)
+        info = {"kind": "text", "text": prompt.text, "candidates": [
+            {"source": cands[k].source, "score": float(cands[k].score),
+             "box": None if cands[k].box is None else np.asarray(cands[k].box, float).tolist(),
+             "info": {a: b for a, b in cands[k].info.items() if isinstance(b, (int, float, str, bool))}}
+            for k in order]}
+        return mask, info
+    kind = type(prompt).__name__.replace("Prompt", "").lower()
+    return prompt.to_mask(image, depth=depth, alpha=alpha), {"kind": kind}
