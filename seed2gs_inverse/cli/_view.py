@@ -1,0 +1,135 @@
+"""``seed2gs view``: look at a scene and a membership with pyvista."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ValidationError
+
+__all__ = ["register"]
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "view", help="show a scene's Gaussians coloured by membership (pyvista)",
+        description="Show the Gaussians of SCENE as points or ellipsoids, coloured by a "
+                    "membership q (a .npy of N values in [0, 1]) or by their own colour. "
+                    "Opens a window, or writes a PNG with --screenshot (required when there "
+                    "is no display; rendering is then off-screen through EGL).")
+    p.add_argument("scene", metavar="SCENE", help="scene file (.ply, .splat, .spz, .compressed.ply)")
+    p.add_argument("--membership", metavar="Q.npy", help="per-Gaussian membership, shape (N,), in [0, 1]")
+    p.add_argument("--threshold", type=float, default=None, metavar="T",
+                   help="show only Gaussians with q > T (needs --membership)")
+    p.add_argument("--mode", choices=("points", "ellipsoids"), default="points",
+                   help="points (all Gaussians) or ellipsoid glyphs (capped by --max-glyphs)")
+    p.add_argument("--max-glyphs", type=int, default=20000, metavar="N",
+                   help="most ellipsoids to draw; a random subset beyond (default 20000)")
+    p.add_argument("--point-size", type=float, default=3.0, help="point size in pixels (default 3)")
+    p.add_argument("--min-opacity", type=float, default=0.0, metavar="O",
+                   help="hide Gaussians with opacity below O (default 0: show all)")
+    p.add_argument("--camera", metavar="CAMERAS", help="view from a camera of this file "
+                   "(3DGS cameras.json, COLMAP, nerfstudio transforms.json)")
+    p.add_argument("--view", default=None, metavar="NAME|INDEX",
+                   help="which camera of --camera (default: the first)")
+    p.add_argument("--size", default=None, metavar="WxH",
+                   help="window/screenshot size (default: the camera's, else 1024x768)")
+    p.add_argument("--screenshot", metavar="OUT.png", help="write a PNG instead of opening a window")
+    p.set_defaults(func=run)
+
+
+def _read_scene(path):
+    from ..io import read_scene
+
+    return read_scene(path)
+
+
+def _read_cameras(path):
+    from ..io import read_cameras
+
+    return read_cameras(path)
+
+
+def _load_membership(path, n: int) -> np.ndarray:
+    try:
+        q = np.load(path, allow_pickle=False)
+    except ValueError as exc:
+        raise ValidationError(f"--membership {path}: not a plain .npy array ({exc})") from None
+    if not isinstance(q, np.ndarray):
+        raise ValidationError(f"--membership {path}: expected a .npy array, got an archive")
+    if q.ndim != 1 or q.shape[0] != n:
+        raise ValidationError(f"--membership {path} has shape {q.shape}; the scene has {n} Gaussians, "
+                              f"so it must have shape ({n},)")
+    if q.dtype.kind not in "biuf":
+        raise ValidationError(f"--membership {path} has dtype {q.dtype}; expected numbers")
+    q = q.astype(np.float64)
+    if not np.all(np.isfinite(q)) or q.min() < 0 or q.max() > 1:
+        raise ValidationError(f"--membership {path}: values must be finite and in [0, 1]")
+    return q
+
+
+def _pick_camera(cams, which):
+    if not cams:
+        raise ValidationError("--camera: the file holds no cameras")
+    if which is None:
+        return cams[0]
+    for cam in cams:
+        if cam.name == which:
+            return cam
+    if which.lstrip("-").isdigit() and -len(cams) <= int(which) < len(cams):
+        return cams[int(which)]
+    names = ", ".join(repr(c.name) for c in cams[:10])
+    raise ValidationError(f"--view {which!r}: no such camera name or index; "
+                          f"{len(cams)} cameras: {names}{', ...' if len(cams) > 10 else ''}")
+
+
+def _parse_size(text):
+    if text is None:
+        return None
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise ValidationError(f"--size {text!r}: expected WIDTHxHEIGHT, e.g. 800x600") from None
+    if w <= 0 or h <= 0 or w > 8192 or h > 8192:
+        raise ValidationError(f"--size {text!r}: width and height must be in 1..8192")
+    return (w, h)
+
+
+def run(args) -> int:
+    from ..viz import has_display, membership_plot
+
+    if args.threshold is not None and args.membership is None:
+        raise ValidationError("--threshold needs --membership")
+    if args.view is not None and args.camera is None:
+        raise ValidationError("--view needs --camera")
+    if args.screenshot is None and not has_display():
+        raise ValidationError("no display to open a window on; pass --screenshot OUT.png")
+    if args.screenshot is not None and Path(args.screenshot).suffix.lower() != ".png":
+        raise ValidationError(f"--screenshot {args.screenshot}: the file name must end in .png")
+    size = _parse_size(args.size)
+    scene = _read_scene(args.scene)
+    q = None if args.membership is None else _load_membership(args.membership, len(scene))
+    camera = None if args.camera is None else _pick_camera(_read_cameras(args.camera), args.view)
+    kw = dict(mode=args.mode, threshold=args.threshold, camera=camera, max_glyphs=args.max_glyphs,
+              point_size=args.point_size, min_opacity=args.min_opacity, window_size=size)
+    if args.screenshot is None:
+        membership_plot(scene, q, off_screen=False, **kw).show()
+        return 0
+    out = Path(args.screenshot)
+    if not out.parent.is_dir():
+        raise ValidationError(f"--screenshot {out}: directory {out.parent} does not exist")
+    # Render to a temporary file beside the target, so a failure leaves nothing behind.
+    fd, tmp = tempfile.mkstemp(prefix=f".{out.stem}-", suffix=".png", dir=out.parent)
+    os.close(fd)
+    try:
+        img = membership_plot(scene, q, screenshot=tmp, off_screen=True, **kw)
+        os.replace(tmp, out)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    shown = "all" if q is None or args.threshold is None else int(np.sum(q > args.threshold))
+    print(f"wrote {out} ({img.shape[1]}x{img.shape[0]}, {len(scene)} Gaussians, shown: {shown})")
+    return 0
