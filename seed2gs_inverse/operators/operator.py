@@ -507,7 +507,12 @@ def _load_view(d: Path, mpath: Path, i: int, entry, n: int, mmap: bool) -> ViewO
 
 
 def _make_rendering(arrays: dict):
-    """A ``Rendering`` from saved arrays (imported lazily: render.py imports this module)."""
+    """A ``Rendering`` from saved arrays, or a plain dict when some are missing.
+
+    ``Rendering`` is imported lazily because render.py imports this module.
+    """
+    if set(arrays) != set(_RENDER_FIELDS):
+        return dict(arrays)
     from .render import Rendering  # noqa: PLC0415
 
-    return Rendering(**{k: np.asarray(v) for k, v in arrays.items()})
+    return Rendering(**arrays)

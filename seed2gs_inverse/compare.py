@@ -1,0 +1,242 @@
+"""Side-by-side comparison of inverse solvers on one operator stack.
+
+``compare`` fits every method on the same training views and scores it
+against ground-truth Gaussian labels:
+
+* 2D, on held-out views (never used for fitting): the exported object
+  ``s = q > threshold`` is rendered through each held-out operator and
+  thresholded, ``(W s) > render_threshold`` (default 0.5, the opacity at
+  which a pixel counts as object), and compared with the truth mask
+  ``(W t) > 0.5`` of the labels ``t`` by :func:`~seed2gs_inverse.metrics.iou`
+  and :func:`~seed2gs_inverse.metrics.boundary_iou`; mIoU / mBIoU are the
+  means over the held-out views (one scene, one target in the LERF-Mask
+  averaging).
+* 3D: precision, recall and IoU of the selection against the labels, also
+  weighted by visibility (each Gaussian's summed weight over all views).
+* cost: solve seconds, iterations, and peak memory of the solve
+  (``tracemalloc``, which sees NumPy/SciPy array allocations).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import tracemalloc
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from .errors import ValidationError
+from .metrics import boundary_iou, iou, membership_scores
+from .operators.operator import OperatorStack, ViewOperator
+from .solvers import available_methods, solve
+
+__all__ = ["compare", "Comparison", "holdout_views", "COLUMNS"]
+
+COLUMNS = ("method", "miou", "mbiou", "precision", "recall", "iou3d", "weighted_precision", "weighted_recall",
+           "weighted_iou3d", "n_selected", "seconds", "iterations", "peak_mb")
+
+
+def holdout_views(n_views: int, every: int | None) -> np.ndarray:
+    """Indices of held-out views: every ``every``-th view (``every-1, 2 every-1, ...``).
+
+    ``None`` or 0 holds nothing out.
+    """
+    if not every:
+        return np.zeros(0, dtype=np.int64)
+    if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 2:
+        raise ValidationError(f"holdout_every must be an integer >= 2 (or 0 for none), got {every!r}")
+    return np.arange(every - 1, n_views, every, dtype=np.int64)
+
+
+@dataclass
+class Comparison:
+    """The result of :func:`compare`.
+
+    Attributes
+    ----------
+    rows : list of dict
+        One row per method with the keys of ``COLUMNS``.
+    per_view : dict
+        method -> {"iou": [...], "biou": [...]} over the held-out views.
+    holdout : list of int
+        Held-out view indices (empty: scores are on the fitting views).
+    results : dict
+        method -> SolveResult.
+    """
+
+    rows: list
+    per_view: dict
+    holdout: list
+    results: dict = field(default_factory=dict)
+
+    def format(self) -> str:
+        """A fixed-width text table."""
+        head = ["method", "mIoU", "mBIoU", "P3d", "R3d", "IoU3d", "wIoU3d", "selected", "seconds", "iters",
+                "peak MB"]
+        keys = ["method", "miou", "mbiou", "precision", "recall", "iou3d", "weighted_iou3d", "n_selected",
+                "seconds", "iterations", "peak_mb"]
+        lines = [head]
+        for r in self.rows:
+            cells = []
+            for k in keys:
+                v = r[k]
+                if isinstance(v, float):
+                    cells.append("nan" if not np.isfinite(v) else (f"{v:.4f}" if k not in ("seconds", "peak_mb")
+                                                                  else f"{v:.3f}" if k == "seconds" else f"{v:.1f}"))
+                else:
+                    cells.append(str(v))
+            lines.append(cells)
+        widths = [max(len(line[i]) for line in lines) for i in range(len(head))]
+        out = ["  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(line, widths)))
+               for line in lines]
+        where = f"{len(self.holdout)} held-out views" if self.holdout else "the fitting views (none held out)"
+        return "\n".join(out) + f"\n2D scores on {where}."
+
+    def to_csv(self) -> str:
+        buf = io.StringIO()
+        w = csv.DictWriter(buf, fieldnames=list(COLUMNS), lineterminator="\n")
+        w.writeheader()
+        for r in self.rows:
+            w.writerow({k: r[k] for k in COLUMNS})
+        return buf.getvalue()
+
+    def to_json(self) -> str:
+        return json.dumps({"holdout": self.holdout, "rows": self.rows, "per_view": self.per_view}, indent=1)
+
+    def plot(self, path) -> None:
+        """Bar chart of mIoU, mBIoU and 3D IoU per method (PNG)."""
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        names = [r["method"] for r in self.rows]
+        metrics = [("miou", "2D mIoU"), ("mbiou", "2D mBIoU"), ("iou3d", "3D IoU")]
+        x = np.arange(len(names))
+        fig, ax = plt.subplots(figsize=(1.6 + 1.5 * len(names), 3.4))
+        width = 0.8 / len(metrics)
+        for j, (key, label) in enumerate(metrics):
+            ax.bar(x + (j - 1) * width, [r[key] for r in self.rows], width, label=label)
+        ax.set_xticks(x, names)
+        ax.set_ylim(0, 1.05)
+        ax.set_ylabel("score")
+        ax.legend(loc="lower right", fontsize=8)
+        ax.set_title("solver comparison")
+        fig.tight_layout()
+        fig.savefig(path, format="png", dpi=100)
+        plt.close(fig)
+
+
+def _as_stack(operators, masks) -> OperatorStack:
+    if isinstance(operators, OperatorStack):
+        return operators
+    try:
+        items = list(operators)
+        mlist = list(masks)
+    except TypeError:
+        raise ValidationError("operators and masks must be sequences (or an OperatorStack)") from None
+    views = []
+    for i, v in enumerate(items):
+        if isinstance(v, ViewOperator):
+            views.append(v)
+        elif sp.issparse(v):
+            shape = np.shape(mlist[i]) if i < len(mlist) else ()
+            if len(shape) != 2:
+                raise ValidationError(f"view {i}: a bare sparse operator needs a 2-D mask to give its image shape")
+            views.append(ViewOperator(sp.csr_matrix(v, dtype=np.float32), None, shape))
+        else:
+            raise ValidationError(f"view {i}: expected a ViewOperator or a scipy.sparse matrix, got {type(v).__name__}")
+    return OperatorStack(views)
+
+
+def compare(operators, masks, truth, methods=None, holdout_every: int | None = 4, holdout=None, init=None,
+            options=None, threshold: float | None = None, render_threshold: float = 0.5) -> Comparison:
+    """Fit several solvers on the same views and score them against ground truth.
+
+    Parameters
+    ----------
+    operators : OperatorStack or sequence of ViewOperator / sparse matrices
+    masks : sequence of (H, W) masks, one per view (what the solvers fit)
+    truth : (N,) bool
+        Ground-truth object membership.
+    methods : sequence of str, optional
+        Default: all :func:`~seed2gs_inverse.solvers.available_methods`.
+    holdout_every : int or None, default 4
+        Hold out every k-th view from fitting (see :func:`holdout_views`).
+    holdout : sequence of int, optional
+        Explicit held-out view indices (overrides ``holdout_every``).
+    init : optional
+        Passed to every solver.
+    options : dict, optional
+        method -> dict of that method's options.
+    threshold : float, optional
+        Selection threshold; default each result's own (0.5, or voting's bias threshold).
+    render_threshold : float, default 0.5
+        Opacity above which a rendered pixel of the selection counts as object.
+
+    Returns
+    -------
+    Comparison
+    """
+    stack = _as_stack(operators, masks)
+    masks = list(masks)
+    V, N = len(stack), stack.n_gaussians
+    if len(masks) != V:
+        raise ValidationError(f"got {len(masks)} masks for {V} views; give one mask per view")
+    t = np.asarray(truth)
+    if t.dtype != bool or t.shape != (N,):
+        raise ValidationError(f"truth must be a bool array of shape ({N},), got {t.dtype} {t.shape}")
+    methods = list(available_methods() if methods is None else methods)
+    if not methods:
+        raise ValidationError("methods: give at least one method")
+    for m in methods:
+        if m not in available_methods():
+            raise ValidationError(f"unknown method {m!r}; available: {', '.join(available_methods())}")
+    options = dict(options or {})
+    if holdout is None:
+        held = holdout_views(V, holdout_every)
+    else:
+        held = np.unique(np.asarray(holdout, dtype=np.int64).reshape(-1))
+        if held.size and (held.min() < 0 or held.max() >= V):
+            raise ValidationError(f"holdout indices must lie in [0, {V})")
+    train = np.setdiff1d(np.arange(V), held)
+    if train.size == 0:
+        raise ValidationError("every view is held out; keep at least one view for fitting")
+    fit_stack = stack.subset(train)
+    fit_masks = [masks[i] for i in train]
+    # Stack once outside the timed/traced solves, so no method pays for it.
+    fit_stack.stacked()
+    fit_stack.stacked_transpose()
+    eval_idx = held if held.size else train
+    tf = t.astype(np.float32)
+    truth_masks = [stack[i].matvec(tf) > 0.5 for i in eval_idx]
+    # How much each Gaussian is seen, over all views (W^T 1 summed).
+    visibility = sum(np.asarray(v.W.T @ np.ones(v.n_pixels, np.float32), dtype=np.float64) for v in stack)
+    rows, per_view, results = [], {}, {}
+    for m in methods:
+        tracemalloc.start()
+        try:
+            res = solve(fit_stack, fit_masks, method=m, init=init, **options.get(m, {}))
+            _, peak = tracemalloc.get_traced_memory()
+        finally:
+            tracemalloc.stop()
+        sel = res.selected(threshold)
+        sf = sel.astype(np.float32)
+        ious, bious = [], []
+        for k, i in enumerate(eval_idx):
+            pred = stack[i].matvec(sf) > render_threshold
+            ious.append(iou(pred, truth_masks[k]))
+            bious.append(boundary_iou(pred, truth_masks[k]))
+        s3 = membership_scores(sel, t, weights=visibility)
+        rows.append({"method": m, "miou": float(np.mean(ious)), "mbiou": float(np.mean(bious)),
+                     "precision": s3["precision"], "recall": s3["recall"], "iou3d": s3["iou"],
+                     "weighted_precision": s3["weighted_precision"], "weighted_recall": s3["weighted_recall"],
+                     "weighted_iou3d": s3["weighted_iou"], "n_selected": int(sel.sum()),
+                     "seconds": float(res.seconds), "iterations": int(res.iterations),
+                     "peak_mb": peak / 2**20})
+        per_view[m] = {"views": [int(i) for i in eval_idx], "iou": ious, "biou": bious}
+        results[m] = res
+    return Comparison(rows=rows, per_view=per_view, holdout=[int(i) for i in held], results=results)

@@ -1,0 +1,79 @@
+"""Inverse solvers: recover per-Gaussian foreground probabilities from masks.
+
+Every method solves the same problem: given fixed per-view operators
+``W(c)`` (pixels x N) and target masks ``Y(c)``, find ``q in [0, 1]^N`` with
+``W(c) q ~ Y(c)`` in every view. One call, interchangeable methods::
+
+    result = solve(operators, masks, method="weighted_bce", init=None, **options)
+
+Methods (one module each, equations in their docstrings):
+
+``voting``          FlashSplat's closed-form vote.
+``beta_bernoulli``  B3-Seg's Beta posterior, optional information-gain view order.
+``weighted_bce``    Seed2GS reliability-weighted BCE on logits (L-BFGS-B).
+``least_squares``   box-constrained least squares, the classical baseline.
+
+New methods register themselves with :func:`register_method`.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ._common import (Problem, SolveResult, available_methods, check_options, get_method, prepare,
+                      register_method)
+from . import beta_bernoulli, least_squares, voting, weighted_bce  # noqa: F401  (they register)
+
+__all__ = ["solve", "available_methods", "register_method", "SolveResult", "Problem", "prepare"]
+
+
+def solve(operators, masks, method: str = "weighted_bce", init=None, **options) -> SolveResult:
+    """Recover per-Gaussian foreground probabilities ``q`` from per-view masks.
+
+    Parameters
+    ----------
+    operators : OperatorStack or sequence of ViewOperator / scipy.sparse matrices
+        One operator per view, each (H*W, N) with the same N. Bare sparse
+        matrices take their image shape from the mask.
+    masks : sequence of arrays
+        One mask per view with the view's image shape (H, W): floats in
+        [0, 1] with NaN for unknown pixels, bool, or uint8 0/255.
+    method : str
+        One of :func:`available_methods`.
+    init : None, bool (N,), int indices, or float (N,) in [0, 1]
+        Prior: a support set (e.g. the seed lift's G0) or a prior ``q``.
+        Gaussians no view sees keep it (default 0); ``weighted_bce`` also
+        starts from it.
+    **options
+        Method options; see each method's documentation.
+
+    Returns
+    -------
+    SolveResult
+        ``q`` (N,) float32 in [0, 1] and the solve's diagnostics.
+
+    Raises
+    ------
+    ValidationError
+        Bad operators, masks, init or options (messages name the view).
+    """
+    fn = get_method(method)
+    check_options(method, fn, options)
+    t0 = time.perf_counter()
+    problem = prepare(operators, masks, init)
+    out = fn(problem, **options)
+    q = np.asarray(out["q"], dtype=np.float64).reshape(-1)
+    if q.shape != (problem.n_gaussians,) or not np.all(np.isfinite(q)):
+        raise RuntimeError(f"method '{method}' returned an invalid q (shape {q.shape})")
+    # A method that ignores some views (a view budget) reports what it did see.
+    observed = np.asarray(out.get("observed", problem.observed), dtype=bool)
+    unobserved = ~observed
+    q = np.where(unobserved, problem.prior, np.clip(q, 0.0, 1.0)).astype(np.float32)
+    weights = out.get("view_weights")
+    weights = np.ones(problem.n_views) if weights is None else np.asarray(weights, dtype=np.float64)
+    return SolveResult(q=q, method=method, iterations=int(out.get("iterations", 0)),
+                       history=list(out.get("history", [])), view_weights=weights, unobserved=unobserved,
+                       seconds=time.perf_counter() - t0, threshold=float(out.get("threshold", 0.5)),
+                       info=dict(out.get("info", {})))

@@ -1,0 +1,333 @@
+"""Shared machinery of the solvers: input validation, the stacked problem, results.
+
+Solvers see only operators and masks (never the rasterizer). ``prepare``
+turns an :class:`~seed2gs_inverse.operators.operator.OperatorStack` (or a list
+of views / sparse matrices) and one mask per view into a :class:`Problem`: the
+views stacked into one CSR matrix ``A`` (rows = all pixels of all views) and
+its transpose, the flattened masks and which pixels are known.
+"""
+
+from __future__ import annotations
+
+import inspect
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..errors import ValidationError
+
+__all__ = ["Problem", "SolveResult", "prepare", "normalize_mask", "prior_from_init",
+           "register_method", "available_methods", "get_method"]
+
+_METHODS: dict = {}
+
+
+def register_method(name: str, fn) -> None:
+    """Make ``fn`` available as ``solve(..., method=name)``.
+
+    ``fn(problem, **options) -> dict`` receives a :class:`Problem` and the
+    method's keyword options (each with a documented default) and returns a
+    dict with key ``"q"`` ((N,) values in [0, 1]; entries of unobserved
+    Gaussians are overwritten by the prior) and optionally ``"iterations"``,
+    ``"history"``, ``"view_weights"``, ``"threshold"``, ``"info"`` and
+    ``"observed"`` ((N,) bool, when the method used fewer views than given).
+    """
+    if not isinstance(name, str) or not name.isidentifier():
+        raise ValidationError(f"method name must be an identifier string, got {name!r}")
+    if not callable(fn):
+        raise ValidationError(f"method '{name}': fn must be callable")
+    _METHODS[name] = fn
+
+
+def available_methods() -> list:
+    """Names of the registered solver methods, sorted."""
+    return sorted(_METHODS)
+
+
+def get_method(name: str):
+    if name not in _METHODS:
+        raise ValidationError(f"unknown method {name!r}; available: {', '.join(available_methods())}")
+    return _METHODS[name]
+
+
+def check_options(name: str, fn, options: dict) -> None:
+    """Reject options the method does not take, listing those it does."""
+    params = inspect.signature(fn).parameters
+    if any(p.kind == p.VAR_KEYWORD for p in params.values()):
+        return
+    known = [k for k, p in params.items() if p.kind == p.KEYWORD_ONLY]
+    bad = sorted(set(options) - set(known))
+    if bad:
+        raise ValidationError(f"method '{name}' has no option(s) {bad}; its options are {known}")
+
+
+@dataclass
+class SolveResult:
+    """What a solver returns.
+
+    Attributes
+    ----------
+    q : (N,) float32
+        Per-Gaussian foreground probability in [0, 1].
+    method : str
+    iterations : int
+        Solver iterations (0 for closed forms; views absorbed for sequential
+        Beta-Bernoulli; L-BFGS-B iterations for weighted_bce).
+    history : list of dict
+        Per-iteration (or per-step) records, method specific.
+    view_weights : (V,) float64
+        Final weight of each view (ones for methods that do not weight views).
+    unobserved : (N,) bool
+        Gaussians with no weight on any known pixel; their ``q`` is the prior.
+    seconds : float
+        Wall-clock time of the solve.
+    threshold : float
+        Default threshold of :meth:`selected` (0.5 unless the method says
+        otherwise, e.g. voting with a bias).
+    info : dict
+        Method-specific extras (e.g. the chosen view order).
+    """
+
+    q: np.ndarray
+    method: str
+    iterations: int = 0
+    history: list = field(default_factory=list)
+    view_weights: np.ndarray | None = None
+    unobserved: np.ndarray | None = None
+    seconds: float = 0.0
+    threshold: float = 0.5
+    info: dict = field(default_factory=dict)
+
+    def selected(self, threshold: float | None = None) -> np.ndarray:
+        """Bool (N,): ``q > threshold`` (default: ``self.threshold``)."""
+        t = self.threshold if threshold is None else float(threshold)
+        if not np.isfinite(t):
+            raise ValidationError(f"threshold must be finite, got {threshold!r}")
+        return self.q > t
+
+    def __repr__(self) -> str:
+        return (f"SolveResult(method={self.method!r}, n={self.q.size}, selected={int(self.selected().sum())}, "
+                f"iterations={self.iterations}, seconds={self.seconds:.3f})")
+
+
+@dataclass(eq=False)
+class Problem:
+    """The stacked inverse problem ``A q ~ y`` over all views.
+
+    Attributes
+    ----------
+    A : csr_matrix (P, N) float32
+        All views' operators stacked vertically (P = total pixels).
+    AT : csr_matrix (N, P) float32
+        ``A.T`` in CSR, so adjoints run row-parallel.
+    y : (P,) float32
+        Masks, flattened view after view; 0 at unknown pixels.
+    known : (P,) bool
+        False where the mask is NaN (no evidence).
+    offsets : (V+1,) int64
+        View ``c`` is rows ``offsets[c]:offsets[c+1]``.
+    image_shapes : list of (H, W)
+    names : list of str
+        View labels for messages (``view 3 ('orbit_03')``).
+    observed : (N,) bool
+        Gaussians with nonzero weight on at least one known pixel.
+    prior : (N,) float64
+        Prior ``q`` (from ``init``); the value of unobserved Gaussians.
+    init_given : bool
+        Whether the caller passed ``init``.
+    """
+
+    A: sp.csr_matrix
+    AT: sp.csr_matrix
+    y: np.ndarray
+    known: np.ndarray
+    offsets: np.ndarray
+    image_shapes: list
+    names: list
+    observed: np.ndarray
+    prior: np.ndarray
+    init_given: bool = False
+    _alpha: np.ndarray | None = None
+
+    @property
+    def n_views(self) -> int:
+        return len(self.image_shapes)
+
+    @property
+    def n_gaussians(self) -> int:
+        return int(self.A.shape[1])
+
+    @property
+    def alpha(self) -> np.ndarray:
+        """(P,) float32 rendered opacity ``A 1`` (row sums), computed once."""
+        if self._alpha is None:
+            self._alpha = np.asarray(self.A.sum(axis=1), dtype=np.float32).ravel()
+        return self._alpha
+
+    def view_of_rows(self) -> np.ndarray:
+        """(P,) int: view index of each row."""
+        return np.repeat(np.arange(self.n_views), np.diff(self.offsets))
+
+    def per_view_sum(self, values) -> np.ndarray:
+        """Sum a per-pixel (P,) array within each view -> (V,) float64."""
+        return np.add.reduceat(np.asarray(values, dtype=np.float64), self.offsets[:-1])
+
+    def view_rows(self, c: int) -> slice:
+        return slice(int(self.offsets[c]), int(self.offsets[c + 1]))
+
+
+def _label(i: int, name: str) -> str:
+    return f"view {i}" + (f" ('{name}')" if name else "")
+
+
+def normalize_mask(mask, image_shape, label: str) -> np.ndarray:
+    """One view's mask as float32 in [0, 1] with NaN for unknown pixels.
+
+    Accepted: bool; uint8 0/255 (divided by 255 when any value exceeds 1) or
+    0/1; other integers 0/1; floats in [0, 1] or NaN. Shape must be the view's
+    ``(H, W)`` (or the flat ``(H*W,)``).
+    """
+    m = np.asarray(mask)
+    h, w = image_shape
+    if m.shape not in ((h, w), (h * w,)):
+        raise ValidationError(f"{label}: mask has shape {m.shape} but the operator's image is {(h, w)}")
+    if m.dtype == bool:
+        out = m.astype(np.float32)
+    elif m.dtype.kind in "ui":
+        if m.dtype == np.uint8 and m.size and int(m.max()) > 1:
+            out = m.astype(np.float32) / np.float32(255.0)
+        else:
+            if m.size and (int(m.min()) < 0 or int(m.max()) > 1):
+                raise ValidationError(f"{label}: integer mask values must be 0/1 (or 0/255 as uint8), "
+                                      f"got range [{int(m.min())}, {int(m.max())}]")
+            out = m.astype(np.float32)
+    elif m.dtype.kind == "f":
+        out = m.astype(np.float32)
+        fin = out[~np.isnan(out)]
+        if np.any(np.isinf(fin)):
+            raise ValidationError(f"{label}: mask has infinite values; use values in [0, 1] or NaN for unknown")
+        if fin.size and (float(fin.min()) < 0 or float(fin.max()) > 1):
+            raise ValidationError(f"{label}: mask values must lie in [0, 1] (NaN = unknown), got range "
+                                  f"[{float(fin.min()):.4g}, {float(fin.max()):.4g}]")
+    else:
+        raise ValidationError(f"{label}: mask dtype {m.dtype} is not supported; use bool, uint8 or float")
+    out = out.reshape(-1)
+    if out.size and np.all(np.isnan(out)):
+        raise ValidationError(f"{label}: mask is entirely NaN (no known pixel); drop the view or give a mask")
+    return out
+
+
+def _views_of(operators):
+    """(list of sparse matrices, list of image shapes or None, names, stack or None)."""
+    from ..operators.operator import OperatorStack, ViewOperator
+
+    if isinstance(operators, OperatorStack):
+        return [v.W for v in operators], operators.image_shapes, [v.name for v in operators], operators
+    if isinstance(operators, ViewOperator) or sp.issparse(operators):
+        raise ValidationError("operators must be an OperatorStack or a sequence of views, "
+                              "not a single operator; wrap it in a list")
+    try:
+        items = list(operators)
+    except TypeError:
+        raise ValidationError(f"operators must be an OperatorStack or a sequence of ViewOperator / "
+                              f"sparse matrices, got {type(operators).__name__}") from None
+    mats, shapes, names = [], [], []
+    for i, v in enumerate(items):
+        if isinstance(v, ViewOperator):
+            mats.append(v.W)
+            shapes.append(v.image_shape)
+            names.append(v.name)
+        elif sp.issparse(v):
+            if v.ndim != 2:
+                raise ValidationError(f"view {i}: operator must be 2-D, got shape {v.shape}")
+            mats.append(v)
+            shapes.append(None)
+            names.append("")
+        else:
+            raise ValidationError(f"view {i}: expected a ViewOperator or a scipy.sparse matrix, "
+                                  f"got {type(v).__name__}")
+    return mats, shapes, names, None
+
+
+def prior_from_init(init, n: int) -> np.ndarray:
+    """The prior ``q0`` (N,) float64 from ``init``.
+
+    ``None`` -> zeros; a bool (N,) support set -> 1 on the support, 0
+    elsewhere; an integer index array -> support given by indices; a float
+    (N,) array in [0, 1] -> used as is.
+    """
+    if init is None:
+        return np.zeros(n)
+    a = np.asarray(init)
+    if a.dtype == bool:
+        if a.shape != (n,):
+            raise ValidationError(f"init: a support mask must have shape ({n},), got {a.shape}")
+        return a.astype(np.float64)
+    if a.dtype.kind in "ui":
+        a = a.reshape(-1)
+        if a.size and (int(a.min()) < 0 or int(a.max()) >= n):
+            raise ValidationError(f"init: support indices must lie in [0, {n}), got range "
+                                  f"[{int(a.min())}, {int(a.max())}]")
+        out = np.zeros(n)
+        out[a] = 1.0
+        return out
+    if a.dtype.kind == "f":
+        if a.shape != (n,):
+            raise ValidationError(f"init: a prior q must have shape ({n},), got {a.shape}")
+        if not np.all(np.isfinite(a)) or a.min() < 0 or a.max() > 1:
+            raise ValidationError("init: prior q must be finite and lie in [0, 1]")
+        return a.astype(np.float64)
+    raise ValidationError(f"init must be None, a bool support mask, indices or a float prior, got dtype {a.dtype}")
+
+
+def prepare(operators, masks, init=None) -> Problem:
+    """Validate operators and masks and stack them into a :class:`Problem`.
+
+    Raises
+    ------
+    ValidationError
+        Empty stack, mismatched Gaussian counts (operators of different
+        scenes), a mask whose shape differs from its view's image, masks of
+        the wrong dtype/range, an all-NaN mask, or a mask count different
+        from the view count. Messages name the view.
+    """
+    mats, shapes, names, stack = _views_of(operators)
+    if not mats:
+        raise ValidationError("no views: the operator stack is empty")
+    try:
+        mask_list = list(masks) if not isinstance(masks, np.ndarray) or masks.ndim >= 2 else None
+    except TypeError:
+        mask_list = None
+    if mask_list is None:
+        raise ValidationError("masks must be a sequence with one array per view (or a (V, H, W) array)")
+    if len(mask_list) != len(mats):
+        raise ValidationError(f"got {len(mask_list)} masks for {len(mats)} views; give one mask per view")
+    n = int(mats[0].shape[1])
+    for i, W in enumerate(mats):
+        if W.shape[1] != n:
+            raise ValidationError(f"{_label(i, names[i])} has {W.shape[1]} Gaussians (columns) but view 0 has "
+                                  f"{n}: operators from different scenes cannot be combined")
+    ys = []
+    for i, (W, shape, m) in enumerate(zip(mats, shapes, mask_list)):
+        label = _label(i, names[i])
+        if shape is None:
+            ma = np.asarray(m)
+            shape = ma.shape if ma.ndim == 2 else (1, ma.size)
+            if shape[0] * shape[1] != W.shape[0]:
+                raise ValidationError(f"{label}: mask has {ma.size} pixels (shape {ma.shape}) but the operator "
+                                      f"has {W.shape[0]} rows")
+            shapes[i] = tuple(int(s) for s in shape)
+        ys.append(normalize_mask(m, shapes[i], label))
+    y = np.concatenate(ys)
+    known = ~np.isnan(y)
+    y = np.where(known, y, np.float32(0)).astype(np.float32)
+    if stack is not None:
+        A, AT = stack.stacked(), stack.stacked_transpose()
+    else:
+        A = sp.vstack([sp.csr_matrix(W) for W in mats], format="csr").astype(np.float32, copy=False)
+        AT = A.T.tocsr()
+    offsets = np.concatenate([[0], np.cumsum([s[0] * s[1] for s in shapes])]).astype(np.int64)
+    observed = np.asarray(AT @ known.astype(np.float32)).ravel() > 0
+    return Problem(A=A, AT=AT, y=y, known=known, offsets=offsets, image_shapes=list(shapes), names=names,
+                   observed=observed, prior=prior_from_init(init, n), init_given=init is not None)

@@ -1,0 +1,245 @@
+"""Reliability-weighted multi-view BCE on membership logits (Seed2GS, Eqs. 6-8).
+
+Each Gaussian gets a logit ``l_i`` with ``q_i = sigmoid(l_i)`` (the box
+constraint for free). View ``c`` renders the soft mask ``P(c) = W(c) q``
+(Eq. 5). The objective (Eq. 7) is
+
+    L(l) = (1/Z) sum_c omega_c sum_{u in K(c)} s_u BCE(Phat_u, Y_u),
+    BCE(p, y) = -(y log p + (1 - y) log(1 - p)),  p clipped to [eps, 1 - eps],
+
+over the known (non-NaN) pixels ``K(c)``, where ``Z = sum_u s_u`` only
+rescales (so tolerances do not depend on the image count).
+
+Low-alpha pixels. ``P_u = (W q)_u <= alpha_u = (W 1)_u``, so a pixel the
+scene covers only partly can never reach ``Y_u = 1``. With
+``normalize=True`` (default) the prediction is the object's share of what
+the pixel shows, ``Phat_u = (W q)_u / alpha_u``, and the pixel counts with
+weight ``s_u = alpha_u``: faint pixels (floaters, edges) weigh little and a
+pixel is fully explained when all Gaussians it shows are foreground.
+``normalize=False`` is the paper's literal Eq. 7, ``Phat = W q`` with
+``s_u = 1``. Either way pixels with ``alpha_u < alpha_min`` are left out:
+they show (almost) nothing, so ``P = 0`` against ``Y = 1`` would add a
+constant to the loss and bias the view residuals without any gradient.
+
+Gradient (chain rule through the clip, float64 elementwise):
+
+    dL/dPhat_u = omega_c s_u / Z * (p_u - Y_u) / (p_u (1 - p_u))   (0 where clipped)
+    dL/dl = q (1 - q) * A^T g,   g_u = dL/dPhat_u / alpha_u (normalize) or dL/dPhat_u,
+
+one pass of ``A`` and one of ``A^T`` per evaluation.
+
+View weights (Eq. 6). ``D_c`` is the running residual of view ``c``, the
+weighted mean BCE of its pixels at the current ``q`` (exponential moving
+average with ``momentum``, re-evaluated after every ``inner_iters``
+L-BFGS-B iterations). With ``m_D = median(D)`` and the robust scale
+``s_D = 1.4826 * median(|D - m_D|)``, floored at ``1e-3 m_D + 1e-9`` so a
+tie of most views does not divide by zero,
+
+    omega_c = Norm[ r_min + (1 - r_min) sigmoid((m_D + s_D - D_c) / (lambda s_D)) ],
+
+with ``Norm`` dividing by the mean (weights average 1). Views that agree
+with the current 3D estimate keep weight near 1; views whose residual sits
+far above the median (occlusion, tracker drift, a wrong identity) fall to
+the floor ``r_min``.
+
+Optimisation: ``scipy.optimize.minimize(method="L-BFGS-B", jac=True)`` over
+the logits of observed Gaussians only, in an outer loop that refreshes the
+weights; it stops when an inner run converges and the weights moved less
+than ``weight_tol``, or after ``max_iter`` L-BFGS-B iterations in total.
+The start is the prior ``q0`` from ``init`` clipped to
+``[init_clip, 1 - init_clip]`` (0.5 where no ``init`` is given), since
+saturated logits have vanishing gradients.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import minimize
+
+from ..errors import ValidationError
+from ._common import Problem, register_method
+
+__all__ = ["weighted_bce", "view_weights", "BCEObjective"]
+
+
+def view_weights(residuals, r_min: float = 0.2, lam: float = 0.5) -> np.ndarray:
+    """Eq. 6: view weights from per-view residuals ``D`` (V,), mean-normalised.
+
+    See the module docstring for the formula and the scale floor.
+    """
+    D = np.asarray(residuals, dtype=np.float64)
+    m = np.median(D)
+    s = max(1.4826 * np.median(np.abs(D - m)), 1e-3 * abs(m) + 1e-9)
+    raw = r_min + (1.0 - r_min) / (1.0 + np.exp(-(m + s - D) / (lam * s)))
+    return raw / raw.mean()
+
+
+class BCEObjective:
+    """The loss of Eq. 7 and its gradient with respect to the logits.
+
+    Works in the dtype of ``A`` for the sparse passes (float32 in the solver,
+    float64 in gradient checks) and float64 elementwise.
+
+    Parameters
+    ----------
+    problem : Problem
+    normalize : bool
+    alpha_min, eps : float
+    """
+
+    def __init__(self, problem: Problem, normalize: bool = True, alpha_min: float = 1e-3, eps: float = 1e-4):
+        self.A, self.AT = problem.A, problem.AT
+        self.dtype = self.A.dtype
+        alpha = problem.alpha.astype(np.float64)
+        use = problem.known & (alpha >= alpha_min)
+        self.alpha = np.where(use, alpha, 1.0)
+        self.s = np.where(use, alpha if normalize else 1.0, 0.0)
+        self.normalize = normalize
+        self.y = problem.y.astype(np.float64)
+        self.eps = eps
+        self.problem = problem
+        self.Z = max(float(self.s.sum()), 1e-30)
+        self.s_view = problem.per_view_sum(self.s)
+        self.pixel_view = problem.view_of_rows()
+
+    def pixel_bce(self, q: np.ndarray) -> tuple:
+        """(BCE per pixel, clipped p, unclipped-mask) at ``q`` (N,)."""
+        P = np.asarray(self.A @ q.astype(self.dtype, copy=False), dtype=np.float64)
+        if self.normalize:
+            P /= self.alpha
+        p = np.clip(P, self.eps, 1.0 - self.eps)
+        bce = -(self.y * np.log(p) + (1.0 - self.y) * np.log1p(-p))
+        inside = (P > self.eps) & (P < 1.0 - self.eps)
+        return bce, p, inside
+
+    def residuals(self, q: np.ndarray) -> np.ndarray:
+        """``D_c``: weighted mean BCE of each view (V,) at ``q``; 0 for a view with no usable pixel."""
+        bce, _, _ = self.pixel_bce(q)
+        num = self.problem.per_view_sum(self.s * bce)
+        return np.divide(num, self.s_view, out=np.zeros_like(num), where=self.s_view > 0)
+
+    def loss_grad_q(self, q: np.ndarray, omega: np.ndarray) -> tuple:
+        """``(L, dL/dq)`` at ``q`` (N,) with view weights ``omega`` (V,)."""
+        bce, p, inside = self.pixel_bce(q)
+        w = omega[self.pixel_view] * self.s / self.Z
+        loss = float(np.sum(w * bce))
+        g = np.where(inside, w * (p - self.y) / (p * (1.0 - p)), 0.0)
+        if self.normalize:
+            g /= self.alpha
+        grad = np.asarray(self.AT @ g.astype(self.dtype), dtype=np.float64)
+        return loss, grad
+
+    def loss_grad_logits(self, logits: np.ndarray, omega: np.ndarray) -> tuple:
+        """``(L, dL/dl)`` for full logits (N,): ``dL/dl = q (1-q) dL/dq``."""
+        q = 1.0 / (1.0 + np.exp(-logits))
+        loss, gq = self.loss_grad_q(q, omega)
+        return loss, q * (1.0 - q) * gq
+
+
+def _logit(p):
+    return np.log(p) - np.log1p(-p)
+
+
+def weighted_bce(problem: Problem, *, r_min: float = 0.2, lam: float = 0.5, momentum: float = 0.5,
+                 reweight: bool = True, normalize: bool = True, alpha_min: float = 1e-3, eps: float = 1e-4,
+                 max_iter: int = 200, inner_iters: int = 20, weight_tol: float = 1e-3, ftol: float = 1e-10,
+                 gtol: float = 1e-9, init_clip: float = 0.1, maxcor: int = 10) -> dict:
+    """Seed2GS reliability-weighted BCE; see the module docstring.
+
+    Parameters
+    ----------
+    problem : Problem
+    r_min : float, default 0.2
+        Weight floor of Eq. 6 (before mean normalisation), in [0, 1].
+    lam : float, default 0.5
+        Temperature ``lambda_tau`` of Eq. 6, > 0.
+    momentum : float, default 0.5
+        Running residual ``D <- momentum D + (1 - momentum) D(q)``, in [0, 1).
+    reweight : bool, default True
+        False fixes all view weights at 1 (the unweighted ablation).
+    normalize : bool, default True
+        Predict ``W q / alpha`` with pixel weights ``alpha`` (True) or the
+        literal ``W q`` (False).
+    alpha_min : float, default 1e-3
+        Pixels with less rendered opacity are ignored.
+    eps : float, default 1e-4
+        Probability clip of the BCE.
+    max_iter : int, default 200
+        Total L-BFGS-B iterations.
+    inner_iters : int, default 20
+        L-BFGS-B iterations between view-weight updates.
+    weight_tol : float, default 1e-3
+        Stop when the weights change less than this (max abs) and the inner
+        run converged.
+    ftol, gtol : float
+        L-BFGS-B tolerances (the loss is a per-pixel mean, O(1)).
+    init_clip : float, default 0.1
+        The starting ``q`` is the prior clipped to ``[init_clip, 1 - init_clip]``.
+    maxcor : int, default 10
+        L-BFGS-B memory.
+
+    Returns
+    -------
+    dict with ``q``, ``iterations``, ``view_weights`` (final omega),
+    ``history`` (one record per outer step: ``loss``, ``iterations``,
+    ``weights``, ``residuals``) and ``info`` (function evaluations,
+    convergence message).
+    """
+    if not 0.0 <= r_min <= 1.0:
+        raise ValidationError(f"weighted_bce: r_min must lie in [0, 1], got {r_min}")
+    if not lam > 0:
+        raise ValidationError(f"weighted_bce: lam must be positive, got {lam}")
+    if not 0.0 <= momentum < 1.0:
+        raise ValidationError(f"weighted_bce: momentum must lie in [0, 1), got {momentum}")
+    if not 0.0 < eps < 0.5:
+        raise ValidationError(f"weighted_bce: eps must lie in (0, 0.5), got {eps}")
+    if not 0.0 < init_clip < 0.5:
+        raise ValidationError(f"weighted_bce: init_clip must lie in (0, 0.5), got {init_clip}")
+    for name, v in (("max_iter", max_iter), ("inner_iters", inner_iters), ("maxcor", maxcor)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+            raise ValidationError(f"weighted_bce: {name} must be a positive integer, got {v!r}")
+    obj = BCEObjective(problem, normalize=normalize, alpha_min=alpha_min, eps=eps)
+    obs = problem.observed
+    V = problem.n_views
+    start = problem.prior if problem.init_given else np.full(problem.n_gaussians, 0.5)
+    logits = _logit(np.clip(start, init_clip, 1.0 - init_clip))
+    # Unobserved Gaussians never change the loss; their logits stay fixed.
+    x = logits[obs].copy()
+    nfev = [0]
+
+    def fun(xo, omega):
+        logits[obs] = xo
+        nfev[0] += 1
+        loss, g = obj.loss_grad_logits(logits, omega)
+        return loss, g[obs]
+
+    def q_of(xo):
+        logits[obs] = xo
+        return 1.0 / (1.0 + np.exp(-logits))
+
+    D = obj.residuals(q_of(x))
+    omega = view_weights(D, r_min, lam) if reweight else np.ones(V)
+    history, total, message = [], 0, ""
+    for _ in range(max_iter):  # outer steps; each runs >= 1 iteration unless already optimal
+        if total >= max_iter:
+            break
+        n_inner = min(inner_iters, max_iter - total)
+        res = minimize(fun, x, args=(omega,), jac=True, method="L-BFGS-B",
+                       options={"maxiter": n_inner, "ftol": ftol, "gtol": gtol, "maxcor": maxcor})
+        x = res.x
+        total += int(res.nit)
+        message = str(res.message)
+        converged = res.status == 0 and res.nit < n_inner
+        D = momentum * D + (1.0 - momentum) * obj.residuals(q_of(x))
+        new_omega = view_weights(D, r_min, lam) if reweight else omega
+        change = float(np.max(np.abs(new_omega - omega)))
+        history.append({"loss": float(res.fun), "iterations": int(res.nit), "weights": new_omega.tolist(),
+                        "residuals": D.tolist(), "weight_change": change})
+        omega = new_omega
+        if (converged or res.nit == 0) and change < weight_tol:
+            break
+    return {"q": q_of(x), "iterations": total, "view_weights": omega, "history": history,
+            "info": {"function_evaluations": nfev[0], "message": message, "outer_steps": len(history)}}
+
+
+register_method("weighted_bce", weighted_bce)
