@@ -211,3 +211,82 @@ def video_set(tmp):
                 image_decoder=video_decoder(tmp / "image_decoder.onnx"),
                 memory_attention=video_attention(tmp / "memory_attention.onnx"),
                 memory_encoder=video_memory_encoder(tmp / "memory_encoder.onnx"))
+
+
+# ---------------------------------------------------------------- tokenizers
+BERT_VOCAB = ["[PAD]", "[UNK]", "[CLS]", "[SEP]", ".", "the", "red", "chair", "run", "##ning",
+              "dog", "cafe", "table", "?", "left", "of", "##s"]
+
+
+def bert_tokenizer_json(path):
+    import json
+    data = {"version": "1.0", "normalizer": {"type": "BertNormalizer", "lowercase": True},
+            "model": {"type": "WordPiece", "unk_token": "[UNK]", "continuing_subword_prefix": "##",
+                      "max_input_chars_per_word": 100,
+                      "vocab": {t: i for i, t in enumerate(BERT_VOCAB)}}}
+    Path(path).write_text(json.dumps(data))
+    return Path(path)
+
+
+CLIP_VOCAB = ["!", "a", "c", "d", "e", "h", "i", "r", "a</w>", "d</w>", "r</w>", "ch", "cha", "chai",
+              "chair</w>", "re", "red</w>", "ai", "t", "l", "b", "e</w>", "ta", "tab", "tabl", "table</w>",
+              "<|startoftext|>", "<|endoftext|>"]
+CLIP_MERGES = ["c h", "ch a", "cha i", "chai r</w>", "r e", "re d</w>", "a i", "t a", "ta b",
+               "tab l", "tabl e</w>"]
+
+
+def clip_tokenizer_json(path):
+    import json
+    vocab = {t: i for i, t in enumerate(CLIP_VOCAB[:-2])}
+    data = {"version": "1.0", "model": {"type": "BPE", "vocab": vocab, "merges": CLIP_MERGES,
+                                        "end_of_word_suffix": "</w>", "unk_token": "<|endoftext|>"},
+            "added_tokens": [{"id": len(CLIP_VOCAB) - 2, "content": "<|startoftext|>"},
+                             {"id": len(CLIP_VOCAB) - 1, "content": "<|endoftext|>"}]}
+    Path(path).write_text(json.dumps(data))
+    return Path(path)
+
+
+# ---------------------------------------------------------------- GroundingDINO
+GDINO_BOXES = np.array([[[0.25, 0.5, 0.2, 0.4], [0.75, 0.5, 0.3, 0.6]]], np.float32)
+
+
+def _token_hit_nodes(ids, token_ids, out, prefix="t"):
+    """out (1, len(token_ids), L) = +10 where ids == token_ids[k] else -10."""
+    nodes, inits, rows = [], [const(prefix + "twenty", np.array(20, np.float32)),
+                              const(prefix + "ten", np.array(10, np.float32))], []
+    for k, tid in enumerate(token_ids):
+        inits.append(const(f"{prefix}id{k}", np.array(tid, np.int64)))
+        nodes += [helper.make_node("Equal", [ids, f"{prefix}id{k}"], [f"{prefix}eq{k}"]),
+                  helper.make_node("Cast", [f"{prefix}eq{k}"], [f"{prefix}f{k}"], to=F32),
+                  helper.make_node("Mul", [f"{prefix}f{k}", prefix + "twenty"], [f"{prefix}m{k}"]),
+                  helper.make_node("Sub", [f"{prefix}m{k}", prefix + "ten"], [f"{prefix}r{k}"])]
+        rows.append(f"{prefix}r{k}")
+    nodes.append(helper.make_node("Concat", rows, [out], axis=0 if len(rows) > 1 else 0))
+    return nodes, inits
+
+
+def grounding_dino(path, chair_id=7, table_id=12):
+    """Query 0 fires on the token 'chair', query 1 on 'table' (logits +-10)."""
+    n, inits = _token_hit_nodes("input_ids", [chair_id, table_id], "hits")  # (2, L)
+    inits += [const("ax0", np.array([0], np.int64)), const("s1", np.array([1], np.int64)),
+              const("s2", np.array([2], np.int64)), const("n256", np.array([256], np.int64)),
+              const("pad0", np.zeros(5, np.int64)), const("mten", np.array(-10, np.float32)),
+              const("boxc", GDINO_BOXES), const("zero", np.array(0, np.float32))]
+    n += [helper.make_node("Unsqueeze", ["hits", "ax0"], ["hits3"]),
+          helper.make_node("Shape", ["input_ids"], ["ishape"]),
+          helper.make_node("Slice", ["ishape", "s1", "s2"], ["L"]),
+          helper.make_node("Sub", ["n256", "L"], ["padlen"]),
+          helper.make_node("Concat", ["pad0", "padlen"], ["pads"], axis=0),
+          helper.make_node("Pad", ["hits3", "pads", "mten"], ["raw"], mode="constant"),
+          helper.make_node("ReduceMean", ["img"], ["imean"], keepdims=0),
+          helper.make_node("Cast", ["text_token_mask"], ["tmf"], to=F32),
+          helper.make_node("ReduceSum", ["tmf"], ["tms"], keepdims=0),
+          helper.make_node("Add", ["imean", "tms"], ["junk"]),
+          helper.make_node("Mul", ["junk", "zero"], ["z"]),
+          helper.make_node("Add", ["raw", "z"], ["logits"]),
+          helper.make_node("Add", ["boxc", "z"], ["boxes"])]
+    return save(path, n,
+                [vi("img", F32, [1, 3, "H", "W"]), vi("input_ids", I64, [1, "L"]),
+                 vi("attention_mask", BOOL, [1, "L"]), vi("position_ids", I64, [1, "L"]),
+                 vi("token_type_ids", I64, [1, "L"]), vi("text_token_mask", BOOL, [1, "L", "L"])],
+                [vi("logits", F32, [1, 2, 256]), vi("boxes", F32, [1, 2, 4])], inits)
