@@ -35,8 +35,6 @@ _C30, _C31, _C32, _C33, _C34, _C35, _C36 = (
     -0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154,
     -0.4570457994644658, 1.445305721320277, -0.5900435899266435)
 
-# Columns of the per-tile gathered Gaussian table used by ``composite``.
-_G_X, _G_Y, _G_A, _G_B, _G_C, _G_O, _G_PMIN, _G_R, _G_G, _G_BL, _G_Z, _G_NCOL = range(12)
 
 
 @njit(cache=True, inline="always")
@@ -241,6 +239,12 @@ def composite(tile_start, tile_gauss, tile_order, means2d, conics, opacities, co
     ``alpha < 1/255``; stop (without adding g) when ``T (1 - alpha) < 1e-4``;
     else weight ``w = alpha T``, accumulate, ``T *= 1 - alpha``.
 
+    The loop is Gaussian-major inside a tile: each Gaussian visits only the
+    tile pixels inside the ellipse where ``o exp(power) >= 1/255`` can hold
+    (its bounding box, with a margin so the exact tests above decide), and a
+    pixel that stopped is skipped. Every pixel still sees its Gaussians in
+    list order, so the result is that of the per-pixel walk.
+
     ``roi`` (H, W) uint8: pixels where it is 0 are not composited (all
     outputs 0). ``n_contrib`` counts all contributors, ``n_kept`` (H*W,)
     those with ``w >= min_weight``. With ``fill`` the kept weights go to
@@ -257,79 +261,96 @@ def composite(tile_start, tile_gauss, tile_order, means2d, conics, opacities, co
         y0 = ty * TILE
         x1 = min(x0 + TILE, width)
         y1 = min(y0 + TILE, height)
-        active = False
+        tw = x1 - x0
+        npix = tw * (y1 - y0)
+        # Per-pixel state of the tile, local index (y - y0) * tw + (x - x0).
+        T = np.ones(npix)
+        acc = np.zeros((npix, 4))  # r, g, b, depth
+        cnt = np.zeros(npix, np.int64)
+        kept = np.zeros(npix, np.int64)
+        cursor = np.zeros(npix, np.int64)
+        done = np.zeros(npix, np.bool_)
+        n_done = 0
         for yy in range(y0, y1):
             for xx in range(x0, x1):
-                if roi[yy, xx]:
-                    active = True
-        if not active:
-            continue
+                lp = (yy - y0) * tw + (xx - x0)
+                if not roi[yy, xx]:
+                    done[lp] = True
+                    n_done += 1
+                elif fill:
+                    cursor[lp] = indptr[yy * width + xx]
         s = tile_start[t]
-        ln = tile_start[t + 1] - s
-        # Gather the tile's Gaussians into one contiguous table: every pixel
-        # of the tile scans it, so locality matters more than the copy.
-        g = np.empty((ln, _G_NCOL))
-        for j in range(ln):
-            gi = tile_gauss[s + j]
+        e = tile_start[t + 1]
+        j = s
+        while j < e and n_done < npix:
+            gi = tile_gauss[j]
+            j += 1
+            mx = means2d[gi, 0]
+            my = means2d[gi, 1]
+            ca = conics[gi, 0]
+            cb = conics[gi, 1]
+            cc = conics[gi, 2]
             o = opacities[gi]
-            g[j, _G_X] = means2d[gi, 0]
-            g[j, _G_Y] = means2d[gi, 1]
-            g[j, _G_A] = conics[gi, 0]
-            g[j, _G_B] = conics[gi, 1]
-            g[j, _G_C] = conics[gi, 2]
-            g[j, _G_O] = o
-            # power below this can never reach alpha >= 1/255: skip exp().
-            # The margin keeps the exact test below authoritative.
-            g[j, _G_PMIN] = math.log(ALPHA_MIN / o) - 1e-6
-            g[j, _G_R] = colors[gi, 0]
-            g[j, _G_G] = colors[gi, 1]
-            g[j, _G_BL] = colors[gi, 2]
-            g[j, _G_Z] = depths[gi]
+            # power can never reach alpha >= 1/255 below this (exp skipped).
+            pmin = math.log(ALPHA_MIN / o) - 1e-6
+            # Bounding box of d^T Q d <= 2 ln(255 o): half-widths
+            # sqrt(k Q^-1_xx), sqrt(k Q^-1_yy); 1e-3 px margin for rounding.
+            kq = max(0.0, -2.0 * pmin) / (ca * cc - cb * cb)
+            hx = math.sqrt(kq * cc) + 1e-3
+            hy = math.sqrt(kq * ca) + 1e-3
+            bx0 = max(x0, int(math.ceil(mx - hx - 0.5)))
+            bx1 = min(x1, int(math.floor(mx + hx - 0.5)) + 1)
+            by0 = max(y0, int(math.ceil(my - hy - 0.5)))
+            by1 = min(y1, int(math.floor(my + hy - 0.5)) + 1)
+            if bx0 >= bx1 or by0 >= by1:
+                continue
+            cr = colors[gi, 0]
+            cg = colors[gi, 1]
+            cbl = colors[gi, 2]
+            z = depths[gi]
+            for yy in range(by0, by1):
+                dy = my - (yy + 0.5)
+                for xx in range(bx0, bx1):
+                    lp = (yy - y0) * tw + (xx - x0)
+                    if done[lp]:
+                        continue
+                    dx = mx - (xx + 0.5)
+                    power = -0.5 * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
+                    if power > 0.0 or power < pmin:
+                        continue
+                    a = min(ALPHA_MAX, o * math.exp(power))
+                    if a < ALPHA_MIN:
+                        continue
+                    tp = T[lp]
+                    nt = tp * (1.0 - a)
+                    if nt < T_MIN:
+                        done[lp] = True
+                        n_done += 1
+                        continue
+                    w = a * tp
+                    acc[lp, 0] += w * cr
+                    acc[lp, 1] += w * cg
+                    acc[lp, 2] += w * cbl
+                    acc[lp, 3] += w * z
+                    cnt[lp] += 1
+                    if w >= min_weight:
+                        if fill:
+                            indices[cursor[lp]] = gi
+                            data[cursor[lp]] = w
+                            cursor[lp] += 1
+                        kept[lp] += 1
+                    T[lp] = nt
         for yy in range(y0, y1):
-            pyc = yy + 0.5
             for xx in range(x0, x1):
                 if not roi[yy, xx]:
                     continue
-                pxc = xx + 0.5
-                pix = yy * width + xx
-                T = 1.0
-                cr = 0.0
-                cg = 0.0
-                cb = 0.0
-                cd = 0.0
-                cnt = 0
-                kept = 0
-                pos = indptr[pix] if fill else 0
-                for j in range(ln):
-                    dx = g[j, _G_X] - pxc
-                    dy = g[j, _G_Y] - pyc
-                    power = -0.5 * (g[j, _G_A] * dx * dx + g[j, _G_C] * dy * dy) - g[j, _G_B] * dx * dy
-                    if power > 0.0 or power < g[j, _G_PMIN]:
-                        continue
-                    a = min(ALPHA_MAX, g[j, _G_O] * math.exp(power))
-                    if a < ALPHA_MIN:
-                        continue
-                    nt = T * (1.0 - a)
-                    if nt < T_MIN:
-                        break
-                    w = a * T
-                    cr += w * g[j, _G_R]
-                    cg += w * g[j, _G_G]
-                    cb += w * g[j, _G_BL]
-                    cd += w * g[j, _G_Z]
-                    cnt += 1
-                    if w >= min_weight:
-                        if fill:
-                            indices[pos] = tile_gauss[s + j]
-                            data[pos] = w
-                            pos += 1
-                        kept += 1
-                    T = nt
-                al = 1.0 - T
-                rgb[yy, xx, 0] = cr + T * background[0]
-                rgb[yy, xx, 1] = cg + T * background[1]
-                rgb[yy, xx, 2] = cb + T * background[2]
+                lp = (yy - y0) * tw + (xx - x0)
+                tp = T[lp]
+                al = 1.0 - tp
+                rgb[yy, xx, 0] = acc[lp, 0] + tp * background[0]
+                rgb[yy, xx, 1] = acc[lp, 1] + tp * background[1]
+                rgb[yy, xx, 2] = acc[lp, 2] + tp * background[2]
                 alpha[yy, xx] = al
-                depth[yy, xx] = cd / al if cnt > 0 else 0.0
-                n_contrib[yy, xx] = cnt
-                n_kept[pix] = kept
+                depth[yy, xx] = acc[lp, 3] / al if cnt[lp] > 0 else 0.0
+                n_contrib[yy, xx] = cnt[lp]
+                n_kept[yy * width + xx] = kept[lp]

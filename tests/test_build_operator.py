@@ -1,0 +1,155 @@
+"""build_operator(): W(c) entry by entry against the brute-force reference, identities, options."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from render_reference import random_scene, reference_render
+from seed2gs_inverse.camera import Camera
+from seed2gs_inverse.errors import ValidationError
+from seed2gs_inverse.operators.operator import ViewOperator
+from seed2gs_inverse.operators.render import build_operator, project_gaussians, render
+
+
+def _camera(i):
+    if i % 2 == 0:
+        return Camera.look_at([0.2, -0.6, -4.0], [0, 0, 0], [0, -1, 0], 48, 52, 41)
+    base = Camera.look_at([-1.0, 0.3, -3.6], [0, 0.1, 0], [0, -1, 0], 52, 47, 38)
+    return Camera(47, 38, 41.0, 44.0, 25.7, 16.2, base.world_to_camera, near=0.05)
+
+
+@pytest.fixture(scope="module")
+def scene_and_camera():
+    cam = _camera(0)
+    return random_scene(11, n=150, sh_degree=3, cam=cam), cam
+
+
+@pytest.mark.parametrize("seed,mode", [(20, "classic"), (21, "classic"), (22, "antialiased")])
+def test_W_matches_brute_force_entry_by_entry(seed, mode):
+    cam = _camera(seed)
+    scene = random_scene(seed, n=90, cam=cam)
+    rgb, alpha, depth, W_ref = reference_render(scene, cam, mode)
+    op = build_operator(scene, cam, mode=mode)
+    assert isinstance(op, ViewOperator)
+    W = op.W
+    assert W.shape == (cam.height * cam.width, len(scene))
+    dense = W.toarray()
+    # same sparsity pattern, values to float32 rounding
+    np.testing.assert_array_equal(dense != 0, W_ref != 0)
+    np.testing.assert_allclose(dense, W_ref, rtol=1e-6, atol=1e-8)
+    np.testing.assert_allclose(op.rendering.rgb, rgb, atol=1e-5)
+    np.testing.assert_allclose(op.rendering.alpha, alpha, atol=1e-5)
+    np.testing.assert_allclose(op.rendering.depth, depth, atol=1e-5)
+
+
+@pytest.mark.parametrize("i", [0, 1])
+def test_identities_and_dot_test(i, rng):
+    cam = _camera(i)
+    scene = random_scene(30 + i, n=140, cam=cam)
+    op = build_operator(scene, cam)
+    W, r = op.W, op.rendering
+    p = project_gaussians(scene, cam)
+    n = len(scene)
+    np.testing.assert_allclose(W @ np.ones(n, np.float32), r.alpha.ravel(), atol=2e-6)
+    np.testing.assert_allclose(W @ p.colors, r.rgb.reshape(-1, 3), atol=2e-6)
+    np.testing.assert_allclose(W @ p.depths, (r.depth * r.alpha).ravel(), rtol=2e-6, atol=2e-6)
+    # rendering with a background is W @ colors + (1 - W @ 1) * background
+    bg = np.array([0.3, 0.1, 0.7])
+    rb = render(scene, cam, background=bg)
+    np.testing.assert_allclose((W @ p.colors + (1 - W @ np.ones(n))[:, None] * bg).reshape(rb.rgb.shape),
+                               rb.rgb, atol=2e-6)
+    for _ in range(3):
+        x = rng.normal(size=n)
+        y = rng.normal(size=W.shape[0])
+        lhs = np.dot(W @ x, y)
+        rhs = np.dot(x, W.T @ y)
+        assert lhs == pytest.approx(rhs, rel=1e-10, abs=1e-10)
+    assert (W @ np.ones(n)).max() > 0.5
+
+
+def test_csr_layout(scene_and_camera):
+    scene, cam = scene_and_camera
+    op = build_operator(scene, cam)
+    W = op.W
+    assert sp.isspmatrix_csr(W) or W.format == "csr"
+    assert W.dtype == np.float32 and W.indices.dtype == np.int32 and W.indptr.dtype == np.int32
+    W.check_format(full_check=True)
+    assert np.all(W.data > 0) and np.all(W.data <= 0.99 + 1e-7)
+    np.testing.assert_array_equal(np.diff(W.indptr), op.rendering.n_contrib.ravel())
+    # Rows are in depth order; scipy must not assume sorted columns.
+    rows_sorted = all(np.all(np.diff(W.indices[a:b]) > 0) for a, b in zip(W.indptr[:-1], W.indptr[1:]))
+    assert not rows_sorted and not W.has_sorted_indices
+    Ws = W.sorted_indices()
+    np.testing.assert_array_equal(Ws.toarray(), W.toarray())
+    # the operator's camera and shape
+    assert op.camera is cam and op.image_shape == cam.image_shape
+
+
+def test_scale_uses_scaled_camera(scene_and_camera):
+    scene, cam = scene_and_camera
+    op = build_operator(scene, cam, scale=0.5)
+    small = cam.scaled(0.5)
+    assert op.image_shape == small.image_shape and small.width == 26
+    assert op.camera.fx == pytest.approx(small.fx)
+    ref = build_operator(scene, small)
+    np.testing.assert_array_equal(op.W.toarray(), ref.W.toarray())
+    _, alpha, _, W_ref = reference_render(scene, small)
+    np.testing.assert_allclose(op.W.toarray(), W_ref, rtol=1e-6, atol=1e-8)
+
+
+def test_roi_box_and_mask_keep_full_rows(scene_and_camera):
+    scene, cam = scene_and_camera
+    full = build_operator(scene, cam)
+    h, w = cam.image_shape
+    box = (5, 7, 33, 30)  # x0, y0, x1, y1, straddling tile borders
+    inside = np.zeros((h, w), bool)
+    inside[7:30, 5:33] = True
+    mask = np.zeros((h, w), bool)
+    mask[::3, 1::2] = True
+    for roi, sel in ((box, inside), (mask, mask)):
+        op = build_operator(scene, cam, roi=roi)
+        assert op.W.shape == full.W.shape
+        Wd, Fd = op.W.toarray(), full.W.toarray()
+        rows = sel.ravel()
+        np.testing.assert_array_equal(Wd[rows], Fd[rows])
+        assert not Wd[~rows].any() and np.all(np.diff(op.W.indptr).reshape(h, w)[~sel] == 0)
+        np.testing.assert_array_equal(op.rendering.alpha[sel], full.rendering.alpha[sel])
+        assert not op.rendering.alpha[~sel].any()
+        assert op.W.nnz < full.W.nnz
+
+
+def test_min_weight_drops_small_entries_with_bound(scene_and_camera):
+    scene, cam = scene_and_camera
+    full = build_operator(scene, cam)
+    mw = 0.02
+    op = build_operator(scene, cam, min_weight=mw)
+    F, Wd = full.W.toarray(), op.W.toarray()
+    np.testing.assert_array_equal(Wd, np.where(F >= mw, F, 0))
+    assert 0 < op.W.nnz < full.W.nnz
+    dropped = ((F > 0) & (F < mw)).sum(axis=1)
+    gap = op.rendering.alpha.ravel() - Wd.sum(axis=1)
+    assert np.all(gap >= -1e-6) and np.all(gap <= dropped * mw + 1e-6)
+    # the rendering of the pass is unaffected by min_weight
+    np.testing.assert_array_equal(op.rendering.rgb, full.rendering.rgb)
+
+
+def test_bad_arguments(scene_and_camera):
+    scene, cam = scene_and_camera
+    h, w = cam.image_shape
+    for roi in [(0, 0, w + 1, h), (-1, 0, 5, 5), (10, 10, 10, 20), (0, 0, 5), (0.5, 0, 5, 5)]:
+        with pytest.raises(ValidationError, match="roi"):
+            build_operator(scene, cam, roi=roi)
+    with pytest.raises(ValidationError, match="roi mask"):
+        build_operator(scene, cam, roi=np.ones((h + 1, w), bool))
+    with pytest.raises(ValidationError, match="roi mask"):
+        build_operator(scene, cam, roi=np.ones((h, w), np.float32))
+    for scale in (0, -1, float("nan"), "half"):
+        with pytest.raises(ValidationError, match="scale"):
+            build_operator(scene, cam, scale=scale)
+    for mw in (-0.1, 2.0, float("nan"), "x"):
+        with pytest.raises(ValidationError, match="min_weight"):
+            build_operator(scene, cam, min_weight=mw)
+    with pytest.raises(ValidationError, match="empty"):
+        build_operator(scene.subset(np.zeros(len(scene), bool)), cam)
