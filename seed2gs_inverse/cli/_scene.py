@@ -1,0 +1,112 @@
+"""``seed2gs info`` and ``seed2gs convert``: look at and convert scene files."""
+
+from __future__ import annotations
+
+import os
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["register", "info", "convert"]
+
+_CAMERA_FILES = ("cameras.txt", "images.txt", "cameras.bin", "images.bin")
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "info", help="describe a scene or camera file",
+        description="Print a scene file's format, Gaussian count, SH degree, bounds and extra "
+                    "properties, or the cameras of a camera file (.json, COLMAP model).")
+    p.add_argument("file", metavar="FILE",
+                   help="scene (.ply, .compressed.ply, .splat, .spz) or cameras "
+                        "(.json, COLMAP cameras/images file or model directory)")
+    p.add_argument("--drop-nonfinite", action="store_true",
+                   help="drop Gaussians with non-finite values instead of failing")
+    p.set_defaults(func=info)
+
+    p = subparsers.add_parser(
+        "convert", help="convert a scene between formats",
+        description="Read a scene (.ply, .compressed.ply, .splat, .spz) and write it as .ply "
+                    "(lossless, the 3DGS trainer's layout) or .splat (lossy: SH degree 0, 8-bit "
+                    "colour and rotation). The output appears only once it is complete.")
+    p.add_argument("input", metavar="IN", help="input scene file")
+    p.add_argument("output", metavar="OUT", help="output scene file (.ply or .splat)")
+    p.add_argument("--drop-nonfinite", action="store_true",
+                   help="drop Gaussians with non-finite values instead of failing")
+    p.set_defaults(func=convert)
+
+
+def _is_camera_path(path: str) -> bool:
+    p = Path(path)
+    return p.is_dir() or p.suffix.lower() == ".json" or p.name.lower() in _CAMERA_FILES
+
+
+def _print_warnings(command: str, caught) -> None:
+    for w in caught:
+        print(f"seed2gs {command}: warning: {w.message}", file=sys.stderr)
+
+
+def _fmt(v) -> str:
+    return f"{v:.4g}"
+
+
+def scene_summary(path, scene, fmt: str) -> list:
+    """Lines describing a scene file (used by ``seed2gs info``)."""
+    lines = [f"file:        {path}",
+             f"format:      {fmt}",
+             f"size:        {os.path.getsize(path):,} bytes",
+             f"gaussians:   {len(scene):,}",
+             f"sh degree:   {scene.sh_degree}"]
+    if len(scene):
+        lo, hi = scene.bounds()
+        for axis, a, b in zip("xyz", lo, hi):
+            lines.append(f"bounds {axis}:    [{_fmt(a)}, {_fmt(b)}]")
+        op = scene.opacities
+        lines.append(f"opacity:     median {_fmt(np.median(op))}, "
+                     f"{int(np.sum(op < 1 / 255)):,} below 1/255")
+    extras = ", ".join(f"{k} ({v.dtype})" for k, v in scene.extra.items()) or "(none)"
+    lines.append(f"extra:       {extras}")
+    return lines
+
+
+def camera_summary(path, cams) -> list:
+    """Lines describing a camera file (used by ``seed2gs info``)."""
+    lines = [f"file:        {path}", f"cameras:     {len(cams)}"]
+    for i, c in enumerate(cams):
+        centre = ", ".join(_fmt(v) for v in c.center)
+        lines.append(f"  {i:3d}  {c.name or '-':<24s} {c.width}x{c.height}  fx={_fmt(c.fx)} "
+                     f"fy={_fmt(c.fy)} cx={_fmt(c.cx)} cy={_fmt(c.cy)}  centre=({centre})")
+    return lines
+
+
+def info(args) -> int:
+    from ..io import detect_format, read_cameras, read_scene
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        if _is_camera_path(args.file):
+            lines = camera_summary(args.file, read_cameras(args.file))
+        else:
+            fmt = detect_format(args.file)
+            scene = read_scene(args.file, drop_nonfinite=args.drop_nonfinite)
+            lines = scene_summary(args.file, scene, fmt)
+    _print_warnings("info", caught)
+    print("\n".join(lines))
+    return 0
+
+
+def convert(args) -> int:
+    from ..io import read_scene, write_scene
+    from ..io.formats import output_format
+
+    fmt = output_format(args.output)  # fail before reading a large input
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        scene = read_scene(args.input, drop_nonfinite=args.drop_nonfinite)
+        write_scene(args.output, scene)
+    _print_warnings("convert", caught)
+    degree = scene.sh_degree if fmt == "ply" else 0
+    print(f"wrote {args.output} ({fmt}): {len(scene):,} Gaussians, SH degree {degree}")
+    return 0

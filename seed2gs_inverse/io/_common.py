@@ -1,0 +1,180 @@
+"""Helpers shared by the scene readers and writers.
+
+Everything here is private: the public entry points are in ``formats.py``
+and ``cameras.py``.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import tempfile
+import warnings
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import FormatError, ValidationError
+from ..scene import GaussianScene
+
+__all__: list[str] = []
+
+# Opacity logit used for a stored opacity of exactly 0 or 1 (8-bit formats
+# store sigmoid(logit) and cannot represent the infinities). Same value as the
+# PlayCanvas engine's decoder, so scenes decoded here match it.
+OPACITY_LOGIT_LIMIT = 40.0
+
+
+def fail(path, message: str) -> FormatError:
+    """A FormatError whose message starts with the file name."""
+    return FormatError(f"{os.fspath(path)}: {message}")
+
+
+def file_size(path) -> int:
+    return os.stat(path).st_size
+
+
+def logit_from_unorm(p: np.ndarray) -> np.ndarray:
+    """Opacity logits from stored opacities in [0, 1] (float64 in, float32 out).
+
+    ``log(p / (1 - p))``; ``p <= 0`` maps to ``-40`` and ``p >= 1`` to ``+40``
+    (a stored 0 or 255 byte would otherwise give an infinite logit).
+    """
+    p = np.asarray(p, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = np.log(p / (1.0 - p))
+    out = np.where(p <= 0, -OPACITY_LOGIT_LIMIT, out)
+    out = np.where(p >= 1, OPACITY_LOGIT_LIMIT, out)
+    return out.astype(np.float32)
+
+
+def bounded_gzip(path, data: bytes, limit: int, header_bytes: int | None = None) -> bytes:
+    """Inflate a gzip stream, refusing to produce more than ``limit`` bytes.
+
+    Memory stays bounded by ``limit`` whatever the stream claims. With
+    ``header_bytes`` only that many leading bytes are returned (used to read a
+    header before the payload size is known). Raises FormatError for corrupt
+    or truncated streams.
+    """
+    d = zlib.decompressobj(16 + zlib.MAX_WBITS)
+    out = bytearray()
+    want = limit if header_bytes is None else header_bytes
+    src = memoryview(data)
+    pos = 0
+    step = 1 << 20
+    try:
+        while len(out) < want + 1:
+            if d.unconsumed_tail:
+                chunk = d.unconsumed_tail
+            elif pos < len(src):
+                chunk = src[pos:pos + step]
+                pos += len(chunk)
+            else:
+                break
+            out += d.decompress(chunk, want + 1 - len(out))
+            if d.eof:
+                break
+    except zlib.error as exc:
+        raise fail(path, f"corrupt gzip stream ({exc})") from None
+    if header_bytes is not None:
+        if len(out) < header_bytes:
+            raise fail(path, f"file is truncated: the decompressed header has {len(out)} "
+                             f"of {header_bytes} bytes")
+        return bytes(out[:header_bytes])
+    if len(out) > limit:
+        raise fail(path, f"decompressed data is larger than the header allows ({limit} bytes)")
+    if not d.eof:
+        raise fail(path, f"file is truncated: the gzip stream ends early "
+                         f"after {len(out)} decompressed bytes")
+    return bytes(out)
+
+
+def bounded_zstd(path, data, expected: int, what: str) -> bytes:
+    """Decompress one zstd frame that must hold exactly ``expected`` bytes.
+
+    Output is read in pieces and capped at ``expected + 1`` bytes, so a
+    corrupt size field cannot make us allocate more than the header promised.
+    """
+    import zstandard
+
+    out = bytearray()
+    try:
+        reader = zstandard.ZstdDecompressor().stream_reader(io.BytesIO(bytes(data)))
+        while len(out) <= expected:
+            piece = reader.read(min(expected + 1 - len(out), 1 << 22))
+            if not piece:
+                break
+            out += piece
+    except zstandard.ZstdError as exc:
+        raise fail(path, f"corrupt zstd stream for {what} ({exc})") from None
+    if len(out) != expected:
+        more = "more" if len(out) > expected else f"only {len(out)}"
+        raise fail(path, f"the {what} stream decompresses to {more} bytes; "
+                         f"the header promises {expected}")
+    return bytes(out)
+
+
+def finish_scene(path, means, quats, log_scales, opacity_logits, sh, extra=None,
+                 drop_nonfinite: bool = False) -> GaussianScene:
+    """Validate decoded arrays and build the scene.
+
+    A Gaussian is *invalid* when any of its values is NaN or infinite, or its
+    quaternion has zero length (its rotation is undefined). By default any
+    invalid Gaussian is an error naming the file and the count; with
+    ``drop_nonfinite=True`` they are removed and a warning says how many.
+    """
+    extra = dict(extra or {})
+    n = means.shape[0]
+    bad = np.zeros(n, dtype=bool)
+    for arr in (means, quats, log_scales, opacity_logits, sh):
+        bad |= ~np.isfinite(arr.reshape(n, -1)).all(axis=1)
+    for arr in extra.values():
+        if arr.dtype.kind == "f":
+            bad |= ~np.isfinite(arr)
+    with np.errstate(over="ignore", invalid="ignore"):
+        bad |= ~(np.abs(quats.astype(np.float64)).sum(axis=1) > 0)
+    nbad = int(bad.sum())
+    if nbad:
+        first = int(np.argmax(bad))
+        if not drop_nonfinite:
+            raise fail(path, f"{nbad} of {n} Gaussians have non-finite values or a zero-length "
+                             f"rotation (first at index {first}); read with drop_nonfinite=True "
+                             f"(CLI: --drop-nonfinite) to drop them")
+        warnings.warn(f"{os.fspath(path)}: dropped {nbad} of {n} Gaussians with non-finite "
+                      f"values or a zero-length rotation", stacklevel=3)
+        keep = ~bad
+        means, quats, log_scales = means[keep], quats[keep], log_scales[keep]
+        opacity_logits, sh = opacity_logits[keep], sh[keep]
+        extra = {k: v[keep] for k, v in extra.items()}
+    try:
+        return GaussianScene(means, quats, log_scales, opacity_logits, sh, extra)
+    except ValidationError as exc:  # pragma: no cover - the checks above should catch everything
+        raise fail(path, str(exc)) from None
+
+
+def atomic_write(path, chunks) -> None:
+    """Write an iterable of bytes-like pieces to ``path`` atomically.
+
+    The data goes to a temporary file in the same directory which replaces
+    ``path`` only once it is complete, so a failure never leaves a partial
+    file behind.
+    """
+    path = Path(path)
+    directory = path.parent if str(path.parent) else Path(".")
+    fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            for piece in chunks:
+                fh.write(piece)
+        # mkstemp creates the file private (0600); give it the usual permissions.
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise

@@ -1,0 +1,146 @@
+"""Scene files: format detection and the public ``read_scene``/``write_scene``.
+
+======================  ================  =========  ======  =====
+format                  extension         read       write   lossy
+======================  ================  =========  ======  =====
+``ply``                 ``.ply``          yes        yes     no
+``compressed_ply``      ``.compressed.ply``  yes     no      yes
+``splat``               ``.splat``        yes        yes     yes
+``spz``                 ``.spz``          yes        no      yes
+======================  ================  =========  ======  =====
+
+The extension chooses the family and the file's magic bytes or header
+confirm it (a PLY header with a ``chunk`` element and ``packed_*`` vertex
+properties is a compressed PLY, whatever its name). Every problem with a
+file raises :class:`~seed2gs_inverse.errors.FormatError` (a ``ValueError``)
+whose message starts with the file name.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+from pathlib import Path
+
+from ..errors import FormatError, ValidationError
+from ..scene import GaussianScene
+from ._common import fail
+from .compressed_ply import is_compressed_ply, read_compressed_ply
+from .ply import read_ply_header, read_standard_ply, write_standard_ply
+from .splat import read_splat, write_splat
+from .spz import read_spz
+
+__all__ = ["detect_format", "read_scene", "write_scene", "output_format", "READ_FORMATS",
+           "WRITE_FORMATS"]
+
+READ_FORMATS = ("ply", "compressed_ply", "splat", "spz")
+WRITE_FORMATS = ("ply", "splat")
+_EXTENSIONS = ".ply, .compressed.ply, .splat, .spz"
+
+
+def _family(path) -> str:
+    name = Path(path).name.lower()
+    for ext, fam in ((".ply", "ply"), (".splat", "splat"), (".spz", "spz")):
+        if name.endswith(ext):
+            return fam
+    suffix = Path(path).suffix or "(none)"
+    raise fail(path, f"unknown scene format: extension {suffix} (supported: {_EXTENSIONS})")
+
+
+def detect_format(path) -> str:
+    """The format of a scene file: one of ``READ_FORMATS``.
+
+    Chosen by extension and confirmed by content: a ``.ply`` file must start
+    with the PLY magic and its header decides between ``ply`` and
+    ``compressed_ply``. Raises FormatError for unknown extensions or content
+    that does not match, OSError when the file cannot be opened.
+    """
+    fam = _family(path)
+    if fam == "ply":
+        return "compressed_ply" if is_compressed_ply(read_ply_header(path)) else "ply"
+    if not Path(path).is_file():
+        with open(path, "rb"):  # raises the right OSError (missing file, directory)
+            pass
+    return fam
+
+
+def read_scene(path, drop_nonfinite: bool = False) -> GaussianScene:
+    """Read a Gaussian splat scene from any supported file.
+
+    Parameters
+    ----------
+    path : str or Path
+        A ``.ply`` (standard 3DGS, any SH degree 0-3, ASCII or binary of
+        either endianness), ``.compressed.ply`` (PlayCanvas), ``.splat``
+        (antimatter15) or ``.spz`` (Niantic, versions 2-4) file.
+    drop_nonfinite : bool
+        Gaussians with NaN/infinite values or a zero-length quaternion are an
+        error by default; with True they are dropped and a warning says how
+        many.
+
+    Returns
+    -------
+    GaussianScene
+        Raw parameters as stored (float32): means, w-first quaternions,
+        log-scales, opacity logits, SH (N, K, 3); unknown PLY vertex
+        properties in ``extra``. Coordinates are never re-oriented.
+
+    Raises
+    ------
+    FormatError
+        Unknown format, bad magic/header, truncated data, a header promising
+        more data than the file holds (checked before allocating), missing
+        properties, non-finite values. The message names the file.
+    OSError
+        The file cannot be opened.
+    """
+    fam = _family(path)
+    try:
+        if fam == "ply":
+            header = read_ply_header(path)
+            if is_compressed_ply(header):
+                return read_compressed_ply(path, header, drop_nonfinite)
+            return read_standard_ply(path, header, drop_nonfinite)
+        if fam == "splat":
+            return read_splat(path, drop_nonfinite)
+        return read_spz(path, drop_nonfinite)
+    except (FormatError, OSError):
+        raise
+    except (ValueError, TypeError, IndexError, OverflowError, struct.error) as exc:
+        # Last line of defence: a decoder bug or an unforeseen corruption must
+        # still surface as the documented error type, naming the file.
+        raise fail(path, f"cannot decode the file ({type(exc).__name__}: {exc})") from exc
+
+
+def write_scene(path, scene: GaussianScene) -> None:
+    """Write a scene; the format follows the extension (``.ply`` or ``.splat``).
+
+    ``.ply`` is lossless (the trainer's layout, binary little-endian float32,
+    extras appended); ``.splat`` keeps only SH degree 0, 8-bit colours,
+    opacities and rotations and warns about what it drops. The file is
+    written to a temporary name in the same directory and renamed at the end,
+    so a failure leaves no partial file.
+    """
+    if not isinstance(scene, GaussianScene):
+        raise ValidationError(f"write_scene needs a GaussianScene, got {type(scene).__name__}")
+    if output_format(path) == "ply":
+        return write_standard_ply(path, scene)
+    return write_splat(path, scene)
+
+
+def output_format(path) -> str:
+    """The format ``write_scene`` would write for ``path``: ``"ply"`` or ``"splat"``.
+
+    Raises ValidationError for read-only formats and unknown extensions, so
+    callers can check an output path before doing any work.
+    """
+    name = Path(path).name.lower()
+    if name.endswith(".compressed.ply") or name.endswith(".spz"):
+        raise ValidationError(f"{os.fspath(path)}: writing {Path(path).suffix} is not supported "
+                              f"(write .ply or .splat)")
+    if name.endswith(".ply"):
+        return "ply"
+    if name.endswith(".splat"):
+        return "splat"
+    raise ValidationError(f"{os.fspath(path)}: cannot choose an output format from the extension "
+                          f"'{Path(path).suffix}' (use .ply or .splat)")

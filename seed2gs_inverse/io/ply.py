@@ -1,0 +1,367 @@
+"""Standard 3DGS PLY files: a small PLY parser and the trainer's layout.
+
+A 3DGS PLY file has one ``vertex`` element with one row per Gaussian:
+
+=====================================  ========================================
+properties                             meaning
+=====================================  ========================================
+``x y z``                              mean
+``nx ny nz`` (optional)                normals; the trainer writes zeros
+``f_dc_0..2``                          SH DC coefficient per channel
+``f_rest_0..3(K-1)-1`` (optional)      higher SH bands, channel-major: all R
+                                       coefficients, then all G, then all B
+``opacity``                            opacity logit
+``scale_0..2``                         log scales
+``rot_0..3``                           quaternion, w first
+anything else                          kept in ``scene.extra``
+=====================================  ========================================
+
+so ``sh[:, 0, c] = f_dc_c`` and ``sh[:, 1 + k, c] = f_rest_{c (K-1) + k}``.
+
+Reading accepts ASCII, binary little- and big-endian files, any property
+order and any numeric property type (values are converted to float32).
+Normals are put in ``extra`` only when they are not all zero (the trainer's
+zeros carry no information). Writing always produces binary little-endian
+float32 in the trainer's order, normals included (zeros unless ``extra``
+holds them), followed by the extra properties in their own dtypes.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import ValidationError
+from ..scene import GaussianScene
+from ._common import atomic_write, fail, file_size, finish_scene
+
+__all__ = ["PlyHeader", "PlyElement", "read_ply_header", "read_ply_elements",
+           "read_standard_ply", "write_standard_ply"]
+
+# PLY scalar type names (both spellings) -> numpy type codes without byte order.
+_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
+          "short": "i2", "int16": "i2", "ushort": "u2", "uint16": "u2",
+          "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+          "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
+# numpy type codes -> the names the 3DGS trainer (and plyfile) write.
+_NAMES = {"i1": "char", "u1": "uchar", "i2": "short", "u2": "ushort",
+          "i4": "int", "u4": "uint", "f4": "float", "f8": "double"}
+_FORMATS = {"ascii": None, "binary_little_endian": "<", "binary_big_endian": ">"}
+
+_MAX_HEADER_BYTES = 1 << 20
+_NAME_RE = re.compile(r"^[^\s]+$")
+
+
+@dataclass
+class PlyElement:
+    """One ``element`` of a PLY header."""
+
+    name: str
+    count: int
+    properties: list = field(default_factory=list)  # [(name, numpy code)]
+    lists: list = field(default_factory=list)       # names of list properties
+
+    def dtype(self, order: str) -> np.dtype:
+        return np.dtype([(n, order + c) for n, c in self.properties])
+
+    @property
+    def names(self) -> list:
+        return [n for n, _ in self.properties]
+
+
+@dataclass
+class PlyHeader:
+    """A parsed PLY header; ``data_offset`` is where the body starts."""
+
+    format: str
+    elements: list
+    data_offset: int
+
+    def element(self, name: str) -> PlyElement | None:
+        for el in self.elements:
+            if el.name == name:
+                return el
+        return None
+
+
+def read_ply_header(path) -> PlyHeader:
+    """Parse the header of a PLY file (at most 1 MiB of header text).
+
+    Raises FormatError naming the file for a missing magic, an unknown format
+    or type, a malformed count, duplicate names or a missing ``end_header``.
+    """
+    elements: list[PlyElement] = []
+    fmt = None
+    with open(path, "rb") as fh:
+        first = fh.readline(16)
+        if first.rstrip(b"\r\n") != b"ply":
+            raise fail(path, "not a PLY file (it does not start with the 'ply' magic line)")
+        total = len(first)
+        while True:
+            raw = fh.readline(_MAX_HEADER_BYTES)
+            total += len(raw)
+            if not raw or total > _MAX_HEADER_BYTES:
+                raise fail(path, "PLY header has no 'end_header' line (truncated or not a PLY file)")
+            try:
+                line = raw.decode("ascii").strip()
+            except UnicodeDecodeError:
+                raise fail(path, "PLY header contains non-ASCII bytes (corrupt header)") from None
+            words = line.split()
+            if not words or words[0] in ("comment", "obj_info"):
+                continue
+            key = words[0]
+            if key == "end_header":
+                break
+            if key == "format":
+                if len(words) != 3 or words[1] not in _FORMATS:
+                    raise fail(path, f"unsupported PLY format line '{line}' (expected ascii, "
+                                     f"binary_little_endian or binary_big_endian)")
+                if words[2] != "1.0":
+                    raise fail(path, f"unsupported PLY version '{words[2]}' (expected 1.0)")
+                fmt = words[1]
+            elif key == "element":
+                if len(words) != 3 or not words[2].isdigit():
+                    raise fail(path, f"malformed PLY element line '{line}' "
+                                     f"(expected 'element NAME COUNT')")
+                if any(el.name == words[1] for el in elements):
+                    raise fail(path, f"PLY header declares element '{words[1]}' twice")
+                elements.append(PlyElement(words[1], int(words[2])))
+            elif key == "property":
+                if not elements:
+                    raise fail(path, f"PLY property before any element: '{line}'")
+                el = elements[-1]
+                if len(words) == 5 and words[1] == "list":
+                    if words[2] not in _TYPES or words[3] not in _TYPES:
+                        raise fail(path, f"unknown PLY type in '{line}'")
+                    name, code = words[4], None
+                elif len(words) == 3:
+                    if words[1] not in _TYPES:
+                        raise fail(path, f"unknown PLY property type '{words[1]}' in '{line}'")
+                    name, code = words[2], _TYPES[words[1]]
+                else:
+                    raise fail(path, f"malformed PLY property line '{line}'")
+                if name in el.names or name in el.lists:
+                    raise fail(path, f"PLY element '{el.name}' declares property '{name}' twice")
+                if code is None:
+                    el.lists.append(name)
+                else:
+                    el.properties.append((name, code))
+            else:
+                raise fail(path, f"unexpected PLY header line '{line}'")
+        offset = fh.tell()
+    if fmt is None:
+        raise fail(path, "PLY header has no 'format' line")
+    return PlyHeader(fmt, elements, offset)
+
+
+def read_ply_elements(path, header: PlyHeader, wanted) -> dict:
+    """Read the named elements as structured arrays in native byte order.
+
+    Elements before the last wanted one are skipped; their size must be
+    computable, so they may not hold list properties. The byte (binary) or
+    line (ASCII) count implied by the header is checked against the file
+    before anything is allocated.
+    """
+    wanted = list(wanted)
+    order = _FORMATS[header.format]
+    last = max(i for i, el in enumerate(header.elements) if el.name in wanted)
+    needed = header.elements[: last + 1]
+    for el in needed:
+        if el.lists and (el.name in wanted or order is not None):
+            raise fail(path, f"PLY element '{el.name}' has list properties {el.lists}; "
+                             f"Gaussian splat files have none")
+    if order is None:
+        return _read_ascii(path, header, needed, wanted)
+    sizes = [el.count * el.dtype(order).itemsize for el in needed]
+    available = file_size(path) - header.data_offset
+    if sum(sizes) > available:
+        counts = ", ".join(f"{el.count} x '{el.name}'" for el in needed)
+        raise fail(path, f"file is truncated: the header promises {counts} "
+                         f"({sum(sizes)} bytes of data) but only {available} bytes follow the header")
+    if last == len(header.elements) - 1 and not any(el.lists for el in header.elements) \
+            and available > sum(sizes):
+        warnings.warn(f"{os.fspath(path)}: ignoring {available - sum(sizes)} bytes after the "
+                      f"last PLY element", stacklevel=3)
+    out = {}
+    offset = header.data_offset
+    native = "<" if np.little_endian else ">"
+    with open(path, "rb") as fh:
+        for el, size in zip(needed, sizes):
+            if el.name in wanted:
+                fh.seek(offset)
+                arr = np.fromfile(fh, dtype=el.dtype(order), count=el.count)
+                if arr.shape[0] != el.count:  # pragma: no cover - size checked above
+                    raise fail(path, f"file is truncated inside element '{el.name}'")
+                if order != native:
+                    arr = arr.astype(el.dtype("="))
+                out[el.name] = arr
+            offset += size
+    return out
+
+
+def _read_ascii(path, header, needed, wanted) -> dict:
+    with open(path, "rb") as fh:
+        fh.seek(header.data_offset)
+        body = fh.read()
+    try:
+        text = body.decode("ascii")
+    except UnicodeDecodeError:
+        raise fail(path, "ASCII PLY body contains non-ASCII bytes") from None
+    lines = [ln for ln in text.splitlines() if ln.strip()]
+    out = {}
+    pos = 0
+    for el in needed:
+        if len(lines) - pos < el.count:
+            raise fail(path, f"file is truncated: element '{el.name}' needs {el.count} lines "
+                             f"but only {len(lines) - pos} remain")
+        if el.name in wanted:
+            out[el.name] = _parse_ascii_rows(path, el, lines[pos:pos + el.count])
+        pos += el.count
+    return out
+
+
+def _parse_ascii_rows(path, el: PlyElement, rows) -> np.ndarray:
+    nprop = len(el.properties)
+    tokens = " ".join(rows).split()
+    if len(tokens) != el.count * nprop:
+        raise fail(path, f"ASCII element '{el.name}' should have {nprop} values on each of its "
+                         f"{el.count} lines, found {len(tokens)} values in all")
+    try:
+        vals = np.array(tokens, dtype=np.float64).reshape(el.count, nprop)
+    except ValueError:
+        raise fail(path, f"ASCII element '{el.name}' has a value that is not a number") from None
+    rec = np.empty(el.count, dtype=el.dtype("="))
+    for j, (name, code) in enumerate(el.properties):
+        col = vals[:, j]
+        if code[0] in "iu":
+            info = np.iinfo(np.dtype(code))
+            ok = np.isfinite(col) & (col == np.round(col)) & (col >= info.min) & (col <= info.max)
+            if not ok.all():
+                raise fail(path, f"ASCII property '{name}' holds a value that is not a {code} "
+                                 f"integer (row {int(np.argmin(ok))})")
+        with np.errstate(over="ignore"):
+            rec[name] = col
+    return rec
+
+
+def columns(struct: np.ndarray, names) -> np.ndarray:
+    """The named fields of a structured array as an (n, len(names)) float32 array.
+
+    Files whose fields are all native float32 (nearly every 3DGS PLY) take a
+    fast path through a 2-D view of the records instead of per-field copies.
+    """
+    fields = struct.dtype.names
+    names = list(names)
+    n = struct.shape[0]
+    if not names:
+        return np.empty((n, 0), np.float32)
+    f32 = np.dtype(np.float32)
+    if struct.flags.c_contiguous and struct.dtype.itemsize == 4 * len(fields) \
+            and all(struct.dtype.fields[f][0] == f32 for f in fields):
+        flat = struct.view(np.float32).reshape(n, len(fields))
+        return flat[:, [fields.index(name) for name in names]]
+    with np.errstate(over="ignore", invalid="ignore"):
+        return np.stack([struct[name].astype(np.float32) for name in names], axis=1)
+
+
+_REQUIRED = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity",
+             "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+_NORMALS = ["nx", "ny", "nz"]
+_REST_RE = re.compile(r"^f_rest_(\d+)$")
+
+
+def read_standard_ply(path, header: PlyHeader, drop_nonfinite: bool = False) -> GaussianScene:
+    """Decode a standard 3DGS PLY file (see the module docstring)."""
+    vertex = header.element("vertex")
+    if vertex is None:
+        raise fail(path, "PLY file has no 'vertex' element, so it holds no Gaussians")
+    names = vertex.names
+    missing = [p for p in _REQUIRED if p not in names]
+    if missing:
+        raise fail(path, f"PLY 'vertex' element lacks the 3DGS properties {missing} "
+                         f"(is this a point cloud rather than a Gaussian splat file?)")
+    rest_idx = sorted(int(m.group(1)) for m in map(_REST_RE.match, names) if m)
+    if rest_idx != list(range(len(rest_idx))) or len(rest_idx) not in (0, 9, 24, 45):
+        raise fail(path, f"PLY file has {len(rest_idx)} f_rest_* properties "
+                         f"(indices {rest_idx[:3]}...); a 3DGS file has 0, 9, 24 or 45 "
+                         f"numbered from 0 (SH degree 0-3)")
+    vert = read_ply_elements(path, header, ["vertex"])["vertex"]
+    n = vertex.count
+    k = 1 + len(rest_idx) // 3
+    rest = [f"f_rest_{i}" for i in range(len(rest_idx))]
+    cols = columns(vert, _REQUIRED + rest)
+    sh = np.empty((n, k, 3), np.float32)
+    sh[:, 0, :] = cols[:, 3:6]
+    # f_rest is channel-major: column c*(k-1) + j is coefficient j+1 of channel c.
+    sh[:, 1:, :] = cols[:, 14:].reshape(n, 3, k - 1).transpose(0, 2, 1)
+    extra = {}
+    for name in names:
+        if name in _REQUIRED or name in rest:
+            continue
+        if name in _NORMALS and not np.any(vert[name]):
+            continue
+        extra[name] = np.ascontiguousarray(vert[name])
+    return finish_scene(path, np.ascontiguousarray(cols[:, 0:3]),
+                        np.ascontiguousarray(cols[:, 10:14]),
+                        np.ascontiguousarray(cols[:, 7:10]),
+                        np.ascontiguousarray(cols[:, 6]), sh, extra, drop_nonfinite)
+
+
+def standard_property_names(sh_degree: int) -> list:
+    """Property names in the trainer's order for an SH degree (normals included)."""
+    k = (sh_degree + 1) ** 2
+    return (["x", "y", "z"] + _NORMALS + ["f_dc_0", "f_dc_1", "f_dc_2"]
+            + [f"f_rest_{i}" for i in range(3 * (k - 1))]
+            + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"])
+
+
+def write_standard_ply(path, scene: GaussianScene) -> None:
+    """Write ``scene`` as a binary little-endian 3DGS PLY file, atomically.
+
+    Properties follow the trainer's order (see :func:`standard_property_names`)
+    as float32, then the remaining ``scene.extra`` entries with their own
+    dtypes (bool is stored as uchar; int64 and uint64 are rejected because PLY
+    cannot hold them losslessly: cast them first).
+    """
+    n = len(scene)
+    k = scene.sh.shape[1]
+    base = standard_property_names(scene.sh_degree)
+    fields = [(name, "<f4") for name in base]
+    extras = []
+    for name, arr in scene.extra.items():
+        if name in _NORMALS:
+            continue
+        if name in base or not _NAME_RE.match(name):
+            raise ValidationError(f"extra property '{name}' cannot be written to PLY: the name "
+                                  f"is a standard 3DGS property or contains whitespace")
+        code = arr.dtype.str[1:] if arr.dtype.kind != "b" else "u1"
+        if code not in _NAMES:
+            raise ValidationError(f"extra property '{name}' has dtype {arr.dtype}, which PLY cannot "
+                                  f"store; cast it to int32 or float32 first")
+        extras.append(name)
+        fields.append((name, "<" + code))
+    rec = np.zeros(n, dtype=np.dtype(fields))
+    rec["x"], rec["y"], rec["z"] = scene.means.T
+    for name in _NORMALS:
+        if name in scene.extra:
+            rec[name] = scene.extra[name]
+    for c in range(3):
+        rec[f"f_dc_{c}"] = scene.sh[:, 0, c]
+        for j in range(k - 1):
+            rec[f"f_rest_{c * (k - 1) + j}"] = scene.sh[:, 1 + j, c]
+    rec["opacity"] = scene.opacity_logits
+    for i in range(3):
+        rec[f"scale_{i}"] = scene.log_scales[:, i]
+    for i in range(4):
+        rec[f"rot_{i}"] = scene.quats[:, i]
+    for name in extras:
+        rec[name] = scene.extra[name]
+    lines = ["ply", "format binary_little_endian 1.0", f"element vertex {n}"]
+    lines += [f"property {_NAMES[np.dtype(t).str[1:]]} {name}" for name, t in fields]
+    lines.append("end_header")
+    head = ("\n".join(lines) + "\n").encode("ascii")
+    atomic_write(path, [head, rec.tobytes()])

@@ -1,0 +1,93 @@
+"""antimatter15 ``.splat`` files (read and write).
+
+No header; 32 bytes per Gaussian, little-endian:
+
+===========  =========  ====================================================
+bytes        type       meaning
+===========  =========  ====================================================
+0-11         3 float32  mean
+12-23        3 float32  scales, linear: ``exp(log_scale)``
+24-27        4 uint8    colour ``round(255 (0.5 + SH_C0 f_dc))`` for r, g, b
+                        and opacity ``round(255 sigmoid(logit))``
+28-31        4 uint8    unit quaternion, w first: ``round(128 q + 128)``
+===========  =========  ====================================================
+
+The format is lossy: colours, opacities and rotations are 8-bit, and higher
+SH bands and extra properties cannot be stored (writing drops them with a
+warning). The reference converter also sorts Gaussians by size and opacity;
+this writer keeps the scene's order so Gaussian indices stay meaningful.
+On reading, opacity bytes 0 and 255 become logits -40 and +40.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+
+import numpy as np
+
+from ..errors import ValidationError
+from ..scene import GaussianScene
+from ..sh import SH_C0
+from ._common import atomic_write, fail, file_size, finish_scene, logit_from_unorm
+
+__all__ = ["read_splat", "write_splat", "SPLAT_DTYPE"]
+
+SPLAT_DTYPE = np.dtype([("position", "<f4", (3,)), ("scale", "<f4", (3,)),
+                        ("rgba", "u1", (4,)), ("rotation", "u1", (4,))])
+_MAGICS = {b"ply\n": "a PLY file", b"ply\r": "a PLY file", b"NGSP": "an SPZ file",
+           b"\x1f\x8b": "a gzip (SPZ) file"}
+
+
+def read_splat(path, drop_nonfinite: bool = False) -> GaussianScene:
+    """Decode a ``.splat`` file (see the module docstring)."""
+    size = file_size(path)
+    if size == 0:
+        raise fail(path, "file is empty")
+    with open(path, "rb") as fh:
+        head = fh.read(4)
+        for magic, what in _MAGICS.items():
+            if head.startswith(magic):
+                raise fail(path, f"this looks like {what}, not a .splat file; rename it "
+                                 f"with the right extension")
+        if size % SPLAT_DTYPE.itemsize:
+            raise fail(path, f"file size {size} is not a multiple of {SPLAT_DTYPE.itemsize} bytes "
+                             f"(truncated or not a .splat file)")
+        fh.seek(0)
+        rec = np.fromfile(fh, dtype=SPLAT_DTYPE, count=size // SPLAT_DTYPE.itemsize)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        log_scales = np.log(rec["scale"].astype(np.float64)).astype(np.float32)
+    rgba = rec["rgba"].astype(np.float64) / 255.0
+    sh = ((rgba[:, None, :3] - 0.5) / SH_C0).astype(np.float32)
+    quats = (rec["rotation"].astype(np.float32) - 128.0) / 128.0
+    return finish_scene(path, rec["position"].astype(np.float32), quats, log_scales,
+                        logit_from_unorm(rgba[:, 3]), sh, None, drop_nonfinite)
+
+
+def write_splat(path, scene: GaussianScene) -> None:
+    """Write ``scene`` as a ``.splat`` file, atomically (see the module docstring).
+
+    Warns when SH bands above 0 or extra properties are dropped; an empty
+    scene is refused, since an empty ``.splat`` file cannot be told from a
+    failed write.
+    """
+    n = len(scene)
+    if n == 0:
+        raise ValidationError("cannot write an empty scene to .splat (the file would be empty)")
+    dropped = []
+    if scene.sh_degree > 0:
+        dropped.append(f"SH bands 1-{scene.sh_degree}")
+    if scene.extra:
+        dropped.append(f"extra properties {sorted(scene.extra)}")
+    if dropped:
+        warnings.warn(f"{os.fspath(path)}: the .splat format cannot store "
+                      f"{' and '.join(dropped)}; they are dropped", stacklevel=3)
+    rec = np.empty(n, dtype=SPLAT_DTYPE)
+    rec["position"] = scene.means
+    with np.errstate(over="ignore"):
+        rec["scale"] = scene.scales
+    rgb = 0.5 + SH_C0 * scene.sh[:, 0, :].astype(np.float64)
+    alpha = scene.opacities.astype(np.float64)[:, None]
+    rec["rgba"] = np.clip(np.round(255.0 * np.concatenate([rgb, alpha], axis=1)), 0, 255)
+    rec["rotation"] = np.clip(np.round(128.0 * scene.rotations.astype(np.float64) + 128.0), 0, 255)
+    atomic_write(path, [rec.tobytes()])
