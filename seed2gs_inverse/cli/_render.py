@@ -1,0 +1,182 @@
+"""``seed2gs render``: rasterize a scene from a camera to image files."""
+
+from __future__ import annotations
+
+import io as _io
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ValidationError
+
+__all__ = ["register"]
+
+_EXTS = (".png", ".npy")
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "render", help="render a scene from a camera (PNG or .npy)",
+        description="Render SCENE with the tile rasterizer from a camera of a camera file "
+                    "(--camera FILE[:NAME|INDEX]) or from --look-at EYE TARGET. Writes the "
+                    "colour image and, on request, the expected depth and the alpha. PNG "
+                    "files are 8-bit (depth: 16-bit, scaled linearly from the nearest to the "
+                    "farthest covered pixel, 0 where nothing is drawn); .npy files hold the "
+                    "float32 values.")
+    p.add_argument("scene", metavar="SCENE", help="scene file (.ply, .splat, .spz, .compressed.ply)")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--camera", metavar="FILE[:NAME|INDEX]",
+                     help="camera file (3DGS cameras.json, COLMAP, nerfstudio) and which camera")
+    src.add_argument("--look-at", nargs=2, metavar=("EYE", "TARGET"),
+                     help="camera position and the point it looks at, each 'x,y,z'")
+    p.add_argument("--up", default="0,-1,0", metavar="X,Y,Z",
+                   help="with --look-at: world direction shown upwards (default 0,-1,0, the "
+                        "usual up of COLMAP-trained scenes)")
+    p.add_argument("--fov", type=float, default=60.0, metavar="DEG",
+                   help="with --look-at: vertical field of view in degrees (default 60)")
+    p.add_argument("--size", default="960x540", metavar="WxH",
+                   help="with --look-at: image size (default 960x540)")
+    p.add_argument("--scale", type=float, default=1.0, metavar="F",
+                   help="render at F times the camera's resolution (default 1)")
+    p.add_argument("--near", type=float, default=None, metavar="Z",
+                   help="near plane: Gaussians closer than Z are not drawn (default: the camera's, 0.01)")
+    p.add_argument("--background", default="0,0,0", metavar="R,G,B",
+                   help="background colour in [0, 1] (default black)")
+    p.add_argument("--mode", choices=("classic", "antialiased"), default="classic",
+                   help="rasterization mode (default classic = reference 3DGS)")
+    p.add_argument("-o", "--output", required=True, metavar="IMAGE",
+                   help="colour image, .png or .npy (float32 H x W x 3)")
+    p.add_argument("--depth", metavar="FILE", help="also write the expected depth (.png or .npy)")
+    p.add_argument("--alpha", metavar="FILE", help="also write the alpha (.png or .npy)")
+    p.set_defaults(func=run)
+
+
+def _triple(option, text):
+    try:
+        vals = [float(v) for v in str(text).split(",")]
+    except ValueError:
+        vals = []
+    if len(vals) != 3 or not np.all(np.isfinite(vals)):
+        raise ValidationError(f"{option} {text!r}: expected three numbers 'x,y,z'")
+    return np.array(vals)
+
+
+def _size(text):
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise ValidationError(f"--size {text!r}: expected WIDTHxHEIGHT, e.g. 960x540") from None
+    if not (0 < w <= 16384 and 0 < h <= 16384):
+        raise ValidationError(f"--size {text!r}: width and height must be in 1..16384")
+    return w, h
+
+
+def _camera(args):
+    from ..camera import Camera
+
+    if args.camera is not None:
+        from ..io.cameras import read_camera
+
+        cam = read_camera(args.camera)
+    else:
+        w, h = _size(args.size)
+        eye, target = (_triple("--look-at", v) for v in args.look_at)
+        cam = Camera.look_at(eye, target, _triple("--up", args.up), args.fov, w, h, name="look-at")
+    if args.near is not None:
+        cam = Camera(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, cam.world_to_camera,
+                     cam.name, args.near)
+    if args.scale != 1.0:
+        cam = cam.scaled(args.scale)
+    return cam
+
+
+def _check_output(option, path):
+    if path is None:
+        return None
+    p = Path(path)
+    if p.suffix.lower() not in _EXTS:
+        raise ValidationError(f"{option} {path}: the file name must end in .png or .npy")
+    if not (p.parent if str(p.parent) else Path(".")).is_dir():
+        raise ValidationError(f"{option} {path}: the directory {p.parent} does not exist")
+    return p
+
+
+def _encode(path, array, kind):
+    """Bytes of the file for ``array``: .npy as is, .png quantised per ``kind``."""
+    buf = _io.BytesIO()
+    if path.suffix.lower() == ".npy":
+        np.save(buf, np.ascontiguousarray(array, dtype=np.float32), allow_pickle=False)
+        return buf.getvalue()
+    from PIL import Image
+
+    if kind == "depth":
+        depth, alpha = array
+        covered = alpha > 0
+        img = np.zeros(depth.shape, np.uint16)
+        if covered.any():
+            lo, hi = float(depth[covered].min()), float(depth[covered].max())
+            span = hi - lo if hi > lo else 1.0
+            img[covered] = np.round(1 + (depth[covered] - lo) / span * 65534).astype(np.uint16)
+        Image.fromarray(img).save(buf, format="PNG")
+    else:
+        img = np.round(np.clip(array, 0, 1) * 255).astype(np.uint8)
+        Image.fromarray(img).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def _write_all(items):
+    """Write every (path, bytes) or none: temp files first, then os.replace."""
+    temps = []
+    try:
+        for path, payload in items:
+            fd, tmp = tempfile.mkstemp(dir=path.parent if str(path.parent) else ".",
+                                       prefix=f".{path.name}.", suffix=".tmp")
+            temps.append(tmp)
+            with os.fdopen(fd, "wb") as fh:
+                fh.write(payload)
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o666 & ~umask)
+        for (path, _), tmp in zip(items, temps):
+            os.replace(tmp, path)
+    except BaseException:
+        for tmp in temps:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+        raise
+
+
+def run(args) -> int:
+    from ..io import read_scene
+    from ..operators.render import render
+
+    out = _check_output("-o", args.output)
+    depth_path = _check_output("--depth", args.depth)
+    alpha_path = _check_output("--alpha", args.alpha)
+    paths = [p for p in (out, depth_path, alpha_path) if p is not None]
+    if len({p.resolve() for p in paths}) != len(paths):
+        raise ValidationError("-o, --depth and --alpha must name different files")
+    bg = _triple("--background", args.background)
+    if bg.min() < 0 or bg.max() > 1:
+        raise ValidationError(f"--background {args.background!r}: values must be in [0, 1]")
+    if not (np.isfinite(args.scale) and args.scale > 0):
+        raise ValidationError(f"--scale {args.scale}: must be a positive number")
+    cam = _camera(args)
+    scene = read_scene(args.scene)
+    t0 = time.perf_counter()
+    r = render(scene, cam, background=bg, mode=args.mode)
+    seconds = time.perf_counter() - t0
+    items = [(out, _encode(out, r.rgb, "rgb"))]
+    if depth_path is not None:
+        items.append((depth_path, _encode(depth_path, (r.depth, r.alpha) if depth_path.suffix.lower() == ".png"
+                                          else r.depth, "depth")))
+    if alpha_path is not None:
+        items.append((alpha_path, _encode(alpha_path, r.alpha, "alpha")))
+    _write_all(items)
+    covered = float((r.alpha > 0).mean())
+    print(f"rendered {len(scene)} Gaussians at {cam.width}x{cam.height} in {seconds:.2f} s "
+          f"({covered:.0%} of pixels covered); wrote {', '.join(str(p) for p, _ in items)}")
+    return 0
