@@ -1,10 +1,15 @@
 """Box-constrained least squares, the classical baseline.
 
-    min_q  1/2 sum_c || K(c) (W(c) q - Y(c)) ||^2   subject to  0 <= q <= 1,
+    min_q  1/2 sum_c || K(c) (W(c) q - b(c)) ||^2   subject to  0 <= q <= 1,
 
 where ``K(c)`` keeps the known (non-NaN) pixels the scene covers
 (``alpha > 0``; a pixel with no Gaussian adds a constant). Only observed
-Gaussians are free.
+Gaussians are free. The right-hand side is ``b = alpha * Y`` by default
+(``target="alpha"``): the object's rendered opacity should equal the
+pixel's opacity inside the mask and vanish outside, which ``q = labels``
+satisfies exactly on pure pixels. ``target="mask"`` uses ``b = Y`` literally;
+since ``W q <= alpha``, that pushes every Gaussian of a partly transparent
+masked pixel (including background behind the object) towards 1.
 
 ``algorithm="fista"`` (default) runs accelerated projected gradient
 (FISTA with adaptive restart, O'Donoghue & Candes 2015):
@@ -44,13 +49,15 @@ def operator_norm_sq(A, AT, rows_weight, n_iter: int = 30, seed: int = 0) -> flo
     return lam
 
 
-def least_squares(problem: Problem, *, algorithm: str = "fista", max_iter: int = 500, tol: float = 1e-4,
-                  power_iters: int = 30) -> dict:
+def least_squares(problem: Problem, *, target: str = "alpha", algorithm: str = "fista", max_iter: int = 500,
+                  tol: float = 1e-4, power_iters: int = 30) -> dict:
     """Box-constrained least squares; see the module docstring.
 
     Parameters
     ----------
     problem : Problem
+    target : {"alpha", "mask"}, default "alpha"
+        Right-hand side ``alpha * Y`` or the literal mask ``Y`` (see module docstring).
     algorithm : {"fista", "lsq_linear"}, default "fista"
     max_iter : int, default 500
     tol : float, default 1e-4
@@ -69,20 +76,23 @@ def least_squares(problem: Problem, *, algorithm: str = "fista", max_iter: int =
         raise ValidationError(f"least_squares: max_iter must be a positive integer, got {max_iter!r}")
     if not tol > 0:
         raise ValidationError(f"least_squares: tol must be positive, got {tol}")
+    if target not in ("alpha", "mask"):
+        raise ValidationError(f"least_squares: target must be 'alpha' or 'mask', got {target!r}")
     A, AT = problem.A, problem.AT
     rows = problem.known & (problem.alpha > 0)
+    rhs = problem.y * problem.alpha if target == "alpha" else problem.y
     obs = problem.observed
     if algorithm == "lsq_linear":
         idx = np.flatnonzero(obs)
         sub = A[np.flatnonzero(rows)][:, idx].astype(np.float64)
-        res = lsq_linear(sub, problem.y[rows].astype(np.float64), bounds=(0.0, 1.0), method="trf",
+        res = lsq_linear(sub, rhs[rows].astype(np.float64), bounds=(0.0, 1.0), method="trf",
                          tol=tol, max_iter=max_iter, lsmr_tol="auto")
         q = np.zeros(problem.n_gaussians)
         q[idx] = res.x
         return {"q": q, "iterations": int(res.nit),
                 "info": {"status": int(res.status), "cost": float(res.cost)}}
     d = rows.astype(np.float32)
-    yd = problem.y * d
+    yd = rhs * d
     L = 1.05 * operator_norm_sq(A, AT, d, power_iters)
     if L == 0.0:
         return {"q": np.zeros(problem.n_gaussians), "iterations": 0}

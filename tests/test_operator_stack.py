@@ -1,0 +1,270 @@
+"""ViewOperator / OperatorStack: adjointness, stacking, save/load, bad directories."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from seed2gs_inverse.camera import Camera
+from seed2gs_inverse.errors import FormatError, ValidationError
+from seed2gs_inverse.operators.operator import OperatorStack, ViewOperator, scene_fingerprint
+from seed2gs_inverse.scene import GaussianScene
+
+
+def _random_view(rng, n=50, h=6, w=8, density=0.2, name="v", with_camera=True):
+    W = sp.random(h * w, n, density=density, random_state=rng, format="csr", dtype=np.float32)
+    cam = Camera.from_fov(w, h, 60.0, name=name) if with_camera else None
+    return ViewOperator(W, cam, (h, w))
+
+
+def _scene(rng, n=50):
+    return GaussianScene(rng.normal(size=(n, 3)), rng.normal(size=(n, 4)) + [3, 0, 0, 0],
+                         rng.normal(size=(n, 3)) - 3, rng.normal(size=n), rng.normal(size=(n, 1, 3)))
+
+
+def _stack(rng, n=50, views=3):
+    return OperatorStack([_random_view(rng, n, 6 + i, 8, name=f"v{i}") for i in range(views)], fingerprint="abc")
+
+
+# -- ViewOperator ---------------------------------------------------------------
+def test_view_matvec_rmatvec_match_dense(rng):
+    v = _random_view(rng)
+    dense = v.W.toarray().astype(np.float64)
+    q = rng.random(v.n_gaussians).astype(np.float32)
+    img = rng.random(v.image_shape).astype(np.float32)
+    np.testing.assert_allclose(v.matvec(q), (dense @ q).reshape(v.image_shape), rtol=1e-5)
+    np.testing.assert_allclose(v.rmatvec(img), dense.T @ img.ravel(), rtol=1e-5)
+    np.testing.assert_allclose(v.alpha(), dense.sum(1).reshape(v.image_shape), rtol=1e-5)
+    np.testing.assert_array_equal(v.observed(), dense.any(0))
+
+
+def test_view_dot_test(rng):
+    v = _random_view(rng, n=80, h=10, w=12)
+    for _ in range(3):
+        x = rng.normal(size=v.n_gaussians)
+        y = rng.normal(size=v.image_shape)
+        lhs = np.dot(v.matvec(x).ravel(), y.ravel())
+        rhs = np.dot(x, v.rmatvec(y))
+        assert abs(lhs - rhs) <= 1e-10 * max(1.0, abs(lhs))
+
+
+@pytest.mark.parametrize("bad, match", [
+    (lambda W: W.tocoo(), "CSR"),
+    (lambda W: W.astype(np.float64), "float32"),
+    (lambda W: W[:-1], "rows"),
+    (lambda W: W.toarray(), "CSR"),
+])
+def test_view_operator_rejects_bad_W(rng, bad, match):
+    v = _random_view(rng)
+    with pytest.raises(ValidationError, match=match):
+        ViewOperator(bad(v.W), v.camera, v.image_shape)
+
+
+def test_view_operator_rejects_shape_mismatch(rng):
+    v = _random_view(rng, h=6, w=8)
+    with pytest.raises(ValidationError, match="camera"):
+        ViewOperator(v.W, Camera.from_fov(6, 8, 60.0), (6, 8))
+    with pytest.raises(ValidationError, match="image_shape"):
+        ViewOperator(v.W, None, (6, 0))
+    with pytest.raises(ValidationError, match="q must have shape"):
+        v.matvec(np.zeros(3))
+    with pytest.raises(ValidationError, match="image must have shape"):
+        v.rmatvec(np.zeros((2, 2)))
+
+
+# -- OperatorStack ----------------------------------------------------------------
+def test_stack_linear_operator_matches_dense_and_passes_dot_test(rng):
+    s = _stack(rng)
+    dense = np.vstack([v.W.toarray() for v in s]).astype(np.float64)
+    L = s.as_linear_operator()
+    assert L.shape == (s.n_pixels, 50) == dense.shape
+    x = rng.normal(size=50).astype(np.float32)
+    y = rng.normal(size=s.n_pixels).astype(np.float32)
+    np.testing.assert_allclose(L.matvec(x), dense @ x, rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(L.rmatvec(y), dense.T @ y, rtol=1e-4, atol=1e-5)
+    lhs = float(np.dot(L.matvec(x).astype(np.float64), y))
+    rhs = float(np.dot(x, L.rmatvec(y).astype(np.float64)))
+    assert abs(lhs - rhs) <= 1e-4 * max(1.0, abs(lhs))
+    np.testing.assert_array_equal(s.observed(), dense.any(0))
+    assert len(s) == 3 and [v.name for v in s] == ["v0", "v1", "v2"] and s[1].name == "v1"
+    np.testing.assert_array_equal(s.row_offsets(), np.cumsum([0, 48, 56, 64]))
+    sub = s.subset([2, 0])
+    assert [v.name for v in sub] == ["v2", "v0"] and sub.fingerprint == "abc"
+
+
+def test_stack_rejects_empty_and_mixed_scenes(rng):
+    with pytest.raises(ValidationError, match="empty"):
+        OperatorStack([])
+    with pytest.raises(ValidationError, match="view 1.*different scenes"):
+        OperatorStack([_random_view(rng, n=50), _random_view(rng, n=51)])
+    with pytest.raises(ValidationError, match="view 0"):
+        OperatorStack(["not an operator"])
+
+
+def _assert_same(a: OperatorStack, b: OperatorStack):
+    assert len(a) == len(b) and a.n_gaussians == b.n_gaussians and a.fingerprint == b.fingerprint
+    for va, vb in zip(a, b):
+        assert va.image_shape == vb.image_shape
+        np.testing.assert_array_equal(va.W.indptr, vb.W.indptr)
+        np.testing.assert_array_equal(va.W.indices, vb.W.indices)
+        np.testing.assert_array_equal(va.W.data, vb.W.data)
+        assert vb.W.dtype == np.float32
+        if va.camera is None:
+            assert vb.camera is None
+        else:
+            assert va.camera.to_dict() == vb.camera.to_dict()
+
+
+@pytest.mark.parametrize("mmap", [True, False])
+def test_save_load_round_trip_is_exact(rng, tmp_path, mmap):
+    s = _stack(rng)
+    s.views.append(_random_view(rng, name="", with_camera=False))
+    s.save(tmp_path / "ops")
+    t = OperatorStack.load(tmp_path / "ops", mmap=mmap)
+    _assert_same(s, t)
+    # memory-mapped arrays are read-only views of the files; read arrays are private copies
+    assert t[0].W.data.flags.writeable is (not mmap)
+    x = rng.random(50).astype(np.float32)
+    np.testing.assert_array_equal(t.as_linear_operator().matvec(x), s.as_linear_operator().matvec(x))
+    # no pickle anywhere: every file is JSON or a plain .npy
+    for f in (tmp_path / "ops").iterdir():
+        assert f.suffix in (".json", ".npy")
+        if f.suffix == ".npy":
+            np.load(f, allow_pickle=False)
+
+
+def test_save_load_keeps_rendering(rng, tmp_path):
+    from seed2gs_inverse.operators.render import Rendering
+
+    v = _random_view(rng, h=6, w=8)
+    r = Rendering(rng.random((6, 8, 3)).astype(np.float32), v.alpha(), rng.random((6, 8)).astype(np.float32),
+                  np.arange(48, dtype=np.int32).reshape(6, 8))
+    OperatorStack([ViewOperator(v.W, v.camera, v.image_shape, r)]).save(tmp_path / "ops")
+    back = OperatorStack.load(tmp_path / "ops", mmap=False)[0].rendering
+    assert isinstance(back, Rendering)
+    for k in ("rgb", "alpha", "depth", "n_contrib"):
+        np.testing.assert_array_equal(getattr(back, k), getattr(r, k))
+        assert getattr(back, k).dtype == getattr(r, k).dtype
+
+
+def test_fingerprint_checks_scene(rng, tmp_path):
+    scene = _scene(rng)
+    fp = scene_fingerprint(scene)
+    assert fp == scene_fingerprint(scene.copy()) and len(fp) == 16
+    moved = scene.copy()
+    moved.means[7, 0] += 1e-3
+    assert scene_fingerprint(moved) != fp
+    s = OperatorStack(_stack(rng).views, fingerprint=fp)
+    s.save(tmp_path / "ops")
+    assert OperatorStack.load(tmp_path / "ops", scene=scene).fingerprint == fp
+    with pytest.raises(ValidationError, match="another scene"):
+        OperatorStack.load(tmp_path / "ops", scene=moved)
+    with pytest.raises(ValidationError, match="Gaussians"):
+        OperatorStack.load(tmp_path / "ops", scene=_scene(rng, n=49))
+
+
+def test_save_refuses_foreign_directory_and_overwrites_only_when_asked(rng, tmp_path):
+    s = _stack(rng)
+    other = tmp_path / "photos"
+    other.mkdir()
+    (other / "keep.txt").write_text("mine")
+    with pytest.raises(ValidationError, match="not an operator directory"):
+        s.save(other, overwrite=True)
+    assert (other / "keep.txt").read_text() == "mine"
+    s.save(tmp_path / "ops")
+    with pytest.raises(ValidationError, match="overwrite"):
+        s.save(tmp_path / "ops")
+    s2 = _stack(np.random.default_rng(7))
+    s2.save(tmp_path / "ops", overwrite=True)
+    _assert_same(s2, OperatorStack.load(tmp_path / "ops"))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ops", "photos"]
+
+
+def test_failed_save_leaves_nothing(rng, tmp_path, monkeypatch):
+    s = _stack(rng)
+    calls = {"n": 0}
+    real = np.save
+
+    def flaky(*a, **k):
+        calls["n"] += 1
+        if calls["n"] == 4:
+            raise OSError("disk full")
+        return real(*a, **k)
+
+    monkeypatch.setattr(np, "save", flaky)
+    with pytest.raises(OSError, match="disk full"):
+        s.save(tmp_path / "ops")
+    assert list(tmp_path.iterdir()) == []
+
+
+# -- corrupted / foreign directories --------------------------------------------------
+def _saved(rng, tmp_path) -> Path:
+    d = tmp_path / "ops"
+    _stack(rng).save(d)
+    return d
+
+
+def _edit_manifest(d: Path, fn):
+    m = json.loads((d / "manifest.json").read_text())
+    fn(m)
+    (d / "manifest.json").write_text(json.dumps(m))
+
+
+def _corruptions():
+    def arr(name, value):
+        return lambda d: np.save(d / name, value)
+
+    return {
+        "no manifest": (lambda d: (d / "manifest.json").unlink(), "manifest"),
+        "not json": (lambda d: (d / "manifest.json").write_text("{oops"), "JSON"),
+        "binary manifest": (lambda d: (d / "manifest.json").write_bytes(b"\xff\xfe\x00"), "JSON"),
+        "wrong format": (lambda d: _edit_manifest(d, lambda m: m.update(format="x")), "format"),
+        "future version": (lambda d: _edit_manifest(d, lambda m: m.update(version=2)), "version"),
+        "bad n": (lambda d: _edit_manifest(d, lambda m: m.update(n_gaussians=-1)), "n_gaussians"),
+        "no views": (lambda d: _edit_manifest(d, lambda m: m.update(views=[])), "views"),
+        "bad camera": (lambda d: _edit_manifest(d, lambda m: m["views"][0]["camera"].update(fx=-1)), "view 0"),
+        "shape vs camera": (lambda d: _edit_manifest(d, lambda m: m["views"][1].update(image_shape=[5, 8])),
+                            "view 1"),
+        "path traversal": (lambda d: _edit_manifest(
+            d, lambda m: m["views"][0]["files"].update(data="../x.npy")), "file name"),
+        "missing array": (lambda d: (d / "view_002_indices.npy").unlink(), "missing"),
+        "truncated array": (lambda d: (d / "view_000_data.npy").write_bytes(
+            (d / "view_000_data.npy").read_bytes()[:100]), "view_000_data"),
+        "pickled array": (lambda d: np.save(d / "view_000_data.npy", np.array([{}], dtype=object),
+                                            allow_pickle=True), "view_000_data"),
+        "float64 data": (lambda d: np.save(d / "view_001_data.npy",
+                                           np.load(d / "view_001_data.npy").astype(np.float64)), "float32"),
+        "nan weight": (lambda d: np.save(d / "view_001_data.npy", np.full_like(
+            np.load(d / "view_001_data.npy"), np.nan)), "finite"),
+        "index out of range": (lambda d: np.save(d / "view_000_indices.npy", np.load(
+            d / "view_000_indices.npy") + 1000), r"\[0, 50\)"),
+        "indptr decreasing": (lambda d: np.save(d / "view_000_indptr.npy", np.load(
+            d / "view_000_indptr.npy")[::-1].copy()), "indptr"),
+        "indptr short": (lambda d: np.save(d / "view_000_indptr.npy", np.load(
+            d / "view_000_indptr.npy")[:-1].copy()), "indptr"),
+        "nnz lies": (lambda d: _edit_manifest(d, lambda m: m["views"][0].update(nnz=3)), "nnz"),
+        "2-D data": (lambda d: np.save(d / "view_000_data.npy", np.load(d / "view_000_data.npy")[:, None]), "1-D"),
+        "index dtype": (arr("view_000_indices.npy", np.zeros(3, np.float32)), "int32"),
+    }
+
+
+@pytest.mark.parametrize("name", list(_corruptions()))
+@pytest.mark.parametrize("mmap", [True, False])
+def test_corrupted_directory_gives_clear_error(rng, tmp_path, name, mmap):
+    d = _saved(rng, tmp_path)
+    corrupt, match = _corruptions()[name]
+    corrupt(d)
+    with pytest.raises(FormatError, match=match):
+        OperatorStack.load(d, mmap=mmap)
+
+
+def test_load_of_non_directory(tmp_path):
+    with pytest.raises(FormatError, match="not a directory"):
+        OperatorStack.load(tmp_path / "nope")
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(FormatError, match="not a directory"):
+        OperatorStack.load(tmp_path / "file")
