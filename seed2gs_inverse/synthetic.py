@@ -365,10 +365,11 @@ class SyntheticScene:
 def _layout(rng) -> dict:
     """Slot of each object on the ground: (x, y) in the local frame plus yaw.
 
-    Slots are at least the sum of the bounding radii plus the jitter range
-    apart, so objects never touch for any seed.
+    Slots are far enough apart (along x or y, beyond the half-sizes of the
+    objects' yawed bounding boxes plus the jitter range) that neither the
+    objects nor their declared boxes overlap for any seed.
     """
-    slots = {"sphere": (-0.8, 0.5), "box": (0.0, 0.7), "cup": (0.8, 0.4),
+    slots = {"sphere": (-0.9, 0.5), "box": (0.0, 0.75), "cup": (0.8, 0.4),
              "rod": (-0.55, -0.6), "can 1": (0.3, -0.4), "can 2": (0.9, -0.5)}
     return {k: (np.array(v) + rng.uniform(-0.08, 0.08, 2), rng.uniform(0, 2 * np.pi))
             for k, v in slots.items()}

@@ -66,7 +66,7 @@ def membership_plot(scene: GaussianScene, q=None, mode: str = "points", threshol
                     screenshot=None, off_screen: bool | None = None, camera=None,
                     max_glyphs: int = 20000, glyph_sigma: float = 1.0, point_size: float = 3.0,
                     cmap: str = "viridis", window_size=None, min_opacity: float = 0.0,
-                    background="white", seed: int = 0):
+                    background="white", scalar_bar: bool = True, seed: int = 0):
     """Show Gaussians coloured by membership.
 
     Parameters
@@ -94,9 +94,10 @@ def membership_plot(scene: GaussianScene, q=None, mode: str = "points", threshol
         view; window size defaults to its image size).
     max_glyphs : int
         Cap on ellipsoids.
-    glyph_sigma, point_size, cmap, window_size, background
+    glyph_sigma, point_size, cmap, window_size, background, scalar_bar
         Drawing options; ``window_size`` is ``(width, height)``, default
-        ``(1024, 768)``.
+        ``(1024, 768)``; ``scalar_bar`` shows the colormap legend when ``q``
+        is given.
     min_opacity : float
         Hide Gaussians with activated opacity below this (real scenes carry
         many invisible ones that clutter the view).
@@ -150,7 +151,7 @@ def membership_plot(scene: GaussianScene, q=None, mode: str = "points", threshol
     pl = pv.Plotter(off_screen=bool(off_screen), window_size=[int(window_size[0]), int(window_size[1])])
     pl.set_background(background)
     if qv is not None:
-        color_kw = dict(scalars=qv[idx], cmap=cmap, clim=(0.0, 1.0), show_scalar_bar=True,
+        color_kw = dict(scalars=qv[idx], cmap=cmap, clim=(0.0, 1.0), show_scalar_bar=bool(scalar_bar),
                         scalar_bar_args={"title": "q"})
     else:
         rgb = np.clip(SH_C0 * scene.sh[idx, 0, :].astype(np.float64) + 0.5, 0.0, 1.0)

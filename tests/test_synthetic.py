@@ -83,6 +83,14 @@ def test_every_gaussian_lies_in_its_declared_box(up, origin, scale):
                 assert not s.inside(a, s.scene.means[s.labels == b]).any(), (a, b)
 
 
+def test_objects_and_their_boxes_never_overlap_for_any_seed():
+    for seed in range(25):
+        s = make_scene(seed=seed, n_per_object=20, ground=False)
+        for a in range(1, 8):
+            others = (s.labels != a) & ~np.isin(s.labels, [3, 4] if a in (3, 4) else [])
+            assert not s.inside(a, s.scene.means[others]).any(), (seed, a)
+
+
 def test_sphere_is_a_shell_of_normal_flattened_surfels(syn):
     on = syn.labels == 1
     c = syn.centers[1]

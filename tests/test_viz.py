@@ -1,0 +1,206 @@
+"""pyvista membership views (off-screen), matplotlib view grids and ``seed2gs view``."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import warnings
+
+import numpy as np
+import pytest
+
+from seed2gs_inverse import Camera, GaussianScene, ValidationError
+from seed2gs_inverse.cli import _view
+from seed2gs_inverse.viz import membership_plot, view_grid
+
+W, H = 64, 48
+VIRIDIS_TOP = np.array([253, 231, 37])
+VIRIDIS_BOTTOM = np.array([68, 1, 84])
+
+
+def _has_display():
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+@pytest.fixture(scope="module")
+def offscreen():
+    """Skip the pyvista tests, with the reason, when off-screen rendering is impossible."""
+    if not _has_display():
+        os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+    try:
+        import pyvista as pv
+
+        pl = pv.Plotter(off_screen=True, window_size=[16, 16])
+        pl.add_mesh(pv.Sphere())
+        img = pl.screenshot(None, return_img=True)
+        pl.close()
+        assert img.shape[:2] == (16, 16)
+    except Exception as exc:  # noqa: BLE001 - any failure means: no off-screen OpenGL here
+        pytest.skip(f"off-screen VTK rendering (EGL) is not available on this machine: {exc}")
+
+
+def _cloud(rng, n=400, center=(0.0, 0.0, 0.0), rgb=(0.9, 0.1, 0.1)):
+    sh = np.zeros((n, 1, 3))
+    sh[:, 0] = (np.asarray(rgb) - 0.5) / 0.28209479177387814
+    return GaussianScene(rng.normal(0, 0.15, (n, 3)) + center, np.tile([1.0, 0, 0, 0], (n, 1)),
+                         np.full((n, 3), np.log(0.03)), np.full(n, 3.0), sh)
+
+
+def _camera():
+    # Looks along +z at the origin from z = -3; image up is world -y.
+    return Camera.look_at([0, 0, -3.0], [0, 0, 0], [0, -1, 0], 50.0, W, H, name="test")
+
+
+def _foreground(img, bg=255):
+    return np.any(np.abs(img[:, :, :3].astype(int) - bg) > 30, axis=2)
+
+
+def test_points_with_q_one_show_the_top_of_the_colormap(offscreen, rng, tmp_path):
+    scene = _cloud(rng)
+    out = tmp_path / "q1.png"
+    img = membership_plot(scene, np.ones(len(scene)), screenshot=out, camera=_camera(),
+                          point_size=4, scalar_bar=False)
+    from PIL import Image
+
+    png = np.asarray(Image.open(out))
+    assert png.shape[:2] == (H, W) and img.shape == (H, W, 3)
+    fg = _foreground(img)
+    assert fg.mean() > 0.02
+    colours = img[fg].astype(float)
+    # Median: edge pixels blend with the white background (anti-aliasing).
+    assert np.median(np.abs(colours - VIRIDIS_TOP).max(axis=1)) < 6
+    img0 = membership_plot(scene, np.zeros(len(scene)), screenshot=tmp_path / "q0.png",
+                           camera=_camera(), point_size=4, scalar_bar=False)
+    fg0 = _foreground(img0)
+    assert np.median(np.abs(img0[fg0].astype(float) - VIRIDIS_BOTTOM).max(axis=1)) < 6
+
+
+def test_camera_places_points_where_it_projects_them_and_threshold_hides(offscreen, rng, tmp_path):
+    left, right = _cloud(rng, center=(-0.8, 0, 0)), _cloud(rng, center=(0.8, 0.3, 0))
+    scene = GaussianScene.concat([left, right])
+    q = np.r_[np.ones(len(left)), np.zeros(len(right))]
+    cam = _camera()
+    img = membership_plot(scene, q, threshold=0.5, screenshot=tmp_path / "t.png", camera=cam,
+                          point_size=2, scalar_bar=False)
+    ys, xs = np.nonzero(_foreground(img))
+    uv, _ = cam.project(left.means)
+    # Only the left cloud is drawn, centred where the pinhole model puts it.
+    assert abs(xs.mean() + 0.5 - uv[:, 0].mean()) < 2.0
+    assert abs(ys.mean() + 0.5 - uv[:, 1].mean()) < 2.0
+    assert xs.max() < W / 2
+
+
+def test_scene_colours_and_ellipsoid_cap(offscreen, rng, tmp_path):
+    scene = _cloud(rng, rgb=(0.1, 0.2, 0.9))
+    img = membership_plot(scene, screenshot=tmp_path / "c.png", camera=_camera(), point_size=4)
+    c = img[_foreground(img)].astype(float).mean(0)
+    assert c[2] > 150 and c[0] < 80   # blue, as stored in the SH DC term
+    with pytest.warns(UserWarning, match="50 of 400"):
+        img = membership_plot(scene, rng.random(len(scene)), mode="ellipsoids", max_glyphs=50,
+                              screenshot=tmp_path / "e.png", camera=_camera())
+    assert img.shape == (H, W, 3) and _foreground(img).any()
+
+
+def test_membership_plot_validates(rng):
+    scene = _cloud(rng, n=10)
+    with pytest.raises(ValidationError, match=r"shape \(10,\)"):
+        membership_plot(scene, np.ones(9), screenshot="x.png")
+    with pytest.raises(ValidationError, match=r"\[0, 1\]"):
+        membership_plot(scene, np.full(10, 2.0), screenshot="x.png")
+    with pytest.raises(ValidationError, match="threshold needs"):
+        membership_plot(scene, threshold=0.5, screenshot="x.png")
+    with pytest.raises(ValidationError, match="mode"):
+        membership_plot(scene, mode="voxels", screenshot="x.png")
+    assert not os.path.exists("x.png")
+
+
+def test_view_grid_overlays_masks():
+    img = np.full((8, 10, 3), 0.5)
+    mask = np.zeros((8, 10))
+    mask[2:5, 3:7] = 1
+    mask[0, 0] = np.nan
+    fig = view_grid([img, (img * 255).astype(np.uint8), img[:, :, 0]], [mask, None, mask],
+                    titles=["a", "b", "c"], mask_alpha=0.5)
+    axes = fig.get_axes()
+    assert len(axes) == 3 and axes[0].get_title() == "a"
+    shown = np.asarray(axes[0].images[0].get_array())
+    # Inside: 0.5 img + 0.5 red; outside unchanged; unknown greyed (0.5*0.5 + 0.25).
+    assert np.allclose(shown[3, 4], [0.75, 0.3, 0.3])
+    assert np.allclose(shown[6, 8], [0.5, 0.5, 0.5])
+    assert np.allclose(shown[0, 0], [0.5, 0.5, 0.5])
+    assert np.allclose(np.asarray(axes[1].images[0].get_array()), 0.5, atol=1 / 255)
+    import io
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
+    assert buf.getvalue()[:8] == b"\x89PNG\r\n\x1a\n"
+    with pytest.raises(ValidationError, match="masks"):
+        view_grid([img], [mask, mask])
+    with pytest.raises(ValidationError, match="mask 0"):
+        view_grid([img], [mask[:4]])
+
+
+# -- seed2gs view ------------------------------------------------------------------
+def _parser():
+    p = argparse.ArgumentParser(prog="seed2gs")
+    _view.register(p.add_subparsers(dest="command"))
+    return p
+
+
+@pytest.fixture
+def fake_reader(monkeypatch, rng):
+    scene = _cloud(rng, n=50)
+    monkeypatch.setattr(_view, "_read_scene", lambda path: scene)
+    return scene
+
+
+def test_cli_view_writes_screenshot(offscreen, fake_reader, tmp_path, capsys):
+    q = tmp_path / "q.npy"
+    np.save(q, np.linspace(0, 1, len(fake_reader)).astype(np.float32))
+    out = tmp_path / "shot.png"
+    args = _parser().parse_args(["view", "scene.ply", "--membership", str(q), "--threshold", "0.2",
+                                 "--size", "64x48", "--screenshot", str(out)])
+    assert args.func(args) == 0
+    from PIL import Image
+
+    assert Image.open(out).size == (64, 48)
+    assert "wrote" in capsys.readouterr().out
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["q.npy", "shot.png"]
+
+
+def test_cli_view_errors_exit_2_and_leave_nothing(fake_reader, tmp_path, monkeypatch, capsys):
+    from seed2gs_inverse import cli, viz
+
+    monkeypatch.setattr(cli, "_COMMAND_MODULES", ("_view",))
+    q = tmp_path / "q.npy"
+    np.save(q, np.ones(7))
+    out = tmp_path / "shot.png"
+    assert cli.main(["view", "s.ply", "--membership", str(q), "--screenshot", str(out)]) == 2
+    assert "shape (7,)" in capsys.readouterr().err
+    assert cli.main(["view", "s.ply", "--threshold", "0.5", "--screenshot", str(out)]) == 2
+    assert "--threshold needs --membership" in capsys.readouterr().err
+    assert cli.main(["view", "s.ply", "--screenshot", str(tmp_path / "a.jpg")]) == 2
+
+    def broken(scene, q, screenshot=None, **kw):
+        with open(screenshot, "wb") as f:
+            f.write(b"partial")
+        raise ValidationError("renderer failed")
+    monkeypatch.setattr(viz, "membership_plot", broken)
+    assert cli.main(["view", "s.ply", "--screenshot", str(out)]) == 2
+    assert "renderer failed" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["q.npy"]
+
+
+def test_cli_view_reads_a_real_file(offscreen, rng, tmp_path):
+    io = pytest.importorskip("seed2gs_inverse.io")
+    if not hasattr(io, "write_scene"):
+        pytest.skip("seed2gs_inverse.io.write_scene is not available yet")
+    scene = _cloud(rng, n=30)
+    io.write_scene(tmp_path / "s.ply", scene)
+    out = tmp_path / "s.png"
+    args = _parser().parse_args(["view", str(tmp_path / "s.ply"), "--mode", "ellipsoids",
+                                 "--size", "32x24", "--screenshot", str(out)])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert args.func(args) == 0
+    assert out.stat().st_size > 0
