@@ -212,10 +212,7 @@ def normalize_mask(mask, image_shape, label: str) -> np.ndarray:
                                   f"[{float(fin.min()):.4g}, {float(fin.max()):.4g}]")
     else:
         raise ValidationError(f"{label}: mask dtype {m.dtype} is not supported; use bool, uint8 or float")
-    out = out.reshape(-1)
-    if out.size and np.all(np.isnan(out)):
-        raise ValidationError(f"{label}: mask is entirely NaN (no known pixel); drop the view or give a mask")
-    return out
+    return out.reshape(-1)
 
 
 def _views_of(operators):
@@ -284,13 +281,16 @@ def prior_from_init(init, n: int) -> np.ndarray:
 def prepare(operators, masks, init=None) -> Problem:
     """Validate operators and masks and stack them into a :class:`Problem`.
 
+    A view whose mask is entirely NaN (a lost view) simply carries no
+    evidence.
+
     Raises
     ------
     ValidationError
         Empty stack, mismatched Gaussian counts (operators of different
         scenes), a mask whose shape differs from its view's image, masks of
-        the wrong dtype/range, an all-NaN mask, or a mask count different
-        from the view count. Messages name the view.
+        the wrong dtype/range, masks that are all NaN in every view, or a
+        mask count different from the view count. Messages name the view.
     """
     mats, shapes, names, stack = _views_of(operators)
     if not mats:
@@ -321,6 +321,9 @@ def prepare(operators, masks, init=None) -> Problem:
         ys.append(normalize_mask(m, shapes[i], label))
     y = np.concatenate(ys)
     known = ~np.isnan(y)
+    if not known.any():
+        raise ValidationError(f"every mask is entirely NaN (views 0..{len(ys) - 1} carry no known pixel); "
+                              "nothing to fit")
     y = np.where(known, y, np.float32(0)).astype(np.float32)
     if stack is not None:
         A, AT = stack.stacked(), stack.stacked_transpose()

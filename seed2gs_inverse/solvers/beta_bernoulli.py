@@ -52,9 +52,10 @@ def _view_evidence(problem: Problem, c: int) -> tuple:
     """Columns seen by view ``c`` on known pixels and their (success, total) evidence, float64."""
     rows = problem.view_rows(c)
     Wc = problem.A[rows]
-    k = problem.known[rows].astype(np.float32)
-    total = np.asarray(Wc.T @ k, dtype=np.float64)
-    succ = np.asarray(Wc.T @ (problem.y[rows] * k), dtype=np.float64)
+    # float64 right-hand sides make scipy accumulate in float64 (evidence is computed once per view)
+    k = problem.known[rows].astype(np.float64)
+    total = np.asarray(Wc.T @ k)
+    succ = np.asarray(Wc.T @ (problem.y[rows] * k))
     cols = np.flatnonzero(total > 0)
     return cols, succ[cols], total[cols]
 

@@ -184,7 +184,8 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.2, lam: float = 0.5, mome
 
     Returns
     -------
-    dict with ``q``, ``iterations``, ``view_weights`` (final omega),
+    dict with ``q``, ``iterations``, ``view_weights`` (final omega; 0 for a
+    view without usable pixels),
     ``history`` (one record per outer step: ``loss``, ``iterations``,
     ``weights``, ``residuals``) and ``info`` (function evaluations,
     convergence message).
@@ -221,8 +222,16 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.2, lam: float = 0.5, mome
         logits[obs] = xo
         return 1.0 / (1.0 + np.exp(-logits))
 
+    # Views without a usable pixel (lost masks) take no part in the statistics.
+    active = obj.s_view > 0
+
+    def weights_of(D):
+        omega = np.zeros(V)
+        omega[active] = view_weights(D[active], r_min, lam) if reweight else 1.0
+        return omega
+
     D = obj.residuals(q_of(x))
-    omega = view_weights(D, r_min, lam) if reweight else np.ones(V)
+    omega = weights_of(D)
     history, total, message = [], 0, ""
     for _ in range(max_iter):  # outer steps; each runs >= 1 iteration unless already optimal
         if total >= max_iter:
@@ -235,7 +244,7 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.2, lam: float = 0.5, mome
         message = str(res.message)
         converged = res.status == 0 and res.nit < n_inner
         D = momentum * D + (1.0 - momentum) * obj.residuals(q_of(x))
-        new_omega = view_weights(D, r_min, lam) if reweight else omega
+        new_omega = weights_of(D)
         change = float(np.max(np.abs(new_omega - omega)))
         history.append({"loss": float(res.fun), "iterations": int(res.nit), "weights": new_omega.tolist(),
                         "residuals": D.tolist(), "weight_change": change})

@@ -1,0 +1,342 @@
+"""Solvers against independent references: dense formulas, finite differences, scipy."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from scipy.optimize import lsq_linear
+from scipy.stats import beta as beta_dist
+
+from _solver_scenes import blob_stack
+from seed2gs_inverse.errors import ValidationError
+from seed2gs_inverse.metrics import iou
+from seed2gs_inverse.operators.operator import ViewOperator
+from seed2gs_inverse.solvers import Problem, available_methods, prepare, register_method, solve
+from seed2gs_inverse.solvers.beta_bernoulli import beta_entropy
+from seed2gs_inverse.solvers.voting import bias_to_threshold
+from seed2gs_inverse.solvers.weighted_bce import BCEObjective, view_weights
+
+METHODS = ("voting", "beta_bernoulli", "weighted_bce", "least_squares")
+
+
+def _random_problem(rng, n=40, views=4, h=5, w=6, density=0.25):
+    """Sparse views with row sums <= 1 (compositing weights) and soft masks with some NaN."""
+    mats, masks = [], []
+    for _ in range(views):
+        A = sp.random(h * w, n, density=density, random_state=rng, format="csr", dtype=np.float64)
+        rs = np.asarray(A.sum(1)).ravel()
+        scale = np.where(rs > 0, rng.uniform(0.3, 0.99, rs.size) / np.maximum(rs, 1e-12), 0)
+        mats.append(sp.csr_matrix(sp.diags(scale) @ A, dtype=np.float32))
+        m = rng.random((h, w)).astype(np.float32)
+        m[rng.random((h, w)) < 0.15] = np.nan
+        masks.append(m)
+    return mats, masks
+
+
+def test_registry_lists_all_methods():
+    assert set(METHODS) <= set(available_methods())
+
+
+# -- voting ------------------------------------------------------------------------
+def test_voting_matches_dense_votes_and_bias_rule(rng):
+    mats, masks = _random_problem(rng)
+    A1 = np.zeros(40)
+    A0 = np.zeros(40)
+    for W, m in zip(mats, masks):
+        D = W.toarray().astype(np.float64)
+        y = m.ravel().astype(np.float64)
+        for u in range(D.shape[0]):
+            if np.isnan(y[u]):
+                continue
+            A1 += D[u] * y[u]
+            A0 += D[u] * (1 - y[u])
+    seen = (A0 + A1) > 0
+    for bias in (0.0, 0.3, -0.2):
+        r = solve(mats, masks, method="voting", bias=bias)
+        np.testing.assert_allclose(r.q[seen], (A1 / (A0 + A1))[seen], rtol=1e-5)
+        norm = np.hypot(A0, A1)
+        rule = seen & (A1 / np.where(seen, norm, 1) - A0 / np.where(seen, norm, 1) > bias)
+        np.testing.assert_array_equal(r.selected(), rule)
+        np.testing.assert_array_equal(r.unobserved, ~seen)
+    assert bias_to_threshold(0.0) == 0.5
+    with pytest.raises(ValidationError, match="bias"):
+        solve(mats, masks, method="voting", bias=1.5)
+
+
+def test_nan_pixels_carry_no_evidence(rng):
+    mats, masks = _random_problem(rng)
+    r1 = solve(mats, masks, method="voting")
+    # Replacing the unknown pixels by anything must not change the result when they stay unknown,
+    # and removing those rows from the operators gives the same votes.
+    cut_mats, cut_masks = [], []
+    for W, m in zip(mats, masks):
+        keep = ~np.isnan(m.ravel())
+        cut_mats.append(sp.csr_matrix(W[np.flatnonzero(keep)]))
+        cut_masks.append(m.ravel()[keep][None, :])
+    r2 = solve(cut_mats, cut_masks, method="voting")
+    np.testing.assert_allclose(r1.q, r2.q, rtol=1e-5)
+
+
+def test_mask_dtypes_are_equivalent(rng):
+    mats, _ = _random_problem(rng, density=0.3)
+    bools = [rng.random((5, 6)) > 0.5 for _ in mats]
+    r_bool = solve(mats, bools, method="voting")
+    r_u8 = solve(mats, [b.astype(np.uint8) * 255 for b in bools], method="voting")
+    r_f = solve(mats, [b.astype(np.float64) for b in bools], method="voting")
+    np.testing.assert_array_equal(r_bool.q, r_u8.q)
+    np.testing.assert_array_equal(r_bool.q, r_f.q)
+
+
+# -- beta-Bernoulli --------------------------------------------------------------------
+def test_beta_entropy_matches_scipy():
+    a = np.array([0.5, 1.0, 2.0, 7.5, 120.0, 3.0])
+    b = np.array([0.5, 1.0, 5.0, 1.2, 80.0, 3000.0])
+    np.testing.assert_allclose(beta_entropy(a, b), beta_dist(a, b).entropy(), rtol=1e-10, atol=1e-12)
+
+
+def test_beta_bernoulli_posterior_and_order_independence(rng):
+    mats, masks = _random_problem(rng)
+    a = np.full(40, 2.0)
+    b = np.full(40, 0.5)
+    for W, m in zip(mats, masks):
+        D = W.toarray().astype(np.float64)
+        y = m.ravel().astype(np.float64)
+        k = ~np.isnan(y)
+        a += D[k].T @ y[k]
+        b += D[k].T @ (1 - y[k])
+    r = solve(mats, masks, method="beta_bernoulli", a0=2.0, b0=0.5)
+    obs = ~r.unobserved
+    np.testing.assert_allclose(r.q[obs], (a / (a + b))[obs], rtol=1e-5)
+    perm = [2, 0, 3, 1]
+    r2 = solve([mats[i] for i in perm], [masks[i] for i in perm], method="beta_bernoulli", a0=2.0, b0=0.5)
+    np.testing.assert_allclose(r.q, r2.q, rtol=1e-5)
+    assert r.iterations == 4 and r.info["order"] == [0, 1, 2, 3]
+
+
+def _eig_reference(mats, masks, a, b, view):
+    """EIG of one view by a per-Gaussian loop with scipy.stats entropies."""
+    W = mats[view].toarray().astype(np.float64)
+    k = ~np.isnan(masks[view].ravel())
+    e = W[k].sum(0)
+    total = 0.0
+    for i in np.flatnonzero(e > 0):
+        q = a[i] / (a[i] + b[i])
+        total += (beta_dist(a[i], b[i]).entropy() - q * beta_dist(a[i] + e[i], b[i]).entropy()
+                  - (1 - q) * beta_dist(a[i], b[i] + e[i]).entropy())
+    return total
+
+
+def test_beta_bernoulli_eig_order_follows_reference_gains(rng):
+    mats, masks = _random_problem(rng, n=25, views=4, density=0.2)
+    r = solve(mats, masks, method="beta_bernoulli", order="eig", budget=3)
+    a = np.ones(25)
+    b = np.ones(25)
+    remaining = [0, 1, 2, 3]
+    for step in range(3):
+        gains = {c: _eig_reference(mats, masks, a, b, c) for c in remaining}
+        best = max(gains, key=gains.get)
+        assert r.info["order"][step] == best
+        assert r.history[step]["eig"] == pytest.approx(gains[best], rel=1e-8)
+        W = mats[best].toarray().astype(np.float64)
+        y = masks[best].ravel().astype(np.float64)
+        k = ~np.isnan(y)
+        a += W[k].T @ y[k]
+        b += W[k].T @ (1 - y[k])
+        remaining.remove(best)
+    assert r.iterations == 3 and r.view_weights.sum() == 3 and r.view_weights[remaining[0]] == 0
+    # Gaussians only the unused view sees keep the prior
+    W_unused = mats[remaining[0]].toarray()
+    used = np.zeros(25, bool)
+    for c in r.info["order"]:
+        used |= (mats[c].toarray()[~np.isnan(masks[c].ravel())] > 0).any(0)
+    only = (W_unused > 0).any(0) & ~used
+    assert np.all(r.unobserved[only]) and np.all(r.q[only] == 0)
+
+
+def test_eig_prefers_new_evidence_over_a_duplicate(rng):
+    n = 30
+    base = sp.random(20, n, density=0.3, random_state=rng, format="csr", dtype=np.float32) * 0.2
+    other = sp.csr_matrix(base[:, ::-1])  # the same evidence on other Gaussians
+    mats = [base, sp.csr_matrix(base), other]
+    m = (rng.random((4, 5)) > 0.5)
+    r = solve(mats, [m, m, m], method="beta_bernoulli", order="eig", budget=2)
+    assert sorted(r.info["order"]) != [0, 1]
+
+
+# -- least squares --------------------------------------------------------------------
+@pytest.mark.parametrize("target", ["alpha", "mask"])
+def test_least_squares_fista_matches_scipy(rng, target):
+    mats, masks = _random_problem(rng, n=30, views=4, density=0.3)
+    r = solve(mats, masks, method="least_squares", target=target, tol=1e-7, max_iter=20000)
+    A = np.vstack([W.toarray() for W in mats]).astype(np.float64)
+    y = np.concatenate([m.ravel() for m in masks]).astype(np.float64)
+    alpha = A.sum(1)
+    keep = ~np.isnan(y) & (alpha > 0)
+    rhs = (y * alpha if target == "alpha" else y)[keep]
+    obs = (A[keep] > 0).any(0)
+    ref = lsq_linear(A[keep][:, obs], rhs, bounds=(0, 1), method="bvls", tol=1e-12).x
+    np.testing.assert_allclose(r.q[obs], ref, atol=2e-3)
+    r2 = solve(mats, masks, method="least_squares", target=target, algorithm="lsq_linear", tol=1e-10)
+    np.testing.assert_allclose(r2.q[obs], ref, atol=2e-3)
+
+
+# -- weighted BCE ------------------------------------------------------------------------
+def _float64_problem(rng, n=30, views=3):
+    mats, masks = _random_problem(rng, n=n, views=views, density=0.3)
+    p = prepare(mats, masks)
+    A = p.A.astype(np.float64)
+    return Problem(A=A, AT=A.T.tocsr(), y=p.y, known=p.known, offsets=p.offsets, image_shapes=p.image_shapes,
+                   names=p.names, observed=p.observed, prior=p.prior)
+
+
+@pytest.mark.parametrize("normalize", [False, True])
+def test_weighted_bce_gradient_matches_finite_differences(rng, normalize):
+    prob = _float64_problem(rng)
+    obj = BCEObjective(prob, normalize=normalize, alpha_min=1e-3, eps=1e-6)
+    omega = rng.uniform(0.5, 1.5, prob.n_views)
+    l0 = rng.normal(scale=0.8, size=prob.n_gaussians)
+    f0, g = obj.loss_grad_logits(l0, omega)
+    h = 1e-6
+    fd = np.empty_like(l0)
+    for i in range(l0.size):
+        lp, lm = l0.copy(), l0.copy()
+        lp[i] += h
+        lm[i] -= h
+        fd[i] = (obj.loss_grad_logits(lp, omega)[0] - obj.loss_grad_logits(lm, omega)[0]) / (2 * h)
+    np.testing.assert_allclose(g, fd, rtol=1e-5, atol=1e-9)
+    assert np.abs(g).max() > 1e-4  # a gradient that is not trivially zero
+
+
+def test_weighted_bce_loss_matches_direct_sum(rng):
+    prob = _float64_problem(rng)
+    eps = 1e-4
+    obj = BCEObjective(prob, normalize=False, alpha_min=1e-3, eps=eps)
+    omega = rng.uniform(0.5, 1.5, prob.n_views)
+    q = rng.random(prob.n_gaussians)
+    A = prob.A.toarray()
+    total, Z = 0.0, 0.0
+    for c in range(prob.n_views):
+        rows = range(prob.offsets[c], prob.offsets[c + 1])
+        for u in rows:
+            if not prob.known[u] or A[u].sum() < 1e-3:
+                continue
+            p = min(max(A[u] @ q, eps), 1 - eps)
+            y = float(prob.y[u])
+            total += omega[c] * -(y * np.log(p) + (1 - y) * np.log(1 - p))
+            Z += 1.0
+    assert obj.loss_grad_q(q, omega)[0] == pytest.approx(total / Z, rel=1e-10)
+
+
+def test_view_weights_equal_eq6():
+    D = np.array([0.10, 0.12, 0.11, 0.50, 0.09, 0.13, 0.30])
+    r_min, lam = 0.2, 0.5
+    m = np.median(D)
+    s = 1.4826 * np.median(np.abs(D - m))
+    raw = np.array([r_min + (1 - r_min) / (1 + np.exp(-(m + s - d) / (lam * s))) for d in D])
+    np.testing.assert_allclose(view_weights(D, r_min, lam), raw / raw.mean(), rtol=1e-12)
+    w = view_weights(D, r_min, lam)
+    assert w.mean() == pytest.approx(1.0) and np.argmin(w) == 3
+    # all views alike: MAD = 0 must not divide by zero, and every view keeps weight 1
+    np.testing.assert_allclose(view_weights(np.full(5, 0.2)), np.ones(5))
+
+
+def test_weighted_bce_respects_box_and_prior(rng):
+    mats, masks = _random_problem(rng)
+    support = np.zeros(40, bool)
+    support[:5] = True
+    r = solve(mats, masks, method="weighted_bce", init=support, max_iter=30)
+    assert r.q.dtype == np.float32 and r.q.shape == (40,)
+    assert np.all((r.q >= 0) & (r.q <= 1))
+    np.testing.assert_array_equal(r.q[r.unobserved], support[r.unobserved].astype(np.float32))
+    assert r.iterations <= 30 and r.history and r.view_weights.shape == (4,)
+    assert r.view_weights.mean() == pytest.approx(1.0)
+
+
+# -- recovery on a geometric scene ---------------------------------------------------------
+@pytest.fixture(scope="module")
+def blob():
+    return blob_stack(seed=0, n_views=12)
+
+
+def _heldout_miou(stack, q_selected, labels, views):
+    ious = []
+    for i in views:
+        pred = stack[i].matvec(q_selected.astype(np.float32)) > 0.5
+        truth = stack[i].matvec(labels.astype(np.float32)) > 0.5
+        ious.append(iou(pred, truth))
+    return float(np.mean(ious))
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_clean_masks_recover_the_object_on_heldout_views(blob, method):
+    stack, labels, masks = blob
+    held = [3, 7, 11]
+    train = [i for i in range(12) if i not in held]
+    r = solve(stack.subset(train), [masks[i] for i in train], method=method)
+    assert _heldout_miou(stack, r.selected(), labels, held) >= 0.99
+
+
+def test_identity_switch_views_get_low_weight(blob):
+    stack, labels, masks = blob
+    train = list(range(9))
+    bad = [2, 6]
+    other = np.zeros_like(labels)
+    other[np.flatnonzero(~labels)[:60]] = True  # the tracker jumped to background splats
+    fit = [stack[i].matvec(other.astype(np.float32)) > 0.5 if i in bad else masks[i] for i in train]
+    r = solve(stack.subset(train), fit, method="weighted_bce")
+    good = [i for i in train if i not in bad]
+    assert r.view_weights[bad].max() < r.view_weights[good].min()
+    plain = solve(stack.subset(train), fit, method="weighted_bce", reweight=False)
+    held = [9, 10, 11]
+    assert _heldout_miou(stack, r.selected(), labels, held) >= _heldout_miou(stack, plain.selected(), labels, held)
+
+
+# -- bad input ----------------------------------------------------------------------------
+def test_bad_inputs_name_the_view(rng):
+    mats, masks = _random_problem(rng)
+    with pytest.raises(ValidationError, match="empty"):
+        solve([], [], method="voting")
+    with pytest.raises(ValidationError, match="view 2.*35 pixels"):
+        solve(mats, masks[:2] + [np.zeros((5, 7))] + masks[3:], method="voting")
+    views = [ViewOperator(W, None, (5, 6)) for W in mats]
+    with pytest.raises(ValidationError, match=r"view 2.*\(6, 5\).*\(5, 6\)"):
+        solve(views, masks[:2] + [np.zeros((6, 5))] + masks[3:], method="voting")
+    with pytest.raises(ValidationError, match="view 1.*different scenes"):
+        solve([mats[0], sp.csr_matrix(mats[1][:, :-1])] + mats[2:], masks, method="voting")
+    with pytest.raises(ValidationError, match="3 masks for 4 views"):
+        solve(mats, masks[:3], method="voting")
+    with pytest.raises(ValidationError, match="view 0.*\\[0, 1\\]"):
+        solve(mats, [masks[0] * 3] + masks[1:], method="voting")
+    with pytest.raises(ValidationError, match="view 3.*infinite"):
+        solve(mats, masks[:3] + [np.full((5, 6), np.inf)], method="voting")
+    with pytest.raises(ValidationError, match="entirely NaN"):
+        solve(mats, [np.full((5, 6), np.nan)] * 4, method="voting")
+    with pytest.raises(ValidationError, match="unknown method"):
+        solve(mats, masks, method="magic")
+    with pytest.raises(ValidationError, match="no option.*'bias'"):
+        solve(mats, masks, method="voting", learning_rate=1)
+    with pytest.raises(ValidationError, match="init"):
+        solve(mats, masks, method="voting", init=np.zeros(3, bool))
+
+
+def test_lost_view_carries_no_evidence(rng):
+    mats, masks = _random_problem(rng)
+    lost = [m.copy() for m in masks]
+    lost[1][:] = np.nan
+    r = solve(mats, lost, method="weighted_bce", max_iter=20)
+    assert r.view_weights[1] == 0 and np.isfinite(r.q).all()
+    np.testing.assert_allclose(solve(mats, lost, method="voting").q,
+                               solve([mats[i] for i in (0, 2, 3)], [masks[i] for i in (0, 2, 3)],
+                                     method="voting").q, rtol=1e-5)
+
+
+def test_register_a_new_method(rng):
+    def half(problem, *, value: float = 0.5):
+        return {"q": np.full(problem.n_gaussians, value)}
+
+    register_method("constant_test", half)
+    mats, masks = _random_problem(rng)
+    r = solve(mats, masks, method="constant_test", value=0.7)
+    assert "constant_test" in available_methods()
+    assert np.all(r.q[~r.unobserved] == np.float32(0.7)) and np.all(r.q[r.unobserved] == 0)
