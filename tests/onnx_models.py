@@ -290,3 +290,125 @@ def grounding_dino(path, chair_id=7, table_id=12):
                  vi("attention_mask", BOOL, [1, "L"]), vi("position_ids", I64, [1, "L"]),
                  vi("token_type_ids", I64, [1, "L"]), vi("text_token_mask", BOOL, [1, "L", "L"])],
                 [vi("logits", F32, [1, 2, 256]), vi("boxes", F32, [1, 2, 4])], inits)
+
+
+# ---------------------------------------------------------------- SAM3 (samexporter layout)
+S3 = 32
+CHAIR_CLIP, TABLE_CLIP = 14, 25          # ids of "chair</w>", "table</w>" in CLIP_VOCAB
+SAM3_BOXES = np.array([[[0.25, 0.5, 0.3, 0.4], [0.7, 0.5, 0.3, 0.6]]], np.float32)
+
+
+def _box_logits(boxes, n=8):
+    c = (np.arange(n) + 0.5) / n
+    X, Y = np.meshgrid(c, c)
+    out = []
+    for cx, cy, w, h in boxes:
+        inside = (np.abs(X - cx) < w / 2) & (np.abs(Y - cy) < h / 2)
+        out.append(np.where(inside, 5.0, -5.0))
+    return np.asarray(out, np.float32)[None]
+
+
+def sam3_image_encoder(path, dtype=U8):
+    names = ["vision_pos_enc_0", "vision_pos_enc_1", "vision_pos_enc_2",
+             "backbone_fpn_0", "backbone_fpn_1", "backbone_fpn_2"]
+    nodes = [helper.make_node("Cast", ["image"], ["fimg"], to=F32),
+             helper.make_node("Unsqueeze", ["fimg", "ax0"], ["bimg"]),
+             pool("bimg", "feat", 8)] + [helper.make_node("Identity", ["feat"], [n]) for n in names]
+    return save(path, nodes, [vi("image", dtype, [3, S3, S3])],
+                [vi(n, F32, [1, 3, 4, 4]) for n in names], [const("ax0", np.array([0], np.int64))])
+
+
+def sam3_language_encoder(path):
+    inits = [const("zero64", np.array(0, np.int64)), const("shp", np.array([32, 1, 1], np.int64))]
+    nodes = [helper.make_node("Equal", ["tokens", "zero64"], ["text_attention_mask"]),
+             helper.make_node("Cast", ["tokens"], ["tf"], to=F32),
+             helper.make_node("Reshape", ["tf", "shp"], ["text_memory"]),
+             helper.make_node("Identity", ["text_memory"], ["text_embeds"])]
+    return save(path, nodes, [vi("tokens", I64, [1, 32])],
+                [vi("text_attention_mask", BOOL, [1, 32]), vi("text_memory", F32, [32, 1, 1]),
+                 vi("text_embeds", F32, [32, 1, 1])], inits)
+
+
+def sam3_decoder(path, capacity=None):
+    """Query 0 (left box) fires on 'chair', query 1 (right box) on 'table'; any box prompt fires both."""
+    inits = [const("cid", np.array(CHAIR_CLIP, np.float32)), const("tid", np.array(TABLE_CLIP, np.float32)),
+             const("twenty", np.array(20, np.float32)), const("ten", np.array(10, np.float32)),
+             const("shp", np.array([1, 1, 1], np.int64)), const("boxc", SAM3_BOXES),
+             const("maskc", _box_logits(SAM3_BOXES[0])), const("pres", np.array([[10.0]], np.float32)),
+             const("zero", np.array(0, np.float32))]
+    nodes = []
+    for q, tid in (("0", "cid"), ("1", "tid")):
+        nodes += [helper.make_node("Equal", ["language_features", tid], ["eq" + q]),
+                  helper.make_node("Cast", ["eq" + q], ["eqf" + q], to=F32),
+                  helper.make_node("ReduceMax", ["eqf" + q], ["hit" + q], keepdims=0)]
+    nodes += [helper.make_node("Not", ["box_masks"], ["valid"]),
+              helper.make_node("Cast", ["valid"], ["validf"], to=F32),
+              helper.make_node("ReduceMax", ["validf"], ["anybox"], keepdims=0),
+              helper.make_node("Max", ["hit0", "anybox"], ["h0"]),
+              helper.make_node("Max", ["hit1", "anybox"], ["h1"]),
+              helper.make_node("Reshape", ["h0", "shp"], ["h0r"]),
+              helper.make_node("Reshape", ["h1", "shp"], ["h1r"]),
+              helper.make_node("Concat", ["h0r", "h1r"], ["hits"], axis=1),
+              helper.make_node("Mul", ["hits", "twenty"], ["h20"]),
+              helper.make_node("Sub", ["h20", "ten"], ["lg"]),
+              # consume the remaining inputs so their shapes are exercised
+              helper.make_node("Cast", ["original_height"], ["ohf"], to=F32),
+              helper.make_node("ReduceSum", ["backbone_fpn_2"], ["bsum"], keepdims=0),
+              helper.make_node("ReduceSum", ["box_coords"], ["csum"], keepdims=0),
+              helper.make_node("Add", ["ohf", "bsum"], ["j1"]),
+              helper.make_node("Add", ["j1", "csum"], ["j2"]),
+              helper.make_node("Mul", ["j2", "zero"], ["z"]),
+              helper.make_node("Add", ["lg", "z"], ["pred_logits"]),
+              helper.make_node("Add", ["boxc", "z"], ["pred_boxes"]),
+              helper.make_node("Add", ["maskc", "z"], ["pred_masks"]),
+              helper.make_node("Identity", ["pres"], ["presence_logit_dec"])]
+    k = capacity or "K"
+    ins = [vi("original_height", I64, []), vi("original_width", I64, [])]
+    ins += [vi(f"vision_pos_enc_{i}", F32, [1, 3, 4, 4]) for i in range(3)]
+    ins += [vi(f"backbone_fpn_{i}", F32, [1, 3, 4, 4]) for i in range(3)]
+    ins += [vi("language_mask", BOOL, [1, 32]), vi("language_features", F32, [32, 1, 1]),
+            vi("language_embeds", F32, [32, 1, 1]), vi("box_coords", F32, [k, 1, 4]),
+            vi("box_labels", I64, [k, 1]), vi("box_masks", BOOL, [1, k])]
+    return save(path, nodes, ins,
+                [vi("pred_logits", F32, [1, 2, 1]), vi("pred_boxes", F32, [1, 2, 4]),
+                 vi("pred_masks", F32, [1, 2, 8, 8]), vi("presence_logit_dec", F32, [1, 1])], inits)
+
+
+def sam3_set(tmp):
+    tmp = Path(tmp)
+    return dict(image_encoder=sam3_image_encoder(tmp / "sam3_enc.onnx"),
+                language_encoder=sam3_language_encoder(tmp / "sam3_lang.onnx"),
+                decoder=sam3_decoder(tmp / "sam3_dec.onnx"),
+                tokenizer=clip_tokenizer_json(tmp / "clip_tokenizer.json"))
+
+
+# ---------------------------------------------------------------- OWL-ViT (optimum layout)
+OWL_BOXES = np.array([[[0.3, 0.3, 0.2, 0.2], [0.6, 0.7, 0.4, 0.3]]], np.float32)
+
+
+def owlvit(path):
+    """Patch 0 fires on 'chair', patch 1 on 'table' (logits +-10); fixed boxes."""
+    inits = [const("twenty", np.array(20, np.float32)), const("ten", np.array(10, np.float32)),
+             const("boxc", OWL_BOXES), const("zero", np.array(0, np.float32)),
+             const("shp", np.array([1, 1, 1], np.int64))]
+    nodes, rows = [], []
+    for q, tid in (("0", CHAIR_CLIP), ("1", TABLE_CLIP)):
+        inits.append(const("id" + q, np.array(tid, np.int64)))
+        nodes += [helper.make_node("Equal", ["input_ids", "id" + q], ["eq" + q]),
+                  helper.make_node("Cast", ["eq" + q], ["eqf" + q], to=F32),
+                  helper.make_node("ReduceMax", ["eqf" + q], ["hit" + q], keepdims=0),
+                  helper.make_node("Reshape", ["hit" + q, "shp"], ["r" + q])]
+        rows.append("r" + q)
+    nodes += [helper.make_node("Concat", rows, ["hits"], axis=1),
+              helper.make_node("Mul", ["hits", "twenty"], ["h20"]),
+              helper.make_node("Sub", ["h20", "ten"], ["lg"]),
+              helper.make_node("ReduceMean", ["pixel_values"], ["pm"], keepdims=0),
+              helper.make_node("Cast", ["attention_mask"], ["amf"], to=F32),
+              helper.make_node("ReduceSum", ["amf"], ["ams"], keepdims=0),
+              helper.make_node("Add", ["pm", "ams"], ["j"]),
+              helper.make_node("Mul", ["j", "zero"], ["z"]),
+              helper.make_node("Add", ["lg", "z"], ["logits"]),
+              helper.make_node("Add", ["boxc", "z"], ["pred_boxes"])]
+    return save(path, nodes, [vi("input_ids", I64, ["nq", 16]), vi("pixel_values", F32, [1, 3, 32, 32]),
+                              vi("attention_mask", I64, ["nq", 16])],
+                [vi("logits", F32, [1, 2, "nq"]), vi("pred_boxes", F32, [1, 2, 4])], inits)

@@ -1,0 +1,267 @@
+"""Model configuration: which ONNX files play which role.
+
+A small TOML (or JSON) file; relative paths are relative to the file. Every
+section is optional; a missing file, a wrong signature or an unknown key is
+a :class:`~seed2gs_inverse.errors.FormatError` naming the file.
+
+.. code-block:: toml
+
+    [sam2]                      # image predictor (mask model when no SAM3)
+    encoder = "sam2.1_hiera_tiny.encoder.onnx"
+    decoder = "sam2.1_hiera_tiny.decoder.onnx"
+
+    [sam2_video]                # tracker (replaces the model-free one)
+    image_encoder = "tiny/image_encoder.onnx"
+    image_decoder = "tiny/image_decoder.onnx"
+    memory_attention = "tiny/memory_attention.onnx"
+    memory_encoder = "tiny/memory_encoder.onnx"
+    # num_maskmem = 7
+
+    [groundingdino]
+    model = "groundingdino_swint_ogc.onnx"
+    tokenizer = "bert-base-uncased/tokenizer.json"
+    # box_threshold = 0.35, text_threshold = 0.25
+
+    [sam3]                      # mask model for every cue + SAM3-text source
+    image_encoder = "sam3_image_encoder.onnx"
+    language_encoder = "sam3_language_encoder.onnx"
+    decoder = "sam3_decoder.onnx"
+    tokenizer = "clip/tokenizer.json"
+
+    [owlvit]
+    model = "owlvit-base-patch32.onnx"
+    tokenizer = "owlvit-base-patch32/tokenizer.json"
+
+    [external]                  # boxes from a VLM run elsewhere
+    boxes = "qwen3vl_boxes.json"
+
+    [selector]
+    weights = { source = 0.25, confidence = 0.5, language = 0.25 }
+    sources = ["vlm", "groundingdino", "sam3_text"]
+    mask_model = "sam3"         # or "sam2"
+
+Found via ``--models FILE``, else the ``SEED2GS_MODELS`` environment
+variable (:func:`resolve_models`), or :func:`load_models` from the API.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from ..errors import FormatError, ValidationError
+
+__all__ = ["ModelSet", "load_models", "resolve_models", "ENV_VAR"]
+
+ENV_VAR = "SEED2GS_MODELS"
+
+# section -> {key: kind}; kind "path" keys are resolved against the file's folder
+_SCHEMA = {
+    "sam2": {"encoder": "path", "decoder": "path", "mask_threshold": float},
+    "sam2_video": {"image_encoder": "path", "image_decoder": "path", "memory_attention": "path",
+                   "memory_encoder": "path", "num_maskmem": int, "mask_threshold": float},
+    "groundingdino": {"model": "path", "tokenizer": "path", "box_threshold": float,
+                      "text_threshold": float, "max_detections": int},
+    "sam3": {"image_encoder": "path", "decoder": "path", "language_encoder": "path",
+             "tokenizer": "path", "threshold": float},
+    "owlvit": {"model": "path", "tokenizer": "path", "threshold": float, "max_detections": int},
+    "external": {"boxes": "path", "name": str, "coords": str},
+    "selector": {"weights": dict, "sources": list, "mask_model": str, "per_source": int,
+                 "source_prior": dict, "compatibility": dict},
+    "onnxruntime": {"providers": list},
+}
+_REQUIRED = {"sam2": ("encoder", "decoder"),
+             "sam2_video": ("image_encoder", "image_decoder", "memory_attention", "memory_encoder"),
+             "groundingdino": ("model", "tokenizer"), "sam3": ("image_encoder", "decoder"),
+             "owlvit": ("model", "tokenizer"), "external": ("boxes",)}
+
+
+def _read(path: Path) -> dict:
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise FormatError(f"{path}: models configuration file not found") from None
+    except OSError as exc:
+        raise FormatError(f"{path}: cannot read the models configuration ({exc.strerror})") from None
+    if path.suffix.lower() == ".json":
+        try:
+            data = json.loads(raw.decode("utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise FormatError(f"{path}: not valid JSON ({exc})") from None
+    else:
+        try:
+            import tomllib
+        except ModuleNotFoundError:  # Python 3.10
+            try:
+                import tomli as tomllib
+            except ModuleNotFoundError:
+                raise FormatError(f"{path}: reading TOML on Python 3.10 needs the 'tomli' package; "
+                                  "install it or write the configuration as JSON") from None
+        try:
+            data = tomllib.loads(raw.decode("utf-8"))
+        except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+            raise FormatError(f"{path}: not valid TOML ({exc})") from None
+    if not isinstance(data, dict):
+        raise FormatError(f"{path}: the configuration must be a table of sections")
+    return data
+
+
+def _sections(path: Path, data: dict) -> dict:
+    out = {}
+    for name, body in data.items():
+        if name not in _SCHEMA:
+            raise FormatError(f"{path}: unknown section [{name}]; known sections: {', '.join(_SCHEMA)}")
+        if not isinstance(body, dict):
+            raise FormatError(f"{path}: [{name}] must be a table of keys")
+        sec = {}
+        for key, value in body.items():
+            kind = _SCHEMA[name].get(key)
+            if kind is None:
+                raise FormatError(f"{path}: unknown key {key!r} in [{name}]; known keys: "
+                                  f"{', '.join(_SCHEMA[name])}")
+            if kind == "path":
+                if not isinstance(value, str) or not value:
+                    raise FormatError(f"{path}: [{name}] {key} must be a file path string")
+                p = Path(os.path.expanduser(value))
+                sec[key] = p if p.is_absolute() else (path.parent / p)
+            elif kind in (int, float):
+                if isinstance(value, bool) or not isinstance(value, (int, float)) or (kind is int and not isinstance(value, int)):
+                    raise FormatError(f"{path}: [{name}] {key} must be a{'n integer' if kind is int else ' number'}")
+                sec[key] = kind(value)
+            elif not isinstance(value, kind):
+                raise FormatError(f"{path}: [{name}] {key} must be a {kind.__name__}")
+            else:
+                sec[key] = value
+        for key in _REQUIRED.get(name, ()):
+            if key not in sec:
+                raise FormatError(f"{path}: [{name}] needs the key {key!r}")
+        out[name] = sec
+    return out
+
+
+@dataclass
+class ModelSet:
+    """The loaded models of one configuration (every member may be None).
+
+    Use :meth:`grounder` for the QD-SAM3 selector and :meth:`tracker` for the
+    SAM2 video tracker; both are None when their models are not configured.
+    """
+
+    sam2: Any = None
+    sam2_video: Any = None
+    groundingdino: Any = None
+    sam3: Any = None
+    owlvit: Any = None
+    external: Any = None
+    selector_options: dict = field(default_factory=dict)
+    path: Path | None = None
+
+    def mask_model(self):
+        """SAM3 when configured (the paper's single mask generator), else SAM2."""
+        choice = self.selector_options.get("mask_model")
+        if choice == "sam2":
+            return self.sam2
+        if choice == "sam3":
+            return self.sam3
+        return self.sam3 if self.sam3 is not None else self.sam2
+
+    def grounder(self, external: Callable | str | Path | None = None):
+        """QD-SAM3 selector over the configured sources, or None when there are none.
+
+        ``external`` adds boxes from elsewhere (a callable ``fn(image,
+        prompt)`` or a JSON file) as the ``"vlm"`` source for this grounder.
+        """
+        from .external import ExternalBoxes
+        from .selector import QDSAM3Selector
+
+        detectors = [d for d in (self.groundingdino, self.owlvit) if d is not None]
+        ext = self.external if external is None else ExternalBoxes(external)
+        if ext is not None:
+            detectors.insert(0, ext)
+        text = self.sam3 if (self.sam3 is not None and self.sam3.language is not None) else None
+        if not detectors and text is None:
+            return None
+        mask_model = self.mask_model()
+        if mask_model is None:
+            raise ValidationError("models: box sources need a mask model; configure [sam3] or [sam2]")
+        opts = {k: v for k, v in self.selector_options.items() if k != "mask_model"}
+        return QDSAM3Selector(mask_model, detectors, text, **opts)
+
+    def tracker(self):
+        """The SAM2 video tracker, or None (the caller uses the model-free tracker)."""
+        return self.sam2_video
+
+    def describe(self) -> str:
+        """One line per configured role, for reports and ``--verbose`` output."""
+        lines = []
+        for name in ("sam2", "sam2_video", "groundingdino", "sam3", "owlvit", "external"):
+            obj = getattr(self, name)
+            if obj is None:
+                continue
+            files = sorted({str(m.path) for m in vars(obj).values() if hasattr(m, "session")})
+            lines.append(f"{name}: " + (", ".join(files) if files else type(obj).__name__))
+        return "\n".join(lines) if lines else "no models configured"
+
+
+def load_models(path) -> ModelSet:
+    """Read a models configuration and open (and signature-check) every file.
+
+    Parameters
+    ----------
+    path : str or Path
+        TOML (``.toml``) or JSON (``.json``) file, format in the module docstring.
+
+    Raises
+    ------
+    FormatError
+        Unreadable configuration, unknown section/key, missing model file or
+        a file whose ONNX signature does not match its role.
+    """
+    from .external import ExternalBoxes
+    from .grounding_dino import GroundingDINO
+    from .owlvit import OWLViT
+    from .sam2 import SAM2ImagePredictor, SAM2VideoTracker
+    from .sam3 import SAM3
+
+    path = Path(path)
+    cfg = _sections(path, _read(path))
+    prov = cfg.get("onnxruntime", {}).get("providers")
+    ms = ModelSet(path=path, selector_options=dict(cfg.get("selector", {})))
+    if "sam2" in cfg:
+        ms.sam2 = SAM2ImagePredictor(providers=prov, **cfg["sam2"])
+    if "sam2_video" in cfg:
+        ms.sam2_video = SAM2VideoTracker(providers=prov, **cfg["sam2_video"])
+    if "groundingdino" in cfg:
+        ms.groundingdino = GroundingDINO(providers=prov, **cfg["groundingdino"])
+    if "sam3" in cfg:
+        ms.sam3 = SAM3(providers=prov, **cfg["sam3"])
+    if "owlvit" in cfg:
+        ms.owlvit = OWLViT(providers=prov, **cfg["owlvit"])
+    if "external" in cfg:
+        e = cfg["external"]
+        ms.external = ExternalBoxes(e["boxes"], e.get("name", "vlm"), e.get("coords", "pixels"))
+    choice = ms.selector_options.get("mask_model")
+    if choice not in (None, "sam2", "sam3"):
+        raise FormatError(f"{path}: [selector] mask_model must be 'sam3' or 'sam2', got {choice!r}")
+    if choice is not None and getattr(ms, choice) is None:
+        raise FormatError(f"{path}: [selector] mask_model = {choice!r} but [{choice}] is not configured")
+    try:
+        ms.grounder()  # validates selector options and the mask-model requirement now
+    except ValidationError as exc:
+        raise FormatError(f"{path}: {exc}") from None
+    return ms
+
+
+def resolve_models(path_or_none=None) -> ModelSet | None:
+    """Models from ``--models`` (the argument), else ``$SEED2GS_MODELS``, else None.
+
+    None means no learned models: the caller falls back to the model-free
+    front end and should say so.
+    """
+    if path_or_none is not None and str(path_or_none) != "":
+        return load_models(path_or_none)
+    env = os.environ.get(ENV_VAR, "").strip()
+    return load_models(env) if env else None
