@@ -53,7 +53,7 @@ from .errors import ValidationError
 from .scene import GaussianScene, rotmat_to_quat
 from .sh import SH_C0, num_sh_coeffs
 
-__all__ = ["SyntheticScene", "make_scene", "compose", "pose_on_point", "parse_pose",
+__all__ = ["SyntheticScene", "make_scene", "compose", "pose_on_point", "parse_pose", "surface_point",
            "masks_from_labels", "render_label_masks", "perturb_masks", "NOISE_KINDS"]
 
 _GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
@@ -713,6 +713,42 @@ def pose_on_point(object_scene: GaussianScene, anchor, up, object_up=(0.0, 0.0, 
     m[:3, :3] = s * rot
     m[:3, 3] = anchor - s * rot @ bottom
     return m
+
+
+def surface_point(camera: Camera, depth, pixel) -> np.ndarray:
+    """World point seen at a pixel, from a rendered expected-depth image.
+
+    Back-projects pixel ``(x, y)`` (integer indices; the ray goes through its
+    centre ``(x + 0.5, y + 0.5)``) to view depth ``z = depth[y, x]``:
+    ``X_cam = ((x + 0.5 - cx) z / fx, (y + 0.5 - cy) z / fy, z)``, then
+    ``X = R^T (X_cam - t)``. With ``depth`` from
+    :func:`seed2gs_inverse.operators.render.render` this is where to stand
+    an object with :func:`pose_on_point` ("put it there" in a real scene).
+
+    Parameters
+    ----------
+    camera : Camera
+    depth : (H, W) array, the camera's expected depth (0 where empty)
+    pixel : (x, y) integers
+
+    Returns
+    -------
+    (3,) float64 world point.
+    """
+    d = np.asarray(depth)
+    if d.shape != camera.image_shape:
+        raise ValidationError(f"depth has shape {d.shape}; camera {camera.name!r} is {camera.image_shape}")
+    try:
+        x, y = (int(v) for v in pixel)
+    except (TypeError, ValueError):
+        raise ValidationError(f"pixel must be an (x, y) pair of integers, got {pixel!r}") from None
+    if not (0 <= x < camera.width and 0 <= y < camera.height):
+        raise ValidationError(f"pixel ({x}, {y}) is outside the {camera.width}x{camera.height} image")
+    z = float(d[y, x])
+    if not (np.isfinite(z) and z > 0):
+        raise ValidationError(f"nothing is rendered at pixel ({x}, {y}) (depth {z}); pick a covered pixel")
+    v = np.array([(x + 0.5 - camera.cx) * z / camera.fx, (y + 0.5 - camera.cy) * z / camera.fy, z])
+    return camera.rotation.T @ (v - camera.translation)
 
 
 # ---------------------------------------------------------------------------

@@ -10,7 +10,7 @@ from seed2gs_inverse import GaussianScene, ValidationError
 from seed2gs_inverse.scene import quat_to_rotmat
 from seed2gs_inverse.sh import eval_sh
 from seed2gs_inverse.synthetic import (NOISE_KINDS, compose, make_scene, masks_from_labels,
-                                       parse_pose, perturb_masks, pose_on_point)
+                                       parse_pose, perturb_masks, pose_on_point, surface_point)
 
 N_OBJ = 120  # small scenes keep the tests fast
 
@@ -255,6 +255,36 @@ def test_pose_on_point_stands_object_upright_at_anchor(rng):
     assert np.allclose(rot[:, 0], world_up, atol=1e-6)
     with pytest.raises(ValidationError, match="either"):
         pose_on_point(obj, anchor, world_up, height=1.0, scale=2.0)
+
+
+def test_surface_point_inverts_the_projection(rng):
+    s = make_scene(seed=2, n_per_object=40)
+    cam = s.reference_camera(64, 48)
+    depth = rng.uniform(0.5, 5.0, (48, 64)).astype(np.float32)
+    for x, y in [(0, 0), (63, 47), (17, 30)]:
+        p = surface_point(cam, depth, (x, y))
+        (uv,), (z,) = cam.project(p[None])
+        assert np.allclose(uv, [x + 0.5, y + 0.5], atol=1e-6) and np.isclose(z, depth[y, x], rtol=1e-6)
+    with pytest.raises(ValidationError, match="outside"):
+        surface_point(cam, depth, (64, 0))
+    with pytest.raises(ValidationError, match="nothing is rendered"):
+        surface_point(cam, np.zeros_like(depth), (3, 3))
+    with pytest.raises(ValidationError, match="shape"):
+        surface_point(cam, depth[:10], (3, 3))
+
+
+def test_surface_point_on_a_rendered_ground_is_near_the_plane():
+    from seed2gs_inverse.operators.render import render
+
+    s = make_scene(seed=2, n_per_object=200, up=(0, 0, 1))
+    cam = s.reference_camera(128, 96, azimuth_deg=180.0)
+    # The ground centre is free and, from azimuth 180 degrees, no object hides it.
+    (uv,), _ = cam.project(s.origin[None])
+    p = surface_point(cam, render(s.scene, cam).depth, (int(uv[0]), int(uv[1])))
+    # Expected depth averages Gaussian centres, which at this grazing angle sit
+    # a few centimetres in front of the plane along the ray: a loose bound.
+    assert abs((p - s.origin) @ s.up) < 0.06
+    assert np.linalg.norm(p - s.origin) < 0.15
 
 
 # -- masks ---------------------------------------------------------------------------
