@@ -128,7 +128,7 @@ def finish_scene(path, means, quats, log_scales, opacity_logits, sh, extra=None,
     n = means.shape[0]
     bad = np.zeros(n, dtype=bool)
     for arr in (means, quats, log_scales, opacity_logits, sh):
-        bad |= ~np.isfinite(arr.reshape(n, -1)).all(axis=1)
+        bad |= ~np.isfinite(arr.reshape(n, int(np.prod(arr.shape[1:])))).all(axis=1)
     for arr in extra.values():
         if arr.dtype.kind == "f":
             bad |= ~np.isfinite(arr)

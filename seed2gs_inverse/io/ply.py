@@ -20,8 +20,8 @@ so ``sh[:, 0, c] = f_dc_c`` and ``sh[:, 1 + k, c] = f_rest_{c (K-1) + k}``.
 
 Reading accepts ASCII, binary little- and big-endian files, any property
 order and any numeric property type (values are converted to float32).
-Normals are put in ``extra`` only when they are not all zero (the trainer's
-zeros carry no information). Writing always produces binary little-endian
+Normals are put in ``extra`` unless every normal component is zero (the
+trainer's zeros carry no information). Writing always produces binary little-endian
 float32 in the trainer's order, normals included (zeros unless ``extra``
 holds them), followed by the extra properties in their own dtypes.
 """
@@ -299,10 +299,11 @@ def read_standard_ply(path, header: PlyHeader, drop_nonfinite: bool = False) -> 
     # f_rest is channel-major: column c*(k-1) + j is coefficient j+1 of channel c.
     sh[:, 1:, :] = cols[:, 14:].reshape(n, 3, k - 1).transpose(0, 2, 1)
     extra = {}
+    zero_normals = not any(np.any(vert[name]) for name in _NORMALS if name in names)
     for name in names:
         if name in _REQUIRED or name in rest:
             continue
-        if name in _NORMALS and not np.any(vert[name]):
+        if name in _NORMALS and zero_normals:
             continue
         extra[name] = np.ascontiguousarray(vert[name])
     return finish_scene(path, np.ascontiguousarray(cols[:, 0:3]),

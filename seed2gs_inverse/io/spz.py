@@ -54,6 +54,7 @@ SPZ_MAGIC = 0x5053474E
 _SH_DIM = (0, 3, 8, 15, 24)
 _COLOR_SCALE = 0.15
 _FLAG_EXTENSIONS = 0x2
+_MAX_EXTENSION_BYTES = 1 << 20  # room for vendor records; bounds the decompressed size
 
 
 def _sizes(n: int, sh_degree: int, version: int) -> list:
@@ -95,8 +96,7 @@ def _read_gzip(path, data: bytes, drop_nonfinite: bool) -> GaussianScene:
     payload = sum(sizes)
     # Extension records sit between the header and the arrays; their total
     # length is whatever the stream holds beyond the arrays.
-    ext_allowance = (1 << 20) if flags & _FLAG_EXTENSIONS else 0
-    raw = bounded_gzip(path, data, 16 + payload + ext_allowance)
+    raw = bounded_gzip(path, data, 16 + payload + _MAX_EXTENSION_BYTES)
     extra = len(raw) - 16 - payload
     if extra < 0:
         raise fail(path, f"file is truncated: the header promises {n} Gaussians "
@@ -181,7 +181,7 @@ def _decode(path, buf, n: int, sh_degree: int, frac: int, version: int,
         warnings.warn(f"{os.fspath(path)}: SH degree 4 is not supported; "
                       f"the degree-4 band is dropped", stacklevel=4)
     sh = np.empty((n, 1 + keep, 3), np.float32)
-    sh[:, 0, :] = (color_b.reshape(n, 3).astype(np.float32) / 255.0 - 0.5) / _COLOR_SCALE
+    sh[:, 0, :] = (color_b.reshape(n, 3).astype(np.float64) / 255.0 - 0.5) / _COLOR_SCALE
     if keep:
         rest = sh_b.reshape(n, dim, 3)[:, :keep, :]
         sh[:, 1:, :] = (rest.astype(np.float32) - 128.0) / 128.0

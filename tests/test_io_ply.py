@@ -1,0 +1,315 @@
+"""Standard 3DGS PLY: reading files written by plyfile, exact round trips, errors."""
+
+from __future__ import annotations
+
+import tracemalloc
+import warnings
+
+import numpy as np
+import plyfile
+import pytest
+
+from _io_encoders import random_scene, standard_columns, write_ply_plyfile
+from seed2gs_inverse.errors import FormatError, ValidationError
+from seed2gs_inverse.io import detect_format, read_scene, write_scene
+from seed2gs_inverse.scene import GaussianScene
+
+ARRAYS = ("means", "quats", "log_scales", "opacity_logits", "sh")
+
+
+def assert_same_scene(a, b):
+    for name in ARRAYS:
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    assert sorted(a.extra) == sorted(b.extra)
+    for key in a.extra:
+        np.testing.assert_array_equal(a.extra[key], b.extra[key], err_msg=key)
+        assert a.extra[key].dtype == b.extra[key].dtype
+
+
+@pytest.mark.parametrize("degree", [0, 1, 2, 3])
+@pytest.mark.parametrize("normals", [True, False])
+def test_reads_plyfile_written_binary_exactly(tmp_path, rng, degree, normals):
+    scene = random_scene(rng, n=37, degree=degree)
+    path = tmp_path / "s.ply"
+    write_ply_plyfile(path, scene, normals=normals)
+    got = read_scene(path)
+    assert_same_scene(scene, got)  # zero normals are not kept as extras
+    assert got.sh_degree == degree
+
+
+@pytest.mark.parametrize("degree", [0, 3])
+def test_big_endian_and_shuffled_order_and_double(tmp_path, rng, degree):
+    scene = random_scene(rng, n=21, degree=degree)
+    ncols = len(standard_columns(scene))
+    order = list(rng.permutation(ncols))
+    path = tmp_path / "be.ply"
+    write_ply_plyfile(path, scene, byte_order=">", order=order)
+    assert_same_scene(scene, read_scene(path))
+    # float64 properties are converted to float32 (exactly, since they came from float32)
+    write_ply_plyfile(path, scene, dtype="f8")
+    assert_same_scene(scene, read_scene(path))
+
+
+def test_ascii(tmp_path, rng):
+    scene = random_scene(rng, n=15, degree=1, extra={"label": np.arange(15, dtype=np.int32)})
+    path = tmp_path / "a.ply"
+    write_ply_plyfile(path, scene, text=True)
+    got = read_scene(path)
+    for name in ARRAYS:  # plyfile writes ASCII floats with enough digits for float32
+        np.testing.assert_allclose(getattr(got, name), getattr(scene, name), rtol=1e-6, atol=1e-7)
+    np.testing.assert_array_equal(got.extra["label"], np.arange(15))
+    assert got.extra["label"].dtype == np.int32
+
+
+def test_ascii_rejects_non_integer_in_int_property(tmp_path):
+    text = ("ply\nformat ascii 1.0\nelement vertex 1\n"
+            + "".join(f"property float {p}\n" for p in
+                      ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0",
+                       "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"])
+            + "property uchar label\nend_header\n"
+            + "0 0 0 0 0 0 0 0 0 0 1 0 0 0 2.5\n")
+    path = tmp_path / "bad.ply"
+    path.write_text(text)
+    with pytest.raises(FormatError, match="label"):
+        read_scene(path)
+
+
+@pytest.mark.parametrize("degree", [0, 1, 2, 3])
+def test_write_read_round_trip_exact_with_extras(tmp_path, rng, degree):
+    n = 30
+    extra = {"nx": rng.normal(size=n).astype(np.float32), "ny": np.zeros(n, np.float32),
+             "nz": np.ones(n, np.float32), "segment": rng.integers(0, 9, n).astype(np.uint8),
+             "weight": rng.normal(size=n)}
+    scene = random_scene(rng, n=n, degree=degree, extra=extra)
+    path = tmp_path / "rt.ply"
+    write_scene(path, scene)
+    got = read_scene(path)
+    assert_same_scene(scene, got)
+
+
+def test_written_layout_is_the_trainers(tmp_path, rng):
+    scene = random_scene(rng, n=8, degree=2, extra={"tag": np.arange(8, dtype=np.uint16)})
+    path = tmp_path / "w.ply"
+    write_scene(path, scene)
+    ply = plyfile.PlyData.read(str(path))  # independent reader
+    assert not ply.text and ply.byte_order == "<"
+    assert [e.name for e in ply.elements] == ["vertex"]
+    v = ply["vertex"].data
+    k = 9
+    expected = (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+                + [f"f_rest_{i}" for i in range(3 * (k - 1))]
+                + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3", "tag"])
+    assert list(v.dtype.names) == expected
+    assert all(v.dtype[name] == np.dtype("<f4") for name in expected[:-1])
+    assert v.dtype["tag"] == np.dtype("<u2")
+    # f_rest is channel-major: f_rest_{c*(K-1)+j} = sh[:, 1+j, c]
+    for c in range(3):
+        for j in range(k - 1):
+            np.testing.assert_array_equal(v[f"f_rest_{c * (k - 1) + j}"], scene.sh[:, 1 + j, c])
+    np.testing.assert_array_equal(v["nx"], 0)
+    np.testing.assert_array_equal(v["rot_0"], scene.quats[:, 0])
+
+
+def test_empty_scene_round_trip(tmp_path):
+    empty = GaussianScene(np.zeros((0, 3)), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros(0),
+                          np.zeros((0, 1, 3)))
+    write_scene(tmp_path / "e.ply", empty)
+    assert len(read_scene(tmp_path / "e.ply")) == 0
+
+
+def test_detect_format(tmp_path, rng):
+    path = tmp_path / "s.ply"
+    write_scene(path, random_scene(rng, n=3))
+    assert detect_format(path) == "ply"
+    with pytest.raises(FormatError, match="unknown scene format"):
+        detect_format(tmp_path / "s.obj")
+    with pytest.raises(FileNotFoundError):
+        read_scene(tmp_path / "missing.ply")
+
+
+# --------------------------------------------------------------------------
+# errors
+
+def _header(count, props=None, fmt="binary_little_endian"):
+    props = props or ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0",
+                      "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+    return (f"ply\nformat {fmt} 1.0\nelement vertex {count}\n"
+            + "".join(f"property float {p}\n" for p in props) + "end_header\n").encode()
+
+
+def test_missing_required_property(tmp_path):
+    props = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1",
+             "scale_2", "rot_0", "rot_1", "rot_2"]
+    path = tmp_path / "m.ply"
+    path.write_bytes(_header(1, props) + b"\0" * 4 * len(props))
+    with pytest.raises(FormatError, match=r"m\.ply.*lacks.*rot_3"):
+        read_scene(path)
+
+
+def test_wrong_number_of_f_rest(tmp_path, rng):
+    scene = random_scene(rng, n=4, degree=1)
+    cols = [c for c in standard_columns(scene) if c[0] != "f_rest_8"]
+    rec = np.empty(4, dtype=[(n, "f4") for n, _ in cols])
+    for n, vals in cols:
+        rec[n] = vals
+    path = tmp_path / "r.ply"
+    plyfile.PlyData([plyfile.PlyElement.describe(rec, "vertex")]).write(str(path))
+    with pytest.raises(FormatError, match="f_rest"):
+        read_scene(path)
+
+
+def test_truncated_body(tmp_path, rng):
+    path = tmp_path / "t.ply"
+    write_scene(path, random_scene(rng, n=10))
+    data = path.read_bytes()
+    path.write_bytes(data[:-7])
+    with pytest.raises(FormatError, match=r"t\.ply.*truncated"):
+        read_scene(path)
+
+
+def test_huge_count_is_rejected_before_allocating(tmp_path):
+    path = tmp_path / "huge.ply"
+    path.write_bytes(_header(10**12) + b"\0" * 4096)
+    tracemalloc.start()
+    try:
+        with pytest.raises(FormatError, match="truncated"):
+            read_scene(path)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak < 2_000_000
+    ascii_path = tmp_path / "huge_ascii.ply"
+    ascii_path.write_bytes(_header(10**12, fmt="ascii") + b"0 " * 14 + b"\n")
+    with pytest.raises(FormatError, match="truncated"):
+        read_scene(ascii_path)
+
+
+@pytest.mark.parametrize("content, match", [
+    (b"plx\nformat ascii 1.0\n", "not a PLY file"),
+    (b"ply\nformat binary_middle_endian 1.0\nend_header\n", "unsupported PLY format"),
+    (b"ply\nformat ascii 1.0\nelement vertex -3\nend_header\n", "malformed PLY element"),
+    (b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float128 x\nend_header\n", "unknown PLY property type"),
+    (b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float x\nend_header\n", "twice"),
+    (b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\n", "end_header"),
+    (b"ply\nelement vertex 0\nend_header\n", "no 'format' line"),
+    (b"ply\nformat ascii 1.0\nelement face 0\nproperty list uchar int vertex_indices\nend_header\n", "no 'vertex' element"),
+])
+def test_bad_headers(tmp_path, content, match):
+    path = tmp_path / "h.ply"
+    path.write_bytes(content)
+    with pytest.raises(FormatError, match=match) as err:
+        read_scene(path)
+    assert "h.ply" in str(err.value)
+
+
+def test_list_property_in_vertex_is_rejected(tmp_path):
+    path = tmp_path / "l.ply"
+    path.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 1\n"
+                     b"property list uchar float x\nend_header\n\x01\0\0\0\0")
+    with pytest.raises(FormatError):
+        read_scene(path)
+
+
+def test_nonfinite_error_and_drop(tmp_path, rng):
+    scene = random_scene(rng, n=12, degree=1)
+    cols = dict(standard_columns(scene))
+    cols["x"] = cols["x"].copy()
+    cols["x"][3] = np.nan
+    cols["f_rest_5"] = cols["f_rest_5"].copy()
+    cols["f_rest_5"][7] = np.inf
+    cols["rot_0"], cols["rot_1"], cols["rot_2"], cols["rot_3"] = (c.copy() for c in (
+        cols["rot_0"], cols["rot_1"], cols["rot_2"], cols["rot_3"]))
+    for r in ("rot_0", "rot_1", "rot_2", "rot_3"):
+        cols[r][9] = 0.0  # zero-length quaternion: rotation undefined
+    rec = np.empty(12, dtype=[(n, "f4") for n in cols])
+    for n, vals in cols.items():
+        rec[n] = vals
+    path = tmp_path / "nf.ply"
+    plyfile.PlyData([plyfile.PlyElement.describe(rec, "vertex")]).write(str(path))
+    with pytest.raises(FormatError, match=r"nf\.ply: 3 of 12 Gaussians .*first at index 3"):
+        read_scene(path)
+    with pytest.warns(UserWarning, match="dropped 3 of 12"):
+        got = read_scene(path, drop_nonfinite=True)
+    keep = np.setdiff1d(np.arange(12), [3, 7, 9])
+    np.testing.assert_array_equal(got.means, scene.means[keep])
+    np.testing.assert_array_equal(got.sh, scene.sh[keep])
+
+
+def test_float64_overflow_counts_as_nonfinite(tmp_path, rng):
+    scene = random_scene(rng, n=3)
+    cols = dict(standard_columns(scene, normals=False))
+    rec = np.empty(3, dtype=[(n, "f8") for n in cols])
+    for n, vals in cols.items():
+        rec[n] = vals
+    rec["scale_0"][1] = 1e300  # finite in float64, infinite in float32
+    path = tmp_path / "ov.ply"
+    plyfile.PlyData([plyfile.PlyElement.describe(rec, "vertex")]).write(str(path))
+    with pytest.raises(FormatError, match="1 of 3 Gaussians"):
+        read_scene(path)
+
+
+def test_trailing_bytes_warn(tmp_path, rng):
+    path = tmp_path / "tr.ply"
+    write_scene(path, random_scene(rng, n=2))
+    with open(path, "ab") as fh:
+        fh.write(b"junk")
+    with pytest.warns(UserWarning, match="ignoring 4 bytes"):
+        assert len(read_scene(path)) == 2
+
+
+def test_write_is_atomic(tmp_path, rng, monkeypatch):
+    """A failure half-way through writing leaves the old file and no temporary file."""
+    import seed2gs_inverse.io.ply as ply_module
+
+    path = tmp_path / "out.ply"
+    path.write_bytes(b"old content")
+    real = ply_module.atomic_write
+    written = []
+
+    class Boom(Exception):
+        pass
+
+    def failing_atomic_write(target, chunks):
+        def pieces():
+            for piece in chunks:
+                written.append(len(piece))
+                yield piece
+                raise Boom()  # after the header has gone to the temporary file
+        real(target, pieces())
+
+    monkeypatch.setattr(ply_module, "atomic_write", failing_atomic_write)
+    with pytest.raises(Boom):
+        write_scene(path, random_scene(rng, n=5))
+    assert written and written[0] > 0
+    assert path.read_bytes() == b"old content"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.ply"]
+
+
+def test_write_rejects_unwritable_extras_and_formats(tmp_path, rng):
+    scene = random_scene(rng, n=3, extra={"big": np.arange(3, dtype=np.int64)})
+    with pytest.raises(ValidationError, match="big"):
+        write_scene(tmp_path / "x.ply", scene)
+    assert not (tmp_path / "x.ply").exists()
+    ok = random_scene(rng, n=3)
+    for name in ("x.spz", "x.compressed.ply", "x.obj"):
+        with pytest.raises(ValidationError):
+            write_scene(tmp_path / name, ok)
+    with pytest.raises(ValidationError):
+        write_scene(tmp_path / "x.ply", "not a scene")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_nonzero_normals_are_kept(tmp_path, rng):
+    scene = random_scene(rng, n=6)
+    cols = dict(standard_columns(scene))
+    cols["ny"] = np.linspace(-1, 1, 6).astype(np.float32)
+    rec = np.empty(6, dtype=[(n, "f4") for n in cols])
+    for n, vals in cols.items():
+        rec[n] = vals
+    path = tmp_path / "n.ply"
+    plyfile.PlyData([plyfile.PlyElement.describe(rec, "vertex")]).write(str(path))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got = read_scene(path)
+    assert sorted(got.extra) == ["nx", "ny", "nz"]  # kept as a group
+    np.testing.assert_array_equal(got.extra["ny"], cols["ny"])
