@@ -54,9 +54,11 @@ from typing import Any, Callable
 
 from ..errors import FormatError, ValidationError
 
-__all__ = ["ModelSet", "load_models", "resolve_models", "ENV_VAR"]
+__all__ = ["ModelSet", "load_models", "resolve_models", "ENV_VAR", "NO_MODELS_NOTICE"]
 
 ENV_VAR = "SEED2GS_MODELS"
+NO_MODELS_NOTICE = ("no ONNX models configured (--models FILE or $SEED2GS_MODELS): using the "
+                    "model-free front end (mask, box or point prompts; geometric tracker)")
 
 # section -> {key: kind}; kind "path" keys are resolved against the file's folder
 _SCHEMA = {
@@ -259,7 +261,7 @@ def resolve_models(path_or_none=None) -> ModelSet | None:
     """Models from ``--models`` (the argument), else ``$SEED2GS_MODELS``, else None.
 
     None means no learned models: the caller falls back to the model-free
-    front end and should say so.
+    front end and should say so (:data:`NO_MODELS_NOTICE`).
     """
     if path_or_none is not None and str(path_or_none) != "":
         return load_models(path_or_none)
