@@ -285,3 +285,32 @@ def test_resolve_models_argument_env_and_none(d, tmp_path, monkeypatch):
     monkeypatch.setenv(ENV_VAR, str(tmp_path / "gone.toml"))
     with pytest.raises(FormatError, match="gone.toml"):
         resolve_models(None)
+
+
+def test_models_cli_check_and_ground(d, tmp_path, capsys, monkeypatch):
+    import argparse
+
+    import cv2
+
+    from seed2gs_inverse.cli import _models
+
+    parser = argparse.ArgumentParser()
+    _models.register(parser.add_subparsers())
+    p = write_config(d, tmp_path)
+    args = parser.parse_args(["models", str(p)])
+    assert args.func(args) == 0
+    out = capsys.readouterr().out
+    assert "groundingdino.model" in out and "[samexporter-raw]" in out and "QD-SAM3 over" in out
+    img = tmp_path / "ref.png"
+    cv2.imwrite(str(img), np.full((H, W, 3), 128, np.uint8))
+    args = parser.parse_args(["models", str(p), "--image", str(img), "--prompt", "chair"])
+    assert args.func(args) == 0
+    out = capsys.readouterr().out
+    assert "query type: noun" in out and "sam3_text" in out
+    monkeypatch.delenv(ENV_VAR, raising=False)
+    args = parser.parse_args(["models"])
+    with pytest.raises(ValidationError, match=ENV_VAR):
+        args.func(args)
+    args = parser.parse_args(["models", str(p), "--image", str(tmp_path / "no.png"), "--prompt", "x"])
+    with pytest.raises(FormatError, match="no.png"):
+        args.func(args)
