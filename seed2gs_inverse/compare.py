@@ -104,7 +104,8 @@ class Comparison:
         return buf.getvalue()
 
     def to_json(self) -> str:
-        return json.dumps({"holdout": self.holdout, "rows": self.rows, "per_view": self.per_view}, indent=1)
+        return json.dumps({"holdout": self.holdout, "rows": self.rows, "per_view": self.per_view}, indent=1,
+                          default=float)
 
     def plot(self, path) -> None:
         """Bar chart of mIoU, mBIoU and 3D IoU per method (PNG)."""

@@ -1,0 +1,90 @@
+"""``seed2gs operators build`` and ``seed2gs operators info``: saved per-view operators."""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+__all__ = ["register", "build", "info"]
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "operators", help="build or describe saved per-view operators",
+        description="Per-view sparse operators W (pixels x Gaussians) of a frozen scene, saved as a "
+                    "directory (manifest.json + one .npy per array) that solvers load later.")
+    sub = p.add_subparsers(dest="operators_command", metavar="SUBCOMMAND")
+    sub.required = True
+
+    b = sub.add_parser(
+        "build", help="render every camera once and save the operators",
+        description="Rasterize SCENE from every camera of --cameras, keep each view's compositing "
+                    "weights W as a sparse operator and save the stack to DIR. The directory "
+                    "appears only once it is complete.")
+    b.add_argument("scene", metavar="SCENE", help="scene file (.ply, .compressed.ply, .splat, .spz)")
+    b.add_argument("--cameras", required=True, metavar="FILE",
+                   help="cameras (3DGS cameras.json, COLMAP model, nerfstudio transforms.json)")
+    b.add_argument("-o", "--output", required=True, metavar="DIR", help="output operator directory")
+    b.add_argument("--scale", type=float, default=1.0, help="resolution factor (default 1.0)")
+    b.add_argument("--min-weight", type=float, default=0.0,
+                   help="drop weights below this (default 0: keep all)")
+    b.add_argument("--overwrite", action="store_true", help="replace an existing operator directory")
+    b.add_argument("--no-progress", action="store_true", help="no progress bar")
+    b.set_defaults(func=build)
+
+    i = sub.add_parser("info", help="describe an operator directory",
+                       description="Validate an operator directory and print its views.")
+    i.add_argument("directory", metavar="DIR")
+    i.add_argument("--scene", metavar="SCENE", help="also check that the operators belong to this scene")
+    i.set_defaults(func=info)
+
+
+def build(args) -> int:
+    from ..errors import ValidationError
+    from ..io import read_cameras, read_scene
+    from ..operators.operator import OperatorStack, scene_fingerprint
+    from ..operators.render import build_operator
+
+    if not (np.isfinite(args.scale) and args.scale > 0):
+        raise ValidationError(f"--scale must be positive, got {args.scale}")
+    scene = read_scene(args.scene)
+    cameras = read_cameras(args.cameras)
+    if not cameras:
+        raise ValidationError(f"{args.cameras}: no cameras")
+    views = []
+    items = cameras
+    if not args.no_progress:
+        from tqdm import tqdm
+
+        items = tqdm(cameras, desc="operators", unit="view", file=sys.stderr, leave=False)
+    for cam in items:
+        views.append(build_operator(scene, cam, scale=args.scale, min_weight=args.min_weight))
+    stack = OperatorStack(views, fingerprint=scene_fingerprint(scene))
+    stack.save(args.output, overwrite=args.overwrite)
+    print(f"{args.output}: {len(stack)} views, {stack.n_gaussians:,} Gaussians, {stack.nnz:,} weights, "
+          f"{int(stack.observed().sum()):,} Gaussians observed")
+    return 0
+
+
+def info(args) -> int:
+    from ..operators.operator import OperatorStack
+
+    scene = None
+    if args.scene:
+        from ..io import read_scene
+
+        scene = read_scene(args.scene)
+    stack = OperatorStack.load(args.directory, mmap=True, scene=scene)
+    observed = stack.observed()
+    lines = [f"directory:   {args.directory}",
+             f"views:       {len(stack)}",
+             f"gaussians:   {stack.n_gaussians:,} ({int(observed.sum()):,} observed)",
+             f"weights:     {stack.nnz:,} ({stack.nnz * 8 / 2**20:.1f} MiB)",
+             f"fingerprint: {stack.fingerprint}" + ("  (matches the scene)" if scene is not None else "")]
+    for k, v in enumerate(stack):
+        h, w = v.image_shape
+        lines.append(f"  {k:3d}  {v.name or '-':<24s} {w}x{h}  nnz={v.nnz:,}  "
+                     f"mean alpha={float(v.alpha().mean()):.3f}  observed={int(v.observed().sum()):,}")
+    print("\n".join(lines))
+    return 0

@@ -1,0 +1,167 @@
+"""``seed2gs solve`` and ``seed2gs compare``: inverse solvers on saved operators.
+
+A masks directory holds one file per view, in view order: ``view_000.png``
+(8-bit greyscale; 0/255 become 0/1, colour images are converted to grey)
+or ``view_000.npy`` (float in [0, 1] with NaN for unknown pixels, bool or
+uint8). The count must equal the operator directory's view count.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import FormatError, ValidationError
+
+__all__ = ["register", "read_masks", "solve_command", "compare_command"]
+
+_MASK_NAME = re.compile(r"^view_(\d+)\.(png|npy)$", re.IGNORECASE)
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "solve", help="recover per-Gaussian membership q from masks",
+        description="Fit per-Gaussian foreground probabilities q to one mask per view with a solver "
+                    "and save q (N,) float32 as .npy.")
+    p.add_argument("operators", metavar="OPS_DIR", help="operator directory (seed2gs operators build)")
+    p.add_argument("masks", metavar="MASKS_DIR", help="view_000.png|npy ... one mask per view")
+    p.add_argument("--method", default="weighted_bce", help="solver (default weighted_bce)")
+    p.add_argument("-o", "--output", required=True, metavar="Q.npy", help="where to write q")
+    p.add_argument("--init", metavar="FILE.npy", help="prior: bool support set, indices or float q")
+    p.add_argument("--option", action="append", default=[], metavar="NAME=VALUE",
+                   help="solver option (VALUE parsed as JSON, else a string); repeatable")
+    p.set_defaults(func=solve_command)
+
+    c = subparsers.add_parser(
+        "compare", help="compare solvers against ground-truth labels",
+        description="Fit every solver on the same views (every k-th view held out), score held-out "
+                    "2D mIoU/mBIoU and 3D precision/recall/IoU against --truth, print a table and "
+                    "optionally write comparison.csv, comparison.json and comparison.png to -o DIR.")
+    c.add_argument("operators", metavar="OPS_DIR")
+    c.add_argument("masks", metavar="MASKS_DIR")
+    c.add_argument("--truth", required=True, metavar="LABELS.npy", help="(N,) bool ground-truth membership")
+    c.add_argument("--methods", help="comma-separated methods (default: all)")
+    c.add_argument("--holdout-every", type=int, default=4, help="hold out every k-th view (0: none; default 4)")
+    c.add_argument("-o", "--output", metavar="DIR", help="directory for comparison.{csv,json,png}")
+    c.set_defaults(func=compare_command)
+
+
+def _load_npy(path: Path) -> np.ndarray:
+    try:
+        return np.load(path, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as exc:
+        raise FormatError(f"{path}: not a readable .npy array ({exc})") from None
+
+
+def read_masks(directory, n_views: int | None = None) -> list:
+    """Masks ``view_000.png|npy ...`` of a directory, in view order.
+
+    Returns a list of arrays (uint8 from PNG, as stored from .npy), which
+    the solvers normalise. Indices must run 0..V-1 without gaps, and V
+    must equal ``n_views`` when given.
+    """
+    d = Path(directory)
+    if not d.is_dir():
+        raise FormatError(f"{d}: not a directory of masks (view_000.png|npy, ...)")
+    found = {}
+    for f in d.iterdir():
+        m = _MASK_NAME.match(f.name)
+        if m:
+            k = int(m.group(1))
+            if k in found:
+                raise FormatError(f"{d}: two masks for view {k} ({found[k].name}, {f.name})")
+            found[k] = f
+    if not found:
+        raise FormatError(f"{d}: no masks named view_000.png / view_000.npy")
+    if sorted(found) != list(range(len(found))):
+        missing = sorted(set(range(max(found) + 1)) - set(found))
+        raise FormatError(f"{d}: mask files must be numbered 0..{len(found) - 1}; missing view(s) {missing[:5]}")
+    if n_views is not None and len(found) != n_views:
+        raise ValidationError(f"{d}: {len(found)} masks for {n_views} operator views; give one mask per view")
+    masks = []
+    for k in range(len(found)):
+        f = found[k]
+        if f.suffix.lower() == ".npy":
+            masks.append(_load_npy(f))
+        else:
+            from PIL import Image, UnidentifiedImageError
+
+            try:
+                with Image.open(f) as im:
+                    masks.append(np.asarray(im.convert("L")))
+            except (UnidentifiedImageError, OSError) as exc:
+                raise FormatError(f"{f}: not a readable PNG ({exc})") from None
+    return masks
+
+
+def _parse_options(items) -> dict:
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or not name.isidentifier():
+            raise ValidationError(f"--option must look like NAME=VALUE, got {item!r}")
+        try:
+            out[name] = json.loads(value)
+        except json.JSONDecodeError:
+            out[name] = value
+    return out
+
+
+def _npy_bytes(arr) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, arr, allow_pickle=False)
+    return buf.getvalue()
+
+
+def solve_command(args) -> int:
+    from ..operators.operator import OperatorStack
+    from ..solvers import solve
+    from ..solvers._common import get_method
+    from ._render import _write_all
+
+    get_method(args.method)  # fail fast on a typo, before loading anything
+    out = Path(args.output)
+    if out.suffix.lower() != ".npy":
+        raise ValidationError(f"-o {out}: the output must be a .npy file")
+    stack = OperatorStack.load(args.operators, mmap=True)
+    masks = read_masks(args.masks, len(stack))
+    init = _load_npy(Path(args.init)) if args.init else None
+    result = solve(stack, masks, method=args.method, init=init, **_parse_options(args.option))
+    _write_all([(out, _npy_bytes(result.q))])
+    sel = result.selected()
+    print(f"{out}: method {result.method}, {int(sel.sum()):,} of {sel.size:,} Gaussians selected "
+          f"(q > {result.threshold:.3g}), {int(result.unobserved.sum()):,} unobserved, "
+          f"{result.iterations} iterations, {result.seconds:.2f} s")
+    return 0
+
+
+def compare_command(args) -> int:
+    from ..compare import compare
+    from ..operators.operator import OperatorStack
+    from ._render import _write_all
+
+    stack = OperatorStack.load(args.operators, mmap=True)
+    masks = read_masks(args.masks, len(stack))
+    truth = _load_npy(Path(args.truth))
+    if truth.dtype != bool:
+        if truth.dtype.kind in "ui" and truth.size and set(np.unique(truth).tolist()) <= {0, 1}:
+            truth = truth.astype(bool)
+        else:
+            raise ValidationError(f"{args.truth}: truth labels must be bool (or 0/1 integers), got {truth.dtype}")
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()] if args.methods else None
+    result = compare(stack, masks, truth, methods=methods, holdout_every=args.holdout_every)
+    print(result.format())
+    if args.output:
+        d = Path(args.output)
+        d.mkdir(parents=True, exist_ok=True)
+        png = io.BytesIO()
+        result.plot(png)
+        _write_all([(d / "comparison.csv", result.to_csv().encode()),
+                    (d / "comparison.json", result.to_json().encode()),
+                    (d / "comparison.png", png.getvalue())])
+        print(f"wrote {d / 'comparison.csv'}, {d / 'comparison.json'}, {d / 'comparison.png'}")
+    return 0

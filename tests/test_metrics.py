@@ -1,0 +1,84 @@
+"""Metrics against hand-counted values."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from seed2gs_inverse.errors import ValidationError
+from seed2gs_inverse.metrics import (boundary_iou, boundary_width, iou, mask_boundary, membership_scores,
+                                     protocol_mean)
+
+
+def _square(shape, r0, r1, c0, c1):
+    m = np.zeros(shape, bool)
+    m[r0:r1, c0:c1] = True
+    return m
+
+
+def test_iou_hand_counted():
+    a = _square((10, 10), 2, 6, 2, 6)   # 16 px
+    b = _square((10, 10), 2, 6, 3, 7)   # 16 px, 12 shared
+    assert iou(a, b) == pytest.approx(12 / 20)
+    assert iou(a, a) == 1.0 and iou(a, ~a) == 0.0
+    assert iou(np.zeros((3, 3)), np.zeros((3, 3))) == 1.0
+    assert iou(a.astype(np.uint8) * 255, b) == pytest.approx(0.6)
+
+
+def test_boundary_width_formula():
+    assert boundary_width((10, 10)) == 1          # 0.28 -> at least 1
+    assert boundary_width((60, 60)) == 2          # 1.70 -> 2
+    assert boundary_width((540, 960)) == 22       # 22.03
+    assert boundary_width((1000, 1000)) == 28     # 28.28
+
+
+def test_boundary_of_square_is_its_ring():
+    # 4x4 square, one erosion (d = 1): the inner 2x2 survives, the 12-pixel ring is the boundary
+    a = _square((10, 10), 2, 6, 2, 6)
+    ring = a & ~_square((10, 10), 3, 5, 3, 5)
+    np.testing.assert_array_equal(mask_boundary(a), ring)
+    # d = 2 on a 60x60 image: a 10x10 square keeps its inner 6x6
+    big = _square((60, 60), 10, 20, 10, 20)
+    assert mask_boundary(big).sum() == 100 - 36
+    # the image border counts as boundary (zero padding): a full 5x5 mask has a 16-pixel ring
+    assert mask_boundary(np.ones((5, 5), bool)).sum() == 16
+
+
+def test_boundary_iou_hand_counted():
+    a = _square((10, 10), 2, 6, 2, 6)
+    b = _square((10, 10), 2, 6, 3, 7)
+    # rings of 12 pixels each; in the shared 4x3 block the 6 pixels inner to either square drop out
+    assert boundary_iou(a, b) == pytest.approx(6 / 18)
+    assert boundary_iou(a, a) == 1.0
+    assert boundary_iou(np.zeros((4, 4)), np.zeros((4, 4))) == 1.0
+    with pytest.raises(ValidationError, match="shape"):
+        boundary_iou(a, a[:5])
+    with pytest.raises(ValidationError, match="2-D"):
+        boundary_iou(a.ravel(), a.ravel())
+
+
+def test_protocol_mean_averages_views_then_targets_then_scenes():
+    overall, per_scene, per_target = protocol_mean({"A": {"t1": [1.0, 0.5], "t2": [0.0]}, "B": {"t": [1.0]}})
+    assert per_target["A"] == {"t1": 0.75, "t2": 0.0}
+    assert per_scene == {"A": 0.375, "B": 1.0}
+    assert overall == pytest.approx(0.6875)
+    with pytest.raises(ValidationError, match="no views"):
+        protocol_mean({"A": {"t": []}})
+
+
+def test_membership_scores_hand_counted():
+    truth = np.array([1, 1, 1, 0, 0, 0], bool)
+    sel = np.array([1, 1, 0, 1, 0, 0], bool)   # TP 2, FN 1, FP 1
+    s = membership_scores(sel, truth)
+    assert (s["tp"], s["fp"], s["fn"]) == (2, 1, 1)
+    assert s["precision"] == pytest.approx(2 / 3) and s["recall"] == pytest.approx(2 / 3)
+    assert s["iou"] == pytest.approx(0.5) and "weighted_iou" not in s
+    w = np.array([1.0, 3.0, 0.0, 2.0, 5.0, 0.0])   # TP 4, FP 2, FN 0
+    s = membership_scores(sel.astype(np.float32) * 0.9, truth, weights=w)
+    assert s["weighted_precision"] == pytest.approx(4 / 6) and s["weighted_recall"] == 1.0
+    assert s["weighted_iou"] == pytest.approx(4 / 6)
+    assert membership_scores(np.array([0.4, 0.6]), np.array([True, True]), threshold=0.3)["recall"] == 1.0
+    with pytest.raises(ValidationError, match="labels must be bool"):
+        membership_scores(sel, truth.astype(int))
+    with pytest.raises(ValidationError, match="weights"):
+        membership_scores(sel, truth, weights=-w)
