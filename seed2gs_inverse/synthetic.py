@@ -264,6 +264,12 @@ class SyntheticScene:
         World position of the local origin (ground centre).
     scale : float
         World units per local unit.
+    seed : int
+        The seed it was built with.
+    meta : dict
+        Which labels exercise which difficulty: ``same_class`` (pairs of
+        identical objects), ``container`` ({container: contents}), ``thin``
+        and ``view_dependent`` (lists of labels).
     """
 
     scene: GaussianScene

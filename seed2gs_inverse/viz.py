@@ -90,8 +90,11 @@ def membership_plot(scene: GaussianScene, q=None, mode: str = "points", threshol
         Default: off-screen when there is no display (then EGL is used and
         only screenshots are possible).
     camera : Camera, optional
-        View from this camera (position, orientation, vertical field of
-        view; window size defaults to its image size).
+        View from this camera: position, orientation, vertical field of
+        view from ``fy`` and the principal point ``(cx, cy)``; the window
+        size defaults to its image size, where points land on the pixels
+        ``camera.project`` gives. (``fx != fy`` is not represented: VTK
+        pixels are square.)
     max_glyphs : int
         Cap on ellipsoids.
     glyph_sigma, point_size, cmap, window_size, background, scalar_bar
@@ -176,6 +179,9 @@ def membership_plot(scene: GaussianScene, q=None, mode: str = "points", threshol
         pl.camera.focal_point = tuple(camera.center + camera.forward)
         pl.camera.up = tuple(camera.up)
         pl.camera.view_angle = float(np.degrees(camera.fov_y))
+        # VTK centres the optical axis; shift the window so it lands on (cx, cy).
+        pl.camera.SetWindowCenter(1.0 - 2.0 * camera.cx / camera.width,
+                                  2.0 * camera.cy / camera.height - 1.0)
         pl.reset_camera_clipping_range()
     elif idx.size:
         pl.view_isometric()

@@ -10,7 +10,8 @@ from seed2gs_inverse import GaussianScene, ValidationError
 from seed2gs_inverse.scene import quat_to_rotmat
 from seed2gs_inverse.sh import eval_sh
 from seed2gs_inverse.synthetic import (NOISE_KINDS, compose, make_scene, masks_from_labels,
-                                       parse_pose, perturb_masks, pose_on_point, surface_point)
+                                       parse_pose, perturb_masks, pose_on_point, render_label_masks,
+                                       surface_point)
 
 N_OBJ = 120  # small scenes keep the tests fast
 
@@ -309,6 +310,11 @@ def test_masks_from_labels_of_everything_is_alpha_of_a_real_render():
     op = build_operator(s.scene, s.reference_camera(32, 24))
     (m,) = masks_from_labels([op], np.ones(len(s.scene), bool), threshold=None)
     assert np.allclose(m, op.rendering.alpha, atol=1e-5)
+    # The convenience wrapper builds the same operator.
+    (m2,) = render_label_masks(s.scene, [s.reference_camera(32, 24)], np.ones(len(s.scene), bool))
+    assert np.array_equal(m2, (op.rendering.alpha > 0.5).astype(np.float32))
+    with pytest.raises(ValidationError, match="camera"):
+        render_label_masks(s.scene, [], s.labels == 1)
     # Per-object masks partition the covered pixels' weight.
     soft = [masks_from_labels([op], s.labels == k, threshold=None)[0] for k in range(8)]
     assert np.allclose(np.sum(soft, axis=0), op.rendering.alpha, atol=1e-5)

@@ -46,9 +46,11 @@ def _cloud(rng, n=400, center=(0.0, 0.0, 0.0), rgb=(0.9, 0.1, 0.1)):
                          np.full((n, 3), np.log(0.03)), np.full(n, 3.0), sh)
 
 
-def _camera():
+def _camera(cx=None, cy=None):
     # Looks along +z at the origin from z = -3; image up is world -y.
-    return Camera.look_at([0, 0, -3.0], [0, 0, 0], [0, -1, 0], 50.0, W, H, name="test")
+    cam = Camera.look_at([0, 0, -3.0], [0, 0, 0], [0, -1, 0], 50.0, W, H, name="test")
+    return Camera(W, H, cam.fx, cam.fy, cam.cx if cx is None else cx, cam.cy if cy is None else cy,
+                  cam.world_to_camera)
 
 
 def _foreground(img, bg=255):
@@ -75,11 +77,12 @@ def test_points_with_q_one_show_the_top_of_the_colormap(offscreen, rng, tmp_path
     assert np.median(np.abs(img0[fg0].astype(float) - VIRIDIS_BOTTOM).max(axis=1)) < 6
 
 
-def test_camera_places_points_where_it_projects_them_and_threshold_hides(offscreen, rng, tmp_path):
+@pytest.mark.parametrize("cx,cy", [(None, None), (20.0, 30.0)])
+def test_camera_places_points_where_it_projects_them_and_threshold_hides(offscreen, rng, tmp_path, cx, cy):
     left, right = _cloud(rng, center=(-0.8, 0, 0)), _cloud(rng, center=(0.8, 0.3, 0))
     scene = GaussianScene.concat([left, right])
     q = np.r_[np.ones(len(left)), np.zeros(len(right))]
-    cam = _camera()
+    cam = _camera(cx, cy)
     img = membership_plot(scene, q, threshold=0.5, screenshot=tmp_path / "t.png", camera=cam,
                           point_size=2, scalar_bar=False)
     ys, xs = np.nonzero(_foreground(img))
