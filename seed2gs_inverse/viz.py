@@ -155,7 +155,9 @@ def membership_plot(scene: GaussianScene, q=None, mode: str = "points", threshol
     pl.set_background(background)
     if qv is not None:
         color_kw = dict(scalars=qv[idx], cmap=cmap, clim=(0.0, 1.0), show_scalar_bar=bool(scalar_bar),
-                        scalar_bar_args={"title": "q"})
+                        scalar_bar_args={"title": "q", "n_labels": 3, "fmt": "%.1f", "vertical": True,
+                                         "position_x": 0.86, "position_y": 0.15,
+                                         "width": 0.08, "height": 0.7})
     else:
         rgb = np.clip(SH_C0 * scene.sh[idx, 0, :].astype(np.float64) + 0.5, 0.0, 1.0)
         color_kw = dict(scalars=(rgb * 255).astype(np.uint8), rgb=True)

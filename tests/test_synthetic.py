@@ -423,3 +423,18 @@ def test_noise_rejects_bad_input():
         perturb_masks(masks, "dilate", strength=1.5)
     with pytest.raises(ValidationError, match="single 2-D"):
         perturb_masks(masks[0], "salt")
+
+
+def test_real_composite_firepit_unicorn(shared_data):
+    from seed2gs_inverse.io import read_scene
+
+    fire = read_scene(shared_data / "firepit_562k_sh0.ply")
+    uni = read_scene(shared_data / "unicorn_49k_sh3.ply")
+    up = np.array([0.0, -1.0, 0.0])                      # both files are COLMAP-like
+    anchor = np.array([-0.82, 1.88, -3.28])              # gravel, in front of the fire pit
+    pose = pose_on_point(uni, anchor, up, object_up=up, height=0.9, quantile=0.002)
+    scene, labels = compose(fire, [(uni, pose)], remove_overlap=True, margin=0.02)
+    assert (labels == 1).sum() == len(uni) and scene.sh_degree == 3
+    assert 0 <= len(fire) - (labels == 0).sum() < 1000  # only what sat inside the unicorn's box
+    h = np.quantile(scene.means[labels == 1].astype(np.float64) @ up, [0.002, 0.998])
+    assert np.isclose(h[0], anchor @ up, atol=1e-4) and np.isclose(h[1] - h[0], 0.9, atol=1e-3)
