@@ -295,6 +295,10 @@ def test_masks_from_labels_on_a_hand_made_operator():
     sel = np.array([True, False, True])
     (m,) = masks_from_labels([(sp.csr_matrix(W), (2, 2))], sel)
     assert np.array_equal(m, np.array([[1, 0], [0, 1]], np.float32))   # 1.0, 0.2, 0, 0.6
+    from seed2gs_inverse.operators.operator import OperatorStack, ViewOperator
+
+    stack = OperatorStack([ViewOperator(sp.csr_matrix(W), None, (2, 2))] * 2)
+    assert all(np.array_equal(x, m) for x in masks_from_labels(stack, sel))
     (soft,) = masks_from_labels([(W, (2, 2))], sel, threshold=None)
     assert np.allclose(soft.ravel(), [1.0, 0.2, 0.0, 0.6])
     with pytest.raises(ValidationError, match="view 0"):
