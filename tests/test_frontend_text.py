@@ -93,7 +93,7 @@ def test_grounding_dino_detects_by_token(files, rng):
     det = GroundingDINO(files["gdino"], files["bert"])
     img = rng.random((48, 64, 3)).astype(np.float32)
     out = det.detect(img, "Red chair")
-    assert len(out) == 1 and out[0].label == "red chair"
+    assert len(out) == 1 and out[0].label == "chair"      # only 'chair' is above text_threshold
     assert out[0].score == pytest.approx(1 / (1 + np.exp(-10)), rel=1e-6)
     np.testing.assert_allclose(out[0].box, [9.6, 14.4, 22.4, 33.6], atol=1e-4)
     both = det.detect(img, "chair . table")
@@ -102,6 +102,8 @@ def test_grounding_dino_detects_by_token(files, rng):
                                [(0.75 - 0.15) * 64, (0.5 - 0.3) * 48, (0.75 + 0.15) * 64, (0.5 + 0.3) * 48],
                                atol=1e-4)
     assert det.detect(img, "dog") == []
+    low = GroundingDINO(files["gdino"], files["bert"], text_threshold=0.0)
+    assert low.detect(img, "red chair")[0].label == "red chair"
     text = det.encode_text("red chair")
     assert text["input_ids"].tolist() == [[2, 6, 7, 4, 3]]
     assert text["position_ids"].tolist() == [[0, 0, 1, 2, 0]]

@@ -104,7 +104,8 @@ class GroundingDINO:
     box_threshold : float
         Keep queries whose best phrase-token probability exceeds it (0.35).
     text_threshold : float
-        Tokens above it name the detected phrase (0.25).
+        The tokens of the best phrase above it form the label (0.25), as the
+        original ``get_phrases_from_posmap``.
     size, max_size : int
         Shorter-side size and longer-side cap when the model's image size is
         dynamic (800, 1333).
@@ -172,11 +173,16 @@ class GroundingDINO:
         if not phrases:
             return []
         n = min(prob.shape[1], text["input_ids"].shape[1])
+        ids = text["input_ids"][0]
         dets = []
         for q in range(prob.shape[0]):
-            best = max(((float(prob[q, idx[idx < n]].max()) if np.any(idx < n) else 0.0, name)
-                        for name, idx in phrases), key=lambda t: t[0])
-            if best[0] > self.box_threshold:
-                dets.append(Detection(cxcywh_to_xyxy(boxes[q], w, h)[0], best[0], best[1]))
+            score, idx = max(((float(prob[q, i[i < n]].max()) if np.any(i < n) else 0.0, i[i < n])
+                              for _, i in phrases), key=lambda t: t[0])
+            if score <= self.box_threshold:
+                continue
+            # label: the phrase's tokens above text_threshold (get_phrases_from_posmap)
+            on = idx[prob[q, idx] > self.text_threshold]
+            label = " ".join(self.tokenizer.convert_ids_to_tokens(ids[on if on.size else idx])).replace(" ##", "")
+            dets.append(Detection(cxcywh_to_xyxy(boxes[q], w, h)[0], score, label))
         dets.sort(key=lambda d: -d.score)
         return dets[:self.max_detections]
