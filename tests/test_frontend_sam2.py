@@ -179,3 +179,25 @@ def test_video_tracker_validation(tmp_path):
         tracker.track([frames[0], frames[1][:20]], truth[0])
     with pytest.raises(ValidationError, match="empty"):
         tracker.track([], truth[0])
+
+
+def test_truncated_file_and_runtime_failure_are_format_errors(models, tmp_path):
+    from seed2gs_inverse.frontend._onnx import OnnxModel
+    from seed2gs_inverse.frontend.sam2 import SAM2_VIDEO_LAYOUTS
+
+    data = models["enc_se"].read_bytes()
+    cut = tmp_path / "cut.onnx"
+    cut.write_bytes(data[: len(data) // 2])
+    with pytest.raises(FormatError, match="cut.onnx"):
+        SAM2ImagePredictor(cut, models["dec_se"])
+    paths = om.video_set(tmp_path)
+    att = OnnxModel(paths["memory_attention"], "sam2_video.memory_attention",
+                    SAM2_VIDEO_LAYOUTS["memory_attention"])
+    feeds = {"current_vision_feat": np.zeros((1, 3, 4, 4), np.float32),
+             "current_vision_pos_embed": np.zeros((16, 1, 3), np.float32),
+             "memory_0": np.zeros((0, 3), np.float32), "memory_1": np.zeros((2, 1, 4, 4), np.float32),
+             "memory_pos_embed": np.zeros((33, 1, 1), np.float32)}     # 33 rows: not 2 x 16
+    with pytest.raises(FormatError, match="memory_attention.onnx.*failed at run time"):
+        att.run(feeds)
+    feeds["memory_pos_embed"] = np.zeros((32, 1, 1), np.float32)
+    assert att.run(feeds)["fused_feat"].shape == (1, 3, 4, 4)

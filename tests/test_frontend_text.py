@@ -122,3 +122,33 @@ def test_grounding_dino_signature_errors(files, tmp_path):
         GroundingDINO(wrong, files["bert"])
     assert "not_gdino.onnx" in str(e.value) and "missing input img" in str(e.value)
     assert "found inputs (image:float32[1,3,64,64])" in str(e.value)
+
+
+def test_image_inputs_fed_to_the_detectors(files, rng, monkeypatch, tmp_path):
+    """Spy on the feeds: resize + normalisation against an independent computation."""
+    import cv2
+
+    from seed2gs_inverse.frontend import _onnx
+    from seed2gs_inverse.frontend.owlvit import OWLViT
+
+    seen = {}
+    real = _onnx.OnnxModel.run
+
+    def spy(self, feeds, outputs=None):
+        seen.update(feeds)
+        return real(self, feeds, outputs)
+
+    monkeypatch.setattr(_onnx.OnnxModel, "run", spy)
+    img = rng.random((48, 64, 3)).astype(np.float32)
+    GroundingDINO(files["gdino"], files["bert"]).detect(img, "chair")
+    ref = (cv2.resize(img, (1066, 800), interpolation=cv2.INTER_LINEAR) - [0.485, 0.456, 0.406]) \
+        / [0.229, 0.224, 0.225]
+    np.testing.assert_allclose(seen["img"][0].transpose(1, 2, 0), ref, rtol=1e-5, atol=1e-5)
+    seen.clear()
+    clip = om.clip_tokenizer_json(tmp_path / "clip.json")
+    OWLViT(om.owlvit(tmp_path / "owl.onnx"), clip).detect(img, "red chair")
+    ref = (cv2.resize(img, (32, 32), interpolation=cv2.INTER_LINEAR)
+           - [0.48145466, 0.4578275, 0.40821073]) / [0.26862954, 0.26130258, 0.27577711]
+    np.testing.assert_allclose(seen["pixel_values"][0].transpose(1, 2, 0), ref, rtol=1e-5, atol=1e-5)
+    assert seen["input_ids"].tolist() == [[26, 16, 14, 27] + [0] * 12]
+    assert seen["attention_mask"].tolist() == [[1] * 4 + [0] * 12]
