@@ -50,7 +50,7 @@ import numpy as np
 
 from .camera import Camera
 from .errors import ValidationError
-from .scene import GaussianScene, rotmat_to_quat
+from .scene import GaussianScene, quat_multiply, quat_to_rotmat, rotmat_to_quat
 from .sh import SH_C0, num_sh_coeffs
 
 __all__ = ["SyntheticScene", "make_scene", "compose", "pose_on_point", "parse_pose", "surface_point",
@@ -132,14 +132,8 @@ class _Part:
                        for f in ("means", "quats", "sigmas", "rgb")))
 
     def moved(self, rot: np.ndarray, t) -> "_Part":
-        quat = rotmat_to_quat(rot)
-        w0, v0 = quat[0], quat[1:]
-        w, v = self.quats[:, 0], self.quats[:, 1:]
-        # Hamilton product quat * q for every row (rotate each Gaussian by rot).
-        qw = w0 * w - v @ v0
-        qv = w0 * v + w[:, None] * v0 + np.cross(v0, v)
         return _Part(self.means @ rot.T + np.asarray(t, dtype=np.float64),
-                     np.concatenate([qw[:, None], qv], axis=1), self.sigmas, self.rgb)
+                     quat_multiply(rotmat_to_quat(rot), self.quats), self.sigmas, self.rgb)
 
 
 def _surfels(points, normals, spacing, rgb_fn) -> _Part:
@@ -156,13 +150,7 @@ def _sphere(n, radius, center, rng, rgb_fn) -> _Part:
     theta = _GOLDEN_ANGLE * i
     d = np.stack([np.cos(theta) * np.sin(phi), np.sin(theta) * np.sin(phi), np.cos(phi)], 1)
     # A random orientation per seed, so different seeds sample differently.
-    qr = rng.normal(size=4)
-    qr /= np.linalg.norm(qr)
-    w, x, y, z = qr
-    rot = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                    [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                    [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
-    d = d @ rot.T
+    d = d @ quat_to_rotmat(rng.normal(size=4)).T
     spacing = np.sqrt(4 * np.pi * radius ** 2 / n)
     return _surfels(np.asarray(center) + radius * d, d, spacing, rgb_fn)
 
@@ -203,13 +191,13 @@ def _cylinder_side(n, radius, z0, z1, center, rng, rgb_fn, inward=False) -> _Par
     return _surfels(p + center, -nrm if inward else nrm, spacing, rgb_fn)
 
 
-def _disk(n, r0, r1, z, center, rng, rgb_fn, down=False) -> _Part:
+def _disk(n, r0, r1, z, center, rng, rgb_fn) -> _Part:
     """Sunflower-sampled annulus ``r0 <= r <= r1`` at height ``z`` (a disk when r0 = 0)."""
     i = np.arange(n) + 0.5
     r = np.sqrt(r0 ** 2 + (r1 ** 2 - r0 ** 2) * i / n)
     theta = _GOLDEN_ANGLE * i + rng.uniform(0, 2 * np.pi)
     p = np.stack([r * np.cos(theta), r * np.sin(theta), np.full(n, float(z))], 1)
-    nrm = np.tile([0.0, 0.0, -1.0 if down else 1.0], (n, 1))
+    nrm = np.tile([0.0, 0.0, 1.0], (n, 1))
     spacing = np.sqrt(np.pi * (r1 ** 2 - r0 ** 2) / n)
     return _surfels(p + center, nrm, spacing, rgb_fn)
 
@@ -225,11 +213,13 @@ def _const(rgb):
     return lambda p: np.tile(rgb, (len(p), 1))
 
 
-def _checker(cell, c0, c1, offset=(0.0, 0.0, 0.0)):
+def _checker(cell, c0, c1):
+    """3D checker of cubes of side ``cell``: on any plane it reads as a checker or stripes."""
     c0, c1 = np.asarray(c0, float), np.asarray(c1, float)
 
     def fn(p):
-        k = np.floor((p - np.asarray(offset)) / cell + 1e-9).astype(np.int64).sum(axis=1) % 2
+        # The epsilon keeps faces lying exactly on a cell boundary on one side.
+        k = np.floor(p / cell + 1e-9).astype(np.int64).sum(axis=1) % 2
         return np.where(k[:, None] == 0, c0, c1)
     return fn
 
@@ -440,9 +430,9 @@ def make_scene(seed: int = 0, n_per_object: int = 400, n_ground: int | None = No
     n = n_per_object
     ez = np.array([0.0, 0.0, 1.0])
 
-    def placed(part, key, z=0.0):
+    def placed(part, key):
         xy, yaw = lay[key]
-        return part.moved(_axis_angle(ez, yaw), [xy[0], xy[1], z])
+        return part.moved(_axis_angle(ez, yaw), [xy[0], xy[1], 0.0])
 
     parts, boxes = {}, {}   # label -> _Part; label -> (lo, hi) in the local frame
 
@@ -460,7 +450,7 @@ def make_scene(seed: int = 0, n_per_object: int = 400, n_ground: int | None = No
     # 2 box: checker texture.
     hb = np.array([0.3, 0.22, 0.2])
     parts[2] = placed(_box(n, hb, [0, 0, hb[2]], rng,
-                           _checker(0.1, [0.15, 0.3, 0.75], [0.95, 0.8, 0.2], [0, 0, 0.0])), "box")
+                           _checker(0.1, [0.15, 0.3, 0.75], [0.95, 0.8, 0.2])), "box")
     boxes[2] = yawed_box("box", [-hb[0], -hb[1], 0], [hb[0], hb[1], 2 * hb[2]])
     # 3 cup: outer wall, inner wall, rim, inner floor; 4 contents: liquid + 3 balls.
     rc, hc, tc = 0.25, 0.4, 0.02
