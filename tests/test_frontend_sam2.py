@@ -176,7 +176,18 @@ def test_video_tracker_validation(tmp_path):
     with pytest.raises(ValidationError, match="seed_mask"):
         tracker.track(frames, truth[0][:10])
     with pytest.raises(ValidationError, match="frames\\[1\\]"):
-        tracker.track([frames[0], frames[1][:20]], truth[0])
+        tracker.track([frames[0], frames[1][:, :, :2]], truth[0])
+
+
+def test_video_tracker_frames_of_different_sizes(tmp_path):
+    # the pipeline gives the reference at full and the orbit at half resolution
+    tracker = SAM2VideoTracker(**om.video_set(tmp_path))
+    frames, truth = _clip(3)
+    small = [cv2.resize(f, (W // 2, H // 2), interpolation=cv2.INTER_AREA) for f in frames[1:]]
+    masks = tracker.track([frames[0]] + small, truth[0])
+    assert [m.shape for m in masks] == [(H, W), (H // 2, W // 2), (H // 2, W // 2)]
+    t = cv2.resize(truth[2].astype(np.uint8), (W // 2, H // 2), interpolation=cv2.INTER_NEAREST) > 0
+    assert np.logical_and(masks[2] > 0.5, t).sum() / np.logical_or(masks[2] > 0.5, t).sum() > 0.8
     with pytest.raises(ValidationError, match="empty"):
         tracker.track([], truth[0])
 

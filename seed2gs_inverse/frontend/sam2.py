@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import hashlib
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
@@ -387,27 +387,26 @@ class SAM2VideoTracker:
         Parameters
         ----------
         frames : sequence
-            Objects with an ``rgb`` (H, W, 3) float attribute in [0, 1], or
-            the arrays themselves; all of one size.
-        seed_mask : (H, W) array
+            Objects with an ``rgb`` (H_k, W_k, 3) float attribute in [0, 1],
+            or the arrays themselves. Sizes may differ between frames (the
+            pipeline renders the reference at full and the orbit at reduced
+            resolution): every frame is resized to the encoder's S x S.
+        seed_mask : (H_0, W_0) array
             Seed in the first frame, values in [0, 1] (NaN counts as 0).
 
         Returns
         -------
-        list of (H, W) float32
-            1 inside / 0 outside the tracked object, one per frame; the first
-            is the seed (binarised at 0.5).
+        list of (H_k, W_k) float32
+            1 inside / 0 outside the tracked object, one per frame at that
+            frame's size; the first is the seed (binarised at 0.5).
         """
         if len(frames) == 0:
             raise ValidationError("frames: the clip is empty")
         imgs = [as_rgb(getattr(f, "rgb", f), f"frames[{i}]") for i, f in enumerate(frames)]
         h, w = imgs[0].shape[:2]
-        for i, im in enumerate(imgs):
-            if im.shape[:2] != (h, w):
-                raise ValidationError(f"frames[{i}]: size {im.shape[:2]} differs from the first frame's {(h, w)}")
         seed = np.asarray(seed_mask, dtype=np.float32)
         if seed.shape != (h, w):
-            raise ValidationError(f"seed_mask: shape {seed.shape} does not match the frames' {(h, w)}")
+            raise ValidationError(f"seed_mask: shape {seed.shape} does not match the first frame's {(h, w)}")
         seed = (np.nan_to_num(seed, nan=0.0) > 0.5).astype(np.float32)
 
         feats = self._encode(imgs[0])
@@ -435,7 +434,7 @@ class SAM2VideoTracker:
                 "image_embed": fused, "high_res_feats_0": feats["high_res_features1"],
                 "high_res_feats_1": feats["high_res_features2"]}, ["mask_for_mem", "pred_mask"])
             pred = np.asarray(dec["pred_mask"])[0, 0]
-            out.append((resize_map(pred, (h, w)) > self.mask_threshold).astype(np.float32))
+            out.append((resize_map(pred, imgs[i].shape[:2]) > self.mask_threshold).astype(np.float32))
             mf, mp, code = self._memory(np.asarray(dec["mask_for_mem"])[:, :1], feats["image_embeddings"])
             bank.push(i, mf, mp, code)
         return out
