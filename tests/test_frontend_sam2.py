@@ -94,6 +94,22 @@ def test_prompt_validation(models, rng):
         pred.predict()
     with pytest.raises(ValidationError, match="image"):
         pred.set_image(np.zeros((4, 4)))
+    with pytest.raises(ValidationError, match="NaN"):
+        pred.set_image(np.full((H, W, 3), np.nan, np.float32))
+
+
+def test_renderings_brighter_than_one_are_clipped(models, rng):
+    # 3DGS colours are clamped at 0 only; a rendering can exceed 1
+    pred = SAM2ImagePredictor(models["enc_se"], models["dec_se"])
+    img = image(rng)
+    pred.set_image(np.where(img > 0.9, 1.0, img).astype(np.float32))
+    ref = pred.features["image_embed"]
+    bright = img.copy()
+    bright[img > 0.9] = 1.7
+    pred.set_image(bright)
+    np.testing.assert_allclose(pred.features["image_embed"], ref, rtol=1e-6, atol=1e-6)
+    pred.set_image((img * 255).astype(np.uint8))
+    assert pred.features["image_embed"].shape == ref.shape
 
 
 def test_bad_files_give_format_errors(models, tmp_path):

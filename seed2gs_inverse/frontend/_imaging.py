@@ -20,16 +20,20 @@ CLIP_STD = (0.26862954, 0.26130258, 0.27577711)
 def as_rgb(image, name: str = "image") -> np.ndarray:
     """Validate an RGB image and return it as (H, W, 3) float32 in [0, 1].
 
-    uint8 images are divided by 255; float images must already lie in [0, 1].
+    uint8 images are divided by 255. Float images are clipped to [0, 1], as
+    saving them to 8 bits would: 3DGS colours (SH + 0.5, clamped at 0 only)
+    can exceed 1 in renderings.
     """
     img = np.asarray(image)
     if img.ndim != 3 or img.shape[2] != 3 or img.shape[0] < 1 or img.shape[1] < 1:
         raise ValidationError(f"{name}: expected an (H, W, 3) RGB image, got shape {img.shape}")
     if img.dtype == np.uint8:
         return img.astype(np.float32) / 255.0
+    if not np.issubdtype(img.dtype, np.number) or np.issubdtype(img.dtype, np.complexfloating):
+        raise ValidationError(f"{name}: expected a float or uint8 RGB image, got dtype {img.dtype}")
     img = img.astype(np.float32)
-    if not np.all(np.isfinite(img)) or img.min() < -1e-6 or img.max() > 1 + 1e-6:
-        raise ValidationError(f"{name}: float RGB values must be finite and in [0, 1]")
+    if not np.all(np.isfinite(img)):
+        raise ValidationError(f"{name}: the image has NaN or infinite values")
     return np.clip(img, 0.0, 1.0)
 
 
