@@ -12,17 +12,24 @@ For frame ``k`` and each pixel ``p`` with rendered alpha above ``alpha_min``:
    point ``X`` and project ``X`` into a source frame ``j`` (``p' = \pi_j(X)``,
    depth ``z'``);
 2. ``X`` is *seen* in frame ``j`` when ``p'`` is in the image, frame ``j`` is
-   opaque there and :math:`|z' - D_j(p')| \le \tau_{rel} z'` (a z-test: if
-   something else is in front, ``X`` was occluded in ``j``);
-3. the label is copied from the first source that sees ``X`` and has a label
-   there, trying the seed frame 0 first (no drift where the reference saw
-   the surface), then the previous frame ``k-1``.
+   opaque there and ``z'`` lies within :math:`\tau_{rel} z'` of the range of
+   :math:`D_j` over the 2x2 pixel centres around ``p'`` (a z-test: if
+   something else is in front, ``X`` was occluded in ``j``; the 2x2 range
+   keeps oblique surfaces, whose depth changes a lot within a pixel);
+3. the label is copied from the first source that sees ``X`` and has a
+   label there that is not within ``boundary_band`` pixels of a 0/1 edge, trying the seed frame 0 first (no drift where the reference saw
+   the surface), then the already labelled views nearest to frame ``k``
+   (earlier frames of the clip, plus labelled ``references`` such as the
+   flat clip when the spiral is tracked): a surface hidden for a few frames
+   behind an occluder gets its label back from a view that saw it.
 
 Pixels with alpha below ``alpha_min`` are empty space and get 0 (nothing
 there can be the object). Pixels no source sees (newly revealed surfaces,
 blended depths at silhouettes) are decided by image evidence: a normalised
-joint-bilateral filter (``cv2.ximgproc.jointBilateralFilter`` guided by the
-frame's RGB) spreads the decided labels along colour-homogeneous regions,
+edge-aware filter (the recursive domain-transform filter of
+``cv2.ximgproc.createDTFilter`` guided by the frame's RGB: positive weights
+``k(p, q)`` decaying with the geodesic space+colour distance) spreads the
+decided labels along colour-homogeneous regions,
 
 .. math::
 
@@ -55,6 +62,20 @@ def _pixel_rays(camera) -> np.ndarray:
     rays[..., 1] = y[:, None]
     rays[..., 2] = 1.0
     return rays
+
+
+def _core(labels: np.ndarray, band: int) -> np.ndarray:
+    """Labels with a band of ``band`` px on each side of every 0/1 boundary set to NaN."""
+    import cv2
+
+    if band <= 0:
+        return labels
+    k = np.ones((2 * band + 1, 2 * band + 1), np.uint8)
+    fg = cv2.dilate((labels == 1).astype(np.uint8), k) > 0
+    bg = cv2.dilate((labels == 0).astype(np.uint8), k) > 0
+    out = labels.copy()
+    out[fg & bg] = np.nan
+    return out
 
 
 def warp_labels(dst, src, src_labels: np.ndarray, *, alpha_min: float = 0.5,
@@ -90,9 +111,26 @@ def warp_labels(dst, src, src_labels: np.ndarray, *, alpha_min: float = 0.5,
     py = np.floor(np.where(ok, uv[:, 1], -1)).astype(np.int64)
     ok &= (px >= 0) & (px < sw) & (py >= 0) & (py < sh)
     i = np.nonzero(ok)[0]
-    sd = np.asarray(src.depth, np.float64)[py[i], px[i]]
-    sa = np.asarray(src.alpha)[py[i], px[i]]
-    seen = (sa >= alpha_min) & (sd > 0) & (np.abs(z[i] - sd) <= depth_tol * z[i])
+    sdep = np.asarray(src.depth, np.float64)
+    salp = np.asarray(src.alpha)
+    # z-test against the depths of the 2x2 pixel centres around p' (their
+    # range brackets the surface at p'); a nearest-pixel test fails in bands
+    # on oblique surfaces, where depth changes by a lot within one pixel.
+    fx = np.floor(uv[i, 0] - 0.5).astype(np.int64)
+    fy = np.floor(uv[i, 1] - 0.5).astype(np.int64)
+    lo = np.full(i.size, np.inf)
+    hi = np.full(i.size, -np.inf)
+    for ox in (0, 1):
+        for oy in (0, 1):
+            qx = np.clip(fx + ox, 0, sw - 1)
+            qy = np.clip(fy + oy, 0, sh - 1)
+            dq = sdep[qy, qx]
+            good = (salp[qy, qx] >= alpha_min) & (dq > 0)
+            lo = np.where(good, np.minimum(lo, dq), lo)
+            hi = np.where(good, np.maximum(hi, dq), hi)
+    zi = z[i]
+    tol = depth_tol * zi
+    seen = (salp[py[i], px[i]] >= alpha_min) & (zi >= lo - tol) & (zi <= hi + tol)
     vals = np.full(len(z), np.nan)
     vals[i[seen]] = np.asarray(src_labels, np.float64)[py[i[seen]], px[i[seen]]]
     out[valid] = vals
@@ -109,7 +147,7 @@ class GeometricTracker:
     depth_tol : float
         Relative z-test tolerance of the warp (1 % of depth).
     fill : bool
-        Decide pixels no source sees with the joint-bilateral filter.
+        Decide pixels no source sees with the edge-aware filter.
     fill_radius : float
         Spatial sigma of the filter as a fraction of the image diagonal.
     fill_sigma_color : float
@@ -119,11 +157,21 @@ class GeometricTracker:
         is within ``delta`` of 0 or 1.
     min_support : float
         Minimum normalised weight of decided pixels around a revealed pixel.
+    boundary_band : int
+        Source labels within this many pixels of a 0/1 boundary are not
+        copied (treated as unknown): a source boundary is only accurate to a
+        pixel, and copying it would let errors at silhouettes and contact
+        lines grow from view to view; the filter decides those pixels from
+        the target frame's own colour edges instead.
+    max_sources : int
+        Source frames tried per pixel: the seed frame, then the
+        ``max_sources - 1`` labelled views with the nearest camera centres
+        (earlier frames of the clip and any ``references``).
     """
 
     def __init__(self, alpha_min: float = 0.5, depth_tol: float = 0.01, fill: bool = True,
-                 fill_radius: float = 0.02, fill_sigma_color: float = 0.1, decisive: float = 0.2,
-                 min_support: float = 0.25):
+                 fill_radius: float = 0.1, fill_sigma_color: float = 0.15, decisive: float = 0.2,
+                 min_support: float = 0.02, max_sources: int = 4, boundary_band: int = 1):
         if not 0 < alpha_min < 1:
             raise ValidationError(f"alpha_min must be in (0, 1), got {alpha_min!r}")
         if not depth_tol > 0:
@@ -137,9 +185,18 @@ class GeometricTracker:
         self.fill_sigma_color = float(fill_sigma_color)
         self.decisive = float(decisive)
         self.min_support = float(min_support)
+        if int(max_sources) < 1:
+            raise ValidationError(f"max_sources must be >= 1, got {max_sources!r}")
+        self.max_sources = int(max_sources)
+        self.boundary_band = max(int(boundary_band), 0)
 
-    def track(self, frames: Sequence[Any], seed_mask: np.ndarray) -> list:
-        """Propagate ``seed_mask`` (frame 0) along ``frames``; float32 masks, NaN = unknown."""
+    def track(self, frames: Sequence[Any], seed_mask: np.ndarray, references: Sequence = ()) -> list:
+        """Propagate ``seed_mask`` (frame 0) along ``frames``; float32 masks, NaN = unknown.
+
+        ``references`` are already labelled ``(frame, mask)`` pairs (e.g. the
+        flat clip when tracking the spiral): extra sources for step 3, used
+        like earlier frames of this clip.
+        """
         frames = list(frames)
         if not frames:
             raise ValidationError("tracker: the clip has no frames")
@@ -154,20 +211,32 @@ class GeometricTracker:
         if seed.shape != frames[0].camera.image_shape:
             raise ValidationError(f"tracker: seed mask has shape {seed.shape}, frame 0 is "
                                   f"{frames[0].camera.image_shape}")
+        pool = []
+        for j, (f, m) in enumerate(references):
+            m = np.asarray(m, np.float64)
+            if m.shape != f.camera.image_shape:
+                raise ValidationError(f"tracker: reference {j} mask has shape {m.shape}, its frame is "
+                                      f"{f.camera.image_shape}")
+            pool.append((f, m))
         seed = np.where(np.isnan(seed), np.nan, (seed > 0.5).astype(np.float64))
         masks = [seed.astype(np.float32)]
         for k in range(1, len(frames)):
             f = frames[k]
-            lab = warp_labels(f, frames[0], seed, alpha_min=self.alpha_min, depth_tol=self.depth_tol)
-            if k > 1:
+            # Sources: the seed frame first (no drift), then the labelled
+            # views nearest to this one (best-conditioned warps).
+            cands = pool + [(frames[j], masks[j].astype(np.float64)) for j in range(1, k)]
+            dist = [np.linalg.norm(g.camera.center - f.camera.center) for g, _ in cands]
+            order = np.argsort(dist, kind="stable")[: max(self.max_sources - 1, 0)]
+            lab = np.full(f.camera.image_shape, np.nan)
+            for src, src_mask in [(frames[0], seed)] + [cands[i] for i in order]:
+                src_mask = _core(src_mask, self.boundary_band)
                 todo = np.isnan(lab)
-                if todo.any():
-                    prev = warp_labels(f, frames[k - 1], masks[k - 1].astype(np.float64),
-                                       alpha_min=self.alpha_min, depth_tol=self.depth_tol)
-                    lab[todo] = prev[todo]
+                if not todo.any():
+                    break
+                w = warp_labels(f, src, src_mask, alpha_min=self.alpha_min, depth_tol=self.depth_tol)
+                lab[todo] = w[todo]
             lab = np.where(np.isnan(lab), lab, (lab > 0.5).astype(np.float64))
-            empty = np.asarray(f.alpha) < self.alpha_min
-            lab[empty] = 0.0
+            lab[np.asarray(f.alpha) < self.alpha_min] = 0.0
             if self.fill and np.isnan(lab).any():
                 lab = self._fill(np.asarray(f.rgb, np.float32), lab)
             masks.append(lab.astype(np.float32))
@@ -181,15 +250,16 @@ class GeometricTracker:
         if not known.any():
             return lab
         sigma_s = max(1.0, self.fill_radius * float(np.hypot(h, w)))
-        d = int(2 * np.ceil(2 * sigma_s) + 1)
-        guide = np.ascontiguousarray(np.clip(rgb, 0, 1).astype(np.float32))
-        num = np.where(known, lab, 0.0).astype(np.float32)
-        den = known.astype(np.float32)
-        fnum = cv2.ximgproc.jointBilateralFilter(guide, num, d, self.fill_sigma_color, sigma_s)
-        fden = cv2.ximgproc.jointBilateralFilter(guide, den, d, self.fill_sigma_color, sigma_s)
+        guide = np.ascontiguousarray((np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8))
+        # Recursive domain-transform filter: positive weights that decay with
+        # the geodesic (space + colour) distance, O(pixels) for any radius.
+        filt = cv2.ximgproc.createDTFilter(guide, sigma_s, 255.0 * self.fill_sigma_color,
+                                           cv2.ximgproc.DTF_RF, 3)
+        fnum = filt.filter(np.where(known, lab, 0.0).astype(np.float32))
+        fden = filt.filter(known.astype(np.float32))
         with np.errstate(invalid="ignore", divide="ignore"):
             val = fnum / np.maximum(fden, 1e-12)
-        # fden is the (colour- and space-weighted) fraction of decided neighbours.
+        # fden is the (space- and colour-weighted) fraction of decided pixels nearby.
         ok = ~known & (fden >= self.min_support)
         out = lab.copy()
         out[ok & (val >= 1 - self.decisive)] = 1.0

@@ -18,7 +18,8 @@ ascending spiral
     vector never becomes parallel to the viewing direction.
 
 Frames ``k >= 1`` look at ``o`` (it lies on their optical axis) with image-up
-``u`` and the reference intrinsics.
+``u``, with the reference intrinsics or, given ``fit_radius``, zoomed so
+that the object fills the view (object-centric views).
 
 The amplitude adapts to the visibility of the support G0 along the flat
 orbit (Eq. 5): :math:`A = A_{max} (1 - \bar V)^\gamma`, where
@@ -41,7 +42,7 @@ from ..camera import Camera
 from ..errors import ValidationError
 
 __all__ = ["ClipFrame", "VAASPlan", "flat_orbit", "spiral_orbit", "spiral_elevations", "orbit_cameras", "run_vaas",
-           "support_visibility", "vaas_amplitude", "DEFAULTS"]
+           "support_visibility", "vaas_amplitude", "estimate_up", "DEFAULTS"]
 
 #: Paper defaults (views per clip, skip threshold) and our documented choices.
 DEFAULTS = {"n_views": 24, "a_max_deg": 60.0, "gamma": 1.0, "skip_deg": 5.0,
@@ -93,11 +94,14 @@ def _rodrigues(axis: np.ndarray, angle: float) -> np.ndarray:
     return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * (k @ k)
 
 
-def _frame(reference: Camera, center):
+def _frame(reference: Camera, center, up=None):
     o = np.asarray(center, dtype=np.float64)
     if o.shape != (3,) or not np.all(np.isfinite(o)):
         raise ValidationError(f"orbit centre must be a finite 3-vector, got {center!r}")
-    u = reference.up / np.linalg.norm(reference.up)
+    u = reference.up if up is None else np.asarray(up, dtype=np.float64)
+    if u.shape != (3,) or not np.all(np.isfinite(u)) or np.linalg.norm(u) < 1e-12:
+        raise ValidationError(f"orbit up must be a finite non-zero 3-vector, got {up!r}")
+    u = u / np.linalg.norm(u)
     d = reference.center - o
     dist = float(np.linalg.norm(d))
     if dist < 1e-9:
@@ -113,7 +117,8 @@ def _frame(reference: Camera, center):
     return o, u, horiz / rho, dist, float(np.arctan2(height, rho))
 
 
-def orbit_cameras(reference: Camera, center, azimuths_deg, elevations_deg=None) -> list:
+def orbit_cameras(reference: Camera, center, azimuths_deg, elevations_deg=None,
+                  fit_radius: float | None = None, up=None) -> list:
     """Cameras on a sphere about ``center`` through the reference camera centre.
 
     Parameters
@@ -127,6 +132,17 @@ def orbit_cameras(reference: Camera, center, azimuths_deg, elevations_deg=None) 
     elevations_deg : (n,) array or None
         Elevation above the plane through ``o`` perpendicular to ``u``; None
         keeps the reference elevation (a flat orbit).
+    fit_radius : float or None
+        None: the views keep the reference intrinsics. A radius ``r``: the
+        views (except the reference itself) zoom so that the sphere of radius
+        ``r`` about ``o`` just fits the smaller image side
+        (:math:`f = \tfrac12 \min(W, H) \sqrt{d^2 - r^2} / r`, square
+        pixels, principal point at the image centre). Object-centric views
+        put the pixels on the object; the reference distance is kept.
+
+    up : (3,) array or None
+        Orbit axis ``u``; None: the reference camera's image-up
+        (:attr:`Camera.up`). See :func:`estimate_up` for a levelled axis.
 
     Returns
     -------
@@ -134,7 +150,16 @@ def orbit_cameras(reference: Camera, center, azimuths_deg, elevations_deg=None) 
         View ``k`` is the reference itself when its azimuth is 0 and its
         elevation the reference one; otherwise it looks at ``o`` with image-up ``u``.
     """
-    o, u, e1, dist, e0 = _frame(reference, center)
+    o, u, e1, dist, e0 = _frame(reference, center, up)
+    base = reference
+    if fit_radius is not None:
+        r = float(fit_radius)
+        if not (np.isfinite(r) and r > 0):
+            raise ValidationError(f"fit_radius must be a positive distance, got {fit_radius!r}")
+        r = min(r, 0.95 * dist)
+        f = 0.5 * min(reference.width, reference.height) * np.sqrt(dist ** 2 - r ** 2) / r
+        base = Camera(reference.width, reference.height, f, f, reference.width / 2, reference.height / 2,
+                      reference.world_to_camera, reference.name, reference.near)
     az = np.radians(np.asarray(azimuths_deg, dtype=np.float64).ravel())
     el = np.full(az.shape, e0) if elevations_deg is None else np.radians(
         np.asarray(elevations_deg, dtype=np.float64).ravel())
@@ -149,21 +174,22 @@ def orbit_cameras(reference: Camera, center, azimuths_deg, elevations_deg=None) 
         horiz = _rodrigues(u, a) @ e1
         eye = o + dist * (np.cos(e) * horiz + np.sin(e) * u)
         lk = Camera.look_at(eye, o, u, fov_y, reference.width, reference.height)
-        cams.append(reference.with_pose(lk.world_to_camera))
+        cams.append(base.with_pose(lk.world_to_camera))
     return cams
 
 
-def flat_orbit(reference: Camera, center, n_views: int = 24) -> list:
+def flat_orbit(reference: Camera, center, n_views: int = 24, fit_radius: float | None = None,
+               up=None) -> list:
     """The flat, reference-anchored orbit of ``n_views`` cameras (360 k / n degrees)."""
     n = _check_n(n_views)
-    return orbit_cameras(reference, center, 360.0 * np.arange(n) / n)
+    return orbit_cameras(reference, center, 360.0 * np.arange(n) / n, fit_radius=fit_radius, up=up)
 
 
 def spiral_elevations(reference: Camera, center, amplitude_deg: float, n_views: int = 24,
-                      profile: str = "linear", max_elevation_deg: float = 85.0) -> np.ndarray:
+                      profile: str = "linear", max_elevation_deg: float = 85.0, up=None) -> np.ndarray:
     """Elevations (degrees) of the ascending spiral: reference elevation + pitch_k, capped."""
     n = _check_n(n_views)
-    _, _, _, _, e0 = _frame(reference, center)
+    _, _, _, _, e0 = _frame(reference, center, up)
     t = np.arange(n) / max(n - 1, 1)
     if profile == "linear":
         pitch = amplitude_deg * t
@@ -177,13 +203,14 @@ def spiral_elevations(reference: Camera, center, amplitude_deg: float, n_views: 
 
 
 def spiral_orbit(reference: Camera, center, amplitude_deg: float, n_views: int = 24,
-                 profile: str = "linear", max_elevation_deg: float = 85.0) -> list:
+                 profile: str = "linear", max_elevation_deg: float = 85.0,
+                 fit_radius: float | None = None, up=None) -> list:
     """The ascending spiral: the flat orbit's azimuths with elevations from :func:`spiral_elevations`."""
     if not np.isfinite(amplitude_deg) or amplitude_deg < 0:
         raise ValidationError(f"spiral amplitude must be a non-negative angle, got {amplitude_deg!r}")
     n = _check_n(n_views)
-    el = spiral_elevations(reference, center, amplitude_deg, n, profile, max_elevation_deg)
-    return orbit_cameras(reference, center, 360.0 * np.arange(n) / n, el)
+    el = spiral_elevations(reference, center, amplitude_deg, n, profile, max_elevation_deg, up)
+    return orbit_cameras(reference, center, 360.0 * np.arange(n) / n, el, fit_radius, up)
 
 
 def _check_n(n_views) -> int:
@@ -219,6 +246,57 @@ def support_visibility(means: np.ndarray, sigma: np.ndarray, camera: Camera, dep
     return float(vis.mean())
 
 
+def estimate_up(scene, reference: Camera, weights=None, flatness: float = 0.3) -> np.ndarray:
+    r"""A levelled orbit axis: the reference's image-up with the camera pitch removed.
+
+    The paper takes "up" from the reference camera, but a camera that looks
+    down at the object has an image-up tilted towards the viewing direction
+    by the pitch, and a flat orbit about that axis dives below the ground on
+    the far side. Assuming only that the reference has no roll (its x axis
+    is level, as in nearly every user view), the world up lies in the plane
+    spanned by :attr:`Camera.up` ``a`` and the backward direction ``b``; we
+    pick the direction in that plane best aligned with the normals of the
+    scene's flat Gaussians (splats of a trained 3DGS lie on surfaces; floors
+    and table tops dominate their normal distribution):
+
+    .. math::
+
+        u = rg\max_{\|u\|=1,\, u \in \mathrm{span}(a, b)}
+            \sum_i \omega_i (n_i \cdot u)^2,
+
+    the principal eigenvector of a 2x2 matrix, signed so that
+    :math:`u \cdot a > 0`. ``n_i`` is the axis of the smallest scale of
+    Gaussians whose smallest scale is below ``flatness`` times the middle
+    one; ``omega_i`` = ``weights`` (e.g. each Gaussian's total compositing
+    weight in the reference view, so that what the user sees counts) times
+    opacity. Returns ``reference.up`` when there are no flat Gaussians.
+    """
+    from ..scene import quat_to_rotmat
+
+    a = reference.up / np.linalg.norm(reference.up)
+    b = -reference.forward
+    b = b - (b @ a) * a
+    b /= np.linalg.norm(b)
+    s = scene.scales.astype(np.float64)
+    order = np.argsort(s, axis=1)
+    smin = np.take_along_axis(s, order[:, :1], 1)[:, 0]
+    smid = np.take_along_axis(s, order[:, 1:2], 1)[:, 0]
+    w = scene.opacities.astype(np.float64) * (smin < flatness * smid)
+    if weights is not None:
+        w = w * np.asarray(weights, dtype=np.float64).ravel()
+    sel = np.nonzero(w > 0)[0]
+    if sel.size == 0:
+        return a
+    rot = quat_to_rotmat(scene.quats[sel])
+    normals = np.take_along_axis(rot, order[sel, 0][:, None, None].repeat(3, axis=1), 2)[:, :, 0]
+    p = np.stack([normals @ a, normals @ b], 1)
+    m = (p * w[sel, None]).T @ p
+    evals, evecs = np.linalg.eigh(m)
+    v = evecs[:, -1]
+    u = v[0] * a + v[1] * b
+    return u if u @ a > 0 else -u
+
+
 def vaas_amplitude(visibility: float, a_max_deg: float = 60.0, gamma: float = 1.0) -> float:
     r"""Eq. 5: :math:`A = A_{max} (1 - \bar V)^\gamma` in degrees, with :math:`\bar V` clipped to [0, 1]."""
     if not (np.isfinite(a_max_deg) and a_max_deg >= 0 and np.isfinite(gamma) and gamma > 0):
@@ -230,7 +308,8 @@ def vaas_amplitude(visibility: float, a_max_deg: float = 60.0, gamma: float = 1.
 def run_vaas(support_means: np.ndarray, support_sigma: np.ndarray, reference: Camera, center,
              view, *, n_views: int = 24, a_max_deg: float = 60.0, gamma: float = 1.0,
              skip_deg: float = 5.0, profile: str = "linear", max_elevation_deg: float = 85.0,
-             eps_rel: float = 0.02, eps_sigma: float = 2.0):
+             eps_rel: float = 0.02, eps_sigma: float = 2.0, fit_radius: float | None = None,
+             up=None):
     """Plan and render both VAAS clips.
 
     Parameters
@@ -249,6 +328,10 @@ def run_vaas(support_means: np.ndarray, support_sigma: np.ndarray, reference: Ca
         view when the spiral is not skipped.
     n_views, a_max_deg, gamma, skip_deg, profile, max_elevation_deg, eps_rel, eps_sigma
         See the module docstring and :data:`DEFAULTS`.
+    fit_radius : float or None
+        Object-centric zoom of the views, see :func:`orbit_cameras`.
+    up : (3,) array or None
+        Orbit axis; None: the reference camera's image-up.
 
     Returns
     -------
@@ -256,7 +339,7 @@ def run_vaas(support_means: np.ndarray, support_sigma: np.ndarray, reference: Ca
     flat_frames, spiral_frames : list of ClipFrame
         ``spiral_frames`` is empty when the spiral is skipped.
     """
-    flat = flat_orbit(reference, center, n_views)
+    flat = flat_orbit(reference, center, n_views, fit_radius, up)
     flat_frames = [view(cam, "flat", k) for k, cam in enumerate(flat)]
     per_view = np.array([support_visibility(support_means, support_sigma, f.camera, f.depth,
                                             eps_rel, eps_sigma) for f in flat_frames])
@@ -265,10 +348,12 @@ def run_vaas(support_means: np.ndarray, support_sigma: np.ndarray, reference: Ca
     skipped = amp < skip_deg
     spiral, spiral_frames = [], []
     if not skipped:
-        spiral = spiral_orbit(reference, center, amp, n_views, profile, max_elevation_deg)
+        spiral = spiral_orbit(reference, center, amp, n_views, profile, max_elevation_deg, fit_radius, up)
         spiral_frames = [view(cam, "spiral", k) for k, cam in enumerate(spiral)]
     settings = {"n_views": int(n_views), "a_max_deg": float(a_max_deg), "gamma": float(gamma),
                 "skip_deg": float(skip_deg), "profile": profile,
-                "max_elevation_deg": float(max_elevation_deg)}
+                "max_elevation_deg": float(max_elevation_deg),
+                "fit_radius": None if fit_radius is None else float(fit_radius),
+                "up": (reference.up if up is None else np.asarray(up, float) / np.linalg.norm(up)).tolist()}
     plan = VAASPlan(flat, spiral, vbar, per_view, amp, bool(skipped), settings)
     return plan, flat_frames, spiral_frames

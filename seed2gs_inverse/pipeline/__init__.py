@@ -1,0 +1,8 @@
+"""Algorithm 1 of the paper: seed lift, VAAS orbits and ``extract()``."""
+
+from .extract import Extraction, extract
+from .seed_lift import SeedLift, seed_lift
+from .vaas import ClipFrame, VAASPlan, flat_orbit, orbit_cameras, run_vaas, spiral_orbit, vaas_amplitude
+
+__all__ = ["extract", "Extraction", "seed_lift", "SeedLift", "ClipFrame", "VAASPlan", "flat_orbit",
+           "spiral_orbit", "orbit_cameras", "run_vaas", "vaas_amplitude"]

@@ -1,0 +1,107 @@
+"""Model-free geometric tracker: warping geometry and propagation on rendered views."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from seed2gs_inverse import Camera, ValidationError
+from seed2gs_inverse.frontend.model_free import GeometricTracker, warp_labels
+from seed2gs_inverse.operators.render import build_operator
+from seed2gs_inverse.pipeline.vaas import ClipFrame, flat_orbit
+
+from _pipeline_scenes import reference_camera, sphere_scene
+
+
+def _plane_frame(cam, z, alpha=1.0):
+    h, w = cam.image_shape
+    return SimpleNamespace(camera=cam, depth=np.full((h, w), z, np.float32),
+                           alpha=np.full((h, w), alpha, np.float32),
+                           rgb=np.zeros((h, w, 3), np.float32))
+
+
+def test_warp_plane_translation_shifts_by_disparity():
+    # Fronto-parallel plane at depth Z; the camera moves by tx along +x: a
+    # point at pixel x in the source appears at x - fx tx / Z in the target.
+    z, tx = 4.0, 0.5
+    src_cam = Camera(40, 30, 20.0, 20.0, 20.0, 15.0)
+    dst_pose = np.eye(4)
+    dst_pose[0, 3] = -tx  # world_to_camera translation for a centre at +tx
+    dst_cam = src_cam.with_pose(dst_pose)
+    shift = 20.0 * tx / z  # 2.5 px
+    src = _plane_frame(src_cam, z)
+    dst = _plane_frame(dst_cam, z)
+    lab = np.zeros((30, 40))
+    lab[:, 10:20] = 1.0
+    out = warp_labels(dst, src, lab)
+    # dst pixel x sees the point at source x + shift (nearest pixel = floor).
+    xs = np.arange(40)
+    src_x = np.floor(xs + 0.5 + shift).astype(int)
+    expect = np.where(src_x < 40, ((src_x >= 10) & (src_x < 20)).astype(float), np.nan)
+    np.testing.assert_array_equal(out[0], expect)
+    assert np.isnan(out[:, -3:]).all()  # those points are outside the source view
+
+
+def test_warp_z_test_marks_occluded_points_unknown():
+    cam = Camera(20, 10, 10.0, 10.0, 10.0, 5.0)
+    src = _plane_frame(cam, 2.0)  # something in front in the source
+    dst = _plane_frame(cam, 5.0)
+    out = warp_labels(dst, src, np.ones((10, 20)))
+    assert np.isnan(out).all()
+    empty = _plane_frame(cam, 5.0, alpha=0.1)
+    assert np.isnan(warp_labels(empty, _plane_frame(cam, 5.0), np.ones((10, 20)))).all()
+
+
+@pytest.fixture(scope="module")
+def clip():
+    scene, labels, info = sphere_scene()
+    ref = reference_camera(info, 96, 72)
+    cams = flat_orbit(ref, info["center"], 12)[:4]
+    frames, truth = [], []
+    for k, cam in enumerate(cams):
+        op = build_operator(scene, cam)
+        r = op.rendering
+        frames.append(ClipFrame(r.rgb, r.depth, r.alpha, cam, "flat", k))
+        truth.append((op.W @ labels.astype(np.float32)).reshape(cam.image_shape) > 0.5)
+    return frames, truth
+
+
+def test_tracker_follows_the_object(clip):
+    frames, truth = clip
+    masks = GeometricTracker().track(frames, truth[0])
+    assert len(masks) == len(frames)
+    np.testing.assert_array_equal(masks[0], truth[0].astype(np.float32))
+    for k in range(1, len(frames)):
+        m, t = masks[k], truth[k]
+        assert m.dtype == np.float32 and m.shape == t.shape
+        known = ~np.isnan(m)
+        assert set(np.unique(m[known])) <= {0.0, 1.0}
+        agree = (m[known] > 0.5) == t[known]
+        assert agree.mean() > 0.98, (k, agree.mean())
+        assert known.mean() > 0.75  # disoccluded ground behind the sphere stays unknown
+        inter = ((m > 0.5) & t).sum()
+        assert inter / ((m > 0.5) | t).sum() > 0.85
+        # Empty space is decided (0), never unknown.
+        assert not np.isnan(m[frames[k].alpha < 0.5]).any()
+
+
+def test_tracker_leaves_unseen_pixels_unknown_without_fill(clip):
+    frames, truth = clip
+    masks = GeometricTracker(fill=False).track(frames, truth[0])
+    filled = GeometricTracker().track(frames, truth[0])
+    for k in range(1, len(frames)):
+        n_raw, n_fill = np.isnan(masks[k]).sum(), np.isnan(filled[k]).sum()
+        assert n_raw > 0 and n_fill <= n_raw
+        # Filling only decides unknown pixels, never overrides warped labels.
+        known = ~np.isnan(masks[k])
+        np.testing.assert_array_equal(filled[k][known], masks[k][known])
+
+
+def test_tracker_validates(clip):
+    frames, truth = clip
+    with pytest.raises(ValidationError, match="seed mask"):
+        GeometricTracker().track(frames, truth[0][:-1])
+    with pytest.raises(ValidationError, match="no frames"):
+        GeometricTracker().track([], truth[0])
+    with pytest.raises(ValidationError, match="alpha_min"):
+        GeometricTracker(alpha_min=2)
