@@ -126,6 +126,14 @@ def test_bad_files_give_format_errors(models, tmp_path):
         SAM2ImagePredictor(wrong, models["dec_se"])
     msg = str(e.value)
     assert "wrong.onnx" in msg and "missing input image" in msg and "found inputs (img:float32[1,3,64,64])" in msg
+    # wrong fixed size: four colour channels
+    four = om.save(tmp_path / "four.onnx", [om.pool("image", "image_embed", 16), om.pool("image", "high_res_feats_0", 4),
+                                            om.pool("image", "high_res_feats_1", 8)],
+                   [om.vi("image", om.F32, [1, 4, 64, 64])],
+                   [om.vi("image_embed", om.F32, [1, 4, 4, 4]), om.vi("high_res_feats_0", om.F32, [1, 4, 16, 16]),
+                    om.vi("high_res_feats_1", om.F32, [1, 4, 8, 8])])
+    with pytest.raises(FormatError, match="four.onnx.*image axis 1 has size 4, expected 3"):
+        SAM2ImagePredictor(four, models["dec_se"])
     # wrong dtype of point_labels
     bad = om.sam2_decoder(tmp_path / "bad_dtype.onnx", "samexporter", label_type=om.BOOL)
     with pytest.raises(FormatError, match="point_labels has dtype bool"):
