@@ -128,30 +128,9 @@ def random_scene(seed, n=120, sh_degree=None, cam=None):
 def load_firepit(data_dir):
     """The firepit scene and its ``overview`` camera (near plane 0.2, as the reference image)."""
     from seed2gs_inverse.camera import Camera
+    from seed2gs_inverse.io import read_camera, read_scene
 
-    try:
-        from seed2gs_inverse.io import read_scene
-    except ImportError:  # the io package is not there yet
-        read_scene = None
-    path = data_dir / "firepit_562k_sh0.ply"
-    if read_scene is not None:
-        scene = read_scene(path)
-    else:
-        from plyfile import PlyData
-
-        v = PlyData.read(str(path))["vertex"]
-        f = lambda *names: np.stack([np.asarray(v[k], np.float32) for k in names], 1)  # noqa: E731
-        scene = GaussianScene(f("x", "y", "z"), f("rot_0", "rot_1", "rot_2", "rot_3"),
-                              f("scale_0", "scale_1", "scale_2"), np.asarray(v["opacity"], np.float32),
-                              f("f_dc_0", "f_dc_1", "f_dc_2")[:, None, :])
-    import json
-
-    entry = next(c for c in json.loads((data_dir / "firepit_cameras.json").read_text())
-                 if c["img_name"] == "overview")
-    c2w = np.eye(4)
-    c2w[:3, :3] = np.asarray(entry["rotation"])
-    c2w[:3, 3] = entry["position"]
-    w, h = entry["width"], entry["height"]
-    cam = Camera.from_camera_to_world(w, h, entry["fx"], entry["fy"], w / 2, h / 2, c2w,
-                                      name="overview", near=0.2)
+    scene = read_scene(data_dir / "firepit_562k_sh0.ply")
+    c = read_camera(f"{data_dir / 'firepit_cameras.json'}:overview")
+    cam = Camera(c.width, c.height, c.fx, c.fy, c.cx, c.cy, c.world_to_camera, c.name, near=0.2)
     return scene, cam

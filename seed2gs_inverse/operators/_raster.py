@@ -62,17 +62,41 @@ def _sh_basis(x, y, z, k, out):
             out[15] = _C36 * x * (xx - 3.0 * yy)
 
 
+@njit(cache=True, inline="always")
+def _clamp_floor(v, hi):
+    """``floor(v)`` clamped to [0, hi], safe for huge or NaN ``v`` (gives 0)."""
+    if not v > 0.0:
+        return 0
+    if v >= hi:
+        return hi
+    return int(math.floor(v))
+
+
 @njit(cache=True, parallel=True)
 def project(means, quats, log_scales, opacity_logits, sh, rot, trans, center,
             fx, fy, cx, cy, width, height, near, eps2d, antialiased,
-            means2d, conics, radii, depths, colors, opacities, rects):
+            means2d, conics, radii, depths, colors, opacities, support, rects):
     """Project N Gaussians; see ``render.project_gaussians`` for the maths.
 
     Inputs are the raw scene arrays (float32) and the camera (float64).
     Outputs (preallocated, float64 unless noted): means2d (N,2), conics (N,3)
     (a, b, c of the inverse 2D covariance), radii (N,) int32 (0 = culled),
     depths (N,) view z, colors (N,3), opacities (N,) (times the antialiasing
-    compensation), rects (N,4) int32 tile rectangle [tx0, ty0, tx1, ty1).
+    compensation), support (N,3) and rects (N,4) int32 (see below).
+
+    ``support`` = ``(pmin, hx, hy)``: ``pmin = ln(1/(255 o)) - 1e-6``, below
+    which ``o exp(power) < 1/255`` for sure (so ``exp`` can be skipped; the
+    margin leaves the exact test in charge), and the half-sizes of the
+    bounding box of the ellipse ``d^T Q d <= 2 ln(255 o)`` (Q the conic),
+    outside which the alpha test cannot pass: ``sqrt(k (Q^-1)_xx)``,
+    ``sqrt(k (Q^-1)_yy)`` plus 1e-3 px for rounding.
+
+    ``rects`` = ``[tx0, ty0, tx1, ty1)``: the tiles the Gaussian is binned
+    to, i.e. its getRect tile rectangle intersected with the tiles its
+    support box touches. In the other tiles of the getRect rectangle it
+    would pass the alpha test at no pixel, so leaving them out changes
+    nothing but the work. Empty for culled Gaussians and for those with
+    ``o < 1/255``, which can never pass the alpha test.
     """
     n = means.shape[0]
     k = sh.shape[1]
@@ -119,6 +143,8 @@ def project(means, quats, log_scales, opacity_logits, sh, rot, trans, center,
         conics[i, 2] = 0.0
         for j in range(4):
             rects[i, j] = 0
+        for j in range(3):
+            support[i, j] = 0.0
         if not z >= near:  # also rejects NaN
             continue
 
@@ -183,18 +209,42 @@ def project(means, quats, log_scales, opacity_logits, sh, rot, trans, center,
         mx = fx * x / z + cx
         my = fy * y / z + cy
         # Tile rectangle of [mean - r, mean + r] as getRect of the reference code.
-        rx0 = min(tiles_x, max(0, int(math.floor((mx - radius) / TILE))))
-        ry0 = min(tiles_y, max(0, int(math.floor((my - radius) / TILE))))
-        rx1 = min(tiles_x, max(0, int(math.floor((mx + radius + TILE - 1) / TILE))))
-        ry1 = min(tiles_y, max(0, int(math.floor((my + radius + TILE - 1) / TILE))))
+        rx0 = _clamp_floor((mx - radius) / TILE, tiles_x)
+        ry0 = _clamp_floor((my - radius) / TILE, tiles_y)
+        rx1 = _clamp_floor((mx + radius + TILE - 1) / TILE, tiles_x)
+        ry1 = _clamp_floor((my + radius + TILE - 1) / TILE, tiles_y)
         if rx1 <= rx0 or ry1 <= ry0:
             continue
         radii[i] = np.int32(radius)
         means2d[i, 0] = mx
         means2d[i, 1] = my
-        conics[i, 0] = c / det
-        conics[i, 1] = -b / det
-        conics[i, 2] = a / det
+        ca = c / det
+        cb = -b / det
+        cc = a / det
+        conics[i, 0] = ca
+        conics[i, 1] = cb
+        conics[i, 2] = cc
+        o = opacities[i]
+        if not o >= ALPHA_MIN:
+            continue
+        pmin = math.log(ALPHA_MIN / o) - 1e-6
+        kq = max(0.0, -2.0 * pmin) / (ca * cc - cb * cb)
+        hx = math.sqrt(kq * cc) + 1e-3
+        hy = math.sqrt(kq * ca) + 1e-3
+        support[i, 0] = pmin
+        support[i, 1] = hx
+        support[i, 2] = hy
+        # Pixels whose centre can lie in the support box, then their tiles.
+        sx0 = _clamp_floor(math.ceil(mx - hx - 0.5) / TILE, tiles_x)
+        sx1 = _clamp_floor(math.floor(mx + hx - 0.5) / TILE, tiles_x - 1) + 1
+        sy0 = _clamp_floor(math.ceil(my - hy - 0.5) / TILE, tiles_y)
+        sy1 = _clamp_floor(math.floor(my + hy - 0.5) / TILE, tiles_y - 1) + 1
+        rx0 = max(rx0, sx0)
+        rx1 = min(rx1, sx1)
+        ry0 = max(ry0, sy0)
+        ry1 = min(ry1, sy1)
+        if rx1 <= rx0 or ry1 <= ry0:
+            continue
         rects[i, 0] = rx0
         rects[i, 1] = ry0
         rects[i, 2] = rx1
@@ -228,9 +278,9 @@ def bin_tiles(order, rects, tiles_x, n_tiles):
 
 
 @njit(cache=True, parallel=True)
-def composite(tile_start, tile_gauss, tile_order, means2d, conics, opacities, colors, depths,
+def composite(tile_start, tile_gauss, tile_order, means2d, conics, opacities, support, colors, depths,
               width, height, roi, background, min_weight, fill,
-              rgb, alpha, depth, n_contrib, n_kept, indptr, indices, data):
+              rgb, alpha, depth, n_contrib, n_kept, indptr, indices, data, tile_evals):
     """Front-to-back compositing of every tile (parallel over tiles).
 
     For pixel centre ``p = (x + 0.5, y + 0.5)`` and each Gaussian g of the
@@ -250,6 +300,8 @@ def composite(tile_start, tile_gauss, tile_order, means2d, conics, opacities, co
     those with ``w >= min_weight``. With ``fill`` the kept weights go to
     ``indices[indptr[u]:...]`` / ``data`` in compositing order; ``indptr``
     must then be the cumulative sum of a previous pass's ``n_kept``.
+    ``tile_evals`` (n_tiles,) int64 receives the number of Gaussian-pixel
+    evaluations (power computed) per tile, for benchmarks.
     """
     tiles_x = (width + TILE - 1) // TILE
     n_tiles = tile_order.shape[0]
@@ -271,6 +323,7 @@ def composite(tile_start, tile_gauss, tile_order, means2d, conics, opacities, co
         cursor = np.zeros(npix, np.int64)
         done = np.zeros(npix, np.bool_)
         n_done = 0
+        n_eval = 0
         for yy in range(y0, y1):
             for xx in range(x0, x1):
                 lp = (yy - y0) * tw + (xx - x0)
@@ -291,13 +344,9 @@ def composite(tile_start, tile_gauss, tile_order, means2d, conics, opacities, co
             cb = conics[gi, 1]
             cc = conics[gi, 2]
             o = opacities[gi]
-            # power can never reach alpha >= 1/255 below this (exp skipped).
-            pmin = math.log(ALPHA_MIN / o) - 1e-6
-            # Bounding box of d^T Q d <= 2 ln(255 o): half-widths
-            # sqrt(k Q^-1_xx), sqrt(k Q^-1_yy); 1e-3 px margin for rounding.
-            kq = max(0.0, -2.0 * pmin) / (ca * cc - cb * cb)
-            hx = math.sqrt(kq * cc) + 1e-3
-            hy = math.sqrt(kq * ca) + 1e-3
+            pmin = support[gi, 0]
+            hx = support[gi, 1]
+            hy = support[gi, 2]
             bx0 = max(x0, int(math.ceil(mx - hx - 0.5)))
             bx1 = min(x1, int(math.floor(mx + hx - 0.5)) + 1)
             by0 = max(y0, int(math.ceil(my - hy - 0.5)))
@@ -314,6 +363,7 @@ def composite(tile_start, tile_gauss, tile_order, means2d, conics, opacities, co
                     lp = (yy - y0) * tw + (xx - x0)
                     if done[lp]:
                         continue
+                    n_eval += 1
                     dx = mx - (xx + 0.5)
                     power = -0.5 * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
                     if power > 0.0 or power < pmin:
@@ -340,6 +390,7 @@ def composite(tile_start, tile_gauss, tile_order, means2d, conics, opacities, co
                             cursor[lp] += 1
                         kept[lp] += 1
                     T[lp] = nt
+        tile_evals[t] = n_eval
         for yy in range(y0, y1):
             for xx in range(x0, x1):
                 if not roi[yy, xx]:

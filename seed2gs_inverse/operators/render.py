@@ -55,6 +55,7 @@ and tiles); outputs are float32.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -149,12 +150,13 @@ def _project(scene, camera, mode):
     depths = np.empty(n)
     colors = np.empty((n, 3))
     opac = np.empty(n)
+    support = np.empty((n, 3))
     rects = np.empty((n, 4), np.int32)
     _raster.project(scene.means, scene.quats, scene.log_scales, scene.opacity_logits, scene.sh,
                     rot, trans, center, camera.fx, camera.fy, camera.cx, camera.cy,
                     camera.width, camera.height, camera.near, _EPS2D, mode == "antialiased",
-                    means2d, conics, radii, depths, colors, opac, rects)
-    return means2d, conics, radii, depths, colors, opac, rects
+                    means2d, conics, radii, depths, colors, opac, support, rects)
+    return means2d, conics, radii, depths, colors, opac, support, rects
 
 
 def project_gaussians(scene, camera, mode: str = "classic") -> Projection:
@@ -173,7 +175,7 @@ def project_gaussians(scene, camera, mode: str = "classic") -> Projection:
         (radii int32); culled Gaussians have ``radii == 0``.
     """
     _check_inputs(scene, camera, mode)
-    means2d, conics, radii, depths, colors, opac, _ = _project(scene, camera, mode)
+    means2d, conics, radii, depths, colors, opac, _, _ = _project(scene, camera, mode)
     f32 = np.float32
     return Projection(means2d.astype(f32), conics.astype(f32), radii, depths.astype(f32),
                       colors.astype(f32), opac.astype(f32))
@@ -217,18 +219,24 @@ def _check_background(background):
     return bg
 
 
-def _rasterize(scene, camera, background, mode, roi, min_weight, build_w):
-    """One rasterizer pass; returns (Rendering, W or None)."""
+def _rasterize(scene, camera, background, mode, roi, min_weight, build_w, stats=None):
+    """One rasterizer pass; returns (Rendering, W or None).
+
+    ``stats``, a dict, receives stage timings (s) and work counts for benchmarks.
+    """
+    clock = [time.perf_counter()]
     h, w = camera.height, camera.width
     roi_mask = _roi_mask(roi, (h, w))
     bg = _check_background(background)
-    means2d, conics, radii, depths, colors, opac, rects = _project(scene, camera, mode)
+    means2d, conics, radii, depths, colors, opac, support, rects = _project(scene, camera, mode)
+    clock.append(time.perf_counter())
 
     # Front-to-back order of the binned Gaussians: by depth, ties by index
-    # (stable sort of an ascending index list). Gaussians whose opacity is
-    # below 1/255 can never pass the alpha test, so they are not binned.
-    vis = np.flatnonzero((radii > 0) & (opac >= _raster.ALPHA_MIN))
+    # (stable sort of an ascending index list). Gaussians with an empty tile
+    # rectangle (culled, or never passing the alpha test) are not binned.
+    vis = np.flatnonzero((rects[:, 2] > rects[:, 0]) & (rects[:, 3] > rects[:, 1]))
     order = vis[np.argsort(depths[vis], kind="stable")]
+    clock.append(time.perf_counter())
     tiles_x = (w + _raster.TILE - 1) // _raster.TILE
     tiles_y = (h + _raster.TILE - 1) // _raster.TILE
     n_tiles = tiles_x * tiles_y
@@ -236,18 +244,26 @@ def _rasterize(scene, camera, background, mode, roi, min_weight, build_w):
     # Tiles differ a lot in cost and prange splits the range into equal
     # contiguous chunks, so visit them in a fixed shuffled order.
     tile_order = np.random.default_rng(0).permutation(n_tiles).astype(np.int64)
+    clock.append(time.perf_counter())
 
     rgb = np.zeros((h, w, 3), np.float32)
     alpha = np.zeros((h, w), np.float32)
     depth = np.zeros((h, w), np.float32)
     n_contrib = np.zeros((h, w), np.int32)
     n_kept = np.zeros(h * w, np.int64)
+    tile_evals = np.zeros(n_tiles, np.int64)
     dummy_ptr = np.zeros(1, np.int64)
-    args = (tile_start, tile_gauss, tile_order, means2d, conics, opac, colors, depths,
+    args = (tile_start, tile_gauss, tile_order, means2d, conics, opac, support, colors, depths,
             w, h, roi_mask, bg, float(min_weight))
     _raster.composite(*args, False, rgb, alpha, depth, n_contrib, n_kept,
-                      dummy_ptr, np.zeros(0, np.int32), np.zeros(0, np.float32))
+                      dummy_ptr, np.zeros(0, np.int32), np.zeros(0, np.float32), tile_evals)
+    clock.append(time.perf_counter())
     rendering = Rendering(rgb, alpha, depth, n_contrib)
+    if stats is not None:
+        stats.update(project_s=clock[1] - clock[0], sort_s=clock[2] - clock[1],
+                     bin_s=clock[3] - clock[2], composite_s=clock[4] - clock[3],
+                     n_binned=int(order.size), n_pairs=int(tile_gauss.size),
+                     n_evals=int(tile_evals.sum()))
     if not build_w:
         return rendering, None
 
@@ -260,12 +276,14 @@ def _rasterize(scene, camera, background, mode, roi, min_weight, build_w):
     # writes the weights into the rows sized by the first pass.
     scratch = (np.empty_like(rgb), np.empty_like(alpha), np.empty_like(depth),
                np.empty_like(n_contrib), np.empty_like(n_kept))
-    _raster.composite(*args, True, *scratch, indptr, indices, data)
+    _raster.composite(*args, True, *scratch, indptr, indices, data, tile_evals)
     if nnz <= np.iinfo(np.int32).max:
         indptr = indptr.astype(np.int32)
     W = sp.csr_matrix((data, indices, indptr), shape=(h * w, len(scene)), copy=False)
     # Columns within a row are in compositing (depth) order, not sorted.
     W.has_sorted_indices = False
+    if stats is not None:
+        stats["fill_s"] = time.perf_counter() - clock[4]
     return rendering, W
 
 
