@@ -130,3 +130,16 @@ def test_truncated(tmp_path, rng):
     path.write_bytes(data[:-9])
     with pytest.raises(FormatError, match="truncated"):
         read_scene(path)
+
+
+def test_overflowing_chunk_range_is_nonfinite_without_warnings(tmp_path):
+    import warnings
+
+    # red range [0, 3e38]: a full red byte decodes to a DC term beyond float32
+    chunk = [0] * 12 + [0, 0, 0, 3e38, 1, 1]
+    path = tmp_path / "o.compressed.ply"
+    _write(path, [chunk], [(0, 3 << 30, 0, 0xFFFFFFFF), (0, 3 << 30, 0, 0x00FFFFFF)], CHUNK + COLOR)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(FormatError, match="1 of 2 Gaussians"):
+            read_scene(path)

@@ -105,3 +105,13 @@ def test_empty_scene_is_not_written(tmp_path, rng):
     with pytest.raises(ValidationError, match="empty"):
         write_scene(tmp_path / "e.splat", random_scene(rng, n=3).subset(np.zeros(3, bool)))
     assert not (tmp_path / "e.splat").exists()
+
+
+def test_detect_format_checks_content(tmp_path):
+    path = tmp_path / "x.splat"
+    path.write_bytes(b"ply\n" + b"\0" * 28)
+    with pytest.raises(FormatError, match="looks like a PLY file"):
+        detect_format(path)
+    path.write_bytes(b"\0" * 31)
+    with pytest.raises(FormatError, match="multiple of 32"):
+        detect_format(path)

@@ -172,3 +172,12 @@ def test_huge_point_count_uses_bounded_memory(tmp_path, version):
     finally:
         tracemalloc.stop()
     assert peak < 20_000_000
+
+
+def test_detect_format_checks_magic(tmp_path):
+    path = tmp_path / "x.spz"
+    path.write_bytes(b"PK\x03\x04 not spz")
+    with pytest.raises(FormatError, match="not an SPZ file"):
+        detect_format(path)
+    with pytest.raises(FileNotFoundError):
+        detect_format(tmp_path / "missing.spz")

@@ -127,13 +127,14 @@ def finish_scene(path, means, quats, log_scales, opacity_logits, sh, extra=None,
     extra = dict(extra or {})
     n = means.shape[0]
     bad = np.zeros(n, dtype=bool)
-    for arr in (means, quats, log_scales, opacity_logits, sh):
-        bad |= ~np.isfinite(arr.reshape(n, int(np.prod(arr.shape[1:])))).all(axis=1)
-    for arr in extra.values():
-        if arr.dtype.kind == "f":
-            bad |= ~np.isfinite(arr)
-    with np.errstate(over="ignore", invalid="ignore"):
-        bad |= ~(np.abs(quats.astype(np.float64)).sum(axis=1) > 0)
+    arrays = [means, quats, log_scales, opacity_logits, sh]
+    arrays += [a for a in extra.values() if a.dtype.kind == "f"]
+    for arr in arrays:
+        finite = np.isfinite(arr)
+        if not finite.all():  # the per-row pass is only paid for files with bad values
+            bad |= ~finite.reshape(n, int(np.prod(arr.shape[1:]))).all(axis=1)
+    # quats @ ones would lose tiny components to underflow; compare with zero instead
+    bad |= ~(quats != 0).any(axis=1)
     nbad = int(bad.sum())
     if nbad:
         first = int(np.argmax(bad))

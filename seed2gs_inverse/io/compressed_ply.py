@@ -94,15 +94,21 @@ def read_compressed_ply(path, header: PlyHeader, drop_nonfinite: bool = False) -
             raise fail(path, f"compressed PLY has {sh_el.count} SH rows for {n} Gaussians")
     wanted = ["chunk", "vertex"] + (["sh"] if sh_el is not None else [])
     data = read_ply_elements(path, header, wanted)
+    # Corrupt chunk ranges may overflow float32; such Gaussians are reported
+    # as non-finite by finish_scene, so the floating-point warnings are noise.
+    with np.errstate(over="ignore", invalid="ignore"):
+        return _decode(path, data, n, has_color, rest_names, drop_nonfinite)
+
+
+def _decode(path, data, n, has_color, rest_names, drop_nonfinite) -> GaussianScene:
 
     chunks = columns(data["chunk"], _CHUNK_BASE + (_CHUNK_COLOR if has_color else [])).astype(np.float64)
     per = np.repeat(chunks, CHUNK_SIZE, axis=0)[:n]  # chunk values for each Gaussian
     packed = data["vertex"]
     pos_t = _unpack_11_10_11(packed["packed_position"])
     scale_t = _unpack_11_10_11(packed["packed_scale"])
-    with np.errstate(over="ignore", invalid="ignore"):
-        means = _lerp(per[:, 0:3], per[:, 3:6], pos_t)
-        log_scales = _lerp(per[:, 6:9], per[:, 9:12], scale_t)
+    means = _lerp(per[:, 0:3], per[:, 3:6], pos_t)
+    log_scales = _lerp(per[:, 6:9], per[:, 9:12], scale_t)
 
     rot = packed["packed_rotation"]
     norm = np.sqrt(2.0)  # the three small components lie in [-1/sqrt(2), 1/sqrt(2)]
@@ -120,15 +126,13 @@ def read_compressed_ply(path, header: PlyHeader, drop_nonfinite: bool = False) -
     rgba = np.stack([_unorm(col, s, 8) for s in (24, 16, 8, 0)], axis=1)
     rgb = rgba[:, :3]
     if has_color:
-        with np.errstate(over="ignore", invalid="ignore"):
-            rgb = _lerp(per[:, 12:15], per[:, 15:18], rgb)
+        rgb = _lerp(per[:, 12:15], per[:, 15:18], rgb)
     k = 1 + len(rest_names) // 3
     sh = np.zeros((n, k, 3), np.float32)
     sh[:, 0, :] = (rgb - 0.5) / SH_C0
     if rest_names:
         rest = columns(data["sh"], rest_names).astype(np.float64) * (8.0 / 255.0) - 4.0
         sh[:, 1:, :] = rest.reshape(n, 3, k - 1).transpose(0, 2, 1)
-    with np.errstate(over="ignore", invalid="ignore"):
-        return finish_scene(path, means.astype(np.float32), quats.astype(np.float32),
-                            log_scales.astype(np.float32), logit_from_unorm(rgba[:, 3]), sh,
-                            None, drop_nonfinite)
+    return finish_scene(path, means.astype(np.float32), quats.astype(np.float32),
+                        log_scales.astype(np.float32), logit_from_unorm(rgba[:, 3]), sh,
+                        None, drop_nonfinite)

@@ -27,8 +27,8 @@ from ..scene import GaussianScene
 from ._common import fail
 from .compressed_ply import is_compressed_ply, read_compressed_ply
 from .ply import read_ply_header, read_standard_ply, write_standard_ply
-from .splat import read_splat, write_splat
-from .spz import read_spz
+from .splat import check_splat, read_splat, write_splat
+from .spz import check_spz, read_spz
 
 __all__ = ["detect_format", "read_scene", "write_scene", "output_format", "READ_FORMATS",
            "WRITE_FORMATS"]
@@ -52,15 +52,19 @@ def detect_format(path) -> str:
 
     Chosen by extension and confirmed by content: a ``.ply`` file must start
     with the PLY magic and its header decides between ``ply`` and
-    ``compressed_ply``. Raises FormatError for unknown extensions or content
-    that does not match, OSError when the file cannot be opened.
+    ``compressed_ply``; an ``.spz`` file must start with the gzip or ``NGSP``
+    magic; a ``.splat`` file (no magic) must have a size that is a non-zero
+    multiple of 32 bytes and no other format's magic. Raises FormatError for
+    unknown extensions or content that does not match, OSError when the file
+    cannot be opened.
     """
     fam = _family(path)
     if fam == "ply":
         return "compressed_ply" if is_compressed_ply(read_ply_header(path)) else "ply"
-    if not Path(path).is_file():
-        with open(path, "rb"):  # raises the right OSError (missing file, directory)
-            pass
+    if fam == "splat":
+        check_splat(path)
+    else:
+        check_spz(path)
     return fam
 
 

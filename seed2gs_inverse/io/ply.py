@@ -263,7 +263,8 @@ def columns(struct: np.ndarray, names) -> np.ndarray:
     if struct.flags.c_contiguous and struct.dtype.itemsize == 4 * len(fields) \
             and all(struct.dtype.fields[f][0] == f32 for f in fields):
         flat = struct.view(np.float32).reshape(n, len(fields))
-        return flat[:, [fields.index(name) for name in names]]
+        # np.take returns C-contiguous rows (fancy indexing would give F order here)
+        return np.take(flat, [fields.index(name) for name in names], axis=1)
     with np.errstate(over="ignore", invalid="ignore"):
         return np.stack([struct[name].astype(np.float32) for name in names], axis=1)
 
@@ -293,11 +294,11 @@ def read_standard_ply(path, header: PlyHeader, drop_nonfinite: bool = False) -> 
     n = vertex.count
     k = 1 + len(rest_idx) // 3
     rest = [f"f_rest_{i}" for i in range(len(rest_idx))]
-    cols = columns(vert, _REQUIRED + rest)
     sh = np.empty((n, k, 3), np.float32)
-    sh[:, 0, :] = cols[:, 3:6]
-    # f_rest is channel-major: column c*(k-1) + j is coefficient j+1 of channel c.
-    sh[:, 1:, :] = cols[:, 14:].reshape(n, 3, k - 1).transpose(0, 2, 1)
+    sh[:, 0, :] = columns(vert, ["f_dc_0", "f_dc_1", "f_dc_2"])
+    if rest:
+        # f_rest is channel-major: column c*(k-1) + j is coefficient j+1 of channel c.
+        sh[:, 1:, :] = columns(vert, rest).reshape(n, 3, k - 1).transpose(0, 2, 1)
     extra = {}
     zero_normals = not any(np.any(vert[name]) for name in _NORMALS if name in names)
     for name in names:
@@ -306,10 +307,11 @@ def read_standard_ply(path, header: PlyHeader, drop_nonfinite: bool = False) -> 
         if name in _NORMALS and zero_normals:
             continue
         extra[name] = np.ascontiguousarray(vert[name])
-    return finish_scene(path, np.ascontiguousarray(cols[:, 0:3]),
-                        np.ascontiguousarray(cols[:, 10:14]),
-                        np.ascontiguousarray(cols[:, 7:10]),
-                        np.ascontiguousarray(cols[:, 6]), sh, extra, drop_nonfinite)
+    # One gathered copy per array straight from the records keeps the peak memory low.
+    return finish_scene(path, columns(vert, ["x", "y", "z"]),
+                        columns(vert, ["rot_0", "rot_1", "rot_2", "rot_3"]),
+                        columns(vert, ["scale_0", "scale_1", "scale_2"]),
+                        columns(vert, ["opacity"])[:, 0].copy(), sh, extra, drop_nonfinite)
 
 
 def standard_property_names(sh_degree: int) -> list:

@@ -31,7 +31,7 @@ from ..scene import GaussianScene
 from ..sh import SH_C0
 from ._common import atomic_write, fail, file_size, finish_scene, logit_from_unorm
 
-__all__ = ["read_splat", "write_splat", "SPLAT_DTYPE"]
+__all__ = ["read_splat", "write_splat", "check_splat", "SPLAT_DTYPE"]
 
 SPLAT_DTYPE = np.dtype([("position", "<f4", (3,)), ("scale", "<f4", (3,)),
                         ("rgba", "u1", (4,)), ("rotation", "u1", (4,))])
@@ -39,23 +39,32 @@ _MAGICS = {b"ply\n": "a PLY file", b"ply\r": "a PLY file", b"NGSP": "an SPZ file
            b"\x1f\x8b": "a gzip (SPZ) file"}
 
 
-def read_splat(path, drop_nonfinite: bool = False) -> GaussianScene:
-    """Decode a ``.splat`` file (see the module docstring)."""
+def check_splat(path) -> int:
+    """Number of Gaussians in a ``.splat`` file; FormatError if it cannot be one.
+
+    The format has no magic, so this checks what it can: a non-empty size
+    that is a multiple of 32 bytes, and no other format's magic bytes.
+    """
     size = file_size(path)
     if size == 0:
         raise fail(path, "file is empty")
     with open(path, "rb") as fh:
         head = fh.read(4)
-        for magic, what in _MAGICS.items():
-            if head.startswith(magic):
-                raise fail(path, f"this looks like {what}, not a .splat file; rename it "
-                                 f"with the right extension")
-        if size % SPLAT_DTYPE.itemsize:
-            raise fail(path, f"file size {size} is not a multiple of {SPLAT_DTYPE.itemsize} bytes "
-                             f"(truncated or not a .splat file)")
-        fh.seek(0)
-        rec = np.fromfile(fh, dtype=SPLAT_DTYPE, count=size // SPLAT_DTYPE.itemsize)
-    with np.errstate(divide="ignore", invalid="ignore"):
+    for magic, what in _MAGICS.items():
+        if head.startswith(magic):
+            raise fail(path, f"this looks like {what}, not a .splat file; rename it "
+                             f"with the right extension")
+    if size % SPLAT_DTYPE.itemsize:
+        raise fail(path, f"file size {size} is not a multiple of {SPLAT_DTYPE.itemsize} bytes "
+                         f"(truncated or not a .splat file)")
+    return size // SPLAT_DTYPE.itemsize
+
+
+def read_splat(path, drop_nonfinite: bool = False) -> GaussianScene:
+    """Decode a ``.splat`` file (see the module docstring)."""
+    n = check_splat(path)
+    rec = np.fromfile(path, dtype=SPLAT_DTYPE, count=n)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         log_scales = np.log(rec["scale"].astype(np.float64)).astype(np.float32)
     rgba = rec["rgba"].astype(np.float64) / 255.0
     sh = ((rgba[:, None, :3] - 0.5) / SH_C0).astype(np.float32)

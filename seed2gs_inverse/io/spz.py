@@ -46,9 +46,9 @@ import warnings
 import numpy as np
 
 from ..scene import GaussianScene
-from ._common import bounded_gzip, bounded_zstd, fail, file_size, finish_scene, logit_from_unorm
+from ._common import bounded_gzip, bounded_zstd, fail, finish_scene, logit_from_unorm
 
-__all__ = ["read_spz", "SPZ_MAGIC"]
+__all__ = ["read_spz", "check_spz", "SPZ_MAGIC"]
 
 SPZ_MAGIC = 0x5053474E
 _SH_DIM = (0, 3, 8, 15, 24)
@@ -72,16 +72,26 @@ def _check_header(path, version, sh_degree):
         raise fail(path, f"SPZ header has SH degree {sh_degree}; the format allows 0-4")
 
 
+def check_spz(path) -> str:
+    """``"gzip"`` (versions 2-3) or ``"v4"`` from the magic bytes; FormatError otherwise."""
+    with open(path, "rb") as fh:
+        head = fh.read(4)
+    if head[:2] == b"\x1f\x8b":
+        return "gzip"
+    if len(head) == 4 and struct.unpack("<I", head)[0] == SPZ_MAGIC:
+        return "v4"
+    raise fail(path, "not an SPZ file (neither a gzip stream nor the 'NGSP' magic)")
+
+
 def read_spz(path, drop_nonfinite: bool = False) -> GaussianScene:
     """Decode an ``.spz`` file (see the module docstring)."""
-    size = file_size(path)
+    kind = check_spz(path)
     with open(path, "rb") as fh:
         data = fh.read()
-    if data[:2] == b"\x1f\x8b":
-        return _read_gzip(path, data, drop_nonfinite)
-    if len(data) >= 4 and struct.unpack_from("<I", data)[0] == SPZ_MAGIC:
-        return _read_v4(path, data, size, drop_nonfinite)
-    raise fail(path, "not an SPZ file (neither a gzip stream nor the 'NGSP' magic)")
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        if kind == "gzip":
+            return _read_gzip(path, data, drop_nonfinite)
+        return _read_v4(path, data, len(data), drop_nonfinite)
 
 
 def _read_gzip(path, data: bytes, drop_nonfinite: bool) -> GaussianScene:
