@@ -290,6 +290,9 @@ def test_write_rejects_unwritable_extras_and_formats(tmp_path, rng):
     with pytest.raises(ValidationError, match="big"):
         write_scene(tmp_path / "x.ply", scene)
     assert not (tmp_path / "x.ply").exists()
+    for bad_name in ("f_rest_3", "has space", "opacity"):
+        with pytest.raises(ValidationError, match="cannot be written"):
+            write_scene(tmp_path / "x.ply", random_scene(rng, n=3, extra={bad_name: np.zeros(3)}))
     ok = random_scene(rng, n=3)
     for name in ("x.spz", "x.compressed.ply", "x.obj"):
         with pytest.raises(ValidationError):

@@ -338,7 +338,7 @@ def write_standard_ply(path, scene: GaussianScene) -> None:
     for name, arr in scene.extra.items():
         if name in _NORMALS:
             continue
-        if name in base or not _NAME_RE.match(name):
+        if name in base or name in _REQUIRED or _REST_RE.match(name) or not _NAME_RE.match(name):
             raise ValidationError(f"extra property '{name}' cannot be written to PLY: the name "
                                   f"is a standard 3DGS property or contains whitespace")
         code = arr.dtype.str[1:] if arr.dtype.kind != "b" else "u1"
