@@ -153,3 +153,14 @@ def test_bad_arguments(scene_and_camera):
             build_operator(scene, cam, min_weight=mw)
     with pytest.raises(ValidationError, match="empty"):
         build_operator(scene.subset(np.zeros(len(scene), bool)), cam)
+
+
+def test_view_that_sees_nothing(scene_and_camera):
+    scene, cam = scene_and_camera
+    scene = scene.subset(np.arange(len(scene) - 12))  # only those in front of cam
+    away = Camera.look_at(cam.center, 2 * cam.center, [0, -1, 0], 40, 20, 18)  # looks away
+    op = build_operator(scene, away)
+    assert op.W.nnz == 0 and op.W.shape == (18 * 20, len(scene))
+    assert not op.rendering.alpha.any() and not op.rendering.depth.any()
+    np.testing.assert_array_equal(render(scene, away, background=[0.1, 0.2, 0.3]).rgb,
+                                  np.broadcast_to(np.float32([0.1, 0.2, 0.3]), (18, 20, 3)))
