@@ -1,13 +1,13 @@
 """Scene files: format detection and the public ``read_scene``/``write_scene``.
 
-======================  ================  =========  ======  =====
-format                  extension         read       write   lossy
-======================  ================  =========  ======  =====
-``ply``                 ``.ply``          yes        yes     no
-``compressed_ply``      ``.compressed.ply``  yes     no      yes
-``splat``               ``.splat``        yes        yes     yes
-``spz``                 ``.spz``          yes        no      yes
-======================  ================  =========  ======  =====
+==================  ===================  ====  =====  =====
+format              extension            read  write  lossy
+==================  ===================  ====  =====  =====
+``ply``             ``.ply``             yes   yes    no
+``compressed_ply``  ``.compressed.ply``  yes   no     yes
+``splat``           ``.splat``           yes   yes    yes
+``spz``             ``.spz``             yes   no     yes
+==================  ===================  ====  =====  =====
 
 The extension chooses the family and the file's magic bytes or header
 confirm it (a PLY header with a ``chunk`` element and ``packed_*`` vertex
