@@ -65,6 +65,8 @@ def test_write_read_round_trip(tmp_path):
         assert (b.width, b.height, b.fx, b.fy, b.cx, b.cy) == (a.width, a.height, a.fx, a.fy, a.cx, a.cy)
     with pytest.raises(ValidationError):
         write_cameras(tmp_path / "bad.json", [cams[0], "nope"])
+    with pytest.raises(ValidationError, match="no cameras"):
+        write_cameras(tmp_path / "bad.json", [])
     assert not (tmp_path / "bad.json").exists()
 
 

@@ -199,6 +199,8 @@ def write_cameras(path, cameras) -> None:
     Reading the file back gives the same cameras (``near`` is not stored).
     """
     cams = list(cameras)
+    if not cams:
+        raise ValidationError("write_cameras: no cameras to write (the file could not be read back)")
     for i, cam in enumerate(cams):
         if not isinstance(cam, Camera):
             raise ValidationError(f"write_cameras: item {i} is a {type(cam).__name__}, not a Camera")
