@@ -205,7 +205,8 @@ def project(means, quats, log_scales, opacity_logits, sh, rot, trans, center,
             opacities[i] *= math.sqrt(max(0.0, det_orig / det))
         mid = 0.5 * (a + c)
         lam = mid + math.sqrt(max(0.01, mid * mid - det))
-        radius = math.ceil(3.0 * math.sqrt(lam))
+        # Float ceil, capped so the int32 radius cannot overflow.
+        radius = min(np.ceil(3.0 * math.sqrt(lam)), 2.0e9)
         mx = fx * x / z + cx
         my = fy * y / z + cy
         # Tile rectangle of [mean - r, mean + r] as getRect of the reference code.
@@ -229,16 +230,17 @@ def project(means, quats, log_scales, opacity_logits, sh, rot, trans, center,
             continue
         pmin = math.log(ALPHA_MIN / o) - 1e-6
         kq = max(0.0, -2.0 * pmin) / (ca * cc - cb * cb)
-        hx = math.sqrt(kq * cc) + 1e-3
-        hy = math.sqrt(kq * ca) + 1e-3
+        # Capped so that pixel bounds computed from them stay sane integers.
+        hx = min(math.sqrt(kq * cc) + 1e-3, 1e9)
+        hy = min(math.sqrt(kq * ca) + 1e-3, 1e9)
         support[i, 0] = pmin
         support[i, 1] = hx
         support[i, 2] = hy
         # Pixels whose centre can lie in the support box, then their tiles.
-        sx0 = _clamp_floor(math.ceil(mx - hx - 0.5) / TILE, tiles_x)
-        sx1 = _clamp_floor(math.floor(mx + hx - 0.5) / TILE, tiles_x - 1) + 1
-        sy0 = _clamp_floor(math.ceil(my - hy - 0.5) / TILE, tiles_y)
-        sy1 = _clamp_floor(math.floor(my + hy - 0.5) / TILE, tiles_y - 1) + 1
+        sx0 = _clamp_floor(np.ceil(mx - hx - 0.5) / TILE, tiles_x)
+        sx1 = _clamp_floor(np.floor(mx + hx - 0.5) / TILE, tiles_x - 1) + 1
+        sy0 = _clamp_floor(np.ceil(my - hy - 0.5) / TILE, tiles_y)
+        sy1 = _clamp_floor(np.floor(my + hy - 0.5) / TILE, tiles_y - 1) + 1
         rx0 = max(rx0, sx0)
         rx1 = min(rx1, sx1)
         ry0 = max(ry0, sy0)
@@ -347,10 +349,11 @@ def composite(tile_start, tile_gauss, tile_order, means2d, conics, opacities, su
             pmin = support[gi, 0]
             hx = support[gi, 1]
             hy = support[gi, 2]
-            bx0 = max(x0, int(math.ceil(mx - hx - 0.5)))
-            bx1 = min(x1, int(math.floor(mx + hx - 0.5)) + 1)
-            by0 = max(y0, int(math.ceil(my - hy - 0.5)))
-            by1 = min(y1, int(math.floor(my + hy - 0.5)) + 1)
+            # Clamped as floats first: int() of a huge float is undefined.
+            bx0 = int(max(float(x0), np.ceil(mx - hx - 0.5)))
+            bx1 = int(min(float(x1), np.floor(mx + hx - 0.5) + 1.0))
+            by0 = int(max(float(y0), np.ceil(my - hy - 0.5)))
+            by1 = int(min(float(y1), np.floor(my + hy - 0.5) + 1.0))
             if bx0 >= bx1 or by0 >= by1:
                 continue
             cr = colors[gi, 0]
