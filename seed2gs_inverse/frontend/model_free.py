@@ -15,7 +15,10 @@ For frame ``k`` and each pixel ``p`` with rendered alpha above ``alpha_min``:
    opaque there and ``z'`` lies within :math:`\tau_{rel} z'` of the range of
    :math:`D_j` over the 2x2 pixel centres around ``p'`` (a z-test: if
    something else is in front, ``X`` was occluded in ``j``; the 2x2 range
-   keeps oblique surfaces, whose depth changes a lot within a pixel);
+   keeps oblique surfaces, whose depth changes a lot within a pixel), and
+   the colours of ``p`` and ``p'`` agree within ``color_tol`` (surfaces that
+   meet at equal depth, like an object standing on the ground, differ in
+   colour);
 3. the label is copied from the first source that sees ``X`` and has a
    label there that is not within ``boundary_band`` pixels of a 0/1 edge, trying the seed frame 0 first (no drift where the reference saw
    the surface), then the already labelled views nearest to frame ``k``
@@ -27,9 +30,10 @@ Pixels with alpha below ``alpha_min`` are empty space and get 0 (nothing
 there can be the object). Pixels no source sees (newly revealed surfaces,
 blended depths at silhouettes) are decided by image evidence: a normalised
 edge-aware filter (the recursive domain-transform filter of
-``cv2.ximgproc.createDTFilter`` guided by the frame's RGB: positive weights
-``k(p, q)`` decaying with the geodesic space+colour distance) spreads the
-decided labels along colour-homogeneous regions,
+``cv2.ximgproc.createDTFilter`` guided by the frame's RGB and log-depth:
+positive weights ``k(p, q)`` decaying with the geodesic space + colour +
+depth distance) spreads the decided labels along smooth, colour-homogeneous
+surfaces,
 
 .. math::
 
@@ -79,7 +83,7 @@ def _core(labels: np.ndarray, band: int) -> np.ndarray:
 
 
 def warp_labels(dst, src, src_labels: np.ndarray, *, alpha_min: float = 0.5,
-                depth_tol: float = 0.01) -> np.ndarray:
+                depth_tol: float = 0.01, color_tol: float | None = None) -> np.ndarray:
     """Backward-warp labels of frame ``src`` into frame ``dst`` through rendered depth.
 
     Parameters
@@ -88,6 +92,11 @@ def warp_labels(dst, src, src_labels: np.ndarray, *, alpha_min: float = 0.5,
     src_labels : (Hs, Ws) float array, NaN = unknown
     alpha_min, depth_tol : float
         Opacity needed for a pixel to be a surface; relative z-test tolerance.
+    color_tol : float or None
+        Photometric check (frames then need ``rgb``): the label is copied only
+        when the two pixels' colours differ by at most this much in every
+        channel. It separates surfaces that meet at equal depth (an object
+        standing on the ground), which the z-test cannot.
 
     Returns
     -------
@@ -131,6 +140,10 @@ def warp_labels(dst, src, src_labels: np.ndarray, *, alpha_min: float = 0.5,
     zi = z[i]
     tol = depth_tol * zi
     seen = (salp[py[i], px[i]] >= alpha_min) & (zi >= lo - tol) & (zi <= hi + tol)
+    if color_tol is not None:
+        c_dst = np.asarray(dst.rgb, np.float64)[valid][i]
+        c_src = np.asarray(src.rgb, np.float64)[py[i], px[i]]
+        seen &= np.abs(c_dst - c_src).max(axis=1) <= color_tol
     vals = np.full(len(z), np.nan)
     vals[i[seen]] = np.asarray(src_labels, np.float64)[py[i[seen]], px[i[seen]]]
     out[valid] = vals
@@ -152,6 +165,9 @@ class GeometricTracker:
         Spatial sigma of the filter as a fraction of the image diagonal.
     fill_sigma_color : float
         Colour sigma of the filter (RGB in [0, 1]).
+    fill_depth_jump : float
+        Relative depth step that the filter weighs like a colour step of
+        ``fill_sigma_color`` (3 %): labels do not spread across silhouettes.
     decisive : float
         ``delta``: a revealed pixel is labelled only when the filtered value
         is within ``delta`` of 0 or 1.
@@ -163,6 +179,9 @@ class GeometricTracker:
         pixel, and copying it would let errors at silhouettes and contact
         lines grow from view to view; the filter decides those pixels from
         the target frame's own colour edges instead.
+    color_tol : float or None
+        Photometric consistency of a copied label (max per-channel RGB
+        difference, 0.15), see :func:`warp_labels`; None disables it.
     max_sources : int
         Source frames tried per pixel: the seed frame, then the
         ``max_sources - 1`` labelled views with the nearest camera centres
@@ -171,7 +190,8 @@ class GeometricTracker:
 
     def __init__(self, alpha_min: float = 0.5, depth_tol: float = 0.01, fill: bool = True,
                  fill_radius: float = 0.1, fill_sigma_color: float = 0.15, decisive: float = 0.2,
-                 min_support: float = 0.02, max_sources: int = 4, boundary_band: int = 1):
+                 min_support: float = 0.02, max_sources: int = 4, boundary_band: int = 1,
+                 color_tol: float | None = 0.15, fill_depth_jump: float = 0.03):
         if not 0 < alpha_min < 1:
             raise ValidationError(f"alpha_min must be in (0, 1), got {alpha_min!r}")
         if not depth_tol > 0:
@@ -189,6 +209,10 @@ class GeometricTracker:
             raise ValidationError(f"max_sources must be >= 1, got {max_sources!r}")
         self.max_sources = int(max_sources)
         self.boundary_band = max(int(boundary_band), 0)
+        self.color_tol = None if color_tol is None else float(color_tol)
+        if not fill_depth_jump > 0:
+            raise ValidationError(f"fill_depth_jump must be positive, got {fill_depth_jump!r}")
+        self.fill_depth_jump = float(fill_depth_jump)
 
     def track(self, frames: Sequence[Any], seed_mask: np.ndarray, references: Sequence = ()) -> list:
         """Propagate ``seed_mask`` (frame 0) along ``frames``; float32 masks, NaN = unknown.
@@ -233,16 +257,17 @@ class GeometricTracker:
                 todo = np.isnan(lab)
                 if not todo.any():
                     break
-                w = warp_labels(f, src, src_mask, alpha_min=self.alpha_min, depth_tol=self.depth_tol)
+                w = warp_labels(f, src, src_mask, alpha_min=self.alpha_min, depth_tol=self.depth_tol,
+                                color_tol=self.color_tol)
                 lab[todo] = w[todo]
             lab = np.where(np.isnan(lab), lab, (lab > 0.5).astype(np.float64))
             lab[np.asarray(f.alpha) < self.alpha_min] = 0.0
             if self.fill and np.isnan(lab).any():
-                lab = self._fill(np.asarray(f.rgb, np.float32), lab)
+                lab = self._fill(np.asarray(f.rgb, np.float32), np.asarray(f.depth), lab)
             masks.append(lab.astype(np.float32))
         return masks
 
-    def _fill(self, rgb: np.ndarray, lab: np.ndarray) -> np.ndarray:
+    def _fill(self, rgb: np.ndarray, depth: np.ndarray, lab: np.ndarray) -> np.ndarray:
         import cv2
 
         h, w = lab.shape
@@ -250,11 +275,18 @@ class GeometricTracker:
         if not known.any():
             return lab
         sigma_s = max(1.0, self.fill_radius * float(np.hypot(h, w)))
-        guide = np.ascontiguousarray((np.clip(rgb, 0, 1) * 255 + 0.5).astype(np.uint8))
+        # Guide: RGB plus log-depth scaled so that a relative depth jump of
+        # fill_depth_jump weighs like a colour step of fill_sigma_color; the
+        # labels then spread along surfaces, not across silhouettes.
+        d = np.asarray(depth, np.float64)
+        logd = np.log(np.where(d > 0, d, 1.0))
+        far = (logd[d > 0].max() + 1.0) if np.any(d > 0) else 0.0
+        logd = np.where(d > 0, logd, far)
+        guide = np.dstack([np.clip(rgb, 0, 1), logd * (self.fill_sigma_color / self.fill_depth_jump)])
         # Recursive domain-transform filter: positive weights that decay with
-        # the geodesic (space + colour) distance, O(pixels) for any radius.
-        filt = cv2.ximgproc.createDTFilter(guide, sigma_s, 255.0 * self.fill_sigma_color,
-                                           cv2.ximgproc.DTF_RF, 3)
+        # the geodesic (space + colour + depth) distance, O(pixels) for any radius.
+        filt = cv2.ximgproc.createDTFilter(np.ascontiguousarray(guide, dtype=np.float32), sigma_s,
+                                           self.fill_sigma_color, cv2.ximgproc.DTF_RF, 3)
         fnum = filt.filter(np.where(known, lab, 0.0).astype(np.float32))
         fden = filt.filter(known.astype(np.float32))
         with np.errstate(invalid="ignore", divide="ignore"):
