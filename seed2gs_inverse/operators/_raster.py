@@ -299,9 +299,12 @@ def composite(tile_start, tile_gauss, tile_order, means2d, conics, opacities, su
 
     ``roi`` (H, W) uint8: pixels where it is 0 are not composited (all
     outputs 0). ``n_contrib`` counts all contributors, ``n_kept`` (H*W,)
-    those with ``w >= min_weight``. With ``fill`` the kept weights go to
-    ``indices[indptr[u]:...]`` / ``data`` in compositing order; ``indptr``
-    must then be the cumulative sum of a previous pass's ``n_kept``.
+    those with ``w >= min_weight``. With ``fill`` (second pass) the kept
+    weights go to ``indices[indptr[u]:...]`` / ``data`` in compositing
+    order; ``indptr`` must then be the cumulative sum of the first pass's
+    ``n_kept`` and ``n_contrib`` its output, which is read (a pixel stops
+    after its last contributor) and not written, nor are rgb, alpha, depth
+    and n_kept.
     ``tile_evals`` (n_tiles,) int64 receives the number of Gaussian-pixel
     evaluations (power computed) per tile, for benchmarks.
     """
@@ -334,6 +337,11 @@ def composite(tile_start, tile_gauss, tile_order, means2d, conics, opacities, su
                     n_done += 1
                 elif fill:
                     cursor[lp] = indptr[yy * width + xx]
+                    # The first pass counted this pixel's contributors: stop
+                    # right after the last one instead of scanning the rest.
+                    if n_contrib[yy, xx] == 0:
+                        done[lp] = True
+                        n_done += 1
         s = tile_start[t]
         e = tile_start[t + 1]
         j = s
@@ -393,7 +401,12 @@ def composite(tile_start, tile_gauss, tile_order, means2d, conics, opacities, su
                             cursor[lp] += 1
                         kept[lp] += 1
                     T[lp] = nt
+                    if fill and cnt[lp] == n_contrib[yy, xx]:
+                        done[lp] = True
+                        n_done += 1
         tile_evals[t] = n_eval
+        if fill:
+            continue
         for yy in range(y0, y1):
             for xx in range(x0, x1):
                 if not roi[yy, xx]:

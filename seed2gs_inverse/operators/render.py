@@ -300,9 +300,8 @@ def _rasterize(scene, camera, background, mode, roi, min_weight, build_w, stats=
     data = np.empty(nnz, np.float32)
     # Second pass recomputes the same pixels (bit-identical arithmetic) and
     # writes the weights into the rows sized by the first pass.
-    scratch = (np.empty_like(rgb), np.empty_like(alpha), np.empty_like(depth),
-               np.empty_like(n_contrib), np.empty_like(n_kept))
-    _raster.composite(*args, True, *scratch, indptr, indices, data, tile_evals)
+    _raster.composite(*args, True, rgb, alpha, depth, n_contrib, n_kept, indptr, indices, data,
+                      tile_evals)
     if nnz <= np.iinfo(np.int32).max:
         indptr = indptr.astype(np.int32)
     W = sp.csr_matrix((data, indices, indptr), shape=(h * w, len(scene)), copy=False)
