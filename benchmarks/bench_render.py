@@ -62,13 +62,15 @@ def _data_dir(arg):
 
 
 def _timeit(fn, repeat):
-    times = []
+    """Median and best wall time, median CPU time (all threads) and the last result."""
+    times, cpu = [], []
     out = None
     for _ in range(repeat):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         out = fn()
         times.append(time.perf_counter() - t0)
-    return float(np.median(times)), float(np.min(times)), out
+        cpu.append(time.process_time() - c0)
+    return float(np.median(times)), float(np.min(times)), float(np.median(cpu)), out
 
 
 def _cold_compile():
@@ -106,8 +108,11 @@ def main(argv=None) -> int:
     from seed2gs_inverse.operators.render import _rasterize, build_operator, project_gaussians, render
 
     threads = os.environ.get("NUMBA_NUM_THREADS", "default")
+    load = os.getloadavg()[0]
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
-          f"NUMBA_NUM_THREADS={threads}, python {platform.python_version()}")
+          f"NUMBA_NUM_THREADS={threads}, python {platform.python_version()}, load average {load:.1f}")
+    if load > (os.cpu_count() or 1):
+        print("  (the machine is busy: wall times are inflated; CPU seconds are the steadier figure)")
 
     if not args.skip_cold:
         cold, cached = _cold_compile()
@@ -121,10 +126,10 @@ def main(argv=None) -> int:
     print(f"scene: {len(scene)} Gaussians (read in {time.perf_counter() - t0:.2f} s); camera {cam}")
 
     render(scene, cam)  # warm-up (compiles or loads the Numba cache)
-    med, best, r = _timeit(lambda: render(scene, cam), args.repeat)
+    med, best, cpu, r = _timeit(lambda: render(scene, cam), args.repeat)
     stats = {}
     _rasterize(scene, cam, None, "classic", None, 0.0, False, stats)
-    print(f"render 960x540: median {med:.3f} s, best {best:.3f} s -> {_mark(med, 1.0, 's')}")
+    print(f"render 960x540: median {med:.3f} s, best {best:.3f} s ({cpu:.3f} CPU s) -> {_mark(med, 1.0, 's')}")
     print("  stages: project {project_s:.3f} s, depth sort {sort_s:.3f} s, tile binning {bin_s:.3f} s, "
           "composite {composite_s:.3f} s".format(**stats))
     print(f"  {stats['n_binned']} Gaussians binned, {stats['n_pairs']} tile-Gaussian pairs, "
@@ -139,19 +144,21 @@ def main(argv=None) -> int:
 
     small = cam.scaled(0.5)
     build_operator(scene, cam, scale=0.5)  # warm-up
-    med_op, best_op, op = _timeit(lambda: build_operator(scene, cam, scale=0.5), args.repeat)
+    med_op, best_op, cpu_op, op = _timeit(lambda: build_operator(scene, cam, scale=0.5), args.repeat)
     W = op.W
     per_nnz = (W.data.nbytes + W.indices.nbytes) / W.nnz
-    print(f"build_operator {small.width}x{small.height}: median {med_op:.3f} s, best {best_op:.3f} s -> "
+    print(f"build_operator {small.width}x{small.height}: median {med_op:.3f} s, best {best_op:.3f} s "
+          f"({cpu_op:.3f} CPU s) -> "
           f"{_mark(med_op, 1.0, 's')}")
     print(f"  nnz {W.nnz} ({W.nnz / W.shape[0]:.1f} per pixel), {per_nnz:.1f} bytes per non-zero "
           f"({W.data.dtype} data + {W.indices.dtype} indices) -> {_mark(per_nnz, 8, 'bytes')}; "
           f"row pointers {W.indptr.nbytes / 1e6:.2f} MB ({W.indptr.dtype})")
     colors = project_gaussians(scene, small).colors
-    med_mv, _, _ = _timeit(lambda: W @ colors, args.repeat)
+    med_mv, _, _, _ = _timeit(lambda: W @ colors, args.repeat)
     print(f"baseline (same run): W @ colors (scipy CSR, {W.nnz} nnz x 3) {med_mv:.3f} s; "
           f"operator build = {med_op / med_mv:.1f} x that product, "
           f"render at 4x the pixels = {med / med_mv:.1f} x")
+    print(f"load average at the end: {os.getloadavg()[0]:.1f}")
     return 0
 
 
