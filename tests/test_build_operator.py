@@ -138,9 +138,14 @@ def test_min_weight_drops_small_entries_with_bound(scene_and_camera):
 def test_bad_arguments(scene_and_camera):
     scene, cam = scene_and_camera
     h, w = cam.image_shape
-    for roi in [(0, 0, w + 1, h), (-1, 0, 5, 5), (10, 10, 10, 20), (0, 0, 5), (0.5, 0, 5, 5)]:
+    for roi in [(w, 0, w + 5, h), (-9, -9, 0, 5), (0, h + 1, 5, h + 9), (10, 10, 10, 20), (5, 0, 4, 3),
+                (0, 0, 5), (0.5, 0, 5, 5), (0, 0, np.inf, 5), "all"]:
         with pytest.raises(ValidationError, match="roi"):
             build_operator(scene, cam, roi=roi)
+    # a box reaching past the border is clipped to the image
+    clipped = build_operator(scene, cam, roi=(-5, -3, 12, 9))
+    inside = build_operator(scene, cam, roi=(0, 0, 12, 9))
+    np.testing.assert_array_equal(clipped.W.toarray(), inside.W.toarray())
     with pytest.raises(ValidationError, match="roi mask"):
         build_operator(scene, cam, roi=np.ones((h + 1, w), bool))
     with pytest.raises(ValidationError, match="roi mask"):

@@ -202,12 +202,15 @@ def _roi_mask(roi, shape):
     if np.any(arr != np.round(arr)):
         raise ValidationError(f"roi box must have integer pixel bounds, got {arr.tolist()}")
     x0, y0, x1, y1 = (int(v) for v in arr)
-    if not (0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h):
-        raise ValidationError(
-            f"roi box {(x0, y0, x1, y1)} is empty or outside the {w}x{h} image; "
-            f"need 0 <= x0 < x1 <= {w} and 0 <= y0 < y1 <= {h}")
+    if x0 >= x1 or y0 >= y1:
+        raise ValidationError(f"roi box {(x0, y0, x1, y1)} is empty; need x0 < x1 and y0 < y1")
+    # A box reaching past the border is clipped to the image; one with no
+    # pixel inside it is an error.
+    cx0, cy0, cx1, cy1 = max(x0, 0), max(y0, 0), min(x1, w), min(y1, h)
+    if cx0 >= cx1 or cy0 >= cy1:
+        raise ValidationError(f"roi box {(x0, y0, x1, y1)} lies outside the {w}x{h} image")
     mask = np.zeros(shape, np.uint8)
-    mask[y0:y1, x0:x1] = 1
+    mask[cy0:cy1, cx0:cx1] = 1
     return mask
 
 
@@ -353,7 +356,8 @@ def build_operator(scene, camera, scale: float = 1.0, roi=None, min_weight: floa
     scale : float
         Resolution factor; the operator is built for ``camera.scaled(scale)``.
     roi : None, (x0, y0, x1, y1) or (H, W) bool array
-        Pixels to composite, as a half-open box or a mask at the scaled
+        Pixels to composite, as a half-open integer box (clipped to the
+        image; an error if no pixel is left) or a mask at the scaled
         resolution. ``W`` keeps all ``H*W`` rows so that it matches full
         masks; rows outside the roi are empty (they cost only ``indptr``),
         and the rendering is 0 there.
