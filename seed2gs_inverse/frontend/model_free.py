@@ -178,7 +178,9 @@ class GeometricTracker:
         copied (treated as unknown): a source boundary is only accurate to a
         pixel, and copying it would let errors at silhouettes and contact
         lines grow from view to view; the filter decides those pixels from
-        the target frame's own colour edges instead.
+        the target frame's own colour edges instead. Default 0 (off): the
+        photometric check already stops labels from crossing contact lines,
+        and a band removes thin parts of small objects.
     color_tol : float or None
         Photometric consistency of a copied label (max per-channel RGB
         difference, 0.15), see :func:`warp_labels`; None disables it.
@@ -190,7 +192,7 @@ class GeometricTracker:
 
     def __init__(self, alpha_min: float = 0.5, depth_tol: float = 0.01, fill: bool = True,
                  fill_radius: float = 0.1, fill_sigma_color: float = 0.15, decisive: float = 0.2,
-                 min_support: float = 0.02, max_sources: int = 4, boundary_band: int = 1,
+                 min_support: float = 0.02, max_sources: int = 4, boundary_band: int = 0,
                  color_tol: float | None = 0.15, fill_depth_jump: float = 0.03):
         if not 0 < alpha_min < 1:
             raise ValidationError(f"alpha_min must be in (0, 1), got {alpha_min!r}")

@@ -23,11 +23,17 @@ from ..scene import GaussianScene
 from .seed_lift import SeedLift, seed_lift
 from .vaas import DEFAULTS as VAAS_DEFAULTS, ClipFrame, VAASPlan, estimate_up, run_vaas
 
-__all__ = ["Extraction", "extract", "EXTRACT_DEFAULTS"]
+__all__ = ["Extraction", "extract", "EXTRACT_DEFAULTS", "SOLVER_DEFAULTS"]
 
 #: Defaults of :func:`extract` beyond the VAAS ones.
 EXTRACT_DEFAULTS = {"orbit_scale": 0.5, "max_view_pixels": 160_000, "max_reference_pixels": 1_000_000, "roi_margin": 2.0, "zoom_margin": 2.0,
                     "threshold": None}
+
+#: Solver options extract() uses unless told otherwise: the weighted BCE
+#: selection settles within a few dozen L-BFGS-B iterations when started from
+#: G0 (held-out mIoU on the procedural scenes is the same at 30 and at 200
+#: iterations, the solver's own default), and the iterations dominate time.
+SOLVER_DEFAULTS = {"weighted_bce": {"max_iter": 50}}
 
 STAGES = ("render", "grounding", "lift", "vaas", "tracking", "operators", "solve")
 
@@ -258,7 +264,8 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
     lift_options : dict, optional
         Keyword arguments of :func:`~seed2gs_inverse.pipeline.seed_lift.seed_lift`.
     solver_options : dict, optional
-        Keyword arguments of the solver method.
+        Keyword arguments of the solver method, on top of
+        :data:`SOLVER_DEFAULTS` (``max_iter=50`` for ``weighted_bce``).
     mode : {"classic", "antialiased"}
         Rasterization mode of every rendering.
     progress : bool, optional
@@ -401,7 +408,9 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
     # 6. Solve for q, initialised from G0.
     t0 = time.perf_counter()
     stack = OperatorStack(ops, fingerprint=scene_fingerprint(scene))
-    result = solve(stack, masks, method=method, init=lift.support, **(solver_options or {}))
+    opts = dict(SOLVER_DEFAULTS.get(method, {}))
+    opts.update(solver_options or {})
+    result = solve(stack, masks, method=method, init=lift.support, **opts)
     tau = result.threshold if threshold is None else float(threshold)
     selected = result.selected(tau)
     seconds["solve"] = time.perf_counter() - t0
@@ -416,6 +425,6 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
                 "tracker": type(tracker).__name__,
                 "grounder": None if grounder is None else type(grounder).__name__,
                 "lift_options": dict(lift_options or {}), "solver_options": {
-                    k: v for k, v in (solver_options or {}).items() if isinstance(v, (int, float, str, bool))}}
+                    k: v for k, v in opts.items() if isinstance(v, (int, float, str, bool))}}
     return Extraction(scene, result.q, selected, tau, seed, prompt_info, camera, ref, lift, plan, views,
                       clips, masks, stack, result, seconds, settings)

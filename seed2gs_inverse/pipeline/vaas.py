@@ -119,7 +119,7 @@ def _frame(reference: Camera, center, up=None):
 
 def orbit_cameras(reference: Camera, center, azimuths_deg, elevations_deg=None,
                   fit_radius: float | None = None, up=None) -> list:
-    """Cameras on a sphere about ``center`` through the reference camera centre.
+    r"""Cameras on a sphere about ``center`` through the reference camera centre.
 
     Parameters
     ----------
