@@ -1,0 +1,123 @@
+"""`seed2gs extract` and `seed2gs demo` from the command line."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+import seed2gs_inverse.cli as cli
+from seed2gs_inverse.io import read_scene, write_cameras, write_scene
+from seed2gs_inverse.operators.render import build_operator
+from seed2gs_inverse.synthetic import make_scene
+
+
+@pytest.fixture(autouse=True)
+def _commands(monkeypatch):
+    mods = tuple(cli._COMMAND_MODULES)
+    for m in ("_extract", "_demo"):
+        if m not in mods:
+            mods += (m,)
+    monkeypatch.setattr(cli, "_COMMAND_MODULES", mods)
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("cli")
+    syn = make_scene(seed=0)
+    cam = syn.reference_camera(128, 96)
+    write_scene(d / "scene.ply", syn.scene)
+    write_cameras(d / "cameras.json", [cam])
+    truth = syn.labels == 1
+    seed = (build_operator(syn.scene, cam).W @ truth.astype(np.float32)).reshape(cam.image_shape) > 0.5
+    cv2.imwrite(str(d / "mask.png"), seed.astype(np.uint8) * 255)
+    ys, xs = np.nonzero(seed)
+    return {"dir": d, "syn": syn, "cam": cam, "truth": truth, "seed": seed,
+            "box": [xs.min() - 3, ys.min() - 3, xs.max() + 4, ys.max() + 4],
+            "point": [int(np.median(xs)), int(np.median(ys))]}
+
+
+def _run(args):
+    return cli.main([str(a) for a in args])
+
+
+def test_extract_mask_writes_all_outputs(files, capsys):
+    d = files["dir"]
+    out = d / "out_mask"
+    rc = _run(["extract", d / "scene.ply", "--camera", f"{d / 'cameras.json'}:0", "--mask", d / "mask.png",
+               "-o", out, "--views", 8, "--no-progress"])
+    assert rc == 0, capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == ["object.ply", "q.npy", "remainder.ply",
+                                                    "report.json", "report.png"]
+    q = np.load(out / "q.npy", allow_pickle=False)
+    obj = read_scene(out / "object.ply")
+    rem = read_scene(out / "remainder.ply")
+    n = len(files["syn"].scene)
+    assert q.shape == (n,) and len(obj) + len(rem) == n and len(obj) == int((q > 0.5).sum())
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["n_selected"] == len(obj) and set(rep["seconds"]) >= {"render", "lift", "vaas", "solve"}
+    sel = q > 0.5
+    truth = files["truth"]
+    assert (sel & truth).sum() / sel.sum() > 0.9 and (sel & truth).sum() / truth.sum() > 0.8
+    # No temporary directories left next to the output.
+    assert not [p for p in d.iterdir() if p.name.startswith(".out_mask")]
+    # Existing output is refused without --force, replaced with it.
+    assert _run(["extract", d / "scene.ply", "--camera", d / "cameras.json", "--mask", d / "mask.png",
+                 "-o", out, "--views", 4]) == 2
+    assert "exists" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("kind", ["box", "point"])
+def test_extract_box_and_point_prompts(files, kind, capsys):
+    d = files["dir"]
+    out = d / f"out_{kind}"
+    prompt = ["--box", *files["box"]] if kind == "box" else ["--point", *files["point"]]
+    rc = _run(["extract", d / "scene.ply", "--camera", d / "cameras.json", *prompt, "-o", out,
+               "--views", 6, "--no-progress"])
+    assert rc == 0, capsys.readouterr().err
+    sel = np.load(out / "q.npy") > 0.5
+    truth = files["truth"]
+    assert (sel & truth).sum() / max(sel.sum(), 1) > 0.8
+
+
+def _fails(args, capsys, match, out):
+    rc = _run(args)
+    err = capsys.readouterr().err
+    assert rc == 2 and match in err and err.count("\n") == 1, err
+    assert not out.exists()
+    assert not [p for p in out.parent.iterdir() if p.name.startswith(f".{out.name}")]
+
+
+def test_extract_bad_input_leaves_nothing(files, capsys, tmp_path):
+    d = files["dir"]
+    scene, cams, out = d / "scene.ply", d / "cameras.json", tmp_path / "never"
+    empty = tmp_path / "empty.png"
+    cv2.imwrite(str(empty), np.zeros((96, 128), np.uint8))
+    _fails(["extract", scene, "--camera", cams, "--mask", empty, "-o", out], capsys, "empty", out)
+    _fails(["extract", scene, "--camera", cams, "--box", 500, 500, 600, 600, "-o", out], capsys,
+           "outside", out)
+    _fails(["extract", tmp_path / "nope.ply", "--camera", cams, "--mask", d / "mask.png", "-o", out],
+           capsys, "no such file", out)
+    _fails(["extract", scene, "--camera", cams, "--prompt", "red ball", "-o", out], capsys,
+           "--box", out)
+    # A mask on empty space (the sky) does not touch the scene.
+    alpha = build_operator(files["syn"].scene, files["cam"]).rendering.alpha
+    sky = tmp_path / "sky.png"
+    cv2.imwrite(str(sky), (alpha < 1e-3).astype(np.uint8) * 255)
+    _fails(["extract", scene, "--camera", cams, "--mask", sky, "-o", out], capsys, "touch", out)
+    # A camera that looks away from everything.
+    cam = files["cam"]
+    away = cam.with_pose(np.diag([-1.0, 1.0, -1.0, 1.0]) @ cam.world_to_camera)
+    write_cameras(tmp_path / "away.json", [away])
+    _fails(["extract", scene, "--camera", tmp_path / "away.json", "--mask", d / "mask.png", "-o", out],
+           capsys, "sees nothing", out)
+
+
+def test_demo_prints_scores(capsys):
+    assert _run(["demo", "--object", "sphere", "--views", 6, "--size", 128, 96]) == 0
+    out = capsys.readouterr().out
+    assert "mIoU" in out and "3D membership" in out and "sphere" in out
+    miou = float(out.split("mIoU ")[1].split()[0])
+    assert miou > 0.9
+    assert _run(["demo", "--summary"]) == 0
+    assert "Gaussians" in capsys.readouterr().out
