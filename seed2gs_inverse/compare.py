@@ -214,8 +214,7 @@ def compare(operators, masks, truth, methods=None, holdout_every: int | None = 4
     eval_idx = held if held.size else train
     tf = t.astype(np.float32)
     truth_masks = [stack[i].matvec(tf) > 0.5 for i in eval_idx]
-    # How much each Gaussian is seen, over all views (W^T 1 summed).
-    visibility = sum(np.asarray(v.W.T @ np.ones(v.n_pixels, np.float32), dtype=np.float64) for v in stack)
+    visibility = stack.column_sums()  # how much each Gaussian is seen over all views
     rows, per_view, results = [], {}, {}
     for m in methods:
         tracemalloc.start()

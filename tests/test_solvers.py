@@ -187,7 +187,7 @@ def _float64_problem(rng, n=30, views=3):
     p = prepare(mats, masks)
     A = p.A.astype(np.float64)
     return Problem(A=A, AT=A.T.tocsr(), y=p.y, known=p.known, offsets=p.offsets, image_shapes=p.image_shapes,
-                   names=p.names, observed=p.observed, prior=p.prior)
+                   names=p.names, known_weight=p.known_weight, prior=p.prior)
 
 
 @pytest.mark.parametrize("normalize", [False, True])
@@ -331,7 +331,11 @@ def test_lost_view_carries_no_evidence(rng):
                                      method="voting").q, rtol=1e-5)
 
 
-def test_register_a_new_method(rng):
+def test_register_a_new_method(rng, monkeypatch):
+    from seed2gs_inverse.solvers import _common
+
+    monkeypatch.setattr(_common, "_METHODS", dict(_common._METHODS))  # keep the registry clean for others
+
     def half(problem, *, value: float = 0.5):
         return {"q": np.full(problem.n_gaussians, value)}
 

@@ -219,6 +219,7 @@ class OperatorStack:
         self.fingerprint = fingerprint
         self._stacked = None
         self._stacked_T = None
+        self._column_sums = None
 
     # -- container protocol ---------------------------------------------------
     def __len__(self) -> int:
@@ -261,6 +262,13 @@ class OperatorStack:
         for v in self.views:
             out |= v.observed()
         return out
+
+    def column_sums(self) -> np.ndarray:
+        """(N,) float64 ``sum_c W(c)^T 1``: how much each Gaussian is seen over all views; cached."""
+        if self._column_sums is None:
+            self._column_sums = sum(np.asarray(v.W.T @ np.ones(v.n_pixels, np.float32), dtype=np.float64)
+                                    for v in self.views)
+        return self._column_sums
 
     def subset(self, indices) -> "OperatorStack":
         """A stack of the views ``indices`` (same fingerprint)."""

@@ -130,8 +130,11 @@ class Problem:
     image_shapes : list of (H, W)
     names : list of str
         View labels for messages (``view 3 ('orbit_03')``).
+    known_weight : (N,) float64
+        Each Gaussian's summed weight over the known pixels, ``A^T k``.
     observed : (N,) bool
-        Gaussians with nonzero weight on at least one known pixel.
+        Gaussians with nonzero weight on at least one known pixel
+        (``known_weight > 0``).
     prior : (N,) float64
         Prior ``q`` (from ``init``); the value of unobserved Gaussians.
     init_given : bool
@@ -145,10 +148,14 @@ class Problem:
     offsets: np.ndarray
     image_shapes: list
     names: list
-    observed: np.ndarray
+    known_weight: np.ndarray
     prior: np.ndarray
     init_given: bool = False
     _alpha: np.ndarray | None = None
+
+    @property
+    def observed(self) -> np.ndarray:
+        return self.known_weight > 0
 
     @property
     def n_views(self) -> int:
@@ -331,6 +338,10 @@ def prepare(operators, masks, init=None) -> Problem:
         A = sp.vstack([sp.csr_matrix(W) for W in mats], format="csr").astype(np.float32, copy=False)
         AT = A.T.tocsr()
     offsets = np.concatenate([[0], np.cumsum([s[0] * s[1] for s in shapes])]).astype(np.int64)
-    observed = np.asarray(AT @ known.astype(np.float32)).ravel() > 0
+    if stack is not None and known.all():
+        # every pixel known: the known weight is the stack's (cached) column sums
+        known_weight = stack.column_sums()
+    else:
+        known_weight = np.asarray(AT @ known.astype(np.float32), dtype=np.float64).ravel()
     return Problem(A=A, AT=AT, y=y, known=known, offsets=offsets, image_shapes=list(shapes), names=names,
-                   observed=observed, prior=prior_from_init(init, n), init_given=init is not None)
+                   known_weight=known_weight, prior=prior_from_init(init, n), init_given=init is not None)

@@ -97,6 +97,7 @@ def least_squares(problem: Problem, *, target: str = "alpha", algorithm: str = "
     if L == 0.0:
         return {"q": np.zeros(problem.n_gaussians), "iterations": 0}
     start = problem.prior if problem.init_given else np.full(problem.n_gaussians, 0.5)
+    unobs = ~obs
     x = np.where(obs, start, 0.0).astype(np.float32)
     z = x.copy()
     t = 1.0
@@ -105,7 +106,7 @@ def least_squares(problem: Problem, *, target: str = "alpha", algorithm: str = "
     for it in range(1, max_iter + 1):
         r = (A @ z) * d - yd
         x_new = np.clip(z - (AT @ r) / np.float32(L), 0.0, 1.0).astype(np.float32)
-        x_new[~obs] = 0.0
+        x_new[unobs] = 0.0
         step = float(np.max(np.abs(x_new - x))) if x.size else 0.0
         # Adaptive restart: drop the momentum when it points uphill.
         if float(np.dot(z - x_new, x_new - x)) > 0:

@@ -6,8 +6,9 @@ Every view votes for every Gaussian with its compositing weights. With
     A1_i = sum_c sum_{u in K(c)} W(c)[u, i] Y(c)_u          (foreground votes)
     A0_i = sum_c sum_{u in K(c)} W(c)[u, i] (1 - Y(c)_u)    (background votes)
 
-Both are computed in one transposed pass, ``[A0 A1] = A^T [1-y, y]`` over the
-stacked operator. FlashSplat normalises the pair per Gaussian,
+``A1 = A^T (k y)`` is one transposed pass over the stacked operator (``k``
+the known-pixel indicator); ``A0 = A^T k - A1`` reuses the known weight
+every solve computes to find the observed Gaussians. FlashSplat normalises the pair per Gaussian,
 ``[Â0, Â1] = [A0, A1] / ||[A0, A1]||_2``, and labels a Gaussian foreground
 when
 
@@ -36,12 +37,9 @@ __all__ = ["voting", "vote_counts", "bias_to_threshold"]
 
 def vote_counts(problem: Problem) -> tuple:
     """``(A0, A1)`` float64 (N,) background and foreground votes (one transposed pass)."""
-    k = problem.known.astype(np.float32)
-    rhs = np.empty((problem.y.size, 2), dtype=np.float32)
-    rhs[:, 1] = problem.y * k
-    rhs[:, 0] = k - rhs[:, 1]
-    votes = np.asarray(problem.AT @ rhs, dtype=np.float64)
-    return votes[:, 0], votes[:, 1]
+    a1 = np.asarray(problem.AT @ (problem.y * problem.known), dtype=np.float64)
+    # y in [0, 1], so A0 >= 0 up to float32 rounding of the two passes
+    return np.maximum(problem.known_weight - a1, 0.0), a1
 
 
 def bias_to_threshold(bias: float) -> float:

@@ -62,6 +62,7 @@ from scipy.optimize import minimize
 
 from ..errors import ValidationError
 from ._common import Problem, register_method
+from .voting import voting
 
 __all__ = ["weighted_bce", "view_weights", "BCEObjective"]
 
@@ -147,7 +148,7 @@ def _logit(p):
 def weighted_bce(problem: Problem, *, r_min: float = 0.2, lam: float = 0.5, momentum: float = 0.5,
                  reweight: bool = True, normalize: bool = False, alpha_min: float = 1e-3, eps: float = 1e-4,
                  max_iter: int = 200, inner_iters: int = 20, weight_tol: float = 1e-3, ftol: float = 1e-10,
-                 gtol: float = 1e-9, init_clip: float = 0.1, maxcor: int = 10) -> dict:
+                 gtol: float = 1e-9, init_clip: float = 0.1, maxcor: int = 10, start: str = "vote") -> dict:
     """Seed2GS reliability-weighted BCE; see the module docstring.
 
     Parameters
@@ -206,8 +207,15 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.2, lam: float = 0.5, mome
     obj = BCEObjective(problem, normalize=normalize, alpha_min=alpha_min, eps=eps)
     obs = problem.observed
     V = problem.n_views
-    start = problem.prior if problem.init_given else np.full(problem.n_gaussians, 0.5)
-    logits = _logit(np.clip(start, init_clip, 1.0 - init_clip))
+    if start not in ("vote", "half"):
+        raise ValidationError(f"weighted_bce: start must be 'vote' or 'half', got {start!r}")
+    if problem.init_given:
+        q0 = problem.prior
+    elif start == "vote":
+        q0 = voting(problem)["q"]
+    else:
+        q0 = np.full(problem.n_gaussians, 0.5)
+    logits = _logit(np.clip(q0, init_clip, 1.0 - init_clip))
     # Unobserved Gaussians never change the loss; their logits stay fixed.
     x = logits[obs].copy()
     nfev = [0]
