@@ -344,3 +344,15 @@ def test_register_a_new_method(rng, monkeypatch):
     r = solve(mats, masks, method="constant_test", value=0.7)
     assert "constant_test" in available_methods()
     assert np.all(r.q[~r.unobserved] == np.float32(0.7)) and np.all(r.q[r.unobserved] == 0)
+
+
+def test_stack_and_matrix_list_give_the_same_answer(blob):
+    stack, labels, masks = blob
+    mats = [v.W for v in stack]
+    for method in ("voting", "beta_bernoulli"):
+        np.testing.assert_allclose(solve(stack, masks, method=method).q, solve(mats, masks, method=method).q,
+                                   rtol=1e-5, atol=1e-7)
+    holes = [m.astype(np.float32) for m in masks]
+    holes[0][:10] = np.nan
+    np.testing.assert_allclose(solve(stack, holes, method="voting").q, solve(mats, holes, method="voting").q,
+                               rtol=1e-5, atol=1e-7)
