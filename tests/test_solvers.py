@@ -182,8 +182,10 @@ def test_least_squares_fista_matches_scipy(rng, target):
 
 
 # -- weighted BCE ------------------------------------------------------------------------
-def _float64_problem(rng, n=30, views=3):
+def _float64_problem(rng, n=30, views=3, binary=False):
     mats, masks = _random_problem(rng, n=n, views=views, density=0.3)
+    if binary:  # 0/1 masks take the solver's fast path
+        masks = [np.where(np.isnan(m), np.nan, (m > 0.5).astype(np.float32)) for m in masks]
     p = prepare(mats, masks)
     A = p.A.astype(np.float64)
     return Problem(A=A, AT=A.T.tocsr(), y=p.y, known=p.known, offsets=p.offsets, image_shapes=p.image_shapes,
@@ -191,9 +193,11 @@ def _float64_problem(rng, n=30, views=3):
 
 
 @pytest.mark.parametrize("normalize", [False, True])
-def test_weighted_bce_gradient_matches_finite_differences(rng, normalize):
-    prob = _float64_problem(rng)
+@pytest.mark.parametrize("binary", [False, True])
+def test_weighted_bce_gradient_matches_finite_differences(rng, normalize, binary):
+    prob = _float64_problem(rng, binary=binary)
     obj = BCEObjective(prob, normalize=normalize, alpha_min=1e-3, eps=1e-6)
+    assert obj.binary is binary
     omega = rng.uniform(0.5, 1.5, prob.n_views)
     l0 = rng.normal(scale=0.8, size=prob.n_gaussians)
     f0, g = obj.loss_grad_logits(l0, omega)
@@ -208,8 +212,9 @@ def test_weighted_bce_gradient_matches_finite_differences(rng, normalize):
     assert np.abs(g).max() > 1e-4  # a gradient that is not trivially zero
 
 
-def test_weighted_bce_loss_matches_direct_sum(rng):
-    prob = _float64_problem(rng)
+@pytest.mark.parametrize("binary", [False, True])
+def test_weighted_bce_loss_matches_direct_sum(rng, binary):
+    prob = _float64_problem(rng, binary=binary)
     eps = 1e-4
     obj = BCEObjective(prob, normalize=False, alpha_min=1e-3, eps=eps)
     omega = rng.uniform(0.5, 1.5, prob.n_views)

@@ -101,40 +101,66 @@ class BCEObjective:
         self.dtype = self.A.dtype
         alpha = problem.alpha.astype(np.float64)
         use = problem.known & (alpha >= alpha_min)
-        self.alpha = np.where(use, alpha, 1.0)
+        self.inv_alpha = np.where(use, 1.0 / np.where(use, alpha, 1.0), 1.0) if normalize else None
         self.s = np.where(use, alpha if normalize else 1.0, 0.0)
-        self.normalize = normalize
         self.y = problem.y.astype(np.float64)
+        # Binary masks (the usual case) take a cheaper path: with t = y p + (1-y)(1-p),
+        # BCE = -log t and dBCE/dp = (1 - 2y) / t.
+        self.binary = bool(np.all((self.y == 0) | (self.y == 1)))
         self.eps = eps
         self.problem = problem
         self.Z = max(float(self.s.sum()), 1e-30)
         self.s_view = problem.per_view_sum(self.s)
         self.pixel_view = problem.view_of_rows()
+        self._w_key, self._w = None, None
 
-    def pixel_bce(self, q: np.ndarray) -> tuple:
-        """(BCE per pixel, clipped p, unclipped-mask) at ``q`` (N,)."""
+    def _prediction(self, q: np.ndarray) -> tuple:
+        """Clipped ``p`` (float64, P,) and where the clip is inactive."""
         P = np.asarray(self.A @ q.astype(self.dtype, copy=False), dtype=np.float64)
-        if self.normalize:
-            P /= self.alpha
-        p = np.clip(P, self.eps, 1.0 - self.eps)
-        bce = -(self.y * np.log(p) + (1.0 - self.y) * np.log1p(-p))
+        if self.inv_alpha is not None:
+            P *= self.inv_alpha
         inside = (P > self.eps) & (P < 1.0 - self.eps)
-        return bce, p, inside
+        np.clip(P, self.eps, 1.0 - self.eps, out=P)
+        return P, inside
+
+    def _bce(self, p: np.ndarray) -> tuple:
+        """(BCE per pixel, dBCE/dp) at clipped ``p``."""
+        y = self.y
+        if self.binary:
+            t = (2.0 * y - 1.0) * p
+            t += 1.0 - y
+            return -np.log(t), (1.0 - 2.0 * y) / t
+        return -(y * np.log(p) + (1.0 - y) * np.log1p(-p)), (p - y) / (p * (1.0 - p))
+
+    def pixel_bce(self, q: np.ndarray) -> np.ndarray:
+        """BCE of every pixel (P,) at ``q`` (N,)."""
+        return self._bce(self._prediction(q)[0])[0]
 
     def residuals(self, q: np.ndarray) -> np.ndarray:
         """``D_c``: weighted mean BCE of each view (V,) at ``q``; 0 for a view with no usable pixel."""
-        bce, _, _ = self.pixel_bce(q)
-        num = self.problem.per_view_sum(self.s * bce)
+        num = self.problem.per_view_sum(self.s * self.pixel_bce(q))
         return np.divide(num, self.s_view, out=np.zeros_like(num), where=self.s_view > 0)
+
+    def _pixel_weights(self, omega: np.ndarray) -> np.ndarray:
+        """``omega_c s_u / Z`` per pixel, cached while omega stays the same (a whole L-BFGS-B run)."""
+        omega = np.asarray(omega, dtype=np.float64)
+        key = omega.tobytes()
+        if key != self._w_key:
+            self._w = omega[self.pixel_view] * self.s / self.Z
+            self._w_key = key
+        return self._w
 
     def loss_grad_q(self, q: np.ndarray, omega: np.ndarray) -> tuple:
         """``(L, dL/dq)`` at ``q`` (N,) with view weights ``omega`` (V,)."""
-        bce, p, inside = self.pixel_bce(q)
-        w = omega[self.pixel_view] * self.s / self.Z
-        loss = float(np.sum(w * bce))
-        g = np.where(inside, w * (p - self.y) / (p * (1.0 - p)), 0.0)
-        if self.normalize:
-            g /= self.alpha
+        w = self._pixel_weights(omega)
+        p, inside = self._prediction(q)
+        bce, dbce = self._bce(p)
+        loss = float(np.dot(w, bce))
+        g = dbce
+        g *= w
+        g *= inside
+        if self.inv_alpha is not None:
+            g *= self.inv_alpha
         grad = np.asarray(self.AT @ g.astype(self.dtype), dtype=np.float64)
         return loss, grad
 
