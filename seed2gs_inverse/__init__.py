@@ -1,7 +1,26 @@
 """seed2gs-inverse: extract one object from a frozen 3D Gaussian Splatting scene.
 
-Public API only; implementation lives in the submodules.
+A frozen scene makes every camera view a fixed sparse linear operator
+``P(c) = W(c) q``; extraction is the box-constrained inverse problem of
+finding per-Gaussian foreground probabilities ``q in [0, 1]^N`` from masks.
+
+Public API only; implementation lives in the submodules::
+
+    import seed2gs_inverse as sgi
+    scene = sgi.read_scene("scene.ply")
+    camera = sgi.read_camera("cameras.json:0")
+    op = sgi.build_operator(scene, camera)          # op.W: (H*W, N) CSR
+    result = sgi.solve([op], [mask], method="voting")
+    ex = sgi.extract(scene, camera, sgi.MaskPrompt(mask))
+
+Names are imported on first use (PEP 562), so ``import seed2gs_inverse`` and
+the ``seed2gs`` command start quickly; Numba, SciPy's optimisers, OpenCV and
+the ONNX runtime load only when something needs them.
 """
+
+from __future__ import annotations
+
+import importlib
 
 from .camera import Camera
 from .errors import FormatError, Seed2GSError, ValidationError
@@ -9,5 +28,34 @@ from .scene import GaussianScene
 
 __version__ = "0.1.0.dev0"
 
+# public name -> submodule that defines it
+_LAZY = {
+    **dict.fromkeys(["read_scene", "write_scene", "detect_format", "read_cameras", "read_camera",
+                     "write_cameras"], "io"),
+    **dict.fromkeys(["render", "Rendering", "build_operator", "project_gaussians", "Projection"],
+                    "operators.render"),
+    **dict.fromkeys(["ViewOperator", "OperatorStack", "scene_fingerprint"], "operators.operator"),
+    **dict.fromkeys(["solve", "available_methods", "SolveResult"], "solvers"),
+    **dict.fromkeys(["iou", "boundary_iou", "membership_scores"], "metrics"),
+    **dict.fromkeys(["compare", "Comparison"], "compare"),
+    **dict.fromkeys(["MaskPrompt", "BoxPrompt", "PointPrompt", "TextPrompt"], "frontend.prompts"),
+    **dict.fromkeys(["extract", "Extraction", "seed_lift"], "pipeline"),
+    **dict.fromkeys(["remove", "move", "duplicate", "recolour"], "edit"),
+    **dict.fromkeys(["make_scene", "compose", "masks_from_labels", "perturb_masks"], "synthetic"),
+}
+
 __all__ = ["Camera", "GaussianScene", "Seed2GSError", "FormatError", "ValidationError",
-           "__version__"]
+           "__version__", *_LAZY]
+
+
+def __getattr__(name: str):
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'seed2gs_inverse' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value  # cache: later lookups skip __getattr__
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))

@@ -1,0 +1,29 @@
+"""Every advertised public name resolves, and the lazy import stays lazy."""
+
+import subprocess
+import sys
+
+import seed2gs_inverse as sgi
+
+
+def test_all_public_names_resolve():
+    for name in sgi.__all__:
+        assert getattr(sgi, name) is not None, name
+    assert set(sgi.__all__) <= set(dir(sgi))
+
+
+def test_unknown_name_is_attribute_error():
+    try:
+        sgi.no_such_thing
+    except AttributeError as exc:
+        assert "no_such_thing" in str(exc)
+    else:
+        raise AssertionError("expected AttributeError")
+
+
+def test_import_does_not_load_heavy_modules():
+    code = ("import sys, seed2gs_inverse; "
+            "print(sorted(m for m in ('numba', 'cv2', 'onnxruntime', 'pyvista', 'matplotlib') "
+            "if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
