@@ -145,7 +145,8 @@ def main(argv=None) -> int:
         print(f"pose {k}: seed {int(seed.sum())} px, {len(ex.views)} views (V={ex.vaas.visibility:.2f}, "
               f"A={ex.vaas.amplitude_deg:.1f} deg) | mIoU {rows[-1][1]:.3f} mBIoU {rows[-1][2]:.3f} "
               f"3D IoU {m3['iou']:.3f} (P {m3['precision']:.3f} R {m3['recall']:.3f}) | G0 alone mIoU "
-              f"{rows[-1][4]:.3f} | {wall:.2f} s: " + ", ".join(f"{a} {b:.2f}" for a, b in s.items()))
+              f"{rows[-1][4]:.3f} | {wall:.2f} s: " + ", ".join(f"{a} {b:.2f}" for a, b in s.items())
+              + f"\n  held-out IoU per view: {np.round(ious, 3).tolist()}")
         sys.stdout.flush()
     if not rows:
         return 1

@@ -112,3 +112,15 @@ def test_extract_bad_input(syn):
             extract(syn.scene, cam, sky)
     with pytest.raises(ValidationError, match="shape"):
         extract(syn.scene, cam, np.ones((10, 10), bool))
+
+
+def test_culled_orbit_operators_are_exact(syn):
+    cam = syn.reference_camera(96, 72)
+    truth = syn.labels == 2
+    seed = _truth_mask(build_operator(syn.scene, cam), truth)
+    a = extract(syn.scene, cam, seed, n_views=4, cull=True, cull_far=None)
+    b = extract(syn.scene, cam, seed, n_views=4, cull=False)
+    assert len(a.operators) == len(b.operators)
+    for x, y in zip(a.operators, b.operators):
+        assert x.W.shape == y.W.shape and abs(x.W - y.W).max() == 0
+        np.testing.assert_array_equal(x.rendering.rgb, y.rendering.rgb)

@@ -26,6 +26,10 @@ For frame ``k`` and each pixel ``p`` with rendered alpha above ``alpha_min``:
    flat clip when the spiral is tracked): a surface hidden for a few frames
    behind an occluder gets its label back from a view that saw it.
 
+Frames are labelled in the order of :meth:`GeometricTracker._order`: always
+the frame nearest to one already labelled, so a closed orbit is walked from
+both sides of the reference.
+
 Pixels with alpha below ``alpha_min`` are empty space and get 0 (nothing
 there can be the object). Pixels no source sees (newly revealed surfaces,
 blended depths at silhouettes) are decided by image evidence: a normalised
@@ -245,12 +249,15 @@ class GeometricTracker:
                                       f"{f.camera.image_shape}")
             pool.append((f, m))
         seed = np.where(np.isnan(seed), np.nan, (seed > 0.5).astype(np.float64))
-        masks = [seed.astype(np.float32)]
-        for k in range(1, len(frames)):
+        masks = [None] * len(frames)
+        masks[0] = seed.astype(np.float32)
+        centers = np.array([f.camera.center for f in frames])
+        done = [0]
+        for k in self._order(centers):
             f = frames[k]
             # Sources: the seed frame first (no drift), then the labelled
             # views nearest to this one (best-conditioned warps).
-            cands = pool + [(frames[j], masks[j].astype(np.float64)) for j in range(1, k)]
+            cands = pool + [(frames[j], masks[j].astype(np.float64)) for j in done[1:]]
             dist = [np.linalg.norm(g.camera.center - f.camera.center) for g, _ in cands]
             order = np.argsort(dist, kind="stable")[: max(self.max_sources - 1, 0)]
             lab = np.full(f.camera.image_shape, np.nan)
@@ -266,8 +273,32 @@ class GeometricTracker:
             lab[np.asarray(f.alpha) < self.alpha_min] = 0.0
             if self.fill and np.isnan(lab).any():
                 lab = self._fill(np.asarray(f.rgb, np.float32), np.asarray(f.depth), lab)
-            masks.append(lab.astype(np.float32))
+            masks[k] = lab.astype(np.float32)
+            done.append(k)
         return masks
+
+    @staticmethod
+    def _order(centers: np.ndarray) -> list:
+        """Frames 1..n-1 in the order they join the labelled set (Prim's rule).
+
+        Each step labels the frame whose camera centre is nearest to an
+        already labelled one, so propagation always takes the shortest hop:
+        a closed flat orbit is walked from both sides of the reference (half
+        the chain length, half the drift), a rising spiral in sequence.
+        """
+        n = len(centers)
+        if n <= 1:
+            return []
+        d = np.linalg.norm(centers[:, None] - centers[None], axis=2)
+        best = d[0].copy()
+        left = set(range(1, n))
+        order = []
+        while left:
+            k = min(left, key=lambda j: (best[j], j))
+            order.append(k)
+            left.remove(k)
+            best = np.minimum(best, d[k])
+        return order
 
     def _fill(self, rgb: np.ndarray, depth: np.ndarray, lab: np.ndarray) -> np.ndarray:
         import cv2
