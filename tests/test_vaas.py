@@ -127,3 +127,23 @@ def test_skip_rule_and_visibility_mean():
     plan, flat, spiral = run_vaas(pts, np.zeros(1), ref, o, view, n_views=8, a_max_deg=9.0)
     assert plan.skipped_spiral and plan.spiral == [] and spiral == [] and "spiral" not in calls
     assert plan.amplitude_deg == pytest.approx(4.5)
+
+
+def test_estimate_up_removes_the_camera_pitch():
+    from seed2gs_inverse.operators.render import build_operator
+    from seed2gs_inverse.pipeline.vaas import estimate_up
+    from seed2gs_inverse.synthetic import make_scene
+
+    for up in [(0, -1, 0), (0.3, 0.2, 0.93)]:
+        syn = make_scene(seed=0, up=up)
+        cam = syn.reference_camera(64, 48, elevation_deg=40)
+        true_up = syn.up / np.linalg.norm(syn.up)
+        assert np.degrees(np.arccos(np.clip(cam.up @ true_up, -1, 1))) > 30  # the camera is pitched
+        w = np.asarray(build_operator(syn.scene, cam).W.sum(axis=0)).ravel()
+        est = estimate_up(syn.scene, cam, weights=w)
+        assert np.degrees(np.arccos(np.clip(est @ true_up, -1, 1))) < 3
+        assert abs(est @ cam.right) < 1e-9  # no roll is introduced
+    # No flat Gaussians: fall back to the camera's image-up.
+    iso = syn.scene.copy()
+    iso.log_scales[:] = -3.0
+    np.testing.assert_allclose(estimate_up(iso, cam), cam.up)

@@ -130,6 +130,10 @@ def run(args) -> int:
         raise ValidationError(f"cannot create {out}: parent directory {out.resolve().parent} does not exist")
     if args.views < 2:
         raise ValidationError(f"--views must be >= 2, got {args.views}")
+    from ..solvers import available_methods
+
+    if args.method not in available_methods():
+        raise ValidationError(f"unknown --method {args.method!r}; available: {', '.join(available_methods())}")
     if not os.path.isfile(args.scene):
         raise FileNotFoundError(2, "No such file", args.scene)
     prompt = _prompt_from_args(args)
@@ -137,7 +141,7 @@ def run(args) -> int:
     models = _models(args)
     grounder = models.grounder() if models is not None else None
     tracker = models.tracker() if models is not None else None
-    if models is None and args.prompt is not None:
+    if grounder is None and args.prompt is not None:
         from ..frontend.prompts import TEXT_NEEDS_GROUNDER
 
         raise ValidationError(TEXT_NEEDS_GROUNDER)

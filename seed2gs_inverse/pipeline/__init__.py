@@ -2,7 +2,9 @@
 
 from .extract import Extraction, extract
 from .seed_lift import SeedLift, seed_lift
-from .vaas import ClipFrame, VAASPlan, flat_orbit, orbit_cameras, run_vaas, spiral_orbit, vaas_amplitude
+from .report import report_figure
+from .vaas import (ClipFrame, VAASPlan, estimate_up, flat_orbit, orbit_cameras, run_vaas, spiral_orbit,
+                   vaas_amplitude)
 
 __all__ = ["extract", "Extraction", "seed_lift", "SeedLift", "ClipFrame", "VAASPlan", "flat_orbit",
-           "spiral_orbit", "orbit_cameras", "run_vaas", "vaas_amplitude"]
+           "spiral_orbit", "orbit_cameras", "run_vaas", "vaas_amplitude", "estimate_up", "report_figure"]

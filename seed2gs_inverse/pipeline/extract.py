@@ -356,6 +356,10 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
         raise ValidationError("the scene has no Gaussians")
     if not isinstance(camera, Camera):
         raise ValidationError(f"camera must be a Camera, got {type(camera).__name__}")
+    from ..solvers import available_methods
+
+    if method not in available_methods():
+        raise ValidationError(f"unknown solver method {method!r}; available: {', '.join(available_methods())}")
     if progress is None:
         progress = bool(getattr(sys.stderr, "isatty", lambda: False)())
     tracker = GeometricTracker() if tracker is None else tracker
