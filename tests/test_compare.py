@@ -144,6 +144,12 @@ def test_cli_errors_are_one_line_and_leave_nothing(run_cli, scene_files, tmp_pat
     assert not ops.exists()
     assert run_cli("operators", "build", d / "scene.ply", "--cameras", d / "cameras.json", "-o", ops,
                    "--scale", "0.5", "--no-progress") == 0
+    capsys.readouterr()
+    assert run_cli("operators", "build", d / "scene.ply", "--cameras", d / "cameras.json", "-o", ops,
+                   "--scale", "0.5", "--no-progress") == 2
+    assert "--overwrite" in capsys.readouterr().err
+    assert run_cli("operators", "build", d / "scene.ply", "--cameras", d / "cameras.json", "-o", ops,
+                   "--scale", "0.5", "--no-progress", "--overwrite") == 0
     masks = tmp_path / "masks"
     masks.mkdir()
     for k in range(4):

@@ -48,6 +48,7 @@ def build(args) -> int:
 
     if not (np.isfinite(args.scale) and args.scale > 0):
         raise ValidationError(f"--scale must be positive, got {args.scale}")
+    OperatorStack.check_target(args.output, args.overwrite)  # fail before rendering anything
     scene = read_scene(args.scene)
     cameras = read_cameras(args.cameras)
     if not cameras:

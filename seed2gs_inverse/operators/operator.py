@@ -326,17 +326,7 @@ class OperatorStack:
         -------
         Path of the directory.
         """
-        target = Path(directory)
-        if target.exists():
-            if not target.is_dir():
-                raise ValidationError(f"{target}: exists and is not a directory")
-            if any(target.iterdir()):
-                if not (target / "manifest.json").is_file():
-                    raise ValidationError(f"{target}: exists, is not empty and is not an operator directory; "
-                                          "choose another output directory")
-                if not overwrite:
-                    raise ValidationError(f"{target}: an operator directory already exists; "
-                                          "pass overwrite=True (CLI: --overwrite) to replace it")
+        target = self.check_target(directory, overwrite)
         target.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent))
         try:
@@ -376,6 +366,26 @@ class OperatorStack:
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise
+        return target
+
+    @staticmethod
+    def check_target(directory, overwrite: bool = False) -> Path:
+        """Raise unless :meth:`save` may write to ``directory`` (call it before expensive work).
+
+        Allowed: a missing or empty directory, or an operator directory with
+        ``overwrite=True``; never a non-empty directory of something else.
+        """
+        target = Path(directory)
+        if target.exists():
+            if not target.is_dir():
+                raise ValidationError(f"{target}: exists and is not a directory")
+            if any(target.iterdir()):
+                if not (target / "manifest.json").is_file():
+                    raise ValidationError(f"{target}: exists, is not empty and is not an operator directory; "
+                                          "choose another output directory")
+                if not overwrite:
+                    raise ValidationError(f"{target}: an operator directory already exists; "
+                                          "pass overwrite=True (CLI: --overwrite) to replace it")
         return target
 
     @classmethod
