@@ -112,6 +112,17 @@ def test_beta_bernoulli_posterior_and_order_independence(rng):
     r2 = solve([mats[i] for i in perm], [masks[i] for i in perm], method="beta_bernoulli", a0=2.0, b0=0.5)
     np.testing.assert_allclose(r.q, r2.q, rtol=1e-5)
     assert r.iterations == 4 and r.info["order"] == [0, 1, 2, 3]
+    # a budget in the given order absorbs the first views one by one: same posterior as the dense sum
+    a3, b3 = np.full(40, 2.0), np.full(40, 0.5)
+    for W, m in zip(mats[:3], masks[:3]):
+        D = W.toarray().astype(np.float64)
+        y = m.ravel().astype(np.float64)
+        k = ~np.isnan(y)
+        a3 += D[k].T @ y[k]
+        b3 += D[k].T @ (1 - y[k])
+    r3 = solve(mats, masks, method="beta_bernoulli", a0=2.0, b0=0.5, budget=3)
+    np.testing.assert_allclose(r3.q[~r3.unobserved], (a3 / (a3 + b3))[~r3.unobserved], rtol=1e-6)
+    assert r3.info["order"] == [0, 1, 2] and len(r3.history) == 3
 
 
 def _eig_reference(mats, masks, a, b, view):

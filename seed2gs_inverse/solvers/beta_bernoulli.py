@@ -37,6 +37,7 @@ from scipy.special import betaln, digamma
 
 from ..errors import ValidationError
 from ._common import Problem, register_method
+from .voting import vote_counts
 
 __all__ = ["beta_bernoulli", "beta_entropy"]
 
@@ -93,6 +94,11 @@ def beta_bernoulli(problem: Problem, *, a0: float = 1.0, b0: float = 1.0, order:
         raise ValidationError(f"beta_bernoulli: budget must be a positive integer, got {budget!r}")
     budget = min(int(budget), V)
     n = problem.n_gaussians
+    if order == "given" and budget == V:
+        # All views in any order: the posterior needs only the two vote sums (one transposed pass).
+        a_bg, a_fg = vote_counts(problem)
+        return {"q": (a0 + a_fg) / (a0 + b0 + a_fg + a_bg), "iterations": V, "view_weights": np.ones(V),
+                "info": {"order": list(range(V)), "budget": V, "a0": a0, "b0": b0}}
     a = np.full(n, a0)
     b = np.full(n, b0)
     seen = np.zeros(n, dtype=bool)
