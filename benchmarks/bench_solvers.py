@@ -127,6 +127,12 @@ def bench_cost(stack: OperatorStack, masks):
             ratio = f"{total / two:.1f} x two passes total"
         print(f"{m:>15} {total:>8.3f} {res.iterations:>6} {fev:>7} {1e3 * total / it:>8.1f} "
               f"{1e3 * total / max(fev, 1):>9.1f} {ratio:>22}")
+    budget = min(8, len(stack))
+    t0 = time.perf_counter()
+    res = solve(stack, masks, method="beta_bernoulli", order="eig", budget=budget)
+    total = time.perf_counter() - t0
+    print(f"beta_bernoulli order='eig', budget {budget}: {total:.2f} s ({total / two:.0f} x two passes), "
+          f"order {res.info['order']}")
 
 
 def bench_noise(stack, truth, other, seed=0):
@@ -157,6 +163,7 @@ def main():
     ap.add_argument("--views", type=int, default=32)
     ap.add_argument("--width", type=int, default=160, help="image width (height = 3/4 of it)")
     ap.add_argument("--synthetic", action="store_true", help="use the procedural scene even with real data")
+    ap.add_argument("--cost-only", action="store_true", help="skip the accuracy part")
     args = ap.parse_args()
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
           f"NUMBA_NUM_THREADS={os.environ.get('NUMBA_NUM_THREADS', 'unset')}")
@@ -174,7 +181,8 @@ def main():
     masks = masks_from_labels(stack, truth)
     print(f"unicorn/object mask coverage: {np.mean([m.mean() for m in masks]):.3f} of each view on average")
     bench_cost(stack, masks)
-    bench_noise(stack, truth, other)
+    if not args.cost_only:
+        bench_noise(stack, truth, other)
 
 
 if __name__ == "__main__":
