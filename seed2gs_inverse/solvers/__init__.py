@@ -24,7 +24,7 @@ import numpy as np
 
 from ._common import (Problem, SolveResult, available_methods, check_options, get_method, prepare,
                       register_method)
-from . import beta_bernoulli, least_squares, voting, weighted_bce  # noqa: F401  (they register)
+from . import beta_bernoulli, least_squares, voting, weighted_bce  # noqa: F401  (importing registers them)
 
 __all__ = ["solve", "available_methods", "register_method", "SolveResult", "Problem", "prepare"]
 

@@ -46,7 +46,8 @@ def bias_to_threshold(bias: float) -> float:
     """The ``q`` threshold equivalent to FlashSplat's ``Â1 - Â0 > bias``, |bias| < 1."""
     b = float(bias)
     if not (np.isfinite(b) and -1.0 < b < 1.0):
-        raise ValidationError(f"voting: bias must lie in (-1, 1) (the normalised votes differ by at most 1), got {bias!r}")
+        raise ValidationError(f"voting: bias must lie in (-1, 1) (the normalised votes differ by at most 1), "
+                              f"got {bias!r}")
     return 0.5 * (1.0 + b / np.sqrt(2.0 - b * b))
 
 
