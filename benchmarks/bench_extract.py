@@ -50,6 +50,7 @@ def held_out(center, up, forward, dist, w=480, h=270):
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--poses", type=int, default=len(POSES))
+    p.add_argument("--only", type=int, default=None, help="run only this pose index")
     p.add_argument("--views", type=int, default=24)
     p.add_argument("--method", default="weighted_bce")
     p.add_argument("--max-view-pixels", type=int, default=None)
@@ -83,6 +84,8 @@ def main(argv=None) -> int:
     up = estimate_up(firepit, cam)
     rows = []
     for k, ((px, py), yaw, height) in enumerate(POSES[: args.poses]):
+        if args.only is not None and k != args.only:
+            continue
         ray = np.array([(px + 0.5 - cam.cx) / cam.fx, (py + 0.5 - cam.cy) / cam.fy, 1.0])
         anchor = cam.rotation.T @ (ray * float(base.depth[py, px]) - cam.translation)
         pose = pose_on_point(unicorn, anchor, up, object_up=(0.0, -1.0, 0.0), height=height,

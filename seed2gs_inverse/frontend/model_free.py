@@ -13,9 +13,12 @@ For frame ``k`` and each pixel ``p`` with rendered alpha above ``alpha_min``:
    depth ``z'``);
 2. ``X`` is *seen* in frame ``j`` when ``p'`` is in the image, frame ``j`` is
    opaque there and ``z'`` lies within :math:`\tau_{rel} z'` of the range of
-   :math:`D_j` over the 2x2 pixel centres around ``p'`` (a z-test: if
+   :math:`D_j` at the nearest pixel, or of the range of :math:`D_j` over the
+   2x2 pixel centres around ``p'`` where that range is smooth (a z-test: if
    something else is in front, ``X`` was occluded in ``j``; the 2x2 range
-   keeps oblique surfaces, whose depth changes a lot within a pixel), and
+   keeps oblique surfaces, whose depth changes a lot within a pixel, and is
+   not used across silhouettes, where it would span foreground and
+   background), and
    the colours of ``p`` and ``p'`` agree within ``color_tol`` (surfaces that
    meet at equal depth, like an object standing on the ground, differ in
    colour);
@@ -87,7 +90,7 @@ def _core(labels: np.ndarray, band: int) -> np.ndarray:
 
 
 def warp_labels(dst, src, src_labels: np.ndarray, *, alpha_min: float = 0.5,
-                depth_tol: float = 0.01, color_tol: float | None = None) -> np.ndarray:
+                depth_tol: float = 0.01, color_tol: float | None = None, max_step: float = 0.1) -> np.ndarray:
     """Backward-warp labels of frame ``src`` into frame ``dst`` through rendered depth.
 
     Parameters
@@ -96,6 +99,10 @@ def warp_labels(dst, src, src_labels: np.ndarray, *, alpha_min: float = 0.5,
     src_labels : (Hs, Ws) float array, NaN = unknown
     alpha_min, depth_tol : float
         Opacity needed for a pixel to be a surface; relative z-test tolerance.
+    max_step : float
+        The 2x2 depth range is used only where it spans at most this
+        fraction of the depth (a smooth, possibly oblique surface); elsewhere
+        (silhouettes) the z-test uses the nearest pixel alone.
     color_tol : float or None
         Photometric check (frames then need ``rgb``): the label is copied only
         when the two pixels' colours differ by at most this much in every
@@ -143,7 +150,12 @@ def warp_labels(dst, src, src_labels: np.ndarray, *, alpha_min: float = 0.5,
             hi = np.where(good, np.maximum(hi, dq), hi)
     zi = z[i]
     tol = depth_tol * zi
-    seen = (salp[py[i], px[i]] >= alpha_min) & (zi >= lo - tol) & (zi <= hi + tol)
+    # The bracket only stands in for the surface where it is smooth: across a
+    # silhouette it spans foreground to background and would accept points
+    # hidden behind the foreground.
+    smooth = (hi - lo) <= max_step * zi
+    near = np.abs(zi - sdep[py[i], px[i]]) <= tol
+    seen = (salp[py[i], px[i]] >= alpha_min) & (near | (smooth & (zi >= lo - tol) & (zi <= hi + tol)))
     if color_tol is not None:
         c_dst = np.asarray(dst.rgb, np.float64)[valid][i]
         c_src = np.asarray(src.rgb, np.float64)[py[i], px[i]]

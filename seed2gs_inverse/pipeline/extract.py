@@ -26,7 +26,7 @@ from .vaas import DEFAULTS as VAAS_DEFAULTS, ClipFrame, VAASPlan, estimate_up, r
 __all__ = ["Extraction", "extract", "EXTRACT_DEFAULTS", "SOLVER_DEFAULTS"]
 
 #: Defaults of :func:`extract` beyond the VAAS ones.
-EXTRACT_DEFAULTS = {"orbit_scale": 0.5, "max_view_pixels": 160_000, "max_reference_pixels": 1_000_000, "roi_margin": 2.0, "zoom_margin": 2.0, "min_weight": 0.0, "cull_far": 4.0,
+EXTRACT_DEFAULTS = {"orbit_scale": 0.5, "max_view_pixels": 160_000, "max_reference_pixels": 1_000_000, "roi_margin": 2.0, "zoom_margin": 2.0, "min_weight": 0.0, "cull_far": 4.0, "min_evidence": 0.05,
                     "threshold": None}
 
 #: Solver options extract() uses unless told otherwise: the weighted BCE
@@ -47,7 +47,8 @@ class Extraction:
     scene : GaussianScene
         The input scene.
     q : (N,) float32
-        Foreground probabilities.
+        Foreground probabilities (the solver's, with Gaussians without
+        evidence reset to the prior; ``result.q`` is the solver's own).
     selected : (N,) bool
         ``q > threshold``: the object.
     threshold : float
@@ -255,6 +256,7 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
             zoom_margin: float | None = EXTRACT_DEFAULTS["zoom_margin"], up="level",
             min_weight: float = EXTRACT_DEFAULTS["min_weight"], cull: bool = True,
             cull_far: float | None = EXTRACT_DEFAULTS["cull_far"],
+            min_evidence: float = EXTRACT_DEFAULTS["min_evidence"],
             threshold: float | None = None, lift_options: dict | None = None,
             solver_options: dict | None = None, mode: str = "classic",
             progress: bool | None = None) -> Extraction:
@@ -326,6 +328,12 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
         empty operator rows), and those Gaussians stay unobserved (prior 0)
         unless a nearer view sees them. None keeps everything (exact
         operators).
+    min_evidence : float
+        A Gaussian whose summed compositing weight over the *decided*
+        (non-NaN) pixels of all views is below this (default 0.05, a
+        twentieth of one opaque pixel) has no real evidence: its ``q`` is
+        reset to the prior (1 in G0, else 0). Without this, an unregularised
+        fit can drive such Gaussians to 1 on a trace of weight.
     threshold : float, optional
         ``tau`` of Eq. 9; default: the solver's own (0.5).
     lift_options : dict, optional
@@ -499,8 +507,17 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
     opts.update(solver_options or {})
     with _single_threaded_blas():
         result = solve(stack, masks, method=method, init=lift.support, **opts)
+    # Gaussians seen (almost) only on unknown pixels carry no evidence; an
+    # unregularised fit can still drive their logits anywhere on a trace of
+    # weight, so they keep the prior (G0 membership) instead.
+    q = np.asarray(result.q, dtype=np.float32).copy()
+    evidence = np.zeros(len(scene))
+    for op, m in zip(ops, masks):
+        evidence += np.asarray(op.W.T @ (~np.isnan(m)).ravel().astype(np.float32), dtype=np.float64)
+    weak = evidence < min_evidence
+    q[weak] = lift.support[weak].astype(np.float32)
     tau = result.threshold if threshold is None else float(threshold)
-    selected = result.selected(tau)
+    selected = q > tau
     seconds["solve"] = time.perf_counter() - t0
 
     settings = {"method": method, "n_views": int(n_views), "a_max_deg": float(a_max_deg),
@@ -508,11 +525,12 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
                 "max_elevation_deg": float(max_elevation_deg), "orbit_scale": float(orbit_scale),
                 "view_scale": float(scale), "max_view_pixels": max_view_pixels,
                 "reference_scale": float(ref_scale), "max_reference_pixels": max_reference_pixels,
-                "roi_margin": roi_margin, "min_weight": float(min_weight), "cull": bool(cull), "cull_far": cull_far, "zoom_margin": zoom_margin,
+                "roi_margin": roi_margin, "min_weight": float(min_weight), "cull": bool(cull), "cull_far": cull_far,
+                "min_evidence": float(min_evidence), "n_weak_evidence": int(weak.sum()), "zoom_margin": zoom_margin,
                 "up": np.asarray(up_axis, float).tolist(), "threshold": float(tau), "mode": mode,
                 "tracker": type(tracker).__name__,
                 "grounder": None if grounder is None else type(grounder).__name__,
                 "lift_options": dict(lift_options or {}), "solver_options": {
                     k: v for k, v in opts.items() if isinstance(v, (int, float, str, bool))}}
-    return Extraction(scene, result.q, selected, tau, seed, prompt_info, camera, ref, lift, plan, views,
+    return Extraction(scene, q, selected, tau, seed, prompt_info, camera, ref, lift, plan, views,
                       clips, masks, stack, result, seconds, settings)

@@ -83,7 +83,8 @@ def _check_image(name, arr, shape):
 
 def seed_lift(scene, camera, mask, depth, W=None, *, eps_rel: float = 0.02, eps_sigma: float = 2.0,
               min_membership: float = 0.5, min_weight: float = 1e-3, k_neighbors: int = 8,
-              link_factor: float = 3.0, keep_fraction: float = 0.2) -> SeedLift:
+              link_factor: float = 3.0, keep_fraction: float = 0.2,
+              max_size_ratio: float | None = 4.0) -> SeedLift:
     r"""Lift the seed mask of the reference view to a 3D Gaussian support.
 
     Parameters
@@ -113,6 +114,12 @@ def seed_lift(scene, camera, mask, depth, W=None, *, eps_rel: float = 0.02, eps_
         3D graph: each candidate is linked to its ``k_neighbors`` nearest
         candidates closer than ``link_factor`` times the median distance to
         the 4th-nearest candidate (a density-adaptive radius).
+    max_size_ratio : float or None
+        Candidates whose largest standard deviation exceeds this multiple of
+        the candidates' median are dropped (default 4): on real scenes large
+        ground or wall splats next to the object pass the mask and depth
+        tests (their size widens the tolerance) and would otherwise seed
+        the background. None keeps all.
     keep_fraction : float
         Components are scored by their mask-weighted contribution
         (:math:`\sum_i (W^T m)_i`, or candidate count under the centre rule);
@@ -199,6 +206,12 @@ def seed_lift(scene, camera, mask, depth, W=None, *, eps_rel: float = 0.02, eps_
         score = np.ones(n)
         mode = "center"
 
+    if cand.any() and max_size_ratio is not None:
+        # Splats far bigger than the typical candidate are background
+        # (ground, walls) whose big footprint passes the mask and depth
+        # tests near the object; their own size also widens eps_d.
+        typical = float(np.median(sigma[cand]))
+        cand &= sigma <= max_size_ratio * typical
     if not cand.any():
         raise ValidationError(
             "the seed mask touches no Gaussian of the scene in the reference view (no Gaussian "
