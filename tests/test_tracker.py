@@ -107,3 +107,20 @@ def test_tracker_validates(clip):
         GeometricTracker().track([], truth[0])
     with pytest.raises(ValidationError, match="alpha_min"):
         GeometricTracker(alpha_min=2)
+
+
+def test_warp_does_not_see_through_a_silhouette():
+    # Source: a near wall on the left half (z = 2), far background on the
+    # right (z = 5). Target (same camera): the wall is gone, background at
+    # z = 5 everywhere. Background points left of the silhouette were hidden
+    # in the source: unknown, even next to the edge, where the 2x2 depth
+    # range spans both surfaces.
+    cam = Camera(40, 10, 20.0, 20.0, 20.0, 5.0)
+    src = _plane_frame(cam, 5.0)
+    src.depth[:, :20] = 2.0
+    dst = _plane_frame(cam, 5.0)
+    lab = np.zeros((10, 40))
+    lab[:, :20] = 1.0  # the wall is "the object"
+    out = warp_labels(dst, src, lab)
+    assert np.isnan(out[:, :20]).all()
+    assert (out[:, 21:] == 0).all()
