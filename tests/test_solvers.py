@@ -300,10 +300,10 @@ def test_identity_switch_views_get_low_weight(blob):
     other = np.zeros_like(labels)
     other[np.flatnonzero(~labels)[:60]] = True  # the tracker jumped to background splats
     fit = [stack[i].matvec(other.astype(np.float32)) > 0.5 if i in bad else masks[i] for i in train]
-    r = solve(stack.subset(train), fit, method="weighted_bce")
+    r = solve(stack.subset(train), fit, method="weighted_bce", max_iter=80)
     good = [i for i in train if i not in bad]
     assert r.view_weights[bad].max() < r.view_weights[good].min()
-    plain = solve(stack.subset(train), fit, method="weighted_bce", reweight=False)
+    plain = solve(stack.subset(train), fit, method="weighted_bce", reweight=False, max_iter=80)
     held = [9, 10, 11]
     assert _heldout_miou(stack, r.selected(), labels, held) >= _heldout_miou(stack, plain.selected(), labels, held)
 

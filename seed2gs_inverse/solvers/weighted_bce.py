@@ -181,7 +181,7 @@ def _logit(p):
 def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, momentum: float = 0.5,
                  reweight: bool = True, normalize: bool = False, alpha_min: float = 1e-3, eps: float = 1e-4,
                  max_iter: int = 200, inner_iters: int = 20, weight_tol: float = 1e-3, ftol: float = 1e-10,
-                 gtol: float = 1e-9, init_clip: float = 0.1, maxcor: int = 10, start: str = "vote") -> dict:
+                 gtol: float = 1e-9, init_clip: float = 0.1, maxcor: int = 5, start: str = "vote") -> dict:
     """Seed2GS reliability-weighted BCE; see the module docstring.
 
     Parameters
@@ -213,8 +213,10 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
         L-BFGS-B tolerances (the loss is a per-pixel mean, O(1)).
     init_clip : float, default 0.1
         The starting ``q`` is the prior clipped to ``[init_clip, 1 - init_clip]``.
-    maxcor : int, default 10
-        L-BFGS-B memory.
+    maxcor : int, default 5
+        L-BFGS-B memory. scipy's L-BFGS-B update costs O(maxcor N) per
+        call, comparable to the sparse passes at N ~ 600k; 5 instead of 10
+        ran about 20% faster with the same result on the firepit benchmark.
     start : {"vote", "half"}, default "vote"
         Starting point when no ``init`` is given.
 
