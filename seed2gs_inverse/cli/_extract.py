@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from .._atomic import atomic_path
 from ..errors import ValidationError
 
 __all__ = ["register", "write_outputs"]
@@ -92,8 +91,7 @@ def write_outputs(extraction, outdir, fmt: str = "ply", force: bool = False, fig
     parent = out.resolve().parent
     if not parent.is_dir():
         raise ValidationError(f"cannot create {out}: parent directory {parent} does not exist")
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=parent))
-    try:
+    with atomic_path(out, directory=True) as tmp:
         write_scene(tmp / f"object.{fmt}", extraction.object_scene())
         write_scene(tmp / f"remainder.{fmt}", extraction.remainder_scene())
         np.save(tmp / "q.npy", np.asarray(extraction.q, np.float32), allow_pickle=False)
@@ -105,16 +103,6 @@ def write_outputs(extraction, outdir, fmt: str = "ply", force: bool = False, fig
             from ..pipeline.report import report_figure
 
             report_figure(extraction).savefig(tmp / "report.png", dpi=100)
-        if out.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=parent))
-            os.replace(out, old / out.name)
-            os.replace(tmp, out)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return out
 
 

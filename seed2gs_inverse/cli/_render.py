@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import io as _io
-import os
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
+from .._atomic import write_files
 from ..errors import ValidationError
 
 __all__ = ["register"]
@@ -127,27 +126,6 @@ def _encode(path, array, kind):
     return buf.getvalue()
 
 
-def _write_all(items):
-    """Write every (path, bytes) or none: temp files first, then os.replace."""
-    temps = []
-    try:
-        for path, payload in items:
-            fd, tmp = tempfile.mkstemp(dir=path.parent if str(path.parent) else ".",
-                                       prefix=f".{path.name}.", suffix=".tmp")
-            temps.append(tmp)
-            with os.fdopen(fd, "wb") as fh:
-                fh.write(payload)
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(tmp, 0o666 & ~umask)
-        for (path, _), tmp in zip(items, temps):
-            os.replace(tmp, path)
-    except BaseException:
-        for tmp in temps:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-        raise
-
 
 def run(args) -> int:
     from ..io import read_scene
@@ -175,7 +153,7 @@ def run(args) -> int:
                                           else r.depth, "depth")))
     if alpha_path is not None:
         items.append((alpha_path, _encode(alpha_path, r.alpha, "alpha")))
-    _write_all(items)
+    write_files(items)
     covered = float((r.alpha > 0).mean())
     print(f"rendered {len(scene)} Gaussians at {cam.width}x{cam.height} in {seconds:.2f} s "
           f"({covered:.0%} of pixels covered); wrote {', '.join(str(p) for p, _ in items)}")

@@ -121,7 +121,7 @@ def solve_command(args) -> int:
     from ..operators.operator import OperatorStack
     from ..solvers import solve
     from ..solvers._common import get_method
-    from ._render import _write_all
+    from .._atomic import write_files
 
     get_method(args.method)  # fail fast on a typo, before loading anything
     out = Path(args.output)
@@ -131,7 +131,7 @@ def solve_command(args) -> int:
     masks = read_masks(args.masks, len(stack))
     init = _load_npy(Path(args.init)) if args.init else None
     result = solve(stack, masks, method=args.method, init=init, **_parse_options(args.option))
-    _write_all([(out, _npy_bytes(result.q))])
+    write_files([(out, _npy_bytes(result.q))])
     sel = result.selected()
     print(f"{out}: method {result.method}, {int(sel.sum()):,} of {sel.size:,} Gaussians selected "
           f"(q > {result.threshold:.3g}), {int(result.unobserved.sum()):,} unobserved, "
@@ -142,7 +142,7 @@ def solve_command(args) -> int:
 def compare_command(args) -> int:
     from ..compare import compare
     from ..operators.operator import OperatorStack
-    from ._render import _write_all
+    from .._atomic import write_files
 
     stack = OperatorStack.load(args.operators, mmap=True)
     masks = read_masks(args.masks, len(stack))
@@ -160,7 +160,7 @@ def compare_command(args) -> int:
         d.mkdir(parents=True, exist_ok=True)
         png = io.BytesIO()
         result.plot(png)
-        _write_all([(d / "comparison.csv", result.to_csv().encode()),
+        write_files([(d / "comparison.csv", result.to_csv().encode()),
                     (d / "comparison.json", result.to_json().encode()),
                     (d / "comparison.png", png.getvalue())])
         print(f"wrote {d / 'comparison.csv'}, {d / 'comparison.json'}, {d / 'comparison.png'}")

@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from .._atomic import atomic_path
 from ..errors import ValidationError
 
 __all__ = ["register"]
@@ -121,15 +120,8 @@ def run(args) -> int:
     out = Path(args.screenshot)
     if not out.parent.is_dir():
         raise ValidationError(f"--screenshot {out}: directory {out.parent} does not exist")
-    # Render to a temporary file beside the target, so a failure leaves nothing behind.
-    fd, tmp = tempfile.mkstemp(prefix=f".{out.stem}-", suffix=".png", dir=out.parent)
-    os.close(fd)
-    try:
-        img = membership_plot(scene, q, screenshot=tmp, off_screen=True, **kw)
-        os.replace(tmp, out)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    with atomic_path(out) as tmp:  # a failure leaves nothing behind
+        img = membership_plot(scene, q, screenshot=str(tmp), off_screen=True, **kw)
     shown = "all" if q is None or args.threshold is None else int(np.sum(q > args.threshold))
     print(f"wrote {out} ({img.shape[1]}x{img.shape[0]}, {len(scene)} Gaussians, shown: {shown})")
     return 0

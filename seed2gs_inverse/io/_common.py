@@ -8,13 +8,12 @@ from __future__ import annotations
 
 import io
 import os
-import tempfile
 import warnings
 import zlib
-from pathlib import Path
 
 import numpy as np
 
+from .._atomic import atomic_path
 from ..errors import FormatError, ValidationError
 from ..scene import GaussianScene
 
@@ -161,21 +160,6 @@ def atomic_write(path, chunks) -> None:
     ``path`` only once it is complete, so a failure never leaves a partial
     file behind.
     """
-    path = Path(path)
-    directory = path.parent if str(path.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            for piece in chunks:
-                fh.write(piece)
-        # mkstemp creates the file private (0600); give it the usual permissions.
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        for piece in chunks:
+            fh.write(piece)

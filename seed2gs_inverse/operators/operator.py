@@ -25,9 +25,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import shutil
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,6 +32,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator
 
+from .._atomic import atomic_path
 from ..camera import Camera
 from ..errors import FormatError, ValidationError
 
@@ -328,8 +326,7 @@ class OperatorStack:
         """
         target = self.check_target(directory, overwrite)
         target.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent))
-        try:
+        with atomic_path(target, directory=True) as tmp:
             views = []
             for i, v in enumerate(self.views):
                 W = v.W
@@ -356,16 +353,6 @@ class OperatorStack:
                         "fingerprint": self.fingerprint, "views": views}
             with open(tmp / "manifest.json", "w", encoding="utf-8") as fh:
                 json.dump(manifest, fh, indent=1)
-            if target.exists():
-                old = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".old", dir=target.parent))
-                os.replace(target, old / "d")
-                os.replace(tmp, target)
-                shutil.rmtree(old, ignore_errors=True)
-            else:
-                os.replace(tmp, target)
-        except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise
         return target
 
     @staticmethod
