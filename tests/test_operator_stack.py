@@ -158,6 +158,14 @@ def test_fingerprint_checks_scene(rng, tmp_path):
     moved = scene.copy()
     moved.means[7, 0] += 1e-3
     assert scene_fingerprint(moved) != fp
+    # every array W depends on changes the fingerprint; colours do not
+    for field in ("quats", "log_scales", "opacity_logits"):
+        other = scene.copy()
+        getattr(other, field).flat[3] += 1e-3
+        assert scene_fingerprint(other) != fp, field
+    recoloured = scene.copy()
+    recoloured.sh[:] += 0.25
+    assert scene_fingerprint(recoloured) == fp
     s = OperatorStack(_stack(rng).views, fingerprint=fp)
     s.save(tmp_path / "ops")
     assert OperatorStack.load(tmp_path / "ops", scene=scene).fingerprint == fp

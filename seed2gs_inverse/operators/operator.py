@@ -48,10 +48,11 @@ _RENDER_FIELDS = ("rgb", "alpha", "depth", "n_contrib")
 def scene_fingerprint(scene) -> str:
     """Short content hash identifying a scene, stored with saved operators.
 
-    SHA-256 over the Gaussian count, the SH degree and the raw bytes of the
-    means and opacity logits (the arrays that decide where and how strongly a
-    Gaussian contributes), truncated to 16 hex digits. Hashing 562k Gaussians
-    (9 MB) takes about 20 ms.
+    SHA-256 over the Gaussian count and the raw bytes of every array that
+    ``W(c)`` depends on: means, quaternions, log-scales and opacity logits,
+    truncated to 16 hex digits. Colours (SH) are deliberately left out: the
+    compositing weights do not depend on them, so a recoloured scene can use
+    the same operators. Hashing 562k Gaussians (25 MB) takes about 30 ms.
 
     Parameters
     ----------
@@ -63,8 +64,8 @@ def scene_fingerprint(scene) -> str:
         16 lowercase hex digits.
     """
     h = hashlib.sha256()
-    h.update(f"n={len(scene)};deg={scene.sh_degree};".encode())
-    for arr in (scene.means, scene.opacity_logits):
+    h.update(f"n={len(scene)};geometry+opacity;".encode())
+    for arr in (scene.means, scene.quats, scene.log_scales, scene.opacity_logits):
         h.update(memoryview(np.ascontiguousarray(arr, dtype=np.float32)).cast("B"))
     return h.hexdigest()[:16]
 
