@@ -169,3 +169,86 @@ def test_view_that_sees_nothing(scene_and_camera):
     assert not op.rendering.alpha.any() and not op.rendering.depth.any()
     np.testing.assert_array_equal(render(scene, away, background=[0.1, 0.2, 0.3]).rgb,
                                   np.broadcast_to(np.float32([0.1, 0.2, 0.3]), (18, 20, 3)))
+
+
+def _same_csr(A, B):
+    """Bit-identical CSR arrays (values, column order within rows, pointers)."""
+    np.testing.assert_array_equal(A.indptr, B.indptr)
+    np.testing.assert_array_equal(A.indices, B.indices)
+    np.testing.assert_array_equal(A.data, B.data)
+    assert A.shape == B.shape
+
+
+@pytest.mark.parametrize("per_pair", [0, 20, 256])
+def test_logged_fill_equals_second_pass(scene_and_camera, monkeypatch, per_pair):
+    """W assembled from the first pass's log (room for all, some or no tiles) is the two-pass W."""
+    import importlib
+
+    render_mod = importlib.import_module("seed2gs_inverse.operators.render")
+    scene, cam = scene_and_camera
+    calls = []
+    real_composite = render_mod._raster.composite
+
+    def spy(*args):
+        if args[14]:  # the fill flag: the second pass, over these tiles
+            calls.append(len(args[2]))
+        return real_composite(*args)
+
+    monkeypatch.setattr(render_mod._raster, "composite", spy)
+    monkeypatch.setattr(render_mod, "_SCRATCH_PER_PAIR", per_pair)
+    for roi in (None, (5, 7, 33, 30)):
+        op = build_operator(scene, cam, roi=roi)
+        # Independent of the assembly: the brute-force reference, entry by entry.
+        _, _, _, W_ref = reference_render(scene, cam)
+        if roi is not None:
+            keep = np.zeros(cam.image_shape, bool)
+            keep[7:30, 5:33] = True
+            W_ref = W_ref * keep.ravel()[:, None]
+        np.testing.assert_array_equal(op.W.toarray() != 0, W_ref != 0)
+        np.testing.assert_allclose(op.W.toarray(), W_ref, rtol=1e-6, atol=1e-8)
+        np.testing.assert_array_equal(np.diff(op.W.indptr), op.rendering.n_contrib.ravel())
+        op.W.check_format(full_check=True)
+    # per_pair 0: every tile with entries takes the second pass; 256 (a pair
+    # logs at most 16x16 weights): none does; 20: some do (big splats here).
+    n_tiles = 4 * 3  # 52x41 pixels in 16x16 tiles
+    if per_pair == 0:
+        assert len(calls) == 2 and calls[0] == n_tiles
+    elif per_pair == 256:
+        assert calls == []
+    else:
+        assert len(calls) == 2 and 0 < calls[0] < n_tiles
+    monkeypatch.setattr(render_mod, "_SCRATCH_PER_PAIR", 0)
+    two_pass = build_operator(scene, cam, min_weight=0.01)
+    monkeypatch.setattr(render_mod, "_SCRATCH_PER_PAIR", per_pair)
+    _same_csr(build_operator(scene, cam, min_weight=0.01).W, two_pass.W)
+
+
+def test_subset_equals_operator_of_the_subset_scene(scene_and_camera):
+    """The no-copy subset path gives exactly the W of scene.subset(idx) with columns mapped back."""
+    scene, cam = scene_and_camera
+    n = len(scene)
+    idx = np.flatnonzero(np.random.default_rng(3).random(n) < 0.6)
+    plain = build_operator(scene.subset(idx), cam, roi=(3, 2, 40, 35), min_weight=0.003)
+    mapped = sp.csr_matrix((plain.W.data, idx[plain.W.indices].astype(np.int32), plain.W.indptr), shape=(
+        plain.W.shape[0], n))
+    for sel in (idx, np.isin(np.arange(n), idx), idx[::-1].copy(), np.concatenate([idx, idx[:5]])):
+        fast = build_operator(scene, cam, roi=(3, 2, 40, 35), min_weight=0.003, subset=sel)
+        _same_csr(fast.W, mapped)
+        np.testing.assert_array_equal(fast.rendering.rgb, plain.rendering.rgb)
+        np.testing.assert_array_equal(fast.rendering.depth, plain.rendering.depth)
+    assert not np.asarray(fast.W[:, np.setdiff1d(np.arange(n), idx)].sum(axis=0)).any()
+    assert fast.W.nnz > 0
+    # the full index set is the plain operator
+    _same_csr(build_operator(scene, cam, subset=np.arange(n)).W, build_operator(scene, cam).W)
+    # an empty subset renders nothing
+    empty = build_operator(scene, cam, subset=np.zeros(0, np.int64))
+    assert empty.W.nnz == 0 and not empty.rendering.alpha.any()
+
+
+def test_bad_subset(scene_and_camera):
+    scene, cam = scene_and_camera
+    n = len(scene)
+    for bad in (np.array([0, n]), np.array([-1, 2]), np.ones(n + 1, bool), np.zeros((2, 2), np.int64),
+                np.array([0.5, 1.0])):
+        with pytest.raises(ValidationError, match="subset"):
+            build_operator(scene, cam, subset=bad)

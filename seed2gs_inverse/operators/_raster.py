@@ -73,13 +73,17 @@ def _clamp_floor(v, hi):
 
 
 @njit(cache=True, parallel=True)
-def project(means, quats, log_scales, opacity_logits, sh, rot, trans, center,
-            fx, fy, cx, cy, width, height, near, eps2d, antialiased,
+def project(idx, means, quats, log_scales, opacity_logits, sh, rot, trans, center,
+            fx, fy, cx, cy, width, height, near, eps2d, antialiased, tile_box,
             means2d, conics, radii, depths, colors, opacities, support, rects):
-    """Project N Gaussians; see ``render.project_gaussians`` for the maths.
+    """Project the Gaussians ``idx``; see ``render.project_gaussians`` for the maths.
 
+    ``idx`` (M,) int64 lists the scene rows to project (so a subset needs no
+    copy of the scene); output row ``i`` belongs to Gaussian ``idx[i]``.
     Inputs are the raw scene arrays (float32) and the camera (float64).
-    Outputs (preallocated, float64 unless noted): means2d (N,2), conics (N,3)
+    ``tile_box`` (4,) int64 ``[tx0, ty0, tx1, ty1)``: only these tiles are
+    composited (the roi), so ``rects`` are clipped to them.
+    Outputs (preallocated, float64 unless noted): means2d (M,2), conics (M,3)
     (a, b, c of the inverse 2D covariance), radii (N,) int32 (0 = culled),
     depths (N,) view z, colors (N,3), opacities (N,) (times the antialiasing
     compensation), support (N,3) and rects (N,4) int32 (see below).
@@ -93,12 +97,12 @@ def project(means, quats, log_scales, opacity_logits, sh, rot, trans, center,
 
     ``rects`` = ``[tx0, ty0, tx1, ty1)``: the tiles the Gaussian is binned
     to, i.e. its getRect tile rectangle intersected with the tiles its
-    support box touches. In the other tiles of the getRect rectangle it
+    support box touches and with ``tile_box``. In the other tiles of the getRect rectangle it
     would pass the alpha test at no pixel, so leaving them out changes
     nothing but the work. Empty for culled Gaussians and for those with
     ``o < 1/255``, which can never pass the alpha test.
     """
-    n = means.shape[0]
+    n = idx.shape[0]
     k = sh.shape[1]
     tiles_x = (width + TILE - 1) // TILE
     tiles_y = (height + TILE - 1) // TILE
@@ -109,10 +113,11 @@ def project(means, quats, log_scales, opacity_logits, sh, rot, trans, center,
     lim_y_pos = (height - cy) / fy + 0.3 * tan_fovy
     lim_y_neg = cy / fy + 0.3 * tan_fovy
     for i in prange(n):
+        g = idx[i]
         basis = np.empty(16)
-        px = np.float64(means[i, 0])
-        py = np.float64(means[i, 1])
-        pz = np.float64(means[i, 2])
+        px = np.float64(means[g, 0])
+        py = np.float64(means[g, 1])
+        pz = np.float64(means[g, 2])
         x = rot[0, 0] * px + rot[0, 1] * py + rot[0, 2] * pz + trans[0]
         y = rot[1, 0] * px + rot[1, 1] * py + rot[1, 2] * pz + trans[1]
         z = rot[2, 0] * px + rot[2, 1] * py + rot[2, 2] * pz + trans[2]
@@ -131,10 +136,10 @@ def project(means, quats, log_scales, opacity_logits, sh, rot, trans, center,
         for ch in range(3):
             acc = 0.0
             for j in range(k):
-                acc += basis[j] * sh[i, j, ch]
+                acc += basis[j] * sh[g, j, ch]
             colors[i, ch] = max(acc + 0.5, 0.0)
 
-        opacities[i] = 1.0 / (1.0 + math.exp(-np.float64(opacity_logits[i])))
+        opacities[i] = 1.0 / (1.0 + math.exp(-np.float64(opacity_logits[g])))
         radii[i] = 0
         means2d[i, 0] = 0.0
         means2d[i, 1] = 0.0
@@ -149,18 +154,18 @@ def project(means, quats, log_scales, opacity_logits, sh, rot, trans, center,
             continue
 
         # World covariance Sigma = M M^T with M = R(q) diag(s).
-        qw = np.float64(quats[i, 0])
-        qx = np.float64(quats[i, 1])
-        qy = np.float64(quats[i, 2])
-        qz = np.float64(quats[i, 3])
+        qw = np.float64(quats[g, 0])
+        qx = np.float64(quats[g, 1])
+        qy = np.float64(quats[g, 2])
+        qz = np.float64(quats[g, 3])
         qn = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
         qw /= qn
         qx /= qn
         qy /= qn
         qz /= qn
-        s0 = math.exp(np.float64(log_scales[i, 0]))
-        s1 = math.exp(np.float64(log_scales[i, 1]))
-        s2 = math.exp(np.float64(log_scales[i, 2]))
+        s0 = math.exp(np.float64(log_scales[g, 0]))
+        s1 = math.exp(np.float64(log_scales[g, 1]))
+        s2 = math.exp(np.float64(log_scales[g, 2]))
         m00 = (1.0 - 2.0 * (qy * qy + qz * qz)) * s0
         m01 = 2.0 * (qx * qy - qw * qz) * s1
         m02 = 2.0 * (qx * qz + qw * qy) * s2
@@ -241,10 +246,10 @@ def project(means, quats, log_scales, opacity_logits, sh, rot, trans, center,
         sx1 = _clamp_floor(np.floor(mx + hx - 0.5) / TILE, tiles_x - 1) + 1
         sy0 = _clamp_floor(np.ceil(my - hy - 0.5) / TILE, tiles_y)
         sy1 = _clamp_floor(np.floor(my + hy - 0.5) / TILE, tiles_y - 1) + 1
-        rx0 = max(rx0, sx0)
-        rx1 = min(rx1, sx1)
-        ry0 = max(ry0, sy0)
-        ry1 = min(ry1, sy1)
+        rx0 = max(rx0, sx0, tile_box[0])
+        rx1 = min(rx1, sx1, tile_box[2])
+        ry0 = max(ry0, sy0, tile_box[1])
+        ry1 = min(ry1, sy1, tile_box[3])
         if rx1 <= rx0 or ry1 <= ry0:
             continue
         rects[i, 0] = rx0
@@ -281,8 +286,9 @@ def bin_tiles(order, rects, tiles_x, n_tiles):
 
 @njit(cache=True, parallel=True)
 def composite(tile_start, tile_gauss, tile_order, means2d, conics, opacities, support, colors, depths,
-              width, height, roi, background, min_weight, fill,
-              rgb, alpha, depth, n_contrib, n_kept, indptr, indices, data, tile_evals):
+              width, height, roi, background, min_weight, fill, gid,
+              rgb, alpha, depth, n_contrib, n_kept, indptr, indices, data,
+              scr_start, scr_pix, scr_gi, scr_w, scr_used, tile_evals):
     """Front-to-back compositing of every tile (parallel over tiles).
 
     For pixel centre ``p = (x + 0.5, y + 0.5)`` and each Gaussian g of the
@@ -305,6 +311,16 @@ def composite(tile_start, tile_gauss, tile_order, means2d, conics, opacities, su
     ``n_kept`` and ``n_contrib`` its output, which is read (a pixel stops
     after its last contributor) and not written, nor are rgb, alpha, depth
     and n_kept.
+    ``gid`` (M,) int64 maps the kernel's Gaussian rows to the column
+    indices written to ``indices``.
+
+    Scratch (first pass only), so that W can usually be assembled without
+    the second pass: tile t may log its kept weights, in compositing order,
+    in ``scr_pix`` (local pixel, int16), ``scr_gi`` (Gaussian row, int32)
+    and ``scr_w`` (float32) at ``[scr_start[t], scr_start[t+1])``;
+    ``scr_used[t]`` receives the number logged, or -1 when the room ran out
+    (that tile then needs the second pass). Pass ``scr_start`` all zeros to
+    log nothing.
     ``tile_evals`` (n_tiles,) int64 receives the number of Gaussian-pixel
     evaluations (power computed) per tile, for benchmarks.
     """
@@ -329,6 +345,9 @@ def composite(tile_start, tile_gauss, tile_order, means2d, conics, opacities, su
         done = np.zeros(npix, np.bool_)
         n_done = 0
         n_eval = 0
+        sp = scr_start[t]
+        sp_end = scr_start[t + 1]
+        overflow = False
         for yy in range(y0, y1):
             for xx in range(x0, x1):
                 lp = (yy - y0) * tw + (xx - x0)
@@ -396,9 +415,16 @@ def composite(tile_start, tile_gauss, tile_order, means2d, conics, opacities, su
                     cnt[lp] += 1
                     if w >= min_weight:
                         if fill:
-                            indices[cursor[lp]] = gi
+                            indices[cursor[lp]] = gid[gi]
                             data[cursor[lp]] = w
                             cursor[lp] += 1
+                        elif sp < sp_end:
+                            scr_pix[sp] = lp
+                            scr_gi[sp] = gi
+                            scr_w[sp] = w
+                            sp += 1
+                        else:
+                            overflow = True
                         kept[lp] += 1
                     T[lp] = nt
                     if fill and cnt[lp] == n_contrib[yy, xx]:
@@ -407,6 +433,7 @@ def composite(tile_start, tile_gauss, tile_order, means2d, conics, opacities, su
         tile_evals[t] = n_eval
         if fill:
             continue
+        scr_used[t] = -1 if overflow else sp - scr_start[t]
         for yy in range(y0, y1):
             for xx in range(x0, x1):
                 if not roi[yy, xx]:
@@ -421,3 +448,55 @@ def composite(tile_start, tile_gauss, tile_order, means2d, conics, opacities, su
                 depth[yy, xx] = acc[lp, 3] / al if cnt[lp] > 0 else 0.0
                 n_contrib[yy, xx] = cnt[lp]
                 n_kept[yy * width + xx] = kept[lp]
+
+
+@njit(cache=True, parallel=True)
+def scatter(tiles, lo, hi, width, height, scr_pix, scr_gi, scr_w, gid, indptr, indices, data):
+    """CSR fill from the first compositing pass's scratch (parallel over tiles).
+
+    Tile ``tiles[j]`` logged its entries at ``[lo[j], hi[j])`` of ``scr_*``
+    (see :func:`composite`); they go to the rows of their pixels in logged
+    order, which is compositing order: ``indices = gid[scr_gi]``,
+    ``data = scr_w``, row ``u`` starting at ``indptr[u]``.
+    """
+    tiles_x = (width + TILE - 1) // TILE
+    for it in prange(tiles.shape[0]):
+        t = tiles[it]
+        ty = t // tiles_x
+        tx = t - ty * tiles_x
+        x0 = tx * TILE
+        y0 = ty * TILE
+        tw = min(x0 + TILE, width) - x0
+        th = min(y0 + TILE, height) - y0
+        cursor = np.empty(tw * th, np.int64)
+        for yy in range(th):
+            for xx in range(tw):
+                cursor[yy * tw + xx] = indptr[(y0 + yy) * width + x0 + xx]
+        for e in range(lo[it], hi[it]):
+            lp = scr_pix[e]
+            c = cursor[lp]
+            indices[c] = gid[scr_gi[e]]
+            data[c] = scr_w[e]
+            cursor[lp] = c + 1
+
+
+@njit(cache=True, parallel=True)
+def cone_cull(means, rot, trans, axis, tan_a, cos_a, near, sigma3, far, keep):
+    """Gaussians whose 3-sigma ball can meet a view cone (parallel).
+
+    With ``v = R x + t`` (view frame), ``s = sigma3[i]``, ``t_a = v . axis``
+    and ``perp = sqrt(max(|v|^2 - t_a^2, 0))``: ``keep[i] = v_z > near - s
+    and perp <= t_a tan_a + s / cos_a + 1e-6 and t_a - s <= far``
+    (``far = inf`` for no far cut).
+    """
+    for i in prange(means.shape[0]):
+        px = np.float64(means[i, 0])
+        py = np.float64(means[i, 1])
+        pz = np.float64(means[i, 2])
+        x = px * rot[0, 0] + py * rot[0, 1] + pz * rot[0, 2] + trans[0]
+        y = px * rot[1, 0] + py * rot[1, 1] + pz * rot[1, 2] + trans[1]
+        z = px * rot[2, 0] + py * rot[2, 1] + pz * rot[2, 2] + trans[2]
+        s = sigma3[i]
+        ta = x * axis[0] + y * axis[1] + z * axis[2]
+        perp = math.sqrt(max(x * x + y * y + z * z - ta * ta, 0.0))
+        keep[i] = (z > near - s) and (perp <= ta * tan_a + s / cos_a + 1e-6) and (ta - s <= far)

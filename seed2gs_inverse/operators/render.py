@@ -141,9 +141,18 @@ def _check_inputs(scene, camera, mode):
         raise ValidationError(f"mode must be one of {MODES}, got {mode!r}")
 
 
-def _project(scene, camera, mode):
-    """Run the projection kernel; float64 arrays plus tile rectangles."""
-    n = len(scene)
+def _project(scene, camera, mode, idx=None, tile_box=None):
+    """Run the projection kernel on the rows ``idx`` (default all) of ``scene``.
+
+    Returns float64 arrays plus tile rectangles, one row per entry of ``idx``;
+    rectangles are clipped to ``tile_box`` (default the whole tile grid).
+    """
+    if idx is None:
+        idx = np.arange(len(scene), dtype=np.int64)
+    n = idx.size
+    if tile_box is None:
+        tile_box = np.array([0, 0, (camera.width + _raster.TILE - 1) // _raster.TILE,
+                             (camera.height + _raster.TILE - 1) // _raster.TILE], np.int64)
     rot = np.ascontiguousarray(camera.rotation, dtype=np.float64)
     trans = np.ascontiguousarray(camera.translation, dtype=np.float64)
     center = np.ascontiguousarray(camera.center, dtype=np.float64)
@@ -155,9 +164,9 @@ def _project(scene, camera, mode):
     opac = np.empty(n)
     support = np.empty((n, 3))
     rects = np.empty((n, 4), np.int32)
-    _raster.project(scene.means, scene.quats, scene.log_scales, scene.opacity_logits, scene.sh,
+    _raster.project(idx, scene.means, scene.quats, scene.log_scales, scene.opacity_logits, scene.sh,
                     rot, trans, center, camera.fx, camera.fy, camera.cx, camera.cy,
-                    camera.width, camera.height, camera.near, _EPS2D, mode == "antialiased",
+                    camera.width, camera.height, camera.near, _EPS2D, mode == "antialiased", tile_box,
                     means2d, conics, radii, depths, colors, opac, support, rects)
     return means2d, conics, radii, depths, colors, opac, support, rects
 
@@ -248,21 +257,66 @@ def _depth_order(depths, idx):
     return idx[o]
 
 
-def _rasterize(scene, camera, background, mode, roi, min_weight, build_w, stats=None):
+# Room for the first compositing pass to log W's entries, per tile-Gaussian
+# pair of the tile (the real-scene orbit views keep ~3 weights per pair), and
+# at most this many entries in all (10 bytes each; pages never written cost
+# nothing). Tiles that run out of room take the second compositing pass.
+_SCRATCH_PER_PAIR = 8
+_SCRATCH_MAX = 1 << 25
+
+
+def _tile_box(roi_mask):
+    """Tiles ``[tx0, ty0, tx1, ty1)`` holding every pixel of the roi (int64)."""
+    rows = np.flatnonzero(roi_mask.any(axis=1))
+    cols = np.flatnonzero(roi_mask.any(axis=0))
+    if rows.size == 0:
+        return np.zeros(4, np.int64)
+    t = _raster.TILE
+    return np.array([cols[0] // t, rows[0] // t, cols[-1] // t + 1, rows[-1] // t + 1], np.int64)
+
+
+def _subset_index(subset, n):
+    """Ascending unique int64 indices from an index array or a bool mask (None: all)."""
+    if subset is None:
+        return np.arange(n, dtype=np.int64)
+    sel = np.asarray(subset)
+    if sel.dtype == bool:
+        if sel.shape != (n,):
+            raise ValidationError(f"subset mask has shape {sel.shape}; expected ({n},), one per Gaussian")
+        return np.flatnonzero(sel).astype(np.int64)
+    if sel.ndim != 1 or (sel.size and sel.dtype.kind not in "iu"):
+        raise ValidationError(f"subset must be a 1-D integer index array or a ({n},) bool mask, "
+                              f"got shape {sel.shape} dtype {sel.dtype}")
+    sel = sel.astype(np.int64)
+    if sel.size and (sel.min() < 0 or sel.max() >= n):
+        raise ValidationError(f"subset indices must lie in [0, {n}) (the scene's Gaussians), "
+                              f"got range [{sel.min()}, {sel.max()}]")
+    if sel.size > 1 and not np.all(sel[1:] > sel[:-1]):
+        sel = np.unique(sel)
+    return sel
+
+
+def _rasterize(scene, camera, background, mode, roi, min_weight, build_w, stats=None, subset=None):
     """One rasterizer pass; returns (Rendering, W or None).
 
-    ``stats``, a dict, receives stage timings (s) and work counts for benchmarks.
+    ``subset``: ascending int64 scene indices to rasterize (default all); W
+    keeps one column per scene Gaussian. ``stats``, a dict, receives stage
+    timings (s) and work counts for benchmarks.
     """
     clock = [time.perf_counter()]
     h, w = camera.height, camera.width
     roi_mask = _roi_mask(roi, (h, w))
     bg = _check_background(background)
-    means2d, conics, radii, depths, colors, opac, support, rects = _project(scene, camera, mode)
+    gid = np.arange(len(scene), dtype=np.int64) if subset is None else subset
+    means2d, conics, radii, depths, colors, opac, support, rects = _project(
+        scene, camera, mode, gid, _tile_box(roi_mask))
     clock.append(time.perf_counter())
 
     # Front-to-back order of the binned Gaussians: by depth, ties by index
-    # (stable sort of an ascending index list). Gaussians with an empty tile
-    # rectangle (culled, or never passing the alpha test) are not binned.
+    # (stable sort of an ascending index list; ``gid`` is ascending, so
+    # ties by row are ties by scene index). Gaussians with an empty tile
+    # rectangle (culled, outside the roi, or never passing the alpha test)
+    # are not binned.
     vis = np.flatnonzero((rects[:, 2] > rects[:, 0]) & (rects[:, 3] > rects[:, 1]))
     order = _depth_order(depths, vis)
     clock.append(time.perf_counter())
@@ -281,11 +335,24 @@ def _rasterize(scene, camera, background, mode, roi, min_weight, build_w, stats=
     n_contrib = np.zeros((h, w), np.int32)
     n_kept = np.zeros(h * w, np.int64)
     tile_evals = np.zeros(n_tiles, np.int64)
+    scr_used = np.zeros(n_tiles, np.int64)
+    if build_w:
+        pairs = np.diff(tile_start)
+        per_pair = min(float(_SCRATCH_PER_PAIR), _SCRATCH_MAX / max(int(tile_start[-1]), 1))
+        scr_start = np.zeros(n_tiles + 1, np.int64)
+        np.cumsum((pairs * per_pair).astype(np.int64), out=scr_start[1:])
+    else:
+        scr_start = np.zeros(n_tiles + 1, np.int64)
+    n_scr = int(scr_start[-1])
+    scr_pix = np.empty(n_scr, np.int16)
+    scr_gi = np.empty(n_scr, np.int32)
+    scr_w = np.empty(n_scr, np.float32)
     dummy_ptr = np.zeros(1, np.int64)
     args = (tile_start, tile_gauss, tile_order, means2d, conics, opac, support, colors, depths,
             w, h, roi_mask, bg, float(min_weight))
-    _raster.composite(*args, False, rgb, alpha, depth, n_contrib, n_kept,
-                      dummy_ptr, np.zeros(0, np.int32), np.zeros(0, np.float32), tile_evals)
+    _raster.composite(*args, False, gid, rgb, alpha, depth, n_contrib, n_kept,
+                      dummy_ptr, np.zeros(0, np.int32), np.zeros(0, np.float32),
+                      scr_start, scr_pix, scr_gi, scr_w, scr_used, tile_evals)
     clock.append(time.perf_counter())
     rendering = Rendering(rgb, alpha, depth, n_contrib)
     if stats is not None:
@@ -301,10 +368,16 @@ def _rasterize(scene, camera, background, mode, roi, min_weight, build_w, stats=
     nnz = int(indptr[-1])
     indices = np.empty(nnz, np.int32)
     data = np.empty(nnz, np.float32)
-    # Second pass recomputes the same pixels (bit-identical arithmetic) and
-    # writes the weights into the rows sized by the first pass.
-    _raster.composite(*args, True, rgb, alpha, depth, n_contrib, n_kept, indptr, indices, data,
-                      tile_evals)
+    # Tiles whose log is complete are copied into the rows sized by the first
+    # pass; the others composite again (bit-identical arithmetic) and write
+    # their weights directly.
+    logged = np.flatnonzero(scr_used > 0)
+    _raster.scatter(logged, scr_start[logged], scr_start[logged] + scr_used[logged], w, h,
+                    scr_pix, scr_gi, scr_w, gid, indptr, indices, data)
+    redo = np.flatnonzero(scr_used < 0)
+    if redo.size:
+        _raster.composite(*args[:2], redo, *args[3:], True, gid, rgb, alpha, depth, n_contrib, n_kept,
+                          indptr, indices, data, scr_start, scr_pix, scr_gi, scr_w, scr_used, tile_evals)
     if nnz <= np.iinfo(np.int32).max:
         indptr = indptr.astype(np.int32)
     W = sp.csr_matrix((data, indices, indptr), shape=(h * w, len(scene)), copy=False)
@@ -312,6 +385,7 @@ def _rasterize(scene, camera, background, mode, roi, min_weight, build_w, stats=
     W.has_sorted_indices = False
     if stats is not None:
         stats["fill_s"] = time.perf_counter() - clock[4]
+        stats["n_redo_tiles"] = int(redo.size)
     return rendering, W
 
 
@@ -339,7 +413,7 @@ def render(scene, camera, background=None, mode: str = "classic") -> Rendering:
 
 
 def build_operator(scene, camera, scale: float = 1.0, roi=None, min_weight: float = 0.0,
-                   mode: str = "classic"):
+                   mode: str = "classic", subset=None):
     """Rasterize once and return the view's linear operator.
 
     ``W[u, i] = alpha_i(u) T_i(u)`` (float32, CSR, int32 indices), so that a
@@ -368,6 +442,12 @@ def build_operator(scene, camera, scale: float = 1.0, roi=None, min_weight: floa
         dropped entries, and likewise for any ``x`` in [0, 1]. ``0`` keeps
         every contributor.
     mode : {"classic", "antialiased"}
+    subset : None, (M,) int array or (N,) bool array
+        Rasterize only these Gaussians, as if the others were absent, with
+        no copy of the scene; ``W`` still has one column per scene Gaussian
+        (the others' columns are empty). Equal to building the operator of
+        ``scene.subset(subset)`` and mapping its columns back to scene
+        indices. Use it to leave out what cannot reach the view (culling).
 
     Returns
     -------
@@ -383,6 +463,7 @@ def build_operator(scene, camera, scale: float = 1.0, roi=None, min_weight: floa
     mw = float(min_weight) if isinstance(min_weight, (int, float, np.integer, np.floating)) else np.nan
     if not (np.isfinite(mw) and 0.0 <= mw <= 1.0):
         raise ValidationError(f"min_weight must be a number in [0, 1], got {min_weight!r}")
+    idx = None if subset is None else _subset_index(subset, len(scene))
     cam = camera if float(scale) == 1.0 else camera.scaled(scale)
-    rendering, W = _rasterize(scene, cam, None, mode, roi, mw, build_w=True)
+    rendering, W = _rasterize(scene, cam, None, mode, roi, mw, build_w=True, subset=idx)
     return ViewOperator(W, cam, cam.image_shape, rendering)

@@ -237,13 +237,15 @@ def _cone_subset(scene, camera: Camera, roi, sigma3: np.ndarray, far: float | No
     corners /= np.linalg.norm(corners, axis=1, keepdims=True)
     cos_a = float(np.clip((corners @ axis).min(), 1e-3, 1.0))
     tan_a = np.sqrt(max(1.0 - cos_a ** 2, 0.0)) / cos_a
-    v = camera.world_to_view(scene.means)
-    t = v @ axis
-    perp = np.sqrt(np.maximum(np.einsum("ij,ij->i", v, v) - t * t, 0.0))
-    keep = (v[:, 2] > camera.near - sigma3) & (perp <= t * tan_a + sigma3 / cos_a + 1e-6)
-    if far is not None:
-        keep &= t - sigma3 <= far
-    return np.nonzero(keep)[0]
+    from ..operators import _raster
+
+    # One parallel pass over the scene (this runs for every orbit view).
+    keep = np.empty(len(scene), bool)
+    _raster.cone_cull(scene.means, np.ascontiguousarray(camera.rotation, dtype=np.float64),
+                      np.ascontiguousarray(camera.translation, dtype=np.float64), axis, tan_a, cos_a,
+                      float(camera.near), np.ascontiguousarray(sigma3, dtype=np.float64),
+                      np.inf if far is None else float(far), keep)
+    return np.flatnonzero(keep)
 
 
 def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker=None,
@@ -356,9 +358,8 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
     """
     from ..frontend.model_free import GeometricTracker
     from ..frontend.prompts import seed_mask_from_prompt
-    import scipy.sparse as sp
 
-    from ..operators.operator import OperatorStack, ViewOperator, scene_fingerprint
+    from ..operators.operator import OperatorStack, scene_fingerprint
     from ..operators.render import build_operator, render
     from ..solvers import solve
 
@@ -438,15 +439,12 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
             ts = time.perf_counter()
             roi = _roi_box(cam, lift.center, lift.radius, roi_margin)
             if cull:
-                # Rasterize only what can reach the roi, then map the
-                # columns back to scene indices: same W, far less work.
+                # Rasterize only what can reach the roi (no scene copy; W's
+                # columns are scene indices): same W, far less work.
                 far = None if cull_far is None else float(
                     np.linalg.norm(cam.center - lift.center) + cull_far * lift.radius)
                 idx = _cone_subset(scene, cam, roi, sigma3_all, far)
-                sub = build_operator(scene.subset(idx), cam, roi=roi, min_weight=min_weight, mode=mode)
-                W = sp.csr_matrix((sub.W.data, idx[sub.W.indices].astype(sub.W.indices.dtype), sub.W.indptr),
-                                  shape=(sub.W.shape[0], len(scene)))
-                op = ViewOperator(W, sub.camera, sub.image_shape, sub.rendering)
+                op = build_operator(scene, cam, roi=roi, min_weight=min_weight, mode=mode, subset=idx)
             else:
                 op = build_operator(scene, cam, roi=roi, min_weight=min_weight, mode=mode)
             seconds["operators"] += time.perf_counter() - ts
