@@ -76,6 +76,18 @@ def test_point_prompt(view):
         PointPrompt([p], [0]).to_mask(r.rgb)
 
 
+def test_point_prompt_keeps_only_the_clicked_lookalike():
+    # Two identical red squares on grey: GrabCut's colour model likes both,
+    # but a click on one must select that one only.
+    img = np.full((60, 90, 3), 0.5, np.float32)
+    img[20:40, 10:30] = img[20:40, 60:80] = (0.9, 0.1, 0.1)
+    m = PointPrompt([(20, 30)]).to_mask(img)
+    truth = np.zeros((60, 90), bool)
+    truth[20:40, 10:30] = True
+    assert not m[:, 45:].any()
+    assert iou(m, truth) > 0.9
+
+
 class _Grounder:
     def __init__(self, cands):
         self.cands = cands

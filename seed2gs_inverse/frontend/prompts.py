@@ -164,8 +164,10 @@ class PointPrompt:
     ``color_tol`` on the RGB canvas) or a depth jump (relative depth change
     above ``depth_tol`` between neighbours) form the probable object; the
     pixels reachable from negative clicks and transparent pixels are
-    background; GrabCut then refines the result. Discs of ``radius`` pixels
-    around the clicks are fixed to their label.
+    background; GrabCut then refines the result, and only its connected
+    regions that hold a positive click are kept (GrabCut's colour model would
+    otherwise also claim look-alike objects elsewhere in the view). Discs of
+    ``radius`` pixels around the clicks are fixed to their label.
     """
 
     points: Sequence[Sequence[float]]
@@ -235,6 +237,12 @@ class PointPrompt:
             disc = (xx - x) ** 2 + (yy - y) ** 2 <= self.radius ** 2
             init[disc] = cv2.GC_FGD if lab == 1 else cv2.GC_BGD
         mask = _grabcut(img, init, self.iterations)
+        # GrabCut's colour model also claims look-alikes elsewhere in the image
+        # (eight red chairs for a click on one): keep only the connected
+        # regions that hold a positive click.
+        _, comp = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+        keep = [comp[y, x] for (x, y), lab in zip(pts, labels) if lab == 1 and comp[y, x] > 0]
+        mask = np.isin(comp, keep)
         if not mask.any():
             raise ValidationError("point prompt selects nothing visible in the reference view")
         return mask
