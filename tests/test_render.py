@@ -218,3 +218,26 @@ def test_extreme_values_do_not_break_the_rasterizer():
         assert r.alpha.min() >= 0 and r.alpha.max() <= 1
         p = project_gaussians(scene, cam, mode)
         assert np.all(p.radii >= 0)
+
+
+@pytest.mark.parametrize("n", [0, 7, 70_000])
+def test_bin_tiles_equals_sequential_lists(n):
+    """Parallel chunked binning gives each tile its Gaussians in the given order."""
+    from seed2gs_inverse.operators import _raster
+
+    rng = np.random.default_rng(n)
+    tiles_x, tiles_y = 9, 5
+    x0 = rng.integers(0, tiles_x, n)
+    y0 = rng.integers(0, tiles_y, n)
+    rects = np.stack([x0, y0, np.minimum(x0 + rng.integers(0, 3, n), tiles_x),
+                      np.minimum(y0 + rng.integers(0, 3, n), tiles_y)], 1).astype(np.int32)
+    order = rng.permutation(n).astype(np.int64)
+    start, gauss = _raster.bin_tiles(order, rects, tiles_x, tiles_x * tiles_y)
+    lists = [[] for _ in range(tiles_x * tiles_y)]
+    for g in order:
+        for ty in range(rects[g, 1], rects[g, 3]):
+            for tx in range(rects[g, 0], rects[g, 2]):
+                lists[ty * tiles_x + tx].append(g)
+    assert start[0] == 0 and start[-1] == gauss.size
+    for t, lst in enumerate(lists):
+        np.testing.assert_array_equal(gauss[start[t]:start[t + 1]], lst)

@@ -5,8 +5,9 @@ Three stages, each a kernel over plain arrays:
 ``project``     per Gaussian (parallel): EWA projection, culling, conic,
                 3-sigma radius, tile rectangle, SH colour, effective opacity.
 ``bin_tiles``   Gaussians in (depth, index) order are appended to the list
-                of every tile their rectangle covers (counting sort, serial,
-                so each tile list stays in front-to-back order).
+                of every tile their rectangle covers (stable counting sort,
+                parallel over chunks of the order, so each tile list stays
+                in front-to-back order).
 ``composite``   per tile (parallel): front-to-back alpha compositing of the
                 tile's pixels; optionally writes the compositing weights
                 ``alpha_i(u) T_i(u)`` straight into CSR arrays.
@@ -258,29 +259,44 @@ def project(idx, means, quats, log_scales, opacity_logits, sh, rot, trans, cente
         rects[i, 3] = ry1
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def bin_tiles(order, rects, tiles_x, n_tiles):
-    """Tile lists by counting sort.
+    """Tile lists by a parallel counting sort.
 
     ``order`` lists the Gaussians to bin in front-to-back order. Returns
     ``tile_start`` (n_tiles+1,) int64 and ``tile_gauss`` (M,) int32 where tile
-    t owns ``tile_gauss[tile_start[t]:tile_start[t+1]]``, still in that order
-    (the scatter below is stable because it walks ``order`` sequentially).
+    t owns ``tile_gauss[tile_start[t]:tile_start[t+1]]``, still in that order:
+    ``order`` is cut into consecutive chunks, each chunk counts its entries
+    per tile, and chunk c writes after chunks 0..c-1 in every tile, walking
+    its part of ``order`` sequentially (so the scatter is stable).
     """
-    counts = np.zeros(n_tiles + 1, np.int64)
-    for g in order:
-        for ty in range(rects[g, 1], rects[g, 3]):
-            for tx in range(rects[g, 0], rects[g, 2]):
-                counts[ty * tiles_x + tx + 1] += 1
-    tile_start = np.cumsum(counts)
-    cursor = tile_start[:-1].copy()
-    tile_gauss = np.empty(tile_start[-1], np.int32)
-    for g in order:
-        for ty in range(rects[g, 1], rects[g, 3]):
-            for tx in range(rects[g, 0], rects[g, 2]):
-                t = ty * tiles_x + tx
-                tile_gauss[cursor[t]] = g
-                cursor[t] += 1
+    n = order.shape[0]
+    n_chunks = max(1, min(32, n // 16384))
+    counts = np.zeros((n_chunks, n_tiles), np.int64)
+    for c in prange(n_chunks):
+        for k in range(c * n // n_chunks, (c + 1) * n // n_chunks):
+            g = order[k]
+            for ty in range(rects[g, 1], rects[g, 3]):
+                for tx in range(rects[g, 0], rects[g, 2]):
+                    counts[c, ty * tiles_x + tx] += 1
+    tile_start = np.zeros(n_tiles + 1, np.int64)
+    for t in range(n_tiles):
+        tot = tile_start[t]
+        for c in range(n_chunks):
+            cnt = counts[c, t]
+            counts[c, t] = tot  # now chunk c's first slot in tile t
+            tot += cnt
+        tile_start[t + 1] = tot
+    tile_gauss = np.empty(tile_start[n_tiles], np.int32)
+    for c in prange(n_chunks):
+        cursor = counts[c]
+        for k in range(c * n // n_chunks, (c + 1) * n // n_chunks):
+            g = order[k]
+            for ty in range(rects[g, 1], rects[g, 3]):
+                for tx in range(rects[g, 0], rects[g, 2]):
+                    t = ty * tiles_x + tx
+                    tile_gauss[cursor[t]] = g
+                    cursor[t] += 1
     return tile_start, tile_gauss
 
 
