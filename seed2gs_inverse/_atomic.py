@@ -14,7 +14,7 @@ import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["atomic_path", "write_files"]
+__all__ = ["atomic_path", "write_files", "check_output_parent"]
 
 
 def _umask() -> int:
@@ -82,3 +82,18 @@ def write_files(items) -> None:
         for path, payload in items:
             tmp = stack.enter_context(atomic_path(path))
             tmp.write_bytes(payload)
+
+
+def check_output_parent(path, option: str) -> Path:
+    """Raise unless ``path``'s directory exists (call before expensive work).
+
+    Writers never create missing parent directories: a typo in a path should
+    fail at once, not after minutes of work or by leaving new directories.
+    """
+    from .errors import ValidationError
+
+    path = Path(path)
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise ValidationError(f"{option} {path}: the directory {parent} does not exist")
+    return path

@@ -100,6 +100,10 @@ def test_extract_bad_input_leaves_nothing(files, capsys, tmp_path):
            capsys, "no such file", out)
     _fails(["extract", scene, "--camera", cams, "--prompt", "red ball", "-o", out], capsys,
            "--box", out)
+    _fails(["extract", scene, "--camera", cams, "--mask", d / "mask.png", "--threshold", 1.5, "-o", out],
+           capsys, "threshold", out)
+    _fails(["extract", scene, "--camera", cams, "--box", 1, 1, 50, 50, "--negative", 3, 3, "-o", out],
+           capsys, "--point", out)
     # A mask on empty space (the sky) does not touch the scene.
     alpha = build_operator(files["syn"].scene, files["cam"]).rendering.alpha
     sky = tmp_path / "sky.png"

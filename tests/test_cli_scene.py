@@ -96,6 +96,8 @@ def test_errors_are_one_line_and_leave_no_output(tmp_path, rng, capsys):
     write_scene(good, random_scene(rng, n=3))
     code, _, err = run(["convert", good, tmp_path / "out.spz"], capsys)
     assert code == 2 and "not supported" in err
+    code, _, err = run(["convert", good, tmp_path / "nodir" / "out.ply"], capsys)
+    assert code == 2 and "does not exist" in err and ".tmp" not in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.ply", "good.ply"]
     with pytest.raises(FormatError):
         cli.main(["--debug", "info", str(bad)])

@@ -147,7 +147,8 @@ def test_cli_errors_are_one_line_and_leave_nothing(run_cli, scene_files, tmp_pat
     capsys.readouterr()
     assert run_cli("operators", "build", d / "scene.ply", "--cameras", d / "cameras.json", "-o", ops,
                    "--scale", "0.5", "--no-progress") == 2
-    assert "--overwrite" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "--force" in err and err.startswith("seed2gs operators build: error:")
     assert run_cli("operators", "build", d / "scene.ply", "--cameras", d / "cameras.json", "-o", ops,
                    "--scale", "0.5", "--no-progress", "--overwrite") == 0
     masks = tmp_path / "masks"
@@ -163,6 +164,9 @@ def test_cli_errors_are_one_line_and_leave_nothing(run_cli, scene_files, tmp_pat
     assert "view 4" in capsys.readouterr().err
     np.save(masks / "view_004.npy", np.zeros((15, 20), np.float32))
     assert run_cli("solve", ops, masks, "--method", "nope", "-o", tmp_path / "q.npy") == 2
+    capsys.readouterr()
+    assert run_cli("solve", ops, masks, "-o", tmp_path / "missing" / "q.npy") == 2
+    assert "does not exist" in capsys.readouterr().err and not (tmp_path / "missing").exists()
     assert run_cli("solve", ops, masks, "-o", tmp_path / "q.npy", "--option", "r_min=7") == 2
     assert "r_min" in capsys.readouterr().err
     (masks / "view_002.npy").write_bytes(b"garbage")

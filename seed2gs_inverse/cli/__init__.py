@@ -50,7 +50,9 @@ def main(argv=None) -> int:
         msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         if isinstance(exc, FileNotFoundError) and exc.filename:
             msg = f"no such file: {exc.filename}"
-        print(f"seed2gs {args.command}: error: {msg}", file=sys.stderr)
+        sub = getattr(args, f"{args.command}_command", None)  # e.g. "operators build"
+        where = f"{args.command} {sub}" if isinstance(sub, str) else args.command
+        print(f"seed2gs {where}: error: {msg}", file=sys.stderr)
         return 2
 
 

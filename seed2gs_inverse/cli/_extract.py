@@ -21,7 +21,7 @@ def register(subparsers) -> None:
         description="Extract the object a prompt points at in the view of one camera. Writes "
                     "object.ply, remainder.ply, q.npy, report.json and report.png into OUTDIR.")
     p.add_argument("scene", help="scene file (.ply, .splat, .spz, .compressed.ply)")
-    p.add_argument("--camera", required=True, metavar="FILE[:INDEX]",
+    p.add_argument("--camera", required=True, metavar="FILE[:NAME|INDEX]",
                    help="reference camera: cameras.json / COLMAP / transforms.json, with :NAME or :INDEX")
     g = p.add_mutually_exclusive_group(required=True)
     g.add_argument("--mask", metavar="PNG", help="seed mask image at the camera's resolution (non-zero = object)")
@@ -49,6 +49,8 @@ def register(subparsers) -> None:
 def _prompt_from_args(args):
     from ..frontend.prompts import TEXT_NEEDS_GROUNDER, BoxPrompt, MaskPrompt, PointPrompt, TextPrompt
 
+    if args.negative and args.point is None:
+        raise ValidationError("--negative clicks need at least one --point")
     if args.mask is not None:
         if not os.path.isfile(args.mask):
             raise FileNotFoundError(2, "No such file", args.mask)
@@ -58,8 +60,6 @@ def _prompt_from_args(args):
     if args.point is not None:
         pts = list(args.point) + list(args.negative)
         return PointPrompt(pts, [1] * len(args.point) + [0] * len(args.negative))
-    if args.negative:
-        raise ValidationError("--negative clicks need at least one --point")
     if not args.prompt.strip():
         raise ValidationError("--prompt is empty")
     if args.models is None and not os.environ.get("SEED2GS_MODELS"):
@@ -118,6 +118,10 @@ def run(args) -> int:
         raise ValidationError(f"cannot create {out}: parent directory {out.resolve().parent} does not exist")
     if args.views < 2:
         raise ValidationError(f"--views must be >= 2, got {args.views}")
+    if args.threshold is not None and not 0.0 <= args.threshold < 1.0:
+        raise ValidationError(f"--threshold must be in [0, 1), got {args.threshold}")
+    if not args.orbit_scale > 0:
+        raise ValidationError(f"--orbit-scale must be positive, got {args.orbit_scale}")
     from ..solvers import available_methods
 
     if args.method not in available_methods():
@@ -143,6 +147,7 @@ def run(args) -> int:
     print(f"extracted {int(ex.selected.sum())} of {len(scene)} Gaussians -> {out}/object.{args.format} "
           f"({len(ex.views)} views, {ex.total_seconds:.1f} s: "
           + ", ".join(f"{k} {v:.2f}" for k, v in s.items()) + ")")
-    if models is None:
-        print("note: no models configured; used the model-free front end", file=sys.stderr)
+    if models is None:  # with models, SAM2 would have tracked even a mask/box/point seed
+        print("note: no models configured; the seed was tracked by the model-free tracker",
+              file=sys.stderr)
     return 0

@@ -29,7 +29,8 @@ def register(subparsers) -> None:
     b.add_argument("--scale", type=float, default=1.0, help="resolution factor (default 1.0)")
     b.add_argument("--min-weight", type=float, default=0.0,
                    help="drop weights below this (default 0: keep all)")
-    b.add_argument("--overwrite", action="store_true", help="replace an existing operator directory")
+    b.add_argument("--force", "--overwrite", dest="overwrite", action="store_true",
+                   help="replace an existing operator directory")
     b.add_argument("--no-progress", action="store_true", help="no progress bar")
     b.set_defaults(func=build)
 

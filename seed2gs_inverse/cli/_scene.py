@@ -98,10 +98,12 @@ def info(args) -> int:
 
 
 def convert(args) -> int:
+    from .._atomic import check_output_parent
     from ..io import read_scene, write_scene
     from ..io.formats import output_format
 
     fmt = output_format(args.output)  # fail before reading a large input
+    check_output_parent(args.output, "OUT")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         scene = read_scene(args.input, drop_nonfinite=args.drop_nonfinite)

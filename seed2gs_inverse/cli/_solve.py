@@ -121,10 +121,10 @@ def solve_command(args) -> int:
     from ..operators.operator import OperatorStack
     from ..solvers import solve
     from ..solvers._common import get_method
-    from .._atomic import write_files
+    from .._atomic import check_output_parent, write_files
 
     get_method(args.method)  # fail fast on a typo, before loading anything
-    out = Path(args.output)
+    out = check_output_parent(args.output, "-o")
     if out.suffix.lower() != ".npy":
         raise ValidationError(f"-o {out}: the output must be a .npy file")
     stack = OperatorStack.load(args.operators, mmap=True)
@@ -142,8 +142,10 @@ def solve_command(args) -> int:
 def compare_command(args) -> int:
     from ..compare import compare
     from ..operators.operator import OperatorStack
-    from .._atomic import write_files
+    from .._atomic import check_output_parent, write_files
 
+    if args.output:
+        check_output_parent(args.output, "-o")  # DIR itself is created at the end
     stack = OperatorStack.load(args.operators, mmap=True)
     masks = read_masks(args.masks, len(stack))
     truth = _load_npy(Path(args.truth))
@@ -157,7 +159,7 @@ def compare_command(args) -> int:
     print(result.format())
     if args.output:
         d = Path(args.output)
-        d.mkdir(parents=True, exist_ok=True)
+        d.mkdir(exist_ok=True)
         png = io.BytesIO()
         result.plot(png)
         write_files([(d / "comparison.csv", result.to_csv().encode()),

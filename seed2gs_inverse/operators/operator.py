@@ -326,7 +326,6 @@ class OperatorStack:
         Path of the directory.
         """
         target = self.check_target(directory, overwrite)
-        target.parent.mkdir(parents=True, exist_ok=True)
         with atomic_path(target, directory=True) as tmp:
             views = []
             for i, v in enumerate(self.views):
@@ -373,7 +372,9 @@ class OperatorStack:
                                           "choose another output directory")
                 if not overwrite:
                     raise ValidationError(f"{target}: an operator directory already exists; "
-                                          "pass overwrite=True (CLI: --overwrite) to replace it")
+                                          "replace it with overwrite=True (seed2gs operators build --force)")
+        elif not (target.parent if str(target.parent) else Path(".")).is_dir():
+            raise ValidationError(f"{target}: the parent directory {target.parent} does not exist")
         return target
 
     @classmethod
