@@ -66,7 +66,7 @@ def membership_plot(scene: GaussianScene, q=None, mode: str = "points", threshol
                     screenshot=None, off_screen: bool | None = None, camera=None,
                     max_glyphs: int = 20000, glyph_sigma: float = 1.0, point_size: float = 3.0,
                     cmap: str = "viridis", window_size=None, min_opacity: float = 0.0,
-                    background="white", scalar_bar: bool = True, seed: int = 0):
+                    background="white", scalar_bar: bool = True, seed: int = 0, up=None):
     """Show Gaussians coloured by membership.
 
     Parameters
@@ -95,6 +95,9 @@ def membership_plot(scene: GaussianScene, q=None, mode: str = "points", threshol
         size defaults to its image size, where points land on the pixels
         ``camera.project`` gives. (``fx != fy`` is not represented: VTK
         pixels are square.)
+    up : (3,) array, optional
+        Without a camera: the world direction to show upwards (e.g. ``-y``
+        for COLMAP-like scenes); default: VTK's isometric view with +z up.
     max_glyphs : int
         Cap on ellipsoids.
     glyph_sigma, point_size, cmap, window_size, background, scalar_bar
@@ -187,6 +190,16 @@ def membership_plot(scene: GaussianScene, q=None, mode: str = "points", threshol
         pl.reset_camera_clipping_range()
     elif idx.size:
         pl.view_isometric()
+        if up is not None:
+            # Oblique view from above along the scene's own "up" (VTK assumes +z).
+            u = np.asarray(up, dtype=np.float64)
+            u = u / np.linalg.norm(u)
+            side = np.cross(u, [1.0, 0.0, 0.0] if abs(u[0]) < 0.9 else [0.0, 1.0, 0.0])
+            side /= np.linalg.norm(side)
+            focal = np.asarray(pl.camera.focal_point)
+            pl.camera.position = tuple(focal + pl.camera.distance * (0.8 * side + 0.6 * u))
+            pl.camera.up = tuple(u)
+            pl.reset_camera()
     if screenshot is None:
         return pl
     try:

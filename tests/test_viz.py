@@ -207,3 +207,16 @@ def test_cli_view_reads_a_real_file(offscreen, rng, tmp_path):
         warnings.simplefilter("error")
         assert args.func(args) == 0
     assert out.stat().st_size > 0
+
+
+def test_up_direction_without_camera(offscreen, rng, tmp_path):
+    # A red cloud "above" a blue one along world -y: with up = -y the red
+    # cloud must be drawn higher in the image than the blue one.
+    scene = GaussianScene.concat([_cloud(rng, center=(0.0, -1.0, 0.0)),
+                                  _cloud(rng, center=(0.0, 1.0, 0.0), rgb=(0.1, 0.1, 0.9))])
+    img = membership_plot(scene, screenshot=tmp_path / "up.png", up=(0.0, -1.0, 0.0),
+                          window_size=(W, H), point_size=4, scalar_bar=False).astype(int)
+    red = (img[:, :, 0] > 150) & (img[:, :, 2] < 100)
+    blue = (img[:, :, 2] > 150) & (img[:, :, 0] < 100)
+    assert red.any() and blue.any()
+    assert np.nonzero(red)[0].mean() < np.nonzero(blue)[0].mean()

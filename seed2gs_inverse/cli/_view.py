@@ -34,6 +34,8 @@ def register(subparsers) -> None:
                    "(3DGS cameras.json, COLMAP, nerfstudio transforms.json)")
     p.add_argument("--view", default=None, metavar="NAME|INDEX",
                    help="which camera of --camera (default: the first)")
+    p.add_argument("--up", nargs=3, type=float, default=None, metavar=("X", "Y", "Z"),
+                   help="without --camera: world direction shown upwards (COLMAP-like scenes: 0 -1 0)")
     p.add_argument("--size", default=None, metavar="WxH",
                    help="window/screenshot size (default: the camera's, else 1024x768)")
     p.add_argument("--screenshot", metavar="OUT.png", help="write a PNG instead of opening a window")
@@ -113,7 +115,9 @@ def run(args) -> int:
     q = None if args.membership is None else _load_membership(args.membership, len(scene))
     camera = None if args.camera is None else _pick_camera(_read_cameras(args.camera), args.view)
     kw = dict(mode=args.mode, threshold=args.threshold, camera=camera, max_glyphs=args.max_glyphs,
-              point_size=args.point_size, min_opacity=args.min_opacity, window_size=size)
+              point_size=args.point_size, min_opacity=args.min_opacity, window_size=size, up=args.up)
+    if args.up is not None and not np.any(args.up):
+        raise ValidationError("--up must be a non-zero direction")
     if args.screenshot is None:
         membership_plot(scene, q, off_screen=False, **kw).show()
         return 0
