@@ -92,7 +92,8 @@ class Comparison:
         widths = [max(len(line[i]) for line in lines) for i in range(len(head))]
         out = ["  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(line, widths)))
                for line in lines]
-        where = f"{len(self.holdout)} held-out views" if self.holdout else "the fitting views (none held out)"
+        k = len(self.holdout)
+        where = f"{k} held-out view{'s' if k != 1 else ''}" if self.holdout else "the fitting views (none held out)"
         return "\n".join(out) + f"\n2D scores on {where}."
 
     def to_csv(self) -> str:

@@ -334,3 +334,11 @@ def test_shared_firepit_cameras(shared_data):
     overview = read_camera(f"{path}:overview")
     # "up" in these COLMAP-like scenes is roughly -y: the overview camera's image-up agrees
     assert overview.up[1] < -0.5
+
+
+def test_directory_without_cameras_says_what_it_is(tmp_path):
+    with pytest.raises(FormatError, match="no COLMAP model"):
+        read_cameras(tmp_path)
+    (tmp_path / "manifest.json").write_text("{}")
+    with pytest.raises(FormatError, match="operators info"):
+        read_cameras(tmp_path)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import io
 import json
 import re
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -130,6 +131,8 @@ def solve_command(args) -> int:
     stack = OperatorStack.load(args.operators, mmap=True)
     masks = read_masks(args.masks, len(stack))
     init = _load_npy(Path(args.init)) if args.init else None
+    print(f"solving {len(stack)} views, {stack.n_gaussians:,} Gaussians with {args.method} ...",
+          file=sys.stderr, flush=True)
     result = solve(stack, masks, method=args.method, init=init, **_parse_options(args.option))
     write_files([(out, _npy_bytes(result.q))])
     sel = result.selected()
@@ -155,6 +158,8 @@ def compare_command(args) -> int:
         else:
             raise ValidationError(f"{args.truth}: truth labels must be bool (or 0/1 integers), got {truth.dtype}")
     methods = [m.strip() for m in args.methods.split(",") if m.strip()] if args.methods else None
+    print(f"comparing {', '.join(methods) if methods else 'every method'} on {len(stack)} views ...",
+          file=sys.stderr, flush=True)
     result = compare(stack, masks, truth, methods=methods, holdout_every=args.holdout_every)
     print(result.format())
     if args.output:

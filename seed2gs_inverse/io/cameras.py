@@ -338,6 +338,8 @@ def _read_colmap_dir(d: Path) -> list:
         for ext in (".bin", ".txt"):
             if (sub / f"cameras{ext}").is_file() and (sub / f"images{ext}").is_file():
                 return _read_colmap(sub, ext)
+    if (d / "manifest.json").is_file():
+        raise fail(d, "this is a saved operator directory, not cameras; use 'seed2gs operators info'")
     raise fail(d, "directory holds no COLMAP model (cameras + images, .bin or .txt, "
                   "also looked in sparse/0 and sparse)")
 
