@@ -30,16 +30,17 @@ def has_display() -> bool:
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
-def _check_q(q, n: int) -> np.ndarray:
+def _check_q(q, n: int, name: str = "membership q") -> np.ndarray:
+    """``q`` as float64 (n,) in [0, 1], or a ValidationError naming ``name``."""
     arr = np.asarray(q)
     if arr.ndim != 1 or arr.shape[0] != n:
-        raise ValidationError(f"membership q has shape {arr.shape}; the scene has {n} Gaussians, "
-                              f"so q must have shape ({n},)")
+        raise ValidationError(f"{name} has shape {arr.shape}; the scene has {n} Gaussians, "
+                              f"so it must have shape ({n},)")
     if arr.dtype.kind not in "biuf":
-        raise ValidationError(f"membership q has dtype {arr.dtype}; expected numbers")
+        raise ValidationError(f"{name} has dtype {arr.dtype}; expected numbers")
     arr = arr.astype(np.float64)
     if not np.all(np.isfinite(arr)) or arr.min() < 0 or arr.max() > 1:
-        raise ValidationError("membership q must hold finite values in [0, 1]")
+        raise ValidationError(f"{name}: values must be finite and in [0, 1]")
     return arr
 
 

@@ -61,15 +61,9 @@ def _load_membership(path, n: int) -> np.ndarray:
         raise ValidationError(f"--membership {path}: not a plain .npy array ({exc})") from None
     if not isinstance(q, np.ndarray):
         raise ValidationError(f"--membership {path}: expected a .npy array, got an archive")
-    if q.ndim != 1 or q.shape[0] != n:
-        raise ValidationError(f"--membership {path} has shape {q.shape}; the scene has {n} Gaussians, "
-                              f"so it must have shape ({n},)")
-    if q.dtype.kind not in "biuf":
-        raise ValidationError(f"--membership {path} has dtype {q.dtype}; expected numbers")
-    q = q.astype(np.float64)
-    if not np.all(np.isfinite(q)) or q.min() < 0 or q.max() > 1:
-        raise ValidationError(f"--membership {path}: values must be finite and in [0, 1]")
-    return q
+    from ..viz import _check_q
+
+    return _check_q(q, n, f"--membership {path}")
 
 
 def _pick_camera(cams, which):
