@@ -403,13 +403,16 @@ def test_bce_pixel_kernel_matches_numpy_formula(rng, normalize, dtype):
 
 
 def test_lbfgs_finds_known_minimisers():
+    from collections import deque
+
     from seed2gs_inverse.solvers.weighted_bce import _lbfgs
 
     # convex quadratic 0.5 x^T H x - b^T x: the minimiser solves H x = b
     r = np.random.default_rng(3)
     M = r.normal(size=(30, 30))
     H, b = M @ M.T + 0.5 * np.eye(30), r.normal(size=30)
-    x, f, nit, status, _ = _lbfgs(lambda x: (0.5 * x @ H @ x - b @ x, H @ x - b), np.zeros(30), 500, 0.0, 1e-10, 5)
+    x, f, nit, status, _ = _lbfgs(lambda x: (0.5 * x @ H @ x - b @ x, H @ x - b), np.zeros(30), 500, 0.0, 1e-10,
+                                  deque(maxlen=5))
     # f-based line searches resolve x to about sqrt(machine eps) relative to the loss scale
     np.testing.assert_allclose(x, np.linalg.solve(H, b), rtol=0, atol=1e-6)
     assert status == 0 and 0 < nit < 500 and np.abs(H @ x - b).max() < 1e-6
@@ -419,11 +422,11 @@ def test_lbfgs_finds_known_minimisers():
         a, c = v
         return (1 - a) ** 2 + 100 * (c - a * a) ** 2, np.array([-2 * (1 - a) - 400 * a * (c - a * a),
                                                                  200 * (c - a * a)])
-    x, f, nit, status, _ = _lbfgs(rosen, np.array([-1.2, 1.0]), 500, 0.0, 1e-8, 5)
+    x, f, nit, status, _ = _lbfgs(rosen, np.array([-1.2, 1.0]), 500, 0.0, 1e-8, deque(maxlen=5))
     np.testing.assert_allclose(x, [1.0, 1.0], atol=1e-6)
     assert status == 0 and f < 1e-12
     # the iteration budget is honoured
-    assert _lbfgs(rosen, np.array([-1.2, 1.0]), 3, 0.0, 1e-8, 5)[2:4] == (3, 1)
+    assert _lbfgs(rosen, np.array([-1.2, 1.0]), 3, 0.0, 1e-8, deque(maxlen=5))[2:4] == (3, 1)
 
 
 def _faint_problem(rng, faint_views):

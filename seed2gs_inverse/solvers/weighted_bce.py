@@ -25,17 +25,18 @@ constant to the loss and inflate the view residuals without any gradient.
 On the solver tests' scenes (masks ``W t > 0.5``) the literal form recovers
 held-out masks better (mIoU 0.994-1.0 vs 0.989-0.992).
 
-Gradient (chain rule through the clip, float64 elementwise):
+Gradient (chain rule through the clip; per-pixel work in float64):
 
     dL/dPhat_u = omega_c s_u / Z * (p_u - Y_u) / (p_u (1 - p_u))   (0 where clipped)
     dL/dl = q (1 - q) * A^T g,   g_u = dL/dPhat_u / alpha_u (normalize) or dL/dPhat_u,
 
-one pass of ``A`` and one of ``A^T`` per evaluation.
+one pass of ``A`` and one of ``A^T`` per evaluation (scipy) with the
+per-pixel work between them fused in one Numba loop.
 
 View weights (Eq. 6). ``D_c`` is the running residual of view ``c``, the
 weighted mean BCE of its pixels at the current ``q`` (exponential moving
 average with ``momentum``, re-evaluated after every ``inner_iters``
-L-BFGS-B iterations). With ``m_D = median(D)`` and the robust scale
+L-BFGS iterations). With ``m_D = median(D)`` and the robust scale
 ``s_D = 1.4826 * median(|D - m_D|)``, floored at ``1e-3 m_D + 1e-9`` so a
 tie of most views does not divide by zero,
 
@@ -49,10 +50,15 @@ chosen on the firepit + unicorn benchmark with 25% identity-switched views:
 held-out mIoU 0.996 and visibility-weighted 3D IoU 0.908, against 0.980 and
 0.710 with a floor of 0.2 (voting: 0.956 / 0.873).
 
-Optimisation: ``scipy.optimize.minimize(method="L-BFGS-B", jac=True)`` over
-the logits of observed Gaussians only, in an outer loop that refreshes the
+Optimisation: L-BFGS (unconstrained: the logits need no bounds) with an
+Armijo backtracking line search over the logits of the Gaussians with
+evidence only (weight on at least one usable pixel; the others keep the
+prior and are reported unobserved), in an outer loop that refreshes the
 weights; it stops when an inner run converges and the weights moved less
-than ``weight_tol``, or after ``max_iter`` L-BFGS-B iterations in total.
+than ``weight_tol``, or after ``max_iter`` L-BFGS iterations in total.
+scipy's L-BFGS-B did the same job but its update cost 40-120 ms per call
+at 476k logits (firepit benchmark), more than the two sparse passes of a
+function evaluation; the numpy two-loop recursion costs a few ms.
 The start is the prior ``q0`` from ``init`` or, without ``init``, the
 closed-form vote (``start="vote"``, one extra transposed pass; it gives
 Gaussians with little evidence the vote's side instead of a coin flip at
@@ -63,6 +69,7 @@ gradients.
 
 from __future__ import annotations
 
+from collections import deque
 from contextlib import nullcontext
 
 import numpy as np
@@ -174,17 +181,21 @@ class BCEObjective:
         return float(np.dot(w, bce)), q * (1.0 - q) * gq
 
 
-def _lbfgs(fun, x, max_iter: int, ftol: float, gtol: float, maxcor: int) -> tuple:
+def _lbfgs(fun, x, max_iter: int, ftol: float, gtol: float, memory: deque) -> tuple:
     """Unconstrained L-BFGS with an Armijo backtracking line search.
 
-    ``fun(x) -> (f, g)``. Two-loop recursion over the last ``maxcor`` pairs
-    ``(s, y)`` with the initial scaling ``s.y / y.y`` (Nocedal & Wright,
-    Alg. 7.4); steps start at 1 (at ``1 / ||g||`` without memory) and shrink
-    by safeguarded quadratic interpolation until ``f(x + t d) <= f + 1e-4 t g.d``.
-    Pairs with ``s.y <= 1e-10 y.y`` are not stored. Stops like scipy's
-    L-BFGS-B: ``(f_k - f_{k+1}) / max(|f_k|, |f_{k+1}|, 1) <= ftol`` or
-    ``max |g| <= gtol`` (status 0), ``max_iter`` iterations (status 1), or a
-    failed line search (status 2).
+    ``fun(x) -> (f, g)``. Two-loop recursion over the pairs ``(s, y, 1/s.y)``
+    in ``memory`` (a ``deque`` whose ``maxlen`` is the L-BFGS memory; updated
+    in place, so a later call continues with the same curvature estimate)
+    with the initial scaling ``s.y / y.y`` (Nocedal & Wright, Alg. 7.4).
+    Steps start at 1 (at ``1 / ||g||`` without memory) and shrink by
+    safeguarded quadratic interpolation until
+    ``f(x + t d) <= f + 1e-4 t g.d``; pairs with ``s.y <= 1e-10 y.y`` are not
+    stored. Stops like scipy's L-BFGS-B: ``(f_k - f_{k+1}) / max(|f_k|,
+    |f_{k+1}|, 1) <= ftol`` after a quasi-Newton step (a first steepest-descent
+    step is too short to judge convergence by) or ``max |g| <= gtol``
+    (status 0), after ``max_iter`` iterations (status 1), or when the line
+    search fails (status 2).
 
     Returns
     -------
@@ -193,23 +204,24 @@ def _lbfgs(fun, x, max_iter: int, ftol: float, gtol: float, maxcor: int) -> tupl
     f, g = fun(x)
     if np.max(np.abs(g), initial=0.0) <= gtol:
         return x, f, 0, 0, "gradient below gtol"
-    S, Y, rho = [], [], []
     for nit in range(1, max_iter + 1):
-        d = -g
+        d = -g  # a fresh array, updated in place below
         alphas = []
-        for s, y, r in zip(reversed(S), reversed(Y), reversed(rho)):
+        for s, y, r in reversed(memory):
             a = r * np.dot(s, d)
-            _axpy(-a, y, d)  # d = -g is a fresh array
+            _axpy(-a, y, d)
             alphas.append(a)
-        if S:
-            d *= np.dot(S[-1], Y[-1]) / np.dot(Y[-1], Y[-1])
-        for s, y, r, a in zip(S, Y, rho, reversed(alphas)):
+        if memory:
+            s, y, r = memory[-1]
+            d *= 1.0 / (r * np.dot(y, y))
+        for (s, y, r), a in zip(memory, reversed(alphas)):
             _axpy(a - r * np.dot(y, d), s, d)
         gd = float(np.dot(g, d))
         if not gd < 0:  # not a descent direction (numerical trouble): restart from steepest descent
-            S, Y, rho = [], [], []
+            memory.clear()
             d, gd = -g, -float(np.dot(g, g))
-        t = 1.0 if S else min(1.0, 1.0 / np.sqrt(-gd))
+        quasi_newton = bool(memory)
+        t = 1.0 if quasi_newton else min(1.0, 1.0 / np.sqrt(-gd))
         for _ in range(30):
             xn = x + t * d
             fn, gn = fun(xn)
@@ -223,13 +235,9 @@ def _lbfgs(fun, x, max_iter: int, ftol: float, gtol: float, maxcor: int) -> tupl
         s, y = xn - x, gn - g
         sy, yy = float(np.dot(s, y)), float(np.dot(y, y))
         if sy > 1e-10 * yy:
-            S.append(s)
-            Y.append(y)
-            rho.append(1.0 / sy)
-            if len(S) > maxcor:
-                del S[0], Y[0], rho[0]
+            memory.append((s, y, 1.0 / sy))
         f_old, x, f, g = f, xn, fn, gn
-        if f_old - f <= ftol * max(abs(f_old), abs(f), 1.0):
+        if quasi_newton and f_old - f <= ftol * max(abs(f_old), abs(f), 1.0):
             return x, f, nit, 0, "relative reduction of the loss below ftol"
         if np.max(np.abs(g)) <= gtol:
             return x, f, nit, 0, "gradient below gtol"
@@ -271,20 +279,20 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
     eps : float, default 1e-4
         Probability clip of the BCE.
     max_iter : int, default 200
-        Total L-BFGS-B iterations.
+        Total L-BFGS iterations.
     inner_iters : int, default 20
-        L-BFGS-B iterations between view-weight updates.
+        L-BFGS iterations between view-weight updates.
     weight_tol : float, default 1e-3
         Stop when the weights change less than this (max abs) and the inner
         run converged.
     ftol, gtol : float
-        L-BFGS-B tolerances (the loss is a per-pixel mean, O(1)).
+        L-BFGS tolerances, as in scipy's L-BFGS-B: stop when the relative
+        loss decrease is at most ``ftol`` or ``max |dL/dl| <= gtol`` (the
+        loss is a per-pixel mean, O(1)).
     init_clip : float, default 0.1
         The starting ``q`` is the prior clipped to ``[init_clip, 1 - init_clip]``.
     maxcor : int, default 5
-        L-BFGS-B memory. scipy's L-BFGS-B update costs O(maxcor N) per
-        call, comparable to the sparse passes at N ~ 600k; 5 instead of 10
-        ran about 20% faster with the same result on the firepit benchmark.
+        L-BFGS memory (pairs kept); the update costs O(maxcor N).
     start : {"vote", "half"}, default "vote"
         Starting point when no ``init`` is given.
 
@@ -345,6 +353,9 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
     D = obj.residuals(q_of(x))
     omega = weights_of(D)
     history, total, message = [], 0, ""
+    # The curvature pairs carry over between outer steps: a reweighting changes the loss only
+    # mildly, and a fresh memory would restart each step with a short steepest-descent step.
+    memory = deque(maxlen=maxcor)
     # BLAS on long vectors beside Numba's threads: one BLAS thread is far faster (see _blas_single_thread)
     with _blas_single_thread():
         for _ in range(max_iter):  # outer steps; each runs >= 1 iteration unless already optimal
@@ -357,7 +368,7 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
                 nfev[0] += 1
                 return obj.loss_grad_logits(logits, omega, rows)
 
-            x, f, nit, status, message = _lbfgs(fun, x, n_inner, ftol, gtol, maxcor)
+            x, f, nit, status, message = _lbfgs(fun, x, n_inner, ftol, gtol, memory)
             total += nit
             D = momentum * D + (1.0 - momentum) * obj.residuals(q_of(x))
             new_omega = weights_of(D)
