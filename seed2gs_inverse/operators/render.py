@@ -58,6 +58,7 @@ and tiles); outputs are float32.
 
 from __future__ import annotations
 
+import mmap
 import time
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -258,11 +259,26 @@ def _depth_order(depths, idx):
 
 
 # Room for the first compositing pass to log W's entries, per tile-Gaussian
-# pair of the tile (the real-scene orbit views keep ~3 weights per pair), and
-# at most this many entries in all (10 bytes each; pages never written cost
-# nothing). Tiles that run out of room take the second compositing pass.
-_SCRATCH_PER_PAIR = 8
-_SCRATCH_MAX = 1 << 25
+# pair of the tile (the real-scene orbit views keep ~3 weights per pair on
+# average, but up to 256 in tiles of big splats), and at most this many
+# entries in all (10 bytes each). The scratch is lazily committed memory
+# (see _lazy_empty), so room never written costs nothing. Tiles that run
+# out of room take the second compositing pass.
+_SCRATCH_PER_PAIR = 32
+_SCRATCH_MAX = 1 << 26
+
+
+def _lazy_empty(n, dtype):
+    """Uninitialised (n,) array whose pages are committed only when written.
+
+    An anonymous mmap: unlike a large numpy allocation (which asks for
+    transparent huge pages, so writing one byte zeroes 2 MB), untouched
+    parts of the generous per-tile scratch cost neither time nor memory.
+    """
+    dtype = np.dtype(dtype)
+    if n == 0:
+        return np.empty(0, dtype)
+    return np.frombuffer(mmap.mmap(-1, n * dtype.itemsize), dtype=dtype, count=n)
 
 
 def _tile_box(roi_mask):
@@ -344,9 +360,9 @@ def _rasterize(scene, camera, background, mode, roi, min_weight, build_w, stats=
     else:
         scr_start = np.zeros(n_tiles + 1, np.int64)
     n_scr = int(scr_start[-1])
-    scr_pix = np.empty(n_scr, np.int16)
-    scr_gi = np.empty(n_scr, np.int32)
-    scr_w = np.empty(n_scr, np.float32)
+    scr_pix = _lazy_empty(n_scr, np.int16)
+    scr_gi = _lazy_empty(n_scr, np.int32)
+    scr_w = _lazy_empty(n_scr, np.float32)
     dummy_ptr = np.zeros(1, np.int64)
     args = (tile_start, tile_gauss, tile_order, means2d, conics, opac, support, colors, depths,
             w, h, roi_mask, bg, float(min_weight))
