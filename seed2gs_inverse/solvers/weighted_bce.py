@@ -231,6 +231,7 @@ def _lbfgs(fun, x, max_iter: int, ftol: float, gtol: float, memory: deque) -> tu
             tq = -gd * t * t / (2.0 * (fn - f - gd * t)) if np.isfinite(fn) else 0.1 * t
             t = min(max(tq, 0.1 * t), 0.5 * t)
         else:
+            memory.clear()  # the pairs gave no descent: the next call starts afresh
             return x, f, nit - 1, 2, "line search failed to decrease the loss"
         s, y = xn - x, gn - g
         sy, yy = float(np.dot(s, y)), float(np.dot(y, y))
