@@ -11,7 +11,7 @@ Reports, each with a baseline measured in the same run on the same stack:
 * cost: one sparse pass ``A q`` and one transposed pass ``A^T r`` over the
   stacked operator (best of 5); ``voting`` against one transposed pass;
   ``weighted_bce`` and ``least_squares`` seconds per iteration (and per
-  function evaluation) against two passes; ``beta_bernoulli`` total time.
+  function evaluation) against two passes (load averages printed beside); ``beta_bernoulli`` total time.
 * accuracy: for clean masks and every noise model of ``perturb_masks``
   (identity switches jump to a group of background Gaussians next to the
   unicorn), every method side by side: held-out 2D mIoU / mBIoU (every 4th
@@ -51,6 +51,14 @@ def _best(fn, repeat=5):
         out = fn()
         times.append(time.perf_counter() - t0)
     return min(times), out
+
+
+def _load() -> str:
+    """The 1/5/15-minute load averages: timings on a shared machine need them beside."""
+    try:
+        return "load average " + ", ".join(f"{x:.2f}" for x in os.getloadavg())
+    except (AttributeError, OSError):
+        return "load average unknown"
 
 
 def _orbit(center, radius, n_views, width, height, fov=50.0):
@@ -127,6 +135,7 @@ def bench_cost(stack: OperatorStack, masks):
             ratio = f"{total / two:.1f} x two passes total"
         print(f"{m:>15} {total:>8.3f} {res.iterations:>6} {fev:>7} {1e3 * total / it:>8.1f} "
               f"{1e3 * total / max(fev, 1):>9.1f} {ratio:>22}")
+    print(f"  ({_load()} after the per-iteration timings; the machine may be shared)")
     budget = min(8, len(stack))
     t0 = time.perf_counter()
     res = solve(stack, masks, method="beta_bernoulli", order="eig", budget=budget)
@@ -166,7 +175,7 @@ def main():
     ap.add_argument("--cost-only", action="store_true", help="skip the accuracy part")
     args = ap.parse_args()
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
-          f"NUMBA_NUM_THREADS={os.environ.get('NUMBA_NUM_THREADS', 'unset')}")
+          f"NUMBA_NUM_THREADS={os.environ.get('NUMBA_NUM_THREADS', 'unset')}, {_load()}")
     data = Path(args.data or os.environ.get("SEED2GS_DATA") or REPO.parent / "shared" / "data")
     if not args.synthetic and (data / "firepit_562k_sh0.ply").is_file() and (data / "unicorn_49k_sh3.ply").is_file():
         name, scene, truth, other, cams = composite_problem(data, args.views, args.width)

@@ -302,8 +302,11 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
     dict with ``q``, ``iterations``, ``view_weights`` (final omega; 0 for a
     view without usable pixels),
     ``history`` (one record per outer step: ``loss``, ``iterations``,
-    ``weights``, ``residuals``) and ``info`` (function evaluations,
-    convergence message).
+    ``weights``, ``residuals``), ``observed`` ((N,) bool, the Gaussians with
+    weight on a usable pixel; :func:`solve` gives the others the prior) and
+    ``info`` (function evaluations, convergence message). Without any usable
+    pixel (every known pixel has ``alpha < alpha_min``) nothing is fitted:
+    ``q`` is the prior and every view weight 0.
     """
     if not 0.0 <= r_min <= 1.0:
         raise ValidationError(f"weighted_bce: r_min must lie in [0, 1], got {r_min}")
