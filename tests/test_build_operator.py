@@ -252,3 +252,44 @@ def test_bad_subset(scene_and_camera):
                 np.array([0.5, 1.0])):
         with pytest.raises(ValidationError, match="subset"):
             build_operator(scene, cam, subset=bad)
+
+
+@pytest.mark.parametrize("sh_degree", [0, 2])
+def test_frozen_scene_gives_identical_results(sh_degree):
+    """Activations computed once per scene (frozen) or per call: same bits, and the brute-force W."""
+    import importlib
+
+    render_mod = importlib.import_module("seed2gs_inverse.operators.render")
+    cam = _camera(0)
+    scene = random_scene(40 + sh_degree, n=120, sh_degree=sh_degree, cam=cam)
+    idx = np.arange(0, len(scene), 2)
+    plain = [build_operator(scene, cam, roi=(2, 3, 45, 38)), build_operator(scene, cam, subset=idx),
+             build_operator(scene, _camera(1))]
+    plain_render = render(scene, cam, mode="antialiased")
+    plain_proj = project_gaussians(scene, cam)
+    with render_mod.frozen(scene):
+        with render_mod.frozen(scene):  # nesting is fine
+            fast = [build_operator(scene, cam, roi=(2, 3, 45, 38)), build_operator(scene, cam, subset=idx)]
+        assert id(scene) in render_mod._FROZEN
+        fast.append(build_operator(scene, _camera(1)))
+        fast_render = render(scene, cam, mode="antialiased")
+        fast_proj = project_gaussians(scene, cam)
+    assert id(scene) not in render_mod._FROZEN  # dropped with the outermost block
+    for a, b in zip(plain, fast):
+        _same_csr(a.W, b.W)
+        np.testing.assert_array_equal(a.rendering.rgb, b.rendering.rgb)
+    np.testing.assert_array_equal(plain_render.rgb, fast_render.rgb)
+    for a, b in zip(plain_proj, fast_proj):
+        np.testing.assert_array_equal(a, b)
+    _, _, _, W_ref = reference_render(scene, _camera(1))
+    np.testing.assert_allclose(fast[2].W.toarray(), W_ref, rtol=1e-6, atol=1e-8)
+    rgb_ref, _, _, _ = reference_render(scene, cam, "antialiased")
+    np.testing.assert_allclose(fast_render.rgb, rgb_ref, atol=1e-5)
+    # another scene object with the same arrays is not frozen by this block
+    with render_mod.frozen(scene):
+        other = scene.copy()
+        other.opacity_logits[:] = -10.0
+        assert build_operator(other, cam).W.nnz == 0
+    with pytest.raises(ValidationError, match="GaussianScene"):
+        with render_mod.frozen("scene.ply"):
+            pass

@@ -1,16 +1,25 @@
 """Numba kernels of the tile rasterizer (private; use :mod:`.render`).
 
-Three stages, each a kernel over plain arrays:
+Three stages, each a kernel over plain arrays, plus the CSR assembly:
 
-``project``     per Gaussian (parallel): EWA projection, culling, conic,
-                3-sigma radius, tile rectangle, SH colour, effective opacity.
+``project``     per Gaussian of an index list (parallel; a subset needs no
+                copy of the scene): EWA projection, culling, conic, 3-sigma
+                radius, tile rectangle (clipped to the roi's tiles), SH
+                colour, effective opacity.
 ``bin_tiles``   Gaussians in (depth, index) order are appended to the list
                 of every tile their rectangle covers (stable counting sort,
                 parallel over chunks of the order, so each tile list stays
                 in front-to-back order).
 ``composite``   per tile (parallel): front-to-back alpha compositing of the
-                tile's pixels; optionally writes the compositing weights
-                ``alpha_i(u) T_i(u)`` straight into CSR arrays.
+                tile's pixels; logs the compositing weights
+                ``alpha_i(u) T_i(u)`` per tile in a scratch, or (second
+                pass, for tiles whose scratch ran out) writes them straight
+                into CSR arrays.
+``scatter``     per tile (parallel): copies a tile's logged weights into the
+                CSR rows sized by the first pass.
+
+``cone_cull`` (parallel) picks the Gaussians that can reach a view cone, for
+the orbit views of :func:`seed2gs_inverse.pipeline.extract`.
 
 All arithmetic is float64; the public wrapper converts outputs to float32.
 See :mod:`seed2gs_inverse.operators.render` for the exact semantics.
@@ -74,14 +83,56 @@ def _clamp_floor(v, hi):
 
 
 @njit(cache=True, parallel=True)
-def project(idx, means, quats, log_scales, opacity_logits, sh, rot, trans, center,
+def activate(idx, quats, log_scales, opacity_logits, sh, mfac, opac, col0):
+    """View-independent quantities of the Gaussians ``idx`` (parallel).
+
+    Row ``i`` of the outputs belongs to Gaussian ``idx[i]``: ``mfac`` (M, 9)
+    the covariance factor ``M = R(q/|q|) diag(exp(log_scales))`` row-major
+    (``Sigma = M M^T``), ``opac`` (M,) the sigmoid of the logit, and for SH
+    degree 0 (``col0`` of M rows; pass 0 rows otherwise) the colour
+    ``max(C0 sh_0 + 0.5, 0)``, which then needs no view direction.
+    """
+    for i in prange(idx.shape[0]):
+        g = idx[i]
+        opac[i] = 1.0 / (1.0 + math.exp(-np.float64(opacity_logits[g])))
+        if col0.shape[0] > 0:
+            # The basis sum of ``project`` for k = 1, same arithmetic.
+            for ch in range(3):
+                col0[i, ch] = max(_C0 * sh[g, 0, ch] + 0.5, 0.0)
+        qw = np.float64(quats[g, 0])
+        qx = np.float64(quats[g, 1])
+        qy = np.float64(quats[g, 2])
+        qz = np.float64(quats[g, 3])
+        qn = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+        qw /= qn
+        qx /= qn
+        qy /= qn
+        qz /= qn
+        s0 = math.exp(np.float64(log_scales[g, 0]))
+        s1 = math.exp(np.float64(log_scales[g, 1]))
+        s2 = math.exp(np.float64(log_scales[g, 2]))
+        mfac[i, 0] = (1.0 - 2.0 * (qy * qy + qz * qz)) * s0
+        mfac[i, 1] = 2.0 * (qx * qy - qw * qz) * s1
+        mfac[i, 2] = 2.0 * (qx * qz + qw * qy) * s2
+        mfac[i, 3] = 2.0 * (qx * qy + qw * qz) * s0
+        mfac[i, 4] = (1.0 - 2.0 * (qx * qx + qz * qz)) * s1
+        mfac[i, 5] = 2.0 * (qy * qz - qw * qx) * s2
+        mfac[i, 6] = 2.0 * (qx * qz - qw * qy) * s0
+        mfac[i, 7] = 2.0 * (qy * qz + qw * qx) * s1
+        mfac[i, 8] = (1.0 - 2.0 * (qx * qx + qy * qy)) * s2
+
+
+@njit(cache=True, parallel=True)
+def project(idx, act_rows, means, mfac, opac, col0, sh, rot, trans, center,
             fx, fy, cx, cy, width, height, near, eps2d, antialiased, tile_box,
             means2d, conics, radii, depths, colors, opacities, support, rects):
     """Project the Gaussians ``idx``; see ``render.project_gaussians`` for the maths.
 
     ``idx`` (M,) int64 lists the scene rows to project (so a subset needs no
-    copy of the scene); output row ``i`` belongs to Gaussian ``idx[i]``.
-    Inputs are the raw scene arrays (float32) and the camera (float64).
+    copy of the scene); output row ``i`` belongs to Gaussian ``idx[i]``,
+    whose :func:`activate` outputs (``mfac``, ``opac``, ``col0``) are at row
+    ``act_rows[i]`` (so they can be computed once per scene, or per call).
+    Inputs are the raw scene means and SH (float32) and the camera (float64).
     ``tile_box`` (4,) int64 ``[tx0, ty0, tx1, ty1)``: only these tiles are
     composited (the roi), so ``rects`` are clipped to them.
     Outputs (preallocated, float64 unless noted): means2d (M,2), conics (M,3)
@@ -98,9 +149,9 @@ def project(idx, means, quats, log_scales, opacity_logits, sh, rot, trans, cente
 
     ``rects`` = ``[tx0, ty0, tx1, ty1)``: the tiles the Gaussian is binned
     to, i.e. its getRect tile rectangle intersected with the tiles its
-    support box touches and with ``tile_box``. In the other tiles of the getRect rectangle it
-    would pass the alpha test at no pixel, so leaving them out changes
-    nothing but the work. Empty for culled Gaussians and for those with
+    support box touches and with ``tile_box``. In the other tiles of the
+    getRect rectangle it would pass the alpha test at no pixel (or no pixel
+    is composited), so leaving them out changes nothing but the work. Empty for culled Gaussians and for those with
     ``o < 1/255``, which can never pass the alpha test.
     """
     n = idx.shape[0]
@@ -115,7 +166,6 @@ def project(idx, means, quats, log_scales, opacity_logits, sh, rot, trans, cente
     lim_y_neg = cy / fy + 0.3 * tan_fovy
     for i in prange(n):
         g = idx[i]
-        basis = np.empty(16)
         px = np.float64(means[g, 0])
         py = np.float64(means[g, 1])
         pz = np.float64(means[g, 2])
@@ -124,23 +174,29 @@ def project(idx, means, quats, log_scales, opacity_logits, sh, rot, trans, cente
         z = rot[2, 0] * px + rot[2, 1] * py + rot[2, 2] * pz + trans[2]
         depths[i] = z
 
+        a_row = act_rows[i]
         # View-dependent colour, for every Gaussian (callers use it for W @ colors).
-        dx = px - center[0]
-        dy = py - center[1]
-        dz = pz - center[2]
-        nrm = math.sqrt(dx * dx + dy * dy + dz * dz)
-        if nrm > 0.0:
-            dx /= nrm
-            dy /= nrm
-            dz /= nrm
-        _sh_basis(dx, dy, dz, k, basis)
-        for ch in range(3):
-            acc = 0.0
-            for j in range(k):
-                acc += basis[j] * sh[g, j, ch]
-            colors[i, ch] = max(acc + 0.5, 0.0)
+        if col0.shape[0] > 0:
+            for ch in range(3):
+                colors[i, ch] = col0[a_row, ch]
+        else:
+            basis = np.empty(16)
+            dx = px - center[0]
+            dy = py - center[1]
+            dz = pz - center[2]
+            nrm = math.sqrt(dx * dx + dy * dy + dz * dz)
+            if nrm > 0.0:
+                dx /= nrm
+                dy /= nrm
+                dz /= nrm
+            _sh_basis(dx, dy, dz, k, basis)
+            for ch in range(3):
+                acc = 0.0
+                for j in range(k):
+                    acc += basis[j] * sh[g, j, ch]
+                colors[i, ch] = max(acc + 0.5, 0.0)
 
-        opacities[i] = 1.0 / (1.0 + math.exp(-np.float64(opacity_logits[g])))
+        opacities[i] = opac[a_row]
         radii[i] = 0
         means2d[i, 0] = 0.0
         means2d[i, 1] = 0.0
@@ -155,27 +211,15 @@ def project(idx, means, quats, log_scales, opacity_logits, sh, rot, trans, cente
             continue
 
         # World covariance Sigma = M M^T with M = R(q) diag(s).
-        qw = np.float64(quats[g, 0])
-        qx = np.float64(quats[g, 1])
-        qy = np.float64(quats[g, 2])
-        qz = np.float64(quats[g, 3])
-        qn = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
-        qw /= qn
-        qx /= qn
-        qy /= qn
-        qz /= qn
-        s0 = math.exp(np.float64(log_scales[g, 0]))
-        s1 = math.exp(np.float64(log_scales[g, 1]))
-        s2 = math.exp(np.float64(log_scales[g, 2]))
-        m00 = (1.0 - 2.0 * (qy * qy + qz * qz)) * s0
-        m01 = 2.0 * (qx * qy - qw * qz) * s1
-        m02 = 2.0 * (qx * qz + qw * qy) * s2
-        m10 = 2.0 * (qx * qy + qw * qz) * s0
-        m11 = (1.0 - 2.0 * (qx * qx + qz * qz)) * s1
-        m12 = 2.0 * (qy * qz - qw * qx) * s2
-        m20 = 2.0 * (qx * qz - qw * qy) * s0
-        m21 = 2.0 * (qy * qz + qw * qx) * s1
-        m22 = (1.0 - 2.0 * (qx * qx + qy * qy)) * s2
+        m00 = mfac[a_row, 0]
+        m01 = mfac[a_row, 1]
+        m02 = mfac[a_row, 2]
+        m10 = mfac[a_row, 3]
+        m11 = mfac[a_row, 4]
+        m12 = mfac[a_row, 5]
+        m20 = mfac[a_row, 6]
+        m21 = mfac[a_row, 7]
+        m22 = mfac[a_row, 8]
 
         # EWA Jacobian, with the view-space x/y clamped to 1.3 x the field of
         # view so Gaussians far outside the image do not blow up (gsplat persp_proj).

@@ -58,7 +58,9 @@ and tiles); outputs are float32.
 
 from __future__ import annotations
 
+import contextlib
 import mmap
+import threading
 import time
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -71,7 +73,7 @@ from ..camera import Camera
 from ..errors import ValidationError
 from . import _raster
 
-__all__ = ["Rendering", "Projection", "project_gaussians", "render", "build_operator", "MODES"]
+__all__ = ["Rendering", "Projection", "project_gaussians", "render", "build_operator", "frozen", "MODES"]
 
 MODES = ("classic", "antialiased")
 _EPS2D = 0.3
@@ -142,6 +144,68 @@ def _check_inputs(scene, camera, mode):
         raise ValidationError(f"mode must be one of {MODES}, got {mode!r}")
 
 
+# Scenes inside ``frozen()`` blocks: id -> [scene, activations or None, depth].
+_FROZEN: dict = {}
+_FROZEN_LOCK = threading.Lock()
+
+
+@contextlib.contextmanager
+def frozen(scene):
+    """Reuse a scene's view-independent quantities across renders.
+
+    Inside the block, :func:`render`, :func:`build_operator` and
+    :func:`project_gaussians` of this very ``scene`` object compute the
+    covariance factors ``R(q) diag(s)``, the opacities and (SH degree 0) the
+    colours once, instead of once per call; the results are identical. The
+    caller promises that the scene's arrays do not change inside the block
+    (they are not checked). Blocks may nest; the state is dropped when the
+    outermost one ends.
+
+    Examples
+    --------
+    >>> with frozen(scene):                                      # doctest: +SKIP
+    ...     ops = [build_operator(scene, cam) for cam in cameras]
+    """
+    if not isinstance(scene, _scene_mod.GaussianScene):
+        raise ValidationError(f"frozen() needs a GaussianScene, got {type(scene).__name__}")
+    key = id(scene)
+    with _FROZEN_LOCK:
+        entry = _FROZEN.setdefault(key, [scene, None, 0])
+        entry[2] += 1
+    try:
+        yield scene
+    finally:
+        with _FROZEN_LOCK:
+            entry[2] -= 1
+            if entry[2] == 0:
+                del _FROZEN[key]
+
+
+def _activate(scene, idx):
+    """Kernel ``activate`` on the rows ``idx``: (mfac, opac, col0)."""
+    n = idx.size
+    mfac = np.empty((n, 9))
+    opac = np.empty(n)
+    col0 = np.empty((n if scene.sh.shape[1] == 1 else 0, 3))
+    _raster.activate(idx, scene.quats, scene.log_scales, scene.opacity_logits, scene.sh, mfac, opac, col0)
+    return mfac, opac, col0
+
+
+def _activations(scene, idx):
+    """Activations for the rows ``idx`` and the row of each in them.
+
+    Inside ``frozen(scene)``: the whole scene's, computed on first use;
+    else only those of ``idx``.
+    """
+    entry = _FROZEN.get(id(scene))
+    if entry is None or entry[0] is not scene:
+        return _activate(scene, idx), np.arange(idx.size, dtype=np.int64)
+    with _FROZEN_LOCK:
+        if entry[1] is None:
+            entry[1] = _activate(scene, np.arange(len(scene), dtype=np.int64))
+    return entry[1], idx
+
+
 def _project(scene, camera, mode, idx=None, tile_box=None):
     """Run the projection kernel on the rows ``idx`` (default all) of ``scene``.
 
@@ -154,6 +218,7 @@ def _project(scene, camera, mode, idx=None, tile_box=None):
     if tile_box is None:
         tile_box = np.array([0, 0, (camera.width + _raster.TILE - 1) // _raster.TILE,
                              (camera.height + _raster.TILE - 1) // _raster.TILE], np.int64)
+    (mfac, opac_all, col0), act_rows = _activations(scene, idx)
     rot = np.ascontiguousarray(camera.rotation, dtype=np.float64)
     trans = np.ascontiguousarray(camera.translation, dtype=np.float64)
     center = np.ascontiguousarray(camera.center, dtype=np.float64)
@@ -165,7 +230,7 @@ def _project(scene, camera, mode, idx=None, tile_box=None):
     opac = np.empty(n)
     support = np.empty((n, 3))
     rects = np.empty((n, 4), np.int32)
-    _raster.project(idx, scene.means, scene.quats, scene.log_scales, scene.opacity_logits, scene.sh,
+    _raster.project(idx, act_rows, scene.means, mfac, opac_all, col0, scene.sh,
                     rot, trans, center, camera.fx, camera.fy, camera.cx, camera.cy,
                     camera.width, camera.height, camera.near, _EPS2D, mode == "antialiased", tile_box,
                     means2d, conics, radii, depths, colors, opac, support, rects)

@@ -11,6 +11,7 @@ what happened.
 
 from __future__ import annotations
 
+import functools
 import sys
 import time
 from dataclasses import dataclass, field
@@ -248,6 +249,27 @@ def _cone_subset(scene, camera: Camera, roi, sigma3: np.ndarray, far: float | No
     return np.flatnonzero(keep)
 
 
+def _with_frozen_scene(fn):
+    """Run ``fn(scene, ...)`` inside ``operators.render.frozen(scene)``.
+
+    extract() renders the same unchanged scene for ~50 views: the covariance
+    factors, opacities and SH-0 colours are then computed once, not per view
+    (identical results).
+    """
+
+    @functools.wraps(fn)
+    def wrapper(scene, *args, **kwargs):
+        from ..operators.render import frozen
+
+        if not isinstance(scene, GaussianScene):
+            return fn(scene, *args, **kwargs)  # which raises the error
+        with frozen(scene):
+            return fn(scene, *args, **kwargs)
+
+    return wrapper
+
+
+@_with_frozen_scene
 def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker=None,
             method: str = "weighted_bce", *, n_views: int = VAAS_DEFAULTS["n_views"],
             a_max_deg: float = VAAS_DEFAULTS["a_max_deg"], gamma: float = VAAS_DEFAULTS["gamma"],
