@@ -48,7 +48,9 @@ far above the median (occlusion, tracker drift, a wrong identity) fall to
 the floor ``r_min``. The default floor 0.05 (before normalisation) was
 chosen on the firepit + unicorn benchmark with 25% identity-switched views:
 held-out mIoU 0.996 and visibility-weighted 3D IoU 0.908, against 0.980 and
-0.710 with a floor of 0.2 (voting: 0.956 / 0.873).
+0.710 with a floor of 0.2 (voting: 0.956 / 0.873), measured with scipy's
+L-BFGS-B; the current bench_solvers.py run with the L-BFGS below gives
+0.995 / 0.879 (voting 0.866 / 0.809).
 
 Optimisation: L-BFGS (unconstrained: the logits need no bounds) with an
 Armijo backtracking line search over the logits of the Gaussians with
