@@ -462,3 +462,9 @@ def test_weighted_bce_gaussians_seen_only_by_faint_pixels_keep_the_prior(rng):
     np.testing.assert_array_equal(r.unobserved, ~evidence)
     np.testing.assert_array_equal(r.q[~evidence], np.float32(0.3))
     assert np.all(r.q[evidence] != np.float32(0.3))  # the others moved
+
+
+def test_weighted_bce_accepts_numpy_integer_options(rng):
+    mats, masks = _random_problem(rng)
+    r = solve(mats, masks, method="weighted_bce", maxcor=np.int64(3), inner_iters=np.int32(10), max_iter=40)
+    assert 0 < r.iterations <= 40 and np.isfinite(r.q).all()

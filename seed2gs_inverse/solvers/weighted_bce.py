@@ -361,7 +361,7 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
     history, total, message = [], 0, ""
     # The curvature pairs carry over between outer steps: a reweighting changes the loss only
     # mildly, and a fresh memory would restart each step with a short steepest-descent step.
-    memory = deque(maxlen=maxcor)
+    memory = deque(maxlen=int(maxcor))
     # BLAS on long vectors beside Numba's threads: one BLAS thread is far faster (see _blas_single_thread)
     with _blas_single_thread():
         for _ in range(max_iter):  # outer steps; each runs >= 1 iteration unless already optimal
