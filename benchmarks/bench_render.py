@@ -170,10 +170,12 @@ def _orbit_views(scene, cam, depth, repeat):
     the overview camera), its centre back-projected from the rendered depth
     and its radius from the box. Views of 40k pixels zoomed on the sphere of
     twice that radius, composited in its projected box, Gaussians culled to
-    the view cone (with extract's far cut). Baseline in the same run: the
-    path before the fast one, i.e. a copy ``scene.subset(idx)`` per view,
-    its columns mapped back, and the second compositing pass for every tile
-    (the first pass's log disabled). Checks that both give the same W.
+    the view cone (with extract's far cut), inside ``frozen(scene)``.
+    Baseline in the same run: the path before the fast one, i.e. a copy
+    ``scene.subset(idx)`` per view, its columns mapped back, activations
+    per view, and the second compositing pass for every tile (the first
+    pass's log disabled); only the parallel binning and cone culling are
+    shared. Checks that both give the same W.
     """
     import importlib
 
@@ -201,9 +203,10 @@ def _orbit_views(scene, cam, depth, repeat):
 
     def fast():
         out = []
-        for vc, roi, far in plan:
-            idx = extract_mod._cone_subset(scene, vc, roi, sigma3, far)
-            out.append(build_operator(scene, vc, roi=roi, subset=idx).W)
+        with render_mod.frozen(scene):  # as in extract: activations once per scene
+            for vc, roi, far in plan:
+                idx = extract_mod._cone_subset(scene, vc, roi, sigma3, far)
+                out.append(build_operator(scene, vc, roi=roi, subset=idx).W)
         return out
 
     def plain():
@@ -238,7 +241,7 @@ def _orbit_views(scene, cam, depth, repeat):
     mp, mf = float(np.median(t_plain)), float(np.median(t_fast))
     print(f"orbit operators, 24 views {views[0].width}x{views[0].height} around the white table "
           f"({nnz / 1e6:.1f} M nnz in all; cull + roi as extract):")
-    print(f"  fast path (subset=, logged fill): median {mf:.3f} s ({np.median(c_fast):.3f} CPU s), "
+    print(f"  fast path (frozen, subset=, logged fill): median {mf:.3f} s ({np.median(c_fast):.3f} CPU s), "
           f"{1000 * mf / len(views):.0f} ms per view")
     print(f"  baseline (scene.subset copy, second pass everywhere): median {mp:.3f} s "
           f"({np.median(c_plain):.3f} CPU s) -> fast path {mp / mf:.2f}x faster; identical W: {same}")
