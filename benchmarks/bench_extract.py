@@ -73,7 +73,8 @@ def main(argv=None) -> int:
     unicorn = read_scene(DATA / "unicorn_49k_sh3.ply")
     cam = read_camera(DATA / "firepit_cameras.json:overview")
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
-          f"NUMBA_NUM_THREADS={os.environ.get('NUMBA_NUM_THREADS', 'default')}")
+          f"NUMBA_NUM_THREADS={os.environ.get('NUMBA_NUM_THREADS', 'default')}, "
+          f"load average {os.getloadavg()[0]:.1f}")
     print(f"scene: firepit {len(firepit)} + unicorn {len(unicorn)} Gaussians; reference "
           f"{cam.width}x{cam.height}; {args.views} views per clip; solver {args.method}")
 
@@ -111,7 +112,8 @@ def main(argv=None) -> int:
             kw["solver_options"] = {"max_iter": args.max_iter}
         ex = extract(scene, cam, seed, n_views=args.views, method=args.method, progress=False, **kw)
         print(f"  operators: {len(ex.operators)} views, nnz {ex.operators.nnz / 1e6:.1f} M, view "
-              f"{ex.views[1].width}x{ex.views[1].height}")
+              f"{ex.views[1].width}x{ex.views[1].height}, "
+              f"{1000 * ex.seconds['operators'] / len(ex.operators):.0f} ms per view")
         wall = time.perf_counter() - t0
         centre = scene.means[truth].astype(np.float64).mean(0)
         size = np.linalg.norm(scene.means[truth] - centre, axis=1).max()
@@ -164,6 +166,7 @@ def main(argv=None) -> int:
     print(f"mean extraction {wall:.2f} s (target 10 s, x{wall / 10:.2f}; paper 9.3 s on an H800), "
           f"= {wall / t_render:.1f} full renders of the reference ({t_render:.2f} s each)")
     print("mean per stage: " + ", ".join(f"{k} {v:.2f}" for k, v in stages.items()))
+    print(f"load average at the end: {os.getloadavg()[0]:.1f} (other work on the machine inflates wall times)")
     return 0
 
 
