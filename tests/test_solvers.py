@@ -293,6 +293,22 @@ def test_clean_masks_recover_the_object_on_heldout_views(blob, method):
     assert _heldout_miou(stack, r.selected(), labels, held) >= 0.99
 
 
+def test_weighted_bce_optimizers_agree(blob):
+    # scipy's L-BFGS-B (the reference) and the built-in L-BFGS minimise the
+    # same objective: same loss to a small tolerance and the same object.
+    stack, labels, masks = blob
+    held = [3, 7, 11]
+    train = [i for i in range(12) if i not in held]
+    fit = [masks[i] for i in train]
+    ref = solve(stack.subset(train), fit, method="weighted_bce", optimizer="scipy", max_iter=150)
+    fast = solve(stack.subset(train), fit, method="weighted_bce", optimizer="lbfgs", max_iter=150)
+    assert abs(fast.history[-1]["loss"] - ref.history[-1]["loss"]) <= 0.05 * ref.history[-1]["loss"] + 1e-4
+    assert np.mean(fast.selected() == ref.selected()) > 0.99
+    assert _heldout_miou(stack, fast.selected(), labels, held) >= 0.99
+    with pytest.raises(ValidationError, match="optimizer"):
+        solve(stack.subset(train), fit, method="weighted_bce", optimizer="adam")
+
+
 def test_identity_switch_views_get_low_weight(blob):
     stack, labels, masks = blob
     train = list(range(9))
