@@ -32,7 +32,7 @@ __version__ = "0.1.0.dev0"
 _LAZY = {
     **dict.fromkeys(["read_scene", "write_scene", "detect_format", "read_cameras", "read_camera",
                      "write_cameras"], "io"),
-    **dict.fromkeys(["render", "Rendering", "build_operator", "project_gaussians", "Projection"],
+    **dict.fromkeys(["render", "Rendering", "build_operator", "project_gaussians", "Projection", "frozen"],
                     "operators.render"),
     **dict.fromkeys(["ViewOperator", "OperatorStack", "scene_fingerprint"], "operators.operator"),
     **dict.fromkeys(["solve", "available_methods", "SolveResult"], "solvers"),

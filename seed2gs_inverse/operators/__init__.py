@@ -5,6 +5,6 @@
 """
 
 from .operator import OperatorStack, ViewOperator, scene_fingerprint
-from .render import Rendering, build_operator, render
+from .render import Rendering, build_operator, frozen, render
 
-__all__ = ["Rendering", "render", "build_operator", "ViewOperator", "OperatorStack", "scene_fingerprint"]
+__all__ = ["Rendering", "render", "build_operator", "frozen", "ViewOperator", "OperatorStack", "scene_fingerprint"]

@@ -49,8 +49,8 @@ the floor ``r_min``. The default floor 0.05 (before normalisation) was
 chosen on the firepit + unicorn benchmark with 25% identity-switched views:
 held-out mIoU 0.996 and visibility-weighted 3D IoU 0.908, against 0.980 and
 0.710 with a floor of 0.2 (voting: 0.956 / 0.873), measured with scipy's
-L-BFGS-B; the current bench_solvers.py run with the L-BFGS below gives
-0.995 / 0.879 (voting 0.866 / 0.809).
+L-BFGS-B (with ``optimizer="lbfgs"``: 0.995 / 0.879; voting in that run
+0.866 / 0.809).
 
 Optimisation: over the logits of the Gaussians with evidence only (weight
 on at least one usable pixel; the others keep the prior and are reported
@@ -60,15 +60,14 @@ after ``max_iter`` iterations in total. Two optimisers (``optimizer``):
 
 ``"scipy"`` (default)
     ``scipy.optimize.minimize(..., jac=True, method="L-BFGS-B")`` (no bounds
-    are needed on logits), the reference. Its update costs 40-120 ms per
-    call at 476k logits, more than the two sparse passes of an evaluation.
+    are needed on logits), the reference.
 ``"lbfgs"``
     The unconstrained L-BFGS below (two-loop recursion, Armijo
     backtracking) whose curvature pairs carry over between reweighting
-    steps; its update costs a few ms. On the firepit + unicorn benchmark it
-    is 3.4x faster per iteration (104 vs 351 ms, 2.3x two sparse passes)
-    with the same held-out 2D mIoU (+-0.002), but 0.01-0.04 lower 3D IoU
-    on noisy masks at the same iteration budget. ``extract()`` uses it.
+    steps. On the firepit + unicorn benchmark (611k Gaussians, 32 views) it
+    costs 104 ms per iteration against scipy's 129 ms (2.4x and 3.0x two
+    sparse passes, same run), with the same held-out 2D mIoU (+-0.002) but
+    0.01-0.04 lower 3D IoU on noisy masks at the same iteration budget.
 The start is the prior ``q0`` from ``init`` or, without ``init``, the
 closed-form vote (``start="vote"``, one extra transposed pass; it gives
 Gaussians with little evidence the vote's side instead of a coin flip at
