@@ -56,6 +56,7 @@ def main(argv=None) -> int:
     p.add_argument("--max-view-pixels", type=int, default=None)
     p.add_argument("--min-weight", type=float, default=None)
     p.add_argument("--max-iter", type=int, default=None)
+    p.add_argument("--optimizer", default=None, help="weighted_bce optimizer (scipy or lbfgs)")
     p.add_argument("--report", default=None, metavar="DIR", help="save report_<pose>.png and held-out panels here")
     args = p.parse_args(argv)
     if not (DATA / "firepit_562k_sh0.ply").is_file():
@@ -108,8 +109,13 @@ def main(argv=None) -> int:
             kw["max_view_pixels"] = args.max_view_pixels
         if args.min_weight is not None:
             kw["min_weight"] = args.min_weight
+        solver_options = {}
         if args.max_iter:
-            kw["solver_options"] = {"max_iter": args.max_iter}
+            solver_options["max_iter"] = args.max_iter
+        if args.optimizer:
+            solver_options["optimizer"] = args.optimizer
+        if solver_options:
+            kw["solver_options"] = solver_options
         ex = extract(scene, cam, seed, n_views=args.views, method=args.method, progress=False, **kw)
         print(f"  operators: {len(ex.operators)} views, nnz {ex.operators.nnz / 1e6:.1f} M, view "
               f"{ex.views[1].width}x{ex.views[1].height}, "
