@@ -285,9 +285,14 @@ class OperatorStack:
         return self._stacked
 
     def stacked_transpose(self) -> sp.csr_matrix:
-        """``stacked().T`` as CSR (N, sum of pixels), cached, so adjoints are row-parallel."""
+        """``stacked().T`` (N, sum of pixels): a CSC view of the stacked CSR, no copy.
+
+        An explicit CSR transpose was no faster for the adjoint product on the
+        firepit benchmark (23.6 vs 24.2 ms per pass over 35.5M weights) but
+        cost 1.6-1.9 s and a second copy of every weight.
+        """
         if self._stacked_T is None:
-            self._stacked_T = self.stacked().T.tocsr()
+            self._stacked_T = self.stacked().T
         return self._stacked_T
 
     def as_linear_operator(self) -> LinearOperator:

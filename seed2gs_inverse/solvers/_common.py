@@ -119,8 +119,8 @@ class Problem:
     ----------
     A : csr_matrix (P, N) float32
         All views' operators stacked vertically (P = total pixels).
-    AT : csr_matrix (N, P) float32
-        ``A.T`` in CSR, so adjoints run row-parallel.
+    AT : sparse matrix (N, P) float32
+        ``A.T`` (a CSC view of ``A``, no copy) for the adjoint products.
     y : (P,) float32
         Masks, flattened view after view; 0 at unknown pixels.
     known : (P,) bool
@@ -142,7 +142,7 @@ class Problem:
     """
 
     A: sp.csr_matrix
-    AT: sp.csr_matrix
+    AT: sp.spmatrix
     y: np.ndarray
     known: np.ndarray
     offsets: np.ndarray
@@ -336,7 +336,7 @@ def prepare(operators, masks, init=None) -> Problem:
         A, AT = stack.stacked(), stack.stacked_transpose()
     else:
         A = sp.vstack([sp.csr_matrix(W) for W in mats], format="csr").astype(np.float32, copy=False)
-        AT = A.T.tocsr()
+        AT = A.T  # a CSC view; see OperatorStack.stacked_transpose
     offsets = np.concatenate([[0], np.cumsum([s[0] * s[1] for s in shapes])]).astype(np.int64)
     if stack is not None and known.all():
         # every pixel known: the known weight is the stack's (cached) column sums
