@@ -134,23 +134,6 @@ class Extraction:
         }
 
 
-def _single_threaded_blas():
-    """Context limiting BLAS to one thread (when threadpoolctl is installed).
-
-    L-BFGS-B calls BLAS on vectors of length N every iteration; with a
-    multi-threaded OpenBLAS next to Numba's threads the thread start-up
-    dominates (measured: 51 ms vs 0.5 ms per iteration at N = 40k on 2
-    cores, solve 7.7 s vs 1.2 s). Without threadpoolctl this is a no-op.
-    """
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # optional
-        from contextlib import nullcontext
-
-        return nullcontext()
-    return threadpool_limits(limits=1, user_api="blas")
-
-
 def _progress(iterable, total, desc, enabled):
     if not enabled:
         return iterable
@@ -529,8 +512,7 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
     stack = OperatorStack(ops, fingerprint=scene_fingerprint(scene))
     opts = dict(SOLVER_DEFAULTS.get(method, {}))
     opts.update(solver_options or {})
-    with _single_threaded_blas():
-        result = solve(stack, masks, method=method, init=lift.support, **opts)
+    result = solve(stack, masks, method=method, init=lift.support, **opts)
     # Gaussians seen (almost) only on unknown pixels carry no evidence; an
     # unregularised fit can still drive their logits anywhere on a trace of
     # weight, so they keep the prior (G0 membership) instead.

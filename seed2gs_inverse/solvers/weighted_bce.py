@@ -79,7 +79,6 @@ gradients.
 from __future__ import annotations
 
 from collections import deque
-from contextlib import nullcontext
 
 import numpy as np
 from scipy.optimize import minimize
@@ -375,51 +374,34 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
     # The curvature pairs carry over between outer steps: a reweighting changes the loss only
     # mildly, and a fresh memory would restart each step with a short steepest-descent step.
     memory = deque(maxlen=int(maxcor))
-    # BLAS on long vectors beside Numba's threads: one BLAS thread is far faster (see _blas_single_thread)
-    with _blas_single_thread():
-        for _ in range(max_iter):  # outer steps; each runs >= 1 iteration unless already optimal
-            if total >= max_iter:
-                break
-            n_inner = min(inner_iters, max_iter - total)
+    for _ in range(max_iter):  # outer steps; each runs >= 1 iteration unless already optimal
+        if total >= max_iter:
+            break
+        n_inner = min(inner_iters, max_iter - total)
 
-            def fun(xo, omega=omega):
-                logits[rows] = xo
-                nfev[0] += 1
-                return obj.loss_grad_logits(logits, omega, rows)
+        def fun(xo, omega=omega):
+            logits[rows] = xo
+            nfev[0] += 1
+            return obj.loss_grad_logits(logits, omega, rows)
 
-            if optimizer == "lbfgs":
-                x, f, nit, status, message = _lbfgs(fun, x, n_inner, ftol, gtol, memory)
-            else:
-                res = minimize(fun, x, jac=True, method="L-BFGS-B",
-                               options={"maxiter": n_inner, "maxcor": int(maxcor), "ftol": ftol, "gtol": gtol})
-                x, f, nit, status, message = res.x, float(res.fun), int(res.nit), int(res.status), str(res.message)
-            total += nit
-            D = momentum * D + (1.0 - momentum) * obj.residuals(q_of(x))
-            new_omega = weights_of(D)
-            change = float(np.max(np.abs(new_omega - omega)))
-            history.append({"loss": float(f), "iterations": nit, "weights": new_omega.tolist(),
-                            "residuals": D.tolist(), "weight_change": change})
-            omega = new_omega
-            if (status == 0 or nit == 0) and change < weight_tol:
-                break
+        if optimizer == "lbfgs":
+            x, f, nit, status, message = _lbfgs(fun, x, n_inner, ftol, gtol, memory)
+        else:
+            res = minimize(fun, x, jac=True, method="L-BFGS-B",
+                           options={"maxiter": n_inner, "maxcor": int(maxcor), "ftol": ftol, "gtol": gtol})
+            x, f, nit, status, message = res.x, float(res.fun), int(res.nit), int(res.status), str(res.message)
+        total += nit
+        D = momentum * D + (1.0 - momentum) * obj.residuals(q_of(x))
+        new_omega = weights_of(D)
+        change = float(np.max(np.abs(new_omega - omega)))
+        history.append({"loss": float(f), "iterations": nit, "weights": new_omega.tolist(),
+                        "residuals": D.tolist(), "weight_change": change})
+        omega = new_omega
+        if (status == 0 or nit == 0) and change < weight_tol:
+            break
     return {"q": q_of(x), "iterations": total, "view_weights": omega, "history": history,
             "observed": obj.evidence,
             "info": {"function_evaluations": nfev[0], "message": message, "outer_steps": len(history)}}
-
-
-def _blas_single_thread():
-    """Context limiting BLAS to one thread (threadpoolctl; a no-op without it).
-
-    The L-BFGS update is a few dot products on vectors of length N per
-    iteration; a multi-threaded OpenBLAS next to Numba's threads spends
-    more on thread start-up than on the work (measured in the extract
-    pipeline: 51 ms vs 0.5 ms per iteration at N = 40k on 2 cores).
-    """
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:
-        return nullcontext()
-    return threadpool_limits(limits=1, user_api="blas")
 
 
 register_method("weighted_bce", weighted_bce)
