@@ -113,28 +113,20 @@ def _mismatch(port: Port, arg) -> str | None:
 def _check(session, layout: Layout) -> list[str]:
     """Problems of ``session`` against ``layout`` (empty when it matches)."""
     problems = []
-    ins = {a.name: a for a in session.get_inputs()}
-    outs = {a.name: a for a in session.get_outputs()}
-    for port in layout.inputs:
-        if port.name not in ins:
-            if not port.optional:
-                problems.append(f"missing input {port.name}")
-            continue
-        why = _mismatch(port, ins[port.name])
-        if why:
-            problems.append(why)
-    known = {p.name for p in layout.inputs}
-    for name in ins:
-        if name not in known:
-            problems.append(f"unexpected input {name}")
-    for port in layout.outputs:
-        if port.name not in outs:
-            if not port.optional:
-                problems.append(f"missing output {port.name}")
-            continue
-        why = _mismatch(port, outs[port.name])
-        if why:
-            problems.append(why)
+    for kind, ports, args in (("input", layout.inputs, session.get_inputs()),
+                              ("output", layout.outputs, session.get_outputs())):
+        found = {a.name: a for a in args}
+        for port in ports:
+            if port.name not in found:
+                if not port.optional:
+                    problems.append(f"missing {kind} {port.name}")
+                continue
+            why = _mismatch(port, found[port.name])
+            if why:
+                problems.append(why)
+        if kind == "input":  # extra outputs are harmless; an extra input would go unfed
+            known = {p.name for p in ports}
+            problems += [f"unexpected input {name}" for name in found if name not in known]
     return problems
 
 
