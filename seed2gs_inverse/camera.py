@@ -14,8 +14,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import ValidationError
+from .geometry import axis_angle
 
-__all__ = ["Camera"]
+__all__ = ["Camera", "look_at_orbit"]
 
 
 def _finite(name, value, shape=None):
@@ -249,3 +250,57 @@ class Camera:
         c = np.round(self.center, 3).tolist()
         return (f"Camera(name={self.name!r}, {self.width}x{self.height}, fx={self.fx:.2f}, "
                 f"fy={self.fy:.2f}, cx={self.cx:.2f}, cy={self.cy:.2f}, center={c})")
+
+
+def look_at_orbit(center, axis, start, distance: float, azimuths, elevations, fov_y_deg: float,
+                  width: int, height: int, names=None) -> list:
+    r"""Cameras on a sphere about ``center``, each looking at it with image-up ``axis``.
+
+    View ``k`` sits at
+
+    .. math::
+
+        e_k = o + d \left(\cos\epsilon_k\, R(u, \alpha_k)\, s + \sin\epsilon_k\, u\right),
+
+    with ``o = center``, ``d = distance``, ``u = axis`` (unit), ``s = start``
+    (a unit vector perpendicular to ``u``: azimuth 0), :math:`R(u, \alpha)`
+    the right-handed rotation about ``u`` (:func:`geometry.axis_angle`),
+    :math:`\alpha_k` = ``azimuths[k]`` and :math:`\epsilon_k` =
+    ``elevations[k]`` (radians, elevation above the plane through ``o``
+    perpendicular to ``u``). This is the orbit of both the VAAS clips
+    (:func:`seed2gs_inverse.pipeline.vaas.orbit_cameras`) and the synthetic
+    scenes (:meth:`seed2gs_inverse.synthetic.SyntheticScene.orbit_cameras`).
+
+    Parameters
+    ----------
+    center, axis, start : (3,) arrays
+        ``axis`` and ``start`` unit length (not renormalised).
+    distance : float
+        Distance of every eye from ``center``.
+    azimuths, elevations : (n,) arrays
+        Radians.
+    fov_y_deg, width, height
+        Intrinsics, as :meth:`Camera.look_at` / :meth:`Camera.from_fov`.
+    names : sequence of str or None
+        Camera names (default empty).
+
+    Returns
+    -------
+    list of Camera
+    """
+    o = _finite("orbit center", center, (3,))
+    u = _finite("orbit axis", axis, (3,))
+    s = _finite("orbit start", start, (3,))
+    az = np.asarray(azimuths, dtype=np.float64).ravel()
+    el = np.asarray(elevations, dtype=np.float64).ravel()
+    if az.shape != el.shape:
+        raise ValidationError(f"orbit: {az.size} azimuths but {el.size} elevations")
+    if names is not None and len(names) != az.size:
+        raise ValidationError(f"orbit: {az.size} views but {len(names)} names")
+    cams = []
+    for k, (a, e) in enumerate(zip(az, el)):
+        horiz = axis_angle(u, a) @ s
+        eye = o + distance * (np.cos(e) * horiz + np.sin(e) * u)
+        cams.append(Camera.look_at(eye, o, u, fov_y_deg, width, height,
+                                   **({} if names is None else {"name": names[k]})))
+    return cams
