@@ -50,9 +50,12 @@ def unit_vector(name: str, v) -> np.ndarray:
     ValidationError
         When ``v`` is not a finite 3-vector of non-zero length.
     """
-    arr = np.asarray(v, dtype=np.float64)
-    if arr.shape != (3,) or not np.all(np.isfinite(arr)) or np.linalg.norm(arr) < 1e-12:
-        raise ValidationError(f"'{name}' must be a finite non-zero 3-vector, got {np.asarray(v).tolist()}")
+    try:
+        arr = np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError):
+        arr = None
+    if arr is None or arr.shape != (3,) or not np.all(np.isfinite(arr)) or np.linalg.norm(arr) < 1e-12:
+        raise ValidationError(f"'{name}' must be a finite non-zero 3-vector, got {np.asarray(v).tolist()!r}")
     return arr / np.linalg.norm(arr)
 
 
