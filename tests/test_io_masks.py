@@ -73,10 +73,18 @@ def test_bad_npy_content_names_the_file(tmp_path, arr, what):
         read_masks(tmp_path)
 
 
-def test_mixed_formats_name_both_files(tmp_path):
+def test_views_may_mix_formats(tmp_path):
+    # Accepted as before the move (the CLI test writes PNG and .npy views side by side).
+    _png(tmp_path / "view_000.png", np.full((4, 6), 255, np.uint8))
+    np.save(tmp_path / "view_001.npy", np.full((4, 6), np.nan, np.float32))
+    a, b = read_masks(tmp_path, 2, [(4, 6)] * 2)
+    assert a.dtype == np.uint8 and np.all(a == 255) and b.dtype == np.float32 and np.all(np.isnan(b))
+
+
+def test_one_view_in_two_formats_names_both_files(tmp_path):
     _png(tmp_path / "view_000.png", np.zeros((4, 6), np.uint8))
-    np.save(tmp_path / "view_001.npy", np.zeros((4, 6), np.float32))
-    with pytest.raises(FormatError, match=r"mix formats \(view_001\.npy, view_000\.png\)"):
+    np.save(tmp_path / "view_000.npy", np.zeros((4, 6), np.float32))
+    with pytest.raises(FormatError, match=r"two masks for view 0 \(view_000\.(png|npy), view_000\.(npy|png)\)"):
         read_masks(tmp_path)
 
 

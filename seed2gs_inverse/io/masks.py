@@ -3,7 +3,9 @@
 A masks directory holds one file per view, in view order: ``view_000.png``
 (8-bit greyscale; 0/255 become 0/1 in the solvers, colour images are
 converted to grey) or ``view_000.npy`` (float in [0, 1] with NaN for
-unknown pixels, bool or integer 0/1, uint8 0/255), all of one format.
+unknown pixels, bool or integer 0/1, uint8 0/255). Views may use different
+formats (a PNG where the mask is binary, an .npy where it has unknown
+pixels), but each view has exactly one file.
 """
 
 from __future__ import annotations
@@ -38,13 +40,7 @@ def _mask_files(d: Path) -> list[Path]:
     if sorted(found) != list(range(len(found))):
         missing = sorted(set(range(max(found) + 1)) - set(found))
         raise FormatError(f"{d}: mask files must be numbered 0..{len(found) - 1}; missing view(s) {missing[:5]}")
-    files = [found[k] for k in range(len(found))]
-    kinds = {f.suffix.lower() for f in files}
-    if len(kinds) > 1:
-        first = {s: next(f for f in files if f.suffix.lower() == s) for s in sorted(kinds)}
-        raise FormatError(f"{d}: masks mix formats ({', '.join(f.name for f in first.values())}); "
-                          "write every view as .png or every view as .npy")
-    return files
+    return [found[k] for k in range(len(found))]
 
 
 def _read_one(f: Path) -> np.ndarray:
@@ -71,8 +67,8 @@ def read_masks(directory, n_views: int | None = None, image_shapes=None) -> list
     Parameters
     ----------
     directory : path
-        Directory with files ``view_<k>.png`` or ``view_<k>.npy`` (one
-        format for all), ``k`` running ``0..V-1`` without gaps (any zero
+        Directory with one file ``view_<k>.png`` or ``view_<k>.npy`` per
+        view, ``k`` running ``0..V-1`` without gaps (any zero
         padding). Other files are ignored.
     n_views : int or None
         When given, ``V`` must equal it (one mask per operator view).
@@ -91,7 +87,7 @@ def read_masks(directory, n_views: int | None = None, image_shapes=None) -> list
     ------
     FormatError
         Not a directory, no masks, gaps in the numbering, two files for one
-        view, mixed .png/.npy, an unreadable file, a mask that is neither
+        view (e.g. ``view_000.png`` and ``view_000.npy``), an unreadable file, a mask that is neither
         (H, W) nor flat, or of an unsupported dtype. The message names the file.
     ValidationError
         Wrong number of masks, or a mask whose shape differs from its view's
