@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..camera import Camera, look_at_orbit
+from ..camera import Camera, look_at_orbit, orbit_directions
 from ..errors import ValidationError
 
 __all__ = ["ClipFrame", "VAASPlan", "flat_orbit", "spiral_orbit", "spiral_elevations", "orbit_cameras", "run_vaas",
@@ -163,8 +163,8 @@ def orbit_cameras(reference: Camera, center, azimuths_deg, elevations_deg=None,
     # Frames at azimuth 0 and the reference elevation are the reference itself
     # (a tracker gets the seed mask on frame 0); the others look at o.
     is_ref = (np.abs(az) < 1e-12) & (np.abs(el - e0) < 1e-12)
-    moved = iter(look_at_orbit(o, u, e1, dist, az[~is_ref], el[~is_ref], np.degrees(reference.fov_y),
-                               reference.width, reference.height))
+    moved = iter(look_at_orbit(o, orbit_directions(u, e1, az[~is_ref], el[~is_ref]), dist, u,
+                               np.degrees(reference.fov_y), reference.width, reference.height))
     return [reference if r else base.with_pose(next(moved).world_to_camera) for r in is_ref]
 
 

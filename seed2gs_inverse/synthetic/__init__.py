@@ -6,28 +6,10 @@ object (procedural or read from a file) into another scene and label the
 inserted Gaussians, and noise models that corrupt supervision masks the way
 a 2D tracker fails.
 
-Scenes (:func:`make_scene`)
-    A textured ground plane (label 0) and seven objects built in a local
-    frame with ``+z`` up, then mapped to the world by
-    ``x_world = origin + scale * F x_local``, where the rotation ``F`` takes
-    local ``+z`` to the requested world ``up`` (default ``-y``, as in
-    COLMAP-style captures). Surfaces are covered by Gaussians flattened
-    along the normal (tangential standard deviation ``0.7`` times the sample
-    spacing, normal one ``0.1`` times that), opacity 0.95, so objects render
-    as solid surfaces like a trained 3DGS.
-
-    ======  ============  ===============================================
-    label   name          what makes it hard
-    ======  ============  ===============================================
-    0       ground        large textured background (checker)
-    1       sphere        view-dependent colour (SH degree 1-3)
-    2       box           checker texture
-    3       cup           open cylinder shell + floor: a container ...
-    4       cup contents  ... and the liquid and balls inside it
-    5       rod           thin chopstick: few long anisotropic Gaussians
-    6       can 1         two identical striped cans: same-class ...
-    7       can 2         ... ambiguity (Gaussians equal up to translation)
-    ======  ============  ===============================================
+Scenes (:func:`make_scene`, module :mod:`.scenes`)
+    A textured ground plane (label 0) and seven objects (sphere, box, cup
+    and its contents, thin rod, two identical cans), each exercising one
+    difficulty; see :mod:`seed2gs_inverse.synthetic.scenes` for the table.
 
 Composites (:func:`compose`, :func:`pose_on_point`)
     ``compose(background, [(object_scene, pose), ...])`` moves each object

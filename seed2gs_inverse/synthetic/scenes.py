@@ -269,7 +269,7 @@ class SyntheticScene:
 
         View ``i`` sits at azimuth ``azimuth_deg + 360 i / n_views`` (measured
         from the local x axis, right-handed about ``up``; see
-        :func:`seed2gs_inverse.camera.look_at_orbit`) and elevation ``elevation_deg``
+        :func:`seed2gs_inverse.camera.orbit_directions`) and elevation ``elevation_deg``
         above the ground plane (a scalar or one value per view), at the
         distance where the objects' bounding sphere (times ``margin``) fits
         the narrower field of view. Image up is the scene's ``up``.
@@ -284,9 +284,15 @@ class SyntheticScene:
         probe = Camera.from_fov(width, height, fov_y_deg)
         half = 0.5 * min(probe.fov_x, probe.fov_y)
         dist = margin * r / np.sin(half)
-        az = np.radians(azimuth_deg + 360.0 * np.arange(n_views) / n_views)
-        return look_at_orbit(c, self.up, self.frame[:, 0], dist, az, np.radians(elev), fov_y_deg,
-                             width, height, names=[f"orbit_{i:03d}" for i in range(n_views)])
+        # The directions equal camera.orbit_directions(up, frame[:, 0], az, el) up to
+        # rounding; this form keeps the bits of the cameras the benchmarks were run with.
+        dirs = []
+        for i in range(n_views):
+            az = np.radians(azimuth_deg + 360.0 * i / n_views)
+            el = np.radians(elev[i])
+            dirs.append(self.frame @ np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)]))
+        return look_at_orbit(c, np.array(dirs), dist, self.up, fov_y_deg, width, height,
+                             names=[f"orbit_{i:03d}" for i in range(n_views)])
 
     def reference_camera(self, width: int, height: int, elevation_deg: float = 35.0,
                          azimuth_deg: float = -60.0, fov_y_deg: float = 50.0) -> Camera:
