@@ -14,8 +14,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import ValidationError
+from .geometry import axis_angle
 
-__all__ = ["Camera"]
+__all__ = ["Camera", "look_at_orbit", "orbit_directions"]
 
 
 def _finite(name, value, shape=None):
@@ -249,3 +250,65 @@ class Camera:
         c = np.round(self.center, 3).tolist()
         return (f"Camera(name={self.name!r}, {self.width}x{self.height}, fx={self.fx:.2f}, "
                 f"fy={self.fy:.2f}, cx={self.cx:.2f}, cy={self.cy:.2f}, center={c})")
+
+
+
+def orbit_directions(axis, start, azimuths, elevations) -> np.ndarray:
+    r"""Unit directions from an orbit centre to views at given azimuths and elevations.
+
+    .. math::
+
+        d_k = \cos\epsilon_k\, R(u, \alpha_k)\, s + \sin\epsilon_k\, u,
+
+    with ``u = axis`` (unit), ``s = start`` (a unit vector perpendicular to
+    ``u``: azimuth 0), :math:`R(u, \alpha)` the right-handed rotation about
+    ``u`` (:func:`seed2gs_inverse.geometry.axis_angle`), azimuths
+    :math:`\alpha_k` and elevations :math:`\epsilon_k` (above the plane
+    perpendicular to ``u``) in radians. Returns (n, 3) float64.
+    """
+    u = _finite("orbit axis", axis, (3,))
+    s = _finite("orbit start", start, (3,))
+    az = np.asarray(azimuths, dtype=np.float64).ravel()
+    el = np.asarray(elevations, dtype=np.float64).ravel()
+    if az.shape != el.shape:
+        raise ValidationError(f"orbit: {az.size} azimuths but {el.size} elevations")
+    out = np.empty((az.size, 3))
+    for k, (a, e) in enumerate(zip(az, el)):
+        out[k] = np.cos(e) * (axis_angle(u, a) @ s) + np.sin(e) * u
+    return out
+
+
+def look_at_orbit(center, directions, distance: float, up, fov_y_deg: float, width: int, height: int,
+                  names=None) -> list:
+    r"""Cameras at ``center + distance * directions[k]``, each looking at ``center``.
+
+    The orbit helper of both the VAAS clips
+    (:func:`seed2gs_inverse.pipeline.vaas.orbit_cameras`, directions from
+    :func:`orbit_directions`) and the synthetic scenes
+    (:meth:`seed2gs_inverse.synthetic.SyntheticScene.orbit_cameras`).
+
+    Parameters
+    ----------
+    center : (3,) array
+        What every camera looks at.
+    directions : (n, 3) array
+        Unit directions from ``center`` to the eyes.
+    distance : float
+        Distance of every eye from ``center``.
+    up : (3,) array
+        World direction that appears upwards in every image (:meth:`Camera.look_at`).
+    fov_y_deg, width, height
+        Intrinsics, as :meth:`Camera.from_fov`.
+    names : sequence of str or None
+        Camera names (default empty).
+
+    Returns
+    -------
+    list of Camera
+    """
+    o = _finite("orbit center", center, (3,))
+    dirs = _finite("orbit directions", directions).reshape(-1, 3)
+    if names is not None and len(names) != len(dirs):
+        raise ValidationError(f"orbit: {len(dirs)} views but {len(names)} names")
+    return [Camera.look_at(o + distance * d, o, up, fov_y_deg, width, height,
+                           **({} if names is None else {"name": names[k]})) for k, d in enumerate(dirs)]

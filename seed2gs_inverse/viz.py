@@ -20,7 +20,7 @@ from .errors import ValidationError
 from .scene import GaussianScene, quat_to_rotmat
 from .sh import SH_C0
 
-__all__ = ["membership_plot", "view_grid", "has_display"]
+__all__ = ["membership_plot", "view_grid", "has_display", "check_membership"]
 
 
 def has_display() -> bool:
@@ -30,8 +30,27 @@ def has_display() -> bool:
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
-def _check_q(q, n: int, name: str = "membership q") -> np.ndarray:
-    """``q`` as float64 (n,) in [0, 1], or a ValidationError naming ``name``."""
+def check_membership(q, n: int, name: str = "membership q") -> np.ndarray:
+    """A membership vector checked against a scene of ``n`` Gaussians.
+
+    Parameters
+    ----------
+    q : array_like, shape (n,)
+        One number in [0, 1] per Gaussian (bool and integer 0/1 accepted).
+    n : int
+        Number of Gaussians of the scene it belongs to.
+    name : str
+        What to call ``q`` in error messages (e.g. the file it came from).
+
+    Returns
+    -------
+    (n,) float64 array
+
+    Raises
+    ------
+    ValidationError
+        Naming ``name`` when the shape, dtype or values are wrong.
+    """
     arr = np.asarray(q)
     if arr.ndim != 1 or arr.shape[0] != n:
         raise ValidationError(f"{name} has shape {arr.shape}; the scene has {n} Gaussians, "
@@ -121,7 +140,7 @@ def membership_plot(scene: GaussianScene, q=None, mode: str = "points", threshol
     if mode not in ("points", "ellipsoids"):
         raise ValidationError(f"mode must be 'points' or 'ellipsoids', got {mode!r}")
     n = len(scene)
-    qv = None if q is None else _check_q(q, n)
+    qv = None if q is None else check_membership(q, n)
     if threshold is not None:
         if qv is None:
             raise ValidationError("threshold needs a membership q")

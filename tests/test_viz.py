@@ -220,3 +220,16 @@ def test_up_direction_without_camera(offscreen, rng, tmp_path):
     blue = (img[:, :, 2] > 150) & (img[:, :, 0] < 100)
     assert red.any() and blue.any()
     assert np.nonzero(red)[0].mean() < np.nonzero(blue)[0].mean()
+
+
+def test_check_membership_is_public_and_names_the_source():
+    from seed2gs_inverse.viz import check_membership
+
+    q = check_membership(np.array([True, False, True]), 3)
+    assert q.dtype == np.float64 and q.tolist() == [1.0, 0.0, 1.0]
+    with pytest.raises(ValidationError, match=r"--membership q\.npy has shape \(2,\).*\(3,\)"):
+        check_membership(np.zeros(2), 3, "--membership q.npy")
+    with pytest.raises(ValidationError, match=r"q\.npy: values must be finite and in \[0, 1\]"):
+        check_membership(np.array([0.0, 1.5, np.nan]), 3, "q.npy")
+    with pytest.raises(ValidationError, match="dtype"):
+        check_membership(np.array(["a", "b", "c"]), 3)

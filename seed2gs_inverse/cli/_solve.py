@@ -3,14 +3,14 @@
 A masks directory holds one file per view, in view order: ``view_000.png``
 (8-bit greyscale; 0/255 become 0/1, colour images are converted to grey)
 or ``view_000.npy`` (float in [0, 1] with NaN for unknown pixels, bool or
-uint8). The count must equal the operator directory's view count.
+uint8), read by :func:`seed2gs_inverse.io.read_masks`. The count must equal
+the operator directory's view count and each mask must have its view's size.
 """
 
 from __future__ import annotations
 
 import io
 import json
-import re
 import sys
 from pathlib import Path
 
@@ -18,9 +18,7 @@ import numpy as np
 
 from ..errors import FormatError, ValidationError
 
-__all__ = ["register", "read_masks", "solve_command", "compare_command"]
-
-_MASK_NAME = re.compile(r"^view_(\d+)\.(png|npy)$", re.IGNORECASE)
+__all__ = ["register", "solve_command", "compare_command"]
 
 
 def register(subparsers) -> None:
@@ -58,47 +56,6 @@ def _load_npy(path: Path) -> np.ndarray:
         raise FormatError(f"{path}: not a readable .npy array ({exc})") from None
 
 
-def read_masks(directory, n_views: int | None = None) -> list:
-    """Masks ``view_000.png|npy ...`` of a directory, in view order.
-
-    Returns a list of arrays (uint8 from PNG, as stored from .npy), which
-    the solvers normalise. Indices must run 0..V-1 without gaps, and V
-    must equal ``n_views`` when given.
-    """
-    d = Path(directory)
-    if not d.is_dir():
-        raise FormatError(f"{d}: not a directory of masks (view_000.png|npy, ...)")
-    found = {}
-    for f in d.iterdir():
-        m = _MASK_NAME.match(f.name)
-        if m:
-            k = int(m.group(1))
-            if k in found:
-                raise FormatError(f"{d}: two masks for view {k} ({found[k].name}, {f.name})")
-            found[k] = f
-    if not found:
-        raise FormatError(f"{d}: no masks named view_000.png / view_000.npy")
-    if sorted(found) != list(range(len(found))):
-        missing = sorted(set(range(max(found) + 1)) - set(found))
-        raise FormatError(f"{d}: mask files must be numbered 0..{len(found) - 1}; missing view(s) {missing[:5]}")
-    if n_views is not None and len(found) != n_views:
-        raise ValidationError(f"{d}: {len(found)} masks for {n_views} operator views; give one mask per view")
-    masks = []
-    for k in range(len(found)):
-        f = found[k]
-        if f.suffix.lower() == ".npy":
-            masks.append(_load_npy(f))
-        else:
-            from PIL import Image, UnidentifiedImageError
-
-            try:
-                with Image.open(f) as im:
-                    masks.append(np.asarray(im.convert("L")))
-            except (UnidentifiedImageError, OSError) as exc:
-                raise FormatError(f"{f}: not a readable PNG ({exc})") from None
-    return masks
-
-
 def _parse_options(items) -> dict:
     out = {}
     for item in items:
@@ -120,8 +77,8 @@ def _npy_bytes(arr) -> bytes:
 
 def solve_command(args) -> int:
     from ..operators.operator import OperatorStack
-    from ..solvers import solve
-    from ..solvers._common import get_method
+    from ..io import read_masks
+    from ..solvers import get_method, solve
     from .._atomic import check_output_parent, write_files
 
     get_method(args.method)  # fail fast on a typo, before loading anything
@@ -129,7 +86,7 @@ def solve_command(args) -> int:
     if out.suffix.lower() != ".npy":
         raise ValidationError(f"-o {out}: the output must be a .npy file")
     stack = OperatorStack.load(args.operators, mmap=True)
-    masks = read_masks(args.masks, len(stack))
+    masks = read_masks(args.masks, len(stack), stack.image_shapes)
     init = _load_npy(Path(args.init)) if args.init else None
     print(f"solving {len(stack)} views, {stack.n_gaussians:,} Gaussians with {args.method} ...",
           file=sys.stderr, flush=True)
@@ -144,13 +101,14 @@ def solve_command(args) -> int:
 
 def compare_command(args) -> int:
     from ..compare import compare
+    from ..io import read_masks
     from ..operators.operator import OperatorStack
     from .._atomic import check_output_parent, write_files
 
     if args.output:
         check_output_parent(args.output, "-o")  # DIR itself is created at the end
     stack = OperatorStack.load(args.operators, mmap=True)
-    masks = read_masks(args.masks, len(stack))
+    masks = read_masks(args.masks, len(stack), stack.image_shapes)
     truth = _load_npy(Path(args.truth))
     if truth.dtype != bool:
         if truth.dtype.kind in "ui" and truth.size and set(np.unique(truth).tolist()) <= {0, 1}:

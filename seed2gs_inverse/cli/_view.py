@@ -61,9 +61,9 @@ def _load_membership(path, n: int) -> np.ndarray:
         raise ValidationError(f"--membership {path}: not a plain .npy array ({exc})") from None
     if not isinstance(q, np.ndarray):
         raise ValidationError(f"--membership {path}: expected a .npy array, got an archive")
-    from ..viz import _check_q
+    from ..viz import check_membership
 
-    return _check_q(q, n, f"--membership {path}")
+    return check_membership(q, n, f"--membership {path}")
 
 
 def _pick_camera(cams, which):

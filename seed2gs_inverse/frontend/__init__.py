@@ -4,7 +4,7 @@ Model-free pieces (prompts, the geometric tracker) work with no files at all;
 the learned pieces run ONNX files the user supplies (see ``docs/models.md``).
 """
 
-from .base import Candidate, Grounder, Tracker
+from .base import Candidate, Detection, Grounder, Tracker
 from .config import NO_MODELS_NOTICE, ModelSet, load_models, resolve_models
 from .external import ExternalBoxes
 from .grounding_dino import GroundingDINO
@@ -15,7 +15,7 @@ from .selector import QDSAM3Selector, query_type
 from .tokenizer import BertTokenizer, ClipTokenizer
 
 __all__ = [
-    "Candidate", "Grounder", "Tracker",
+    "Candidate", "Detection", "Grounder", "Tracker",
     "load_models", "resolve_models", "ModelSet", "NO_MODELS_NOTICE",
     "QDSAM3Selector", "query_type", "SAM2ImagePredictor", "SAM2VideoTracker",
     "GroundingDINO", "SAM3", "OWLViT", "ExternalBoxes", "BertTokenizer", "ClipTokenizer",

@@ -13,7 +13,7 @@ from typing import Any, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
-__all__ = ["Candidate", "Grounder", "Tracker"]
+__all__ = ["Candidate", "Detection", "Grounder", "Tracker"]
 
 
 @dataclass
@@ -40,6 +40,19 @@ class Candidate:
     score: float
     source: str
     info: dict = field(default_factory=dict)
+
+
+@dataclass
+class Detection:
+    """One detected box: pixel ``box`` (x0, y0, x1, y1), ``score`` in [0, 1], ``label``.
+
+    What every box detector returns (GroundingDINO, OWL-ViT, ExternalBoxes);
+    the selector turns detections into :class:`Candidate` masks.
+    """
+
+    box: np.ndarray
+    score: float
+    label: str
 
 
 @runtime_checkable

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..errors import FormatError, ValidationError
 from ._imaging import as_box, as_rgb
-from .grounding_dino import Detection
+from .base import Detection
 
 __all__ = ["ExternalBoxes", "parse_boxes"]
 

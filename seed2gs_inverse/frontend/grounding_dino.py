@@ -17,13 +17,12 @@ block-diagonal ``text_token_mask`` come from
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from ..errors import ValidationError
 from ._imaging import IMAGENET_MEAN, IMAGENET_STD, as_rgb, cxcywh_to_xyxy, resize_normalize
 from ._onnx import Layout, OnnxModel, Port
+from .base import Detection  # defined in base (shared by all grounders); still importable here
 from .tokenizer import BertTokenizer
 
 __all__ = ["GroundingDINO", "Detection", "GROUNDING_DINO_LAYOUT", "preprocess_caption",
@@ -37,15 +36,6 @@ GROUNDING_DINO_LAYOUT = Layout(
     (Port("logits", ("float32",), 3), Port("boxes", ("float32",), 3, (None, None, 4))))
 
 MAX_TEXT_LEN = 256
-
-
-@dataclass
-class Detection:
-    """One detected box: pixel ``box`` (x0, y0, x1, y1), ``score`` in [0, 1], ``label``."""
-
-    box: np.ndarray
-    score: float
-    label: str
 
 
 def preprocess_caption(caption: str) -> str:

@@ -14,7 +14,7 @@ import numpy as np
 
 from ._imaging import CLIP_MEAN, CLIP_STD, as_rgb, cxcywh_to_xyxy, resize_normalize
 from ._onnx import Layout, OnnxModel, Port
-from .grounding_dino import Detection
+from .base import Detection
 from .tokenizer import ClipTokenizer
 from ..errors import ValidationError
 

@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..camera import Camera
+from ..camera import Camera, look_at_orbit, orbit_directions
 from ..errors import ValidationError
 
 __all__ = ["ClipFrame", "VAASPlan", "flat_orbit", "spiral_orbit", "spiral_elevations", "orbit_cameras", "run_vaas",
@@ -87,11 +87,6 @@ class VAASPlan:
                 "skipped_spiral": bool(self.skipped_spiral), "n_flat": len(self.flat),
                 "n_spiral": len(self.spiral),
                 "per_view_visibility": [float(v) for v in self.per_view_visibility], **self.settings}
-
-
-def _rodrigues(axis: np.ndarray, angle: float) -> np.ndarray:
-    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * (k @ k)
 
 
 def _frame(reference: Camera, center, up=None):
@@ -165,17 +160,12 @@ def orbit_cameras(reference: Camera, center, azimuths_deg, elevations_deg=None,
         np.asarray(elevations_deg, dtype=np.float64).ravel())
     if el.shape != az.shape:
         raise ValidationError(f"orbit: {az.size} azimuths but {el.size} elevations")
-    fov_y = np.degrees(reference.fov_y)
-    cams = []
-    for k, (a, e) in enumerate(zip(az, el)):
-        if abs(a) < 1e-12 and abs(e - e0) < 1e-12:
-            cams.append(reference)
-            continue
-        horiz = _rodrigues(u, a) @ e1
-        eye = o + dist * (np.cos(e) * horiz + np.sin(e) * u)
-        lk = Camera.look_at(eye, o, u, fov_y, reference.width, reference.height)
-        cams.append(base.with_pose(lk.world_to_camera))
-    return cams
+    # Frames at azimuth 0 and the reference elevation are the reference itself
+    # (a tracker gets the seed mask on frame 0); the others look at o.
+    is_ref = (np.abs(az) < 1e-12) & (np.abs(el - e0) < 1e-12)
+    moved = iter(look_at_orbit(o, orbit_directions(u, e1, az[~is_ref], el[~is_ref]), dist, u,
+                               np.degrees(reference.fov_y), reference.width, reference.height))
+    return [reference if r else base.with_pose(next(moved).world_to_camera) for r in is_ref]
 
 
 def flat_orbit(reference: Camera, center, n_views: int = 24, fit_radius: float | None = None,

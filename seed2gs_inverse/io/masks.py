@@ -1,0 +1,117 @@
+"""Reading a directory of per-view supervision masks.
+
+A masks directory holds one file per view, in view order: ``view_000.png``
+(8-bit greyscale; 0/255 become 0/1 in the solvers, colour images are
+converted to grey) or ``view_000.npy`` (float in [0, 1] with NaN for
+unknown pixels, bool or integer 0/1, uint8 0/255). Views may use different
+formats (a PNG where the mask is binary, an .npy where it has unknown
+pixels), but each view has exactly one file.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import FormatError, ValidationError
+
+__all__ = ["read_masks", "MASK_NAME"]
+
+#: File names of the masks: ``view_<index>.png`` or ``view_<index>.npy``.
+MASK_NAME = re.compile(r"^view_(\d+)\.(png|npy)$", re.IGNORECASE)
+
+
+def _mask_files(d: Path) -> list[Path]:
+    """The mask files of ``d`` in view order, after checking names, numbering and format."""
+    if not d.is_dir():
+        raise FormatError(f"{d}: not a directory of masks (view_000.png|npy, ...)")
+    found = {}
+    for f in d.iterdir():
+        m = MASK_NAME.match(f.name)
+        if m:
+            k = int(m.group(1))
+            if k in found:
+                raise FormatError(f"{d}: two masks for view {k} ({found[k].name}, {f.name}); keep one")
+            found[k] = f
+    if not found:
+        raise FormatError(f"{d}: no masks named view_000.png / view_000.npy")
+    if sorted(found) != list(range(len(found))):
+        missing = sorted(set(range(max(found) + 1)) - set(found))
+        raise FormatError(f"{d}: mask files must be numbered 0..{len(found) - 1}; missing view(s) {missing[:5]}")
+    return [found[k] for k in range(len(found))]
+
+
+def _read_one(f: Path) -> np.ndarray:
+    if f.suffix.lower() == ".npy":
+        try:
+            arr = np.load(f, allow_pickle=False)
+        except (ValueError, OSError, EOFError) as exc:
+            raise FormatError(f"{f}: not a readable .npy array ({exc})") from None
+        if arr.dtype.kind not in "buif":
+            raise FormatError(f"{f}: mask dtype {arr.dtype} is not supported; use bool, uint8 or float")
+        return arr
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(f) as im:
+            return np.asarray(im.convert("L"))
+    except (UnidentifiedImageError, OSError) as exc:
+        raise FormatError(f"{f}: not a readable PNG ({exc})") from None
+
+
+def read_masks(directory, n_views: int | None = None, image_shapes=None) -> list[np.ndarray]:
+    """Masks ``view_000.png|npy ...`` of a directory, in view order.
+
+    Parameters
+    ----------
+    directory : path
+        Directory with one file ``view_<k>.png`` or ``view_<k>.npy`` per
+        view, ``k`` running ``0..V-1`` without gaps (any zero
+        padding). Other files are ignored.
+    n_views : int or None
+        When given, ``V`` must equal it (one mask per operator view).
+    image_shapes : sequence of (H, W) or None
+        When given, mask ``k`` must have shape ``image_shapes[k]`` or its
+        flat ``(H*W,)`` (e.g. ``OperatorStack.image_shapes``).
+
+    Returns
+    -------
+    list of ndarray
+        One array per view: uint8 (H, W) from PNG, as stored from .npy
+        ((H, W) or the flat (H*W,) pixels, as the solvers accept). Values
+        are normalised (and their range checked) by the solvers.
+
+    Raises
+    ------
+    FormatError
+        Not a directory, no masks, gaps in the numbering, two files for one
+        view (e.g. ``view_000.png`` and ``view_000.npy``), an unreadable file, a mask that is neither
+        (H, W) nor flat, or of an unsupported dtype. The message names the file.
+    ValidationError
+        Wrong number of masks, or a mask whose shape differs from its view's
+        image (naming the file and the expected shape).
+    """
+    d = Path(directory)
+    files = _mask_files(d)
+    if n_views is not None and len(files) != n_views:
+        raise ValidationError(f"{d}: {len(files)} masks for {n_views} operator views; give one mask per view")
+    if image_shapes is not None:
+        image_shapes = [tuple(int(s) for s in shape) for shape in image_shapes]
+        if len(image_shapes) != len(files):
+            raise ValidationError(f"{d}: {len(files)} masks for {len(image_shapes)} image shapes; "
+                                  "give one mask per view")
+    masks = []
+    for k, f in enumerate(files):
+        arr = _read_one(f)
+        if arr.ndim not in (1, 2) or arr.size == 0:
+            raise FormatError(f"{f}: a mask must be an (H, W) image (or its flat (H*W,) pixels), "
+                              f"got shape {arr.shape}")
+        if image_shapes is not None:
+            h, w = image_shapes[k]
+            if arr.shape not in ((h, w), (h * w,)):
+                raise ValidationError(f"{f}: mask has shape {arr.shape} but view {k} is {(h, w)} (H, W); "
+                                      "masks must be at the operator's resolution")
+        masks.append(arr)
+    return masks
