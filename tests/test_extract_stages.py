@@ -287,3 +287,25 @@ def test_geometric_tracker_uses_references(syn, staged):
     without = t.track(o.spiral, staged.ref.seed)
     known = lambda ms: sum(int((~np.isnan(m)).sum()) for m in ms)  # noqa: E731
     assert known(with_refs) >= known(without)
+
+
+def test_progress_bar_is_owned_by_its_with_block(capsys):
+    with ex_mod._Progress("views", True, total=3) as bar:
+        for _ in range(3):
+            bar.update()
+        assert bar._bar is not None and bar._bar.n == 3
+    assert bar._bar is None  # closed on leaving the block
+    assert "views" in capsys.readouterr().err
+    with ex_mod._Progress("quiet", False) as off:
+        off.update()
+    assert off._bar is None and capsys.readouterr().err == ""
+
+
+def test_stage_timer_moves_seconds_between_stages():
+    t = ex_mod._StageTimer()
+    with t("vaas"):
+        pass
+    t.seconds["vaas"] = 1.0
+    t.move("vaas", "operators", 0.25)
+    assert t.seconds["vaas"] == 0.75 and t.seconds["operators"] == 0.25
+    assert list(t.seconds) == list(ex_mod.STAGES)

@@ -159,13 +159,13 @@ def _resize_mask(mask: np.ndarray, shape: tuple) -> np.ndarray:
     return m > 0.5
 
 
-def _view_scale(camera: Camera, orbit_scale: float, max_pixels: int | None) -> float:
-    s = float(orbit_scale)
-    if not (np.isfinite(s) and 0 < s <= 4):
-        raise ValidationError(f"orbit_scale must be in (0, 4], got {orbit_scale!r}")
+def _view_scale(camera: Camera, scale: float, max_pixels: int | None) -> float:
+    """``scale``, lowered so that ``camera.scaled(scale)`` has at most ``max_pixels`` pixels (None: no cap).
+
+    Both are validated by :class:`ExtractSettings`.
+    """
+    s = float(scale)
     if max_pixels is not None:
-        if int(max_pixels) < 64:
-            raise ValidationError(f"max_view_pixels must be >= 64, got {max_pixels!r}")
         s = min(s, np.sqrt(int(max_pixels) / (camera.width * camera.height)))
     return s
 
@@ -249,6 +249,12 @@ class _Renderer:
     once for the ~50 views of an extraction instead of per view (identical
     results). ``operator_seconds`` accumulates the time spent building
     operators (reported under the ``operators`` stage).
+
+    When the ``raster`` package lands, only this class changes: ``__init__``
+    holds ``raster.FrozenScene(scene)`` (no ``frozen()`` context, no
+    ``_sigma3``), ``render``/``build_operator`` take it in place of the
+    scene, and :func:`_cone_subset` becomes ``raster.cone_cull(frozen,
+    camera, roi, far)``.
     """
 
     def __init__(self, scene: GaussianScene, mode: str = "classic"):
