@@ -114,51 +114,80 @@ class ExtractSettings:
     ----------
     method : str
         Solver (:func:`seed2gs_inverse.solvers.available_methods`), default ``"weighted_bce"``.
-    n_views : int
-        Views per VAAS clip (paper: 24), >= 2.
-    a_max_deg, gamma : float
-        Eq. 5 amplitude ``A = A_max (1 - V)^gamma``: 60 degrees (>= 0) and 1 (> 0).
-    skip_deg : float
-        The spiral is skipped below this amplitude (paper: 5 degrees), >= 0.
-    profile : {"linear", "sin"}
-        Elevation profile of the spiral.
-    max_elevation_deg : float
-        Cap of the spiral's elevation, in (0, 90) degrees (85).
+    n_views, a_max_deg, gamma, skip_deg, profile, max_elevation_deg
+        VAAS settings (:mod:`seed2gs_inverse.pipeline.vaas`): paper defaults
+        24 views per clip and 5 degrees; A_max = 60 degrees and gamma = 1 are
+        our documented choices. Ranges: ``n_views >= 2``, ``a_max_deg >= 0``,
+        ``gamma > 0``, ``skip_deg >= 0``, ``profile`` ``"linear"`` or
+        ``"sin"``, ``0 < max_elevation_deg < 90`` (default 85).
     orbit_scale : float
-        Orbit view resolution relative to the reference camera, in (0, 4] (0.5) ...
+        Resolution of the orbit views relative to the reference camera,
+        default 0.5, in (0, 4] ...
     max_view_pixels : int or None
-        ... capped at this many pixels per view (40 000, >= 64); None: no cap.
+        ... capped at this many pixels per view (40k, e.g. 267x150 for a
+        960x540 reference). The orbit views are object-centric (zoomed), so
+        even this resolution puts a few thousand pixels on the object, and
+        the operators (non-zeros) dominate time and memory: on the
+        firepit+unicorn benchmark 160k pixels per view cost 3x the time for
+        the same accuracy (mIoU 0.900 vs 0.894 on pose 0). None: no cap;
+        else >= 64.
     max_reference_pixels : int or None
-        The reference view keeps the camera's resolution up to this many
-        pixels (1 000 000, >= 64); None: no cap.
+        The reference view (seed lift, frame 0 of both clips, first
+        supervision view) keeps the camera's resolution up to this many
+        pixels (1M), composited only in a box around the seed. Clip frames
+        therefore differ in size between frame 0 and the rest. None: no
+        cap; else >= 64.
     roi_margin : float or None
-        Orbit views composite only the box around the projected sphere of
-        radius ``roi_margin * extent`` about ``o`` (2, > 0); None: full views.
+        Orbit views composite only the pixel box around the projected sphere
+        of radius ``roi_margin * extent`` about ``o`` (default 2: the lift
+        sees the front of the object only, so its extent is conservative);
+        pixels outside have empty operator rows and label 0. None: full views.
     zoom_margin : float or None
-        Orbit views zoom so that the sphere of radius ``zoom_margin * extent``
-        fits the image (2, > 0); None: the reference's field of view.
+        Object-centric views: the orbit views (not the reference) zoom so
+        that the sphere of radius ``zoom_margin * extent`` about ``o`` fits
+        the image (default 2, for the same reason as ``roi_margin``). None
+        keeps the reference's field of view.
     up : "level", "camera" or (3,) tuple of float
-        Orbit axis (see :func:`~seed2gs_inverse.pipeline.vaas.estimate_up`).
+        Orbit axis. ``"level"`` (default): the reference camera's image-up
+        with its pitch removed (:func:`~seed2gs_inverse.pipeline.vaas.estimate_up`);
+        ``"camera"``: the image-up itself (literal reading of the paper; the
+        flat orbit then tilts by the camera's pitch); or a world vector.
     min_weight : float
-        Orbit operators drop compositing weights below this (0, >= 0).
+        Orbit operators drop compositing weights below this
+        (:func:`~seed2gs_inverse.operators.render.build_operator`): fewer
+        non-zeros, faster solves, ``W 1`` short of alpha by at most the
+        dropped weights.
     cull : bool
-        Rasterize each orbit view from the Gaussians in the cone of its roi only.
+        Rasterize each orbit view from only the Gaussians inside the cone of
+        its roi (widened by their 3-sigma size) and map the operator's
+        columns back; the operator is the same, the time scales with what
+        the view can see instead of with the scene.
     cull_far : float or None
-        With ``cull``, also drop what lies farther than ``cull_far * extent``
-        behind ``o`` (4, > 0); None keeps everything (exact operators).
+        With ``cull``, orbit views also leave out what lies farther than
+        ``cull_far * extent`` behind ``o`` (default 4, twice the roi sphere):
+        far background contributes nothing but compositing work and pixels
+        that can only be background. Such pixels render empty (label 0,
+        empty operator rows), and those Gaussians stay unobserved (prior 0)
+        unless a nearer view sees them. None keeps everything (exact
+        operators).
     min_evidence : float
-        Gaussians whose summed weight over the decided pixels of all views is
-        below this keep the prior (0.05, >= 0); the solver's ``min_evidence``.
+        A Gaussian whose summed compositing weight over the *decided*
+        (non-NaN) pixels of all views is below this (default 0.05, a
+        twentieth of one opaque pixel) has no real evidence: its ``q`` is
+        reset to the prior (1 in G0, else 0). Without this, an unregularised
+        fit can drive such Gaussians to 1 on a trace of weight. Passed to
+        :func:`~seed2gs_inverse.solvers.solve` as its ``min_evidence``.
     threshold : float or None
         ``tau`` of Eq. 9 (finite); None: the solver's own (0.5).
-    lift_options : mapping
+    lift_options : mapping (read-only)
         Keyword arguments of :func:`~seed2gs_inverse.pipeline.seed_lift.seed_lift`.
-    solver_options : mapping
-        Keyword arguments of the solver method, on top of :data:`SOLVER_DEFAULTS`.
+    solver_options : mapping (read-only)
+        Keyword arguments of the solver method, on top of
+        :data:`SOLVER_DEFAULTS` (``max_iter=30`` for ``weighted_bce``).
     mode : {"classic", "antialiased"}
         Rasterization mode of every rendering.
     progress : bool or None
-        Progress bars on stderr; None: only when stderr is a terminal.
+        Progress bars on stderr; default: only when stderr is a terminal.
     """
 
     method: str = "weighted_bce"
