@@ -39,7 +39,7 @@ _LAZY = {
     **dict.fromkeys(["iou", "boundary_iou", "membership_scores"], "metrics"),
     **dict.fromkeys(["compare", "Comparison"], "compare"),
     **dict.fromkeys(["MaskPrompt", "BoxPrompt", "PointPrompt", "TextPrompt"], "frontend.prompts"),
-    **dict.fromkeys(["extract", "Extraction", "seed_lift"], "pipeline"),
+    **dict.fromkeys(["extract", "Extraction", "ExtractSettings", "seed_lift"], "pipeline"),
     **dict.fromkeys(["remove", "move", "duplicate", "recolour"], "edit"),
     **dict.fromkeys(["make_scene", "compose", "masks_from_labels", "perturb_masks"], "synthetic"),
 }

@@ -56,6 +56,12 @@ def test_extract_mask_writes_all_outputs(files, capsys):
     assert q.shape == (n,) and len(obj) + len(rem) == n and len(obj) == int((q > 0.5).sum())
     rep = json.loads((out / "report.json").read_text())
     assert rep["n_selected"] == len(obj) and set(rep["seconds"]) >= {"render", "lift", "vaas", "solve"}
+    # report.json's settings are the ExtractSettings of the command line, and load back as such
+    from seed2gs_inverse.pipeline import ExtractSettings
+
+    assert ExtractSettings.from_dict(rep["settings"]) == ExtractSettings(n_views=8, progress=False)
+    assert rep["resolved"]["threshold"] == 0.5 and rep["resolved"]["tracker"] == "GeometricTracker"
+    assert rep["resolved"]["solver_options"] == {"max_iter": 30} and rep["resolved"]["view_scale"] == 0.5
     sel = q > 0.5
     truth = files["truth"]
     assert (sel & truth).sum() / sel.sum() > 0.9 and (sel & truth).sum() / truth.sum() > 0.8
@@ -102,6 +108,11 @@ def test_extract_bad_input_leaves_nothing(files, capsys, tmp_path):
            "--box", out)
     _fails(["extract", scene, "--camera", cams, "--mask", d / "mask.png", "--threshold", 1.5, "-o", out],
            capsys, "threshold", out)
+    # options the settings object rejects fail before any work, naming the option
+    _fails(["extract", scene, "--camera", cams, "--mask", d / "mask.png", "--orbit-scale", 5, "-o", out],
+           capsys, "orbit_scale must be <= 4", out)
+    _fails(["extract", scene, "--camera", cams, "--mask", d / "mask.png", "--views", 1, "-o", out],
+           capsys, "--views must be >= 2", out)
     _fails(["extract", scene, "--camera", cams, "--box", 1, 1, 50, 50, "--negative", 3, 3, "-o", out],
            capsys, "--point", out)
     # A mask on empty space (the sky) does not touch the scene.

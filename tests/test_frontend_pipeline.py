@@ -33,7 +33,7 @@ def test_extract_text_prompt_with_tiny_models(models):
     # the SAM2 memory-bank tracker (tiny: "red pixels") propagates it
     grounder = models.grounder(external=lambda image, prompt: [{"box": box, "score": 0.9}])
     ex = extract(scene, cam, "red ball", grounder=grounder, tracker=models.tracker(), n_views=8)
-    assert ex.settings["tracker"] == "SAM2VideoTracker" and ex.settings["grounder"] == "QDSAM3Selector"
+    assert ex.resolved["tracker"] == "SAM2VideoTracker" and ex.resolved["grounder"] == "QDSAM3Selector"
     cand = ex.prompt_info["candidates"][0]
     assert cand["source"] == "vlm" and {"S_src", "S_conf", "S_lang"} <= set(cand["info"])
     # Scored like the paper: 2D IoU on views the pipeline never rendered (the

@@ -56,7 +56,7 @@ def run_demo(seed=0, obj="box", views=12, size=(192, 144), method="weighted_bce"
     """Extract ``obj`` from the procedural scene; returns (extraction, scores dict)."""
     from ..metrics import boundary_iou, iou, membership_scores
     from ..operators.render import build_operator
-    from ..pipeline import extract
+    from ..pipeline import ExtractSettings, extract
     from ..synthetic import make_scene
 
     syn = make_scene(seed=seed)
@@ -68,7 +68,8 @@ def run_demo(seed=0, obj="box", views=12, size=(192, 144), method="weighted_bce"
     seed_mask = (build_operator(syn.scene, cam).W @ truth.astype(np.float32)).reshape(cam.image_shape) > 0.5
     if not seed_mask.any():
         raise ValueError(f"object {syn.names[label]!r} is not visible in the reference view")
-    ex = extract(syn.scene, cam, seed_mask, n_views=views, method=method, progress=False)
+    settings = ExtractSettings(method=method, n_views=views, progress=False)
+    ex = extract(syn.scene, cam, seed_mask, settings=settings)
     ious, bious = [], []
     for c in held_out_cameras(syn.centers[label], syn.frame, 4.0 * syn.radii[label], 96, 72):
         op = build_operator(syn.scene, c)
@@ -93,7 +94,7 @@ def run(args) -> int:
     print("\n".join(_summary(sc["syn"])))
     m3 = sc["3d"]
     print(f"extracted '{sc['object']}' from a ground-truth seed ({int(ex.seed_mask.sum())} px) with "
-          f"{ex.settings['method']}: {int(ex.selected.sum())} Gaussians selected, "
+          f"{ex.settings.method}: {int(ex.selected.sum())} Gaussians selected, "
           f"{len(ex.views)} views (V = {ex.vaas.visibility:.2f}, A = {ex.vaas.amplitude_deg:.1f} deg"
           f"{', spiral skipped' if ex.vaas.skipped_spiral else ''})")
     print(f"held-out views ({sc['n_held_out']}, never rendered by the pipeline): "

@@ -12,7 +12,7 @@ import numpy as np
 from .._atomic import atomic_path
 from ..errors import ValidationError
 
-__all__ = ["register", "write_outputs"]
+__all__ = ["register", "write_outputs", "settings_from_args"]
 
 
 def register(subparsers) -> None:
@@ -106,16 +106,10 @@ def write_outputs(extraction, outdir, fmt: str = "ply", force: bool = False, fig
     return out
 
 
-def run(args) -> int:
-    from ..io import read_camera, read_scene
-    from ..pipeline import extract
+def settings_from_args(args):
+    """The :class:`~seed2gs_inverse.pipeline.ExtractSettings` of the command line (validated)."""
+    from ..pipeline import ExtractSettings
 
-    # Validate everything cheap before the expensive work.
-    out = Path(args.output)
-    if out.exists() and not args.force:
-        raise ValidationError(f"output directory {out} exists; use --force to replace it")
-    if not out.resolve().parent.is_dir():
-        raise ValidationError(f"cannot create {out}: parent directory {out.resolve().parent} does not exist")
     if args.views < 2:
         raise ValidationError(f"--views must be >= 2, got {args.views}")
     if args.threshold is not None and not 0.0 <= args.threshold < 1.0:
@@ -126,6 +120,21 @@ def run(args) -> int:
 
     if args.method not in available_methods():
         raise ValidationError(f"unknown --method {args.method!r}; available: {', '.join(available_methods())}")
+    return ExtractSettings(method=args.method, n_views=args.views, orbit_scale=args.orbit_scale,
+                           threshold=args.threshold, progress=False if args.no_progress else None)
+
+
+def run(args) -> int:
+    from ..io import read_camera, read_scene
+    from ..pipeline import extract
+
+    # Validate everything cheap before the expensive work.
+    out = Path(args.output)
+    if out.exists() and not args.force:
+        raise ValidationError(f"output directory {out} exists; use --force to replace it")
+    if not out.resolve().parent.is_dir():
+        raise ValidationError(f"cannot create {out}: parent directory {out.resolve().parent} does not exist")
+    settings = settings_from_args(args)
     if not os.path.isfile(args.scene):
         raise FileNotFoundError(2, "No such file", args.scene)
     prompt = _prompt_from_args(args)
@@ -138,10 +147,7 @@ def run(args) -> int:
 
         raise ValidationError(TEXT_NEEDS_GROUNDER)
     scene = read_scene(args.scene)
-    progress = False if args.no_progress else None
-    ex = extract(scene, camera, prompt, grounder=grounder, tracker=tracker, method=args.method,
-                 n_views=args.views, orbit_scale=args.orbit_scale, threshold=args.threshold,
-                 progress=progress)
+    ex = extract(scene, camera, prompt, grounder=grounder, tracker=tracker, settings=settings)
     write_outputs(ex, out, args.format, force=args.force)
     s = ex.seconds
     print(f"extracted {int(ex.selected.sum())} of {len(scene)} Gaussians -> {out}/object.{args.format} "

@@ -72,7 +72,13 @@ class Tracker(Protocol):
     :class:`seed2gs_inverse.pipeline.vaas.ClipFrame`). Returns one float32
     mask per frame, values in [0, 1], NaN where the tracker cannot decide.
     The first returned mask is the seed itself.
+
+    ``references`` are views already labelled, as ``(frame, mask)`` pairs
+    (the pipeline passes the tracked flat clip when it tracks the spiral, and
+    always passes the argument): a tracker may use them as extra sources or
+    ignore them, but must accept the argument.
     """
 
-    def track(self, frames: Sequence[Any], seed_mask: np.ndarray) -> list[np.ndarray]:
+    def track(self, frames: Sequence[Any], seed_mask: np.ndarray,
+              references: Sequence[tuple[Any, np.ndarray]] = ()) -> list[np.ndarray]:
         ...

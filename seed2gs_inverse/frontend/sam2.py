@@ -381,7 +381,7 @@ class SAM2VideoTracker:
         out = self.memory_encoder.run({"mask_for_mem": mask_for_mem, "pix_feat": pix_feat})
         return out["maskmem_features"], out["maskmem_pos_enc"], out.get("temporal_code")
 
-    def track(self, frames: Sequence[Any], seed_mask) -> list[np.ndarray]:
+    def track(self, frames: Sequence[Any], seed_mask, references: Sequence = ()) -> list[np.ndarray]:
         """Propagate ``seed_mask`` over ``frames`` (first frame = reference).
 
         Parameters
@@ -393,6 +393,10 @@ class SAM2VideoTracker:
             resolution): every frame is resized to the encoder's S x S.
         seed_mask : (H_0, W_0) array
             Seed in the first frame, values in [0, 1] (NaN counts as 0).
+        references : sequence of (frame, mask), optional
+            Views labelled elsewhere (the :class:`~seed2gs_inverse.frontend.base.Tracker`
+            protocol). Not used: SAM2 propagates from the seed frame's memory
+            only, so that every clip is tracked from the user's own view.
 
         Returns
         -------

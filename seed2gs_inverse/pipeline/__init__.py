@@ -1,10 +1,11 @@
 """Algorithm 1 of the paper: seed lift, VAAS orbits and ``extract()``."""
 
 from .extract import Extraction, extract
+from .settings import ExtractSettings
 from .seed_lift import SeedLift, seed_lift
 from .report import report_figure
 from .vaas import (ClipFrame, VAASPlan, estimate_up, flat_orbit, orbit_cameras, run_vaas, spiral_orbit,
                    vaas_amplitude)
 
-__all__ = ["extract", "Extraction", "seed_lift", "SeedLift", "ClipFrame", "VAASPlan", "flat_orbit",
+__all__ = ["extract", "Extraction", "ExtractSettings", "seed_lift", "SeedLift", "ClipFrame", "VAASPlan", "flat_orbit",
            "spiral_orbit", "orbit_cameras", "run_vaas", "vaas_amplitude", "estimate_up", "report_figure"]

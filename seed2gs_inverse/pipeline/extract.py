@@ -1,17 +1,26 @@
-"""``extract()``: Algorithm 1 of the paper end to end.
+"""``extract()``: Algorithm 1 of the paper end to end, as a short sequence of stages.
 
-render reference -> seed mask m* (prompt / grounder) -> seed lift (G0, o,
-extent) -> VAAS (flat orbit + visibility-adaptive ascending spiral) ->
-tracker propagates m* over both clips -> operators of all views -> solver
-(initialised from G0) -> threshold -> object subset.
+Each stage is a documented module-level function with explicit inputs and
+outputs, so it can be run, tested and timed on its own::
 
+    render_reference   reference canvas I_r                       -> Rendering
+    seed_from_prompt   seed mask m* (prompt / grounder)            -> (seed, prompt_info)
+    reference_view     W(c_r) around the seed, at the lift size    -> ReferenceView
+    lift_seed          seed lift (G0, o, extent)                   -> SeedLift
+    orbit_views        VAAS: flat orbit + visibility-adaptive
+                       ascending spiral, each frame with its W(c)  -> OrbitViews
+    track_clips        the tracker propagates m* over both clips   -> list of (ClipFrame, mask)
+    stack_operators    the supervision views' operators            -> OperatorStack
+    solve_selection    solver (initialised from G0) + threshold    -> Selection
+
+All options live in one frozen :class:`~seed2gs_inverse.pipeline.settings.ExtractSettings`.
 Every intermediate is returned in an :class:`Extraction` so users can see
 what happened.
 """
 
 from __future__ import annotations
 
-import functools
+import contextlib
 import sys
 import time
 from dataclasses import dataclass, field
@@ -22,21 +31,17 @@ from ..camera import Camera
 from ..errors import ValidationError
 from ..scene import GaussianScene
 from .seed_lift import SeedLift, seed_lift
-from .vaas import DEFAULTS as VAAS_DEFAULTS, ClipFrame, VAASPlan, estimate_up, run_vaas
+from .settings import SOLVER_DEFAULTS, ExtractSettings
+from .vaas import ClipFrame, VAASPlan, estimate_up, run_vaas
 
-__all__ = ["Extraction", "extract", "EXTRACT_DEFAULTS", "SOLVER_DEFAULTS"]
+__all__ = ["Extraction", "extract", "ExtractSettings", "EXTRACT_DEFAULTS", "SOLVER_DEFAULTS", "STAGES",
+           "ReferenceView", "OrbitViews", "Selection", "render_reference", "seed_from_prompt",
+           "reference_view", "lift_seed", "orbit_views", "track_clips", "stack_operators", "solve_selection"]
 
-#: Defaults of :func:`extract` beyond the VAAS ones.
-EXTRACT_DEFAULTS = {"orbit_scale": 0.5, "max_view_pixels": 40_000, "max_reference_pixels": 1_000_000,
-                    "roi_margin": 2.0, "zoom_margin": 2.0, "min_weight": 0.0, "cull_far": 4.0,
-                    "min_evidence": 0.05, "threshold": None}
-
-#: Solver options extract() uses unless told otherwise: the weighted BCE
-#: selection settles within a few dozen L-BFGS-B iterations when started from
-#: G0 (held-out mIoU is the same at 30 and at 200 iterations, the solver's
-#: own default, on the procedural scenes and on the firepit+unicorn
-#: benchmark), and the iterations dominate time.
-SOLVER_DEFAULTS = {"weighted_bce": {"max_iter": 30}}
+#: Defaults of :func:`extract` beyond the VAAS ones (those of :class:`ExtractSettings`).
+EXTRACT_DEFAULTS = {k: getattr(ExtractSettings, k) for k in (
+    "orbit_scale", "max_view_pixels", "max_reference_pixels", "roi_margin", "zoom_margin", "min_weight",
+    "cull_far", "min_evidence", "threshold")}
 
 STAGES = ("render", "grounding", "lift", "vaas", "tracking", "operators", "solve")
 
@@ -50,8 +55,8 @@ class Extraction:
     scene : GaussianScene
         The input scene.
     q : (N,) float32
-        Foreground probabilities (the solver's, with Gaussians without
-        evidence reset to the prior; ``result.q`` is the solver's own).
+        Foreground probabilities: ``result.q``, in which the solver reset
+        Gaussians without evidence (``min_evidence``) to the prior.
     selected : (N,) bool
         ``q > threshold``: the object.
     threshold : float
@@ -78,7 +83,14 @@ class Extraction:
         Wall time per stage: ``render, grounding, lift, vaas, tracking,
         operators, solve`` (the orbit views are rendered in the same pass as
         their operators, so that time counts under ``operators``).
-    settings : dict
+    settings : ExtractSettings
+        The options of the run (``report.json`` holds ``settings.to_dict()``).
+    resolved : dict
+        JSON-ready facts extract derived from the settings and the inputs:
+        ``view_scale``, ``reference_scale``, ``up`` (the orbit axis used),
+        ``threshold`` (tau used), ``solver_options`` (with the defaults),
+        ``tracker``, ``grounder`` (class names) and ``n_weak_evidence``
+        (Gaussians reset to the prior by ``min_evidence``).
     """
 
     scene: GaussianScene
@@ -97,7 +109,8 @@ class Extraction:
     operators: object
     result: object
     seconds: dict
-    settings: dict = field(default_factory=dict)
+    settings: ExtractSettings | None = None
+    resolved: dict = field(default_factory=dict)
 
     @property
     def total_seconds(self) -> float:
@@ -112,7 +125,7 @@ class Extraction:
         return self.scene.subset(~self.selected)
 
     def report(self) -> dict:
-        """JSON-ready summary: counts, timings, settings, VAAS and lift facts."""
+        """JSON-ready summary: counts, timings, settings (and what they resolved to), VAAS and lift facts."""
         n_unknown = [int(np.isnan(m).sum()) for m in self.masks]
         return {
             "n_gaussians": int(len(self.scene)),
@@ -130,16 +143,9 @@ class Extraction:
                        "view_weights": [float(w) for w in np.asarray(self.result.view_weights)]},
             "seconds": {k: float(v) for k, v in self.seconds.items()},
             "total_seconds": self.total_seconds,
-            "settings": self.settings,
+            "settings": None if self.settings is None else self.settings.to_dict(),
+            "resolved": self.resolved,
         }
-
-
-def _progress(iterable, total, desc, enabled):
-    if not enabled:
-        return iterable
-    from tqdm import tqdm
-
-    return tqdm(iterable, total=total, desc=desc, leave=False, file=sys.stderr)
 
 
 def _resize_mask(mask: np.ndarray, shape: tuple) -> np.ndarray:
@@ -153,13 +159,13 @@ def _resize_mask(mask: np.ndarray, shape: tuple) -> np.ndarray:
     return m > 0.5
 
 
-def _view_scale(camera: Camera, orbit_scale: float, max_pixels: int | None) -> float:
-    s = float(orbit_scale)
-    if not (np.isfinite(s) and 0 < s <= 4):
-        raise ValidationError(f"orbit_scale must be in (0, 4], got {orbit_scale!r}")
+def _view_scale(camera: Camera, scale: float, max_pixels: int | None) -> float:
+    """``scale``, lowered so that ``camera.scaled(scale)`` has at most ``max_pixels`` pixels (None: no cap).
+
+    Both are validated by :class:`ExtractSettings`.
+    """
+    s = float(scale)
     if max_pixels is not None:
-        if int(max_pixels) < 64:
-            raise ValidationError(f"max_view_pixels must be >= 64, got {max_pixels!r}")
         s = min(s, np.sqrt(int(max_pixels) / (camera.width * camera.height)))
     return s
 
@@ -232,43 +238,363 @@ def _cone_subset(scene, camera: Camera, roi, sigma3: np.ndarray, far: float | No
     return np.flatnonzero(keep)
 
 
-def _with_frozen_scene(fn):
-    """Run ``fn(scene, ...)`` inside ``operators.render.frozen(scene)``.
 
-    extract() renders the same unchanged scene for ~50 views: the covariance
-    factors, opacities and SH-0 colours are then computed once, not per view
-    (identical results).
+
+# -- the rasterizer, in one place ---------------------------------------------------------------
+class _Renderer:
+    """The only place extract() calls the rasterizer: renders and operators of one frozen scene.
+
+    Use as a context manager: inside it, the view-independent activations
+    of ``scene`` (covariance factors, opacities, SH-0 colours) are computed
+    once for the ~50 views of an extraction instead of per view (identical
+    results). ``operator_seconds`` accumulates the time spent building
+    operators (reported under the ``operators`` stage).
+
+    When the ``raster`` package lands, only this class changes: ``__init__``
+    holds ``raster.FrozenScene(scene)`` (no ``frozen()`` context, no
+    ``_sigma3``), ``render``/``build_operator`` take it in place of the
+    scene, and :func:`_cone_subset` becomes ``raster.cone_cull(frozen,
+    camera, roi, far)``.
     """
 
-    @functools.wraps(fn)
-    def wrapper(scene, *args, **kwargs):
+    def __init__(self, scene: GaussianScene, mode: str = "classic"):
+        self.scene = scene
+        self.mode = mode
+        self.operator_seconds = 0.0
+        # 3-sigma sizes for the cone culling of orbit views
+        self._sigma3 = 3.0 * scene.scales.max(axis=1).astype(np.float64)
+        self._frozen = contextlib.ExitStack()
+
+    def __enter__(self) -> "_Renderer":
         from ..operators.render import frozen
 
-        if not isinstance(scene, GaussianScene):
-            return fn(scene, *args, **kwargs)  # which raises the error
-        with frozen(scene):
-            return fn(scene, *args, **kwargs)
+        self._frozen.enter_context(frozen(self.scene))
+        return self
 
-    return wrapper
+    def __exit__(self, *exc) -> None:
+        self._frozen.close()
+
+    def render(self, camera: Camera):
+        """The full rendering of ``camera`` (a ``Rendering``)."""
+        from ..operators.render import render
+
+        return render(self.scene, camera, mode=self.mode)
+
+    def operator(self, camera: Camera, roi=None, min_weight: float = 0.0, cull: bool = False,
+                 far: float | None = None):
+        """``W(camera)`` (a ``ViewOperator`` with its rendering), composited only in ``roi``.
+
+        ``cull``: rasterize only the Gaussians that can reach the roi pixels
+        (:func:`_cone_subset`, optionally cut at depth ``far``); W's columns
+        stay scene indices, and the operator is the same when ``far`` is None.
+        """
+        from ..operators.render import build_operator
+
+        t0 = time.perf_counter()
+        subset = _cone_subset(self.scene, camera, roi, self._sigma3, far) if cull else None
+        op = build_operator(self.scene, camera, roi=roi, min_weight=min_weight, mode=self.mode, subset=subset)
+        self.operator_seconds += time.perf_counter() - t0
+        return op
 
 
-@_with_frozen_scene
+class _Progress:
+    """A progress bar on stderr (tqdm) owned by a ``with`` block; a no-op when disabled."""
+
+    def __init__(self, desc: str, enabled: bool, total: int | None = None):
+        self.desc, self.enabled, self.total = desc, bool(enabled), total
+        self._bar = None
+
+    def __enter__(self) -> "_Progress":
+        if self.enabled:
+            from tqdm import tqdm
+
+            self._bar = tqdm(total=self.total, desc=self.desc, leave=False, file=sys.stderr)
+        return self
+
+    def update(self, n: int = 1) -> None:
+        if self._bar is not None:
+            self._bar.update(n)
+
+    def __exit__(self, *exc) -> None:
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
+
+
+class _StageTimer:
+    """Wall seconds per stage: ``with timer("lift"): ...`` adds to ``timer.seconds["lift"]``."""
+
+    def __init__(self, stages=STAGES):
+        self.seconds = dict.fromkeys(stages, 0.0)
+
+    @contextlib.contextmanager
+    def __call__(self, stage: str):
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.seconds[stage] += time.perf_counter() - t0
+
+    def move(self, src: str, dst: str, seconds: float) -> None:
+        """Count ``seconds`` measured inside stage ``src`` under ``dst`` instead."""
+        self.seconds[src] -= seconds
+        self.seconds[dst] += seconds
+
+
+# -- stage outputs ------------------------------------------------------------------------------
+@dataclass
+class ReferenceView:
+    """The reference view at the lift resolution: frame 0 of both clips and the first supervision view.
+
+    Attributes
+    ----------
+    camera : Camera
+        ``c_r`` scaled by ``scale`` (the camera itself when ``scale == 1``).
+    scale : float
+        Reference resolution relative to the camera (``max_reference_pixels`` cap).
+    seed : (h, w) bool
+        ``m*`` at that resolution.
+    operator : ViewOperator
+        ``W(c_r)`` composited in a box around the seed, with its rendering.
+    """
+
+    camera: Camera
+    scale: float
+    seed: np.ndarray
+    operator: object
+
+
+@dataclass
+class OrbitViews:
+    """The VAAS clips, rendered: every frame carries its operator (``frame.operator``).
+
+    Attributes
+    ----------
+    plan : VAASPlan
+    flat, spiral : list of ClipFrame
+        ``spiral`` is empty when the spiral is skipped. Frame 0 of each clip
+        is the reference view (:class:`ReferenceView`).
+    view_scale : float
+        Orbit view resolution relative to the camera.
+    up : (3,) float64
+        The orbit axis used.
+    """
+
+    plan: VAASPlan
+    flat: list
+    spiral: list
+    view_scale: float
+    up: np.ndarray
+
+    def clips(self) -> list:
+        """``[("flat", frames), ("spiral", frames)]`` (no spiral entry when it was skipped)."""
+        return [("flat", self.flat)] + ([("spiral", self.spiral)] if self.spiral else [])
+
+
+@dataclass
+class Selection:
+    """The solve: ``result`` (its ``q`` already carries the ``min_evidence`` reset), tau and ``q > tau``."""
+
+    result: object
+    q: np.ndarray
+    threshold: float
+    selected: np.ndarray
+
+    @property
+    def n_weak_evidence(self) -> int:
+        return int(self.result.info.get("n_weak_evidence", 0))
+
+
+# -- the stages ---------------------------------------------------------------------------------
+def render_reference(renderer: _Renderer, camera: Camera):
+    """Stage 1: the reference canvas ``I_r`` (full resolution ``Rendering``).
+
+    Raises ValidationError when the camera sees (almost) nothing: max alpha < 0.05.
+    """
+    ref = renderer.render(camera)
+    if float(ref.alpha.max()) < 0.05:
+        raise ValidationError(
+            f"the reference camera sees nothing of the scene (max rendered alpha "
+            f"{float(ref.alpha.max()):.3g}); check the camera pose and the scene's coordinates")
+    return ref
+
+
+def seed_from_prompt(prompt, reference, grounder=None):
+    """Stage 2: the seed mask ``m*`` (H, W) bool of ``prompt`` on the reference canvas, and the prompt info.
+
+    See :func:`~seed2gs_inverse.frontend.prompts.seed_mask_from_prompt`; text
+    prompts need ``grounder``. Raises ValidationError when the seed covers
+    only empty space (rendered alpha <= 0.05).
+    """
+    from ..frontend.prompts import seed_mask_from_prompt
+
+    seed, info = seed_mask_from_prompt(prompt, reference.rgb, depth=reference.depth, alpha=reference.alpha,
+                                       grounder=grounder)
+    if not (seed & (reference.alpha > 0.05)).any():
+        raise ValidationError("the seed mask covers only empty space in the reference view: "
+                              "it does not touch the scene")
+    return seed, info
+
+
+def reference_view(renderer: _Renderer, camera: Camera, seed: np.ndarray,
+                   max_reference_pixels: int | None) -> ReferenceView:
+    """Stage 3: ``W(c_r)`` at the camera's resolution capped at ``max_reference_pixels``.
+
+    The seed is area-averaged to that resolution (threshold 0.5) and the
+    operator composited only in its box grown by a quarter of its size plus
+    8 px (:func:`_mask_roi`): the lift needs no more, and the same operator
+    is frame 0 of both clips.
+    """
+    scale = _view_scale(camera, 1.0, max_reference_pixels)
+    cam = camera if scale == 1.0 else camera.scaled(scale)
+    seed_ref = _resize_mask(seed, cam.image_shape)
+    if not seed_ref.any():
+        raise ValidationError(
+            f"the seed mask ({int(seed.sum())} px) vanishes at the lift resolution "
+            f"{cam.width}x{cam.height}; raise max_reference_pixels or give a larger mask")
+    return ReferenceView(cam, scale, seed_ref, renderer.operator(cam, roi=_mask_roi(seed_ref)))
+
+
+def lift_seed(scene: GaussianScene, ref: ReferenceView, lift_options=None) -> SeedLift:
+    """Stage 4: the seed lift (support G0, centre ``o``, extent) from the reference view's W and depth."""
+    op = ref.operator
+    return seed_lift(scene, ref.camera, ref.seed, op.rendering.depth, op.W, **dict(lift_options or {}))
+
+
+def _orbit_axis(up, scene: GaussianScene, base: Camera, ref_operator) -> np.ndarray:
+    """The orbit axis of the ``up`` setting: levelled image-up, the image-up itself, or the given vector."""
+    if isinstance(up, str) and up == "level":
+        return estimate_up(scene, base, weights=np.asarray(ref_operator.W.sum(axis=0)).ravel())
+    if isinstance(up, str) and up == "camera":
+        return base.up
+    return np.asarray(up, dtype=np.float64)
+
+
+def _clip_frame(op, clip: str, index: int) -> ClipFrame:
+    r = op.rendering
+    return ClipFrame(r.rgb, r.depth, r.alpha, op.camera, clip, index, operator=op)
+
+
+def orbit_views(renderer: _Renderer, camera: Camera, ref: ReferenceView, lift: SeedLift,
+                settings: ExtractSettings, progress: _Progress | None = None) -> OrbitViews:
+    """Stage 5: VAAS (flat orbit, visibility, ascending spiral); each view rendered with its operator.
+
+    The orbit views have the camera's geometry at ``view_scale`` (``orbit_scale``
+    capped at ``max_view_pixels``), zoomed to ``zoom_margin * extent`` about
+    ``o``, composited only inside the projected sphere of ``roi_margin *
+    extent`` and, with ``cull``, rasterized from the Gaussians of that cone
+    (cut at ``cull_far * extent`` behind ``o``). Frame 0 of each clip is the
+    reference view itself (``ref``, at its own resolution).
+    """
+    s = settings
+    scene = renderer.scene
+    view_scale = _view_scale(camera, s.orbit_scale, s.max_view_pixels)
+    base = camera.scaled(view_scale)  # the orbits' base camera (geometry + view resolution)
+    up = _orbit_axis(s.up, scene, base, ref.operator)
+
+    def view(cam: Camera, clip: str, k: int) -> ClipFrame:
+        if cam is base:
+            op = ref.operator  # frame 0 is the reference view itself, at the lift resolution
+        else:
+            roi = _roi_box(cam, lift.center, lift.radius, s.roi_margin)
+            far = None if not s.cull or s.cull_far is None else float(
+                np.linalg.norm(cam.center - lift.center) + s.cull_far * lift.radius)
+            op = renderer.operator(cam, roi=roi, min_weight=s.min_weight, cull=s.cull, far=far)
+        if progress is not None:
+            progress.update()
+        return _clip_frame(op, clip, k)
+
+    sigma = scene.scales.max(axis=1)[lift.support]
+    plan, flat, spiral = run_vaas(
+        scene.means[lift.support], sigma, base, lift.center, view, n_views=s.n_views, a_max_deg=s.a_max_deg,
+        gamma=s.gamma, skip_deg=s.skip_deg, profile=s.profile, max_elevation_deg=s.max_elevation_deg,
+        fit_radius=None if s.zoom_margin is None else s.zoom_margin * lift.radius, up=up)
+    return OrbitViews(plan, flat, spiral, view_scale, np.asarray(up, dtype=np.float64))
+
+
+def track_clips(tracker, orbits: OrbitViews, seed: np.ndarray, progress: _Progress | None = None) -> list:
+    """Stage 6: the tracker propagates ``seed`` (frame 0) along each clip.
+
+    ``tracker.track(frames, seed, references=labelled)`` receives the views
+    labelled so far (the flat clip when tracking the spiral). Returns the
+    supervision views as ``(ClipFrame, mask)`` pairs: the flat clip, then
+    the spiral without its frame 0 (the reference view again); masks are
+    float32 at the frame's resolution, NaN = unknown.
+    """
+    labelled = []
+    for name, frames in orbits.clips():
+        try:
+            out = list(tracker.track(frames, seed, references=tuple(labelled)))
+        except TypeError as e:
+            if "references" not in str(e):
+                raise
+            raise ValidationError(f"tracker {type(tracker).__name__}: track() must accept references=() "
+                                  f"(the Tracker protocol, seed2gs_inverse.frontend.base); got: {e}") from None
+        if len(out) != len(frames):
+            raise ValidationError(f"tracker returned {len(out)} masks for a {name} clip of {len(frames)} frames")
+        for k, (f, m) in enumerate(zip(frames, out)):
+            if name == "spiral" and k == 0:
+                continue  # the reference view is already the flat clip's frame 0
+            m = np.asarray(m, dtype=np.float32)
+            if m.shape != f.camera.image_shape:
+                raise ValidationError(f"tracker mask {k} of the {name} clip has shape {m.shape}, "
+                                      f"expected {f.camera.image_shape}")
+            labelled.append((f, m))
+        if progress is not None:
+            progress.update()
+    return labelled
+
+
+def stack_operators(labelled, scene: GaussianScene):
+    """Stage 7: the ``OperatorStack`` of the supervision views (``frame.operator`` of each pair)."""
+    from ..operators.operator import OperatorStack, scene_fingerprint
+
+    return OperatorStack([f.operator for f, _ in labelled], fingerprint=scene_fingerprint(scene))
+
+
+def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings) -> Selection:
+    """Stage 8: ``q`` from the solver initialised from G0, and ``selected = q > tau``.
+
+    ``solve(stack, masks, method, init=G0, min_evidence=settings.min_evidence,
+    **settings.solver_kwargs())``: Gaussians seen (almost) only on unknown
+    pixels carry no evidence (an unregularised fit could drive their logits
+    anywhere on a trace of weight), so the solver gives them the prior (G0
+    membership). ``tau`` is ``settings.threshold`` or the solver's own.
+    """
+    from ..solvers import solve
+
+    result = solve(stack, masks, method=settings.method, init=lift.support, min_evidence=settings.min_evidence,
+                   **settings.solver_kwargs())
+    q = np.asarray(result.q, dtype=np.float32)
+    tau = result.threshold if settings.threshold is None else float(settings.threshold)
+    return Selection(result, q, tau, q > tau)
+
+
+# -- Algorithm 1 --------------------------------------------------------------------------------
+def _settings(settings, overrides: dict) -> ExtractSettings:
+    if isinstance(settings, str):
+        # extract(scene, camera, prompt, grounder, tracker, "voting"): the old positional method
+        overrides = {"method": settings, **overrides}
+        settings = None
+    if settings is None:
+        return ExtractSettings.from_dict(overrides) if overrides else ExtractSettings()
+    if not isinstance(settings, ExtractSettings):
+        raise ValidationError(f"settings must be an ExtractSettings (or None), got {type(settings).__name__}")
+    return settings.replace(**overrides) if overrides else settings
+
+
+def _check_tracker(tracker):
+    from ..frontend.model_free import GeometricTracker
+
+    tracker = GeometricTracker() if tracker is None else tracker
+    if not callable(getattr(tracker, "track", None)):
+        raise ValidationError(f"tracker must have a track(frames, seed_mask, references=()) method, "
+                              f"got {type(tracker).__name__}")
+    return tracker
+
+
 def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker=None,
-            method: str = "weighted_bce", *, n_views: int = VAAS_DEFAULTS["n_views"],
-            a_max_deg: float = VAAS_DEFAULTS["a_max_deg"], gamma: float = VAAS_DEFAULTS["gamma"],
-            skip_deg: float = VAAS_DEFAULTS["skip_deg"], profile: str = VAAS_DEFAULTS["profile"],
-            max_elevation_deg: float = VAAS_DEFAULTS["max_elevation_deg"],
-            orbit_scale: float = EXTRACT_DEFAULTS["orbit_scale"],
-            max_view_pixels: int | None = EXTRACT_DEFAULTS["max_view_pixels"],
-            max_reference_pixels: int | None = EXTRACT_DEFAULTS["max_reference_pixels"],
-            roi_margin: float | None = EXTRACT_DEFAULTS["roi_margin"],
-            zoom_margin: float | None = EXTRACT_DEFAULTS["zoom_margin"], up="level",
-            min_weight: float = EXTRACT_DEFAULTS["min_weight"], cull: bool = True,
-            cull_far: float | None = EXTRACT_DEFAULTS["cull_far"],
-            min_evidence: float = EXTRACT_DEFAULTS["min_evidence"],
-            threshold: float | None = None, lift_options: dict | None = None,
-            solver_options: dict | None = None, mode: str = "classic",
-            progress: bool | None = None) -> Extraction:
+            settings: ExtractSettings | None = None, **overrides) -> Extraction:
     """Extract one object from a frozen 3DGS scene (Algorithm 1).
 
     Parameters
@@ -283,260 +609,59 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
     grounder : Grounder, optional
         ``ground(image, prompt) -> list[Candidate]``; the highest ``score`` wins.
     tracker : Tracker, optional
-        Propagates the seed along each clip; default
+        ``track(frames, seed_mask, references=()) -> list[mask]``
+        (:class:`~seed2gs_inverse.frontend.base.Tracker`); default
         :class:`~seed2gs_inverse.frontend.model_free.GeometricTracker`.
-    method : str
-        Solver (:func:`seed2gs_inverse.solvers.available_methods`).
-    n_views, a_max_deg, gamma, skip_deg, profile, max_elevation_deg
-        VAAS settings (:mod:`seed2gs_inverse.pipeline.vaas`): paper defaults
-        24 views per clip and 5 degrees; A_max = 60 degrees and gamma = 1 are
-        our documented choices.
-    orbit_scale : float
-        Resolution of the orbit views relative to the reference camera,
-        default 0.5 ...
-    max_view_pixels : int or None
-        ... capped at this many pixels per view (40k, e.g. 267x150 for a
-        960x540 reference). The orbit views are object-centric (zoomed), so
-        even this resolution puts a few thousand pixels on the object, and
-        the operators (non-zeros) dominate time and memory: on the
-        firepit+unicorn benchmark 160k pixels per view cost 3x the time for
-        the same accuracy (mIoU 0.900 vs 0.894 on pose 0). None: no cap.
-    max_reference_pixels : int or None
-        The reference view (seed lift, frame 0 of both clips, first
-        supervision view) keeps the camera's resolution up to this many
-        pixels (1M), composited only in a box around the seed. Clip frames
-        therefore differ in size between frame 0 and the rest.
-    roi_margin : float or None
-        Orbit views composite only the pixel box around the projected sphere
-        of radius ``roi_margin * extent`` about ``o`` (default 2: the lift
-        sees the front of the object only, so its extent is conservative);
-        pixels outside have empty operator rows and label 0. None: full views.
-    zoom_margin : float or None
-        Object-centric views: the orbit views (not the reference) zoom so
-        that the sphere of radius ``zoom_margin * extent`` about ``o`` fits
-        the image (default 2, for the same reason as ``roi_margin``). None
-        keeps the reference's field of view.
-    up : "level", "camera" or (3,) array
-        Orbit axis. ``"level"`` (default): the reference camera's image-up
-        with its pitch removed (:func:`~seed2gs_inverse.pipeline.vaas.estimate_up`);
-        ``"camera"``: the image-up itself (literal reading of the paper; the
-        flat orbit then tilts by the camera's pitch); or a world vector.
-    min_weight : float
-        Orbit operators drop compositing weights below this
-        (:func:`~seed2gs_inverse.operators.render.build_operator`): fewer
-        non-zeros, faster solves, ``W 1`` short of alpha by at most the
-        dropped weights.
-    cull : bool
-        Rasterize each orbit view from only the Gaussians inside the cone of
-        its roi (widened by their 3-sigma size) and map the operator's
-        columns back; the operator is the same, the time scales with what
-        the view can see instead of with the scene.
-    cull_far : float or None
-        With ``cull``, orbit views also leave out what lies farther than
-        ``cull_far * extent`` behind ``o`` (default 4, twice the roi sphere):
-        far background contributes nothing but compositing work and pixels
-        that can only be background. Such pixels render empty (label 0,
-        empty operator rows), and those Gaussians stay unobserved (prior 0)
-        unless a nearer view sees them. None keeps everything (exact
-        operators).
-    min_evidence : float
-        A Gaussian whose summed compositing weight over the *decided*
-        (non-NaN) pixels of all views is below this (default 0.05, a
-        twentieth of one opaque pixel) has no real evidence: its ``q`` is
-        reset to the prior (1 in G0, else 0). Without this, an unregularised
-        fit can drive such Gaussians to 1 on a trace of weight.
-    threshold : float, optional
-        ``tau`` of Eq. 9; default: the solver's own (0.5).
-    lift_options : dict, optional
-        Keyword arguments of :func:`~seed2gs_inverse.pipeline.seed_lift.seed_lift`.
-    solver_options : dict, optional
-        Keyword arguments of the solver method, on top of
-        :data:`SOLVER_DEFAULTS` (``max_iter=30`` for ``weighted_bce``).
-    mode : {"classic", "antialiased"}
-        Rasterization mode of every rendering.
-    progress : bool, optional
-        Progress bars on stderr; default: only when stderr is a terminal.
+    settings : ExtractSettings, optional
+        Every option (:class:`~seed2gs_inverse.pipeline.settings.ExtractSettings`,
+        where each is documented); default ``ExtractSettings()``.
+    **overrides
+        Options replacing those of ``settings`` by name, e.g.
+        ``extract(scene, cam, prompt, method="voting", n_views=12)``. An
+        unknown name is a ValidationError listing the valid ones.
 
     Returns
     -------
     Extraction
+        ``seconds`` holds the wall time per stage (:data:`STAGES`; the orbit
+        views are rendered in the same pass as their operators, so that time
+        counts under ``operators``, not ``vaas``).
     """
-    from ..frontend.model_free import GeometricTracker
-    from ..frontend.prompts import seed_mask_from_prompt
-
-    from ..operators.operator import OperatorStack, scene_fingerprint
-    from ..operators.render import build_operator, render
-    from ..solvers import solve
-
+    s = _settings(settings, overrides)
     if not isinstance(scene, GaussianScene):
         raise ValidationError(f"scene must be a GaussianScene, got {type(scene).__name__}")
     if len(scene) == 0:
         raise ValidationError("the scene has no Gaussians")
     if not isinstance(camera, Camera):
         raise ValidationError(f"camera must be a Camera, got {type(camera).__name__}")
-    from ..solvers import available_methods
-
-    if method not in available_methods():
-        raise ValidationError(f"unknown solver method {method!r}; available: {', '.join(available_methods())}")
-    if progress is None:
-        progress = bool(getattr(sys.stderr, "isatty", lambda: False)())
-    tracker = GeometricTracker() if tracker is None else tracker
-    if not callable(getattr(tracker, "track", None)):
-        raise ValidationError(f"tracker must have a track(frames, seed_mask) method, got {type(tracker).__name__}")
-    seconds = dict.fromkeys(STAGES, 0.0)
-
-    # 1. Reference canvas I_r.
-    t0 = time.perf_counter()
-    ref = render(scene, camera, mode=mode)
-    seconds["render"] = time.perf_counter() - t0
-    if float(ref.alpha.max()) < 0.05:
-        raise ValidationError(
-            f"the reference camera sees nothing of the scene (max rendered alpha "
-            f"{float(ref.alpha.max()):.3g}); check the camera pose and the scene's coordinates")
-
-    # 2. Seed mask m*.
-    t0 = time.perf_counter()
-    seed, prompt_info = seed_mask_from_prompt(prompt, ref.rgb, depth=ref.depth, alpha=ref.alpha,
-                                              grounder=grounder)
-    if not (seed & (ref.alpha > 0.05)).any():
-        raise ValidationError("the seed mask covers only empty space in the reference view: "
-                              "it does not touch the scene")
-    seconds["grounding"] = time.perf_counter() - t0
-
-    # 3. Seed lift with W(c_r) at the reference resolution (capped), composited
-    #    only around the seed; the same operator is frame 0 of both clips.
-    t0 = time.perf_counter()
-    scale = _view_scale(camera, orbit_scale, max_view_pixels)
-    ref_scale = _view_scale(camera, 1.0, max_reference_pixels)
-    ref_cam = camera if ref_scale == 1.0 else camera.scaled(ref_scale)
-    seed_ref = _resize_mask(seed, ref_cam.image_shape)
-    if not seed_ref.any():
-        raise ValidationError(
-            f"the seed mask ({int(seed.sum())} px) vanishes at the lift resolution "
-            f"{ref_cam.width}x{ref_cam.height}; raise max_reference_pixels or give a larger mask")
-    op_ref = build_operator(scene, ref_cam, roi=_mask_roi(seed_ref), mode=mode)
-    t_op = time.perf_counter() - t0
-    t1 = time.perf_counter()
-    lift = seed_lift(scene, ref_cam, seed_ref, op_ref.rendering.depth, op_ref.W, **(lift_options or {}))
-    seconds["lift"] = time.perf_counter() - t1
-    seconds["operators"] += t_op
-    ref_small = camera.scaled(scale)  # the orbits' base camera (geometry + view resolution)
-
-    # 4. VAAS: flat orbit, visibility, spiral; each view's operator built in the rendering pass.
-    if isinstance(up, str) and up == "level":
-        up_axis = estimate_up(scene, ref_small, weights=np.asarray(op_ref.W.sum(axis=0)).ravel())
-    elif isinstance(up, str) and up == "camera":
-        up_axis = ref_small.up
-    else:
-        up_axis = np.asarray(up, dtype=np.float64)
-        if up_axis.shape != (3,) or not np.all(np.isfinite(up_axis)) or np.linalg.norm(up_axis) == 0:
-            raise ValidationError(f"up must be 'level', 'camera' or a non-zero 3-vector, got {up!r}")
-    ops_by_view = {}
-    sigma_all = scene.scales.max(axis=1)
-    sigma3_all = 3.0 * sigma_all.astype(np.float64)
-    sigma = sigma_all[lift.support]
-    bar = [None]
-
-    def view(cam, clip, k):
-        if cam is ref_small:
-            op = op_ref  # frame 0 is the reference view itself, at the lift resolution
-        else:
-            ts = time.perf_counter()
-            roi = _roi_box(cam, lift.center, lift.radius, roi_margin)
-            if cull:
-                # Rasterize only what can reach the roi (no scene copy; W's
-                # columns are scene indices): same W, far less work.
-                far = None if cull_far is None else float(
-                    np.linalg.norm(cam.center - lift.center) + cull_far * lift.radius)
-                idx = _cone_subset(scene, cam, roi, sigma3_all, far)
-                op = build_operator(scene, cam, roi=roi, min_weight=min_weight, mode=mode, subset=idx)
-            else:
-                op = build_operator(scene, cam, roi=roi, min_weight=min_weight, mode=mode)
-            seconds["operators"] += time.perf_counter() - ts
-        ops_by_view[(clip, k)] = op
-        if bar[0] is not None:
-            bar[0].update(1)
-        r = op.rendering
-        return ClipFrame(r.rgb, r.depth, r.alpha, op.camera, clip, k)
-
-    t0 = time.perf_counter()
-    if progress:
-        from tqdm import tqdm
-
-        bar[0] = tqdm(total=None, desc="VAAS views", leave=False, file=sys.stderr)
-    try:
-        plan, flat_frames, spiral_frames = run_vaas(
-            scene.means[lift.support], sigma, ref_small, lift.center, view, n_views=n_views,
-            a_max_deg=a_max_deg, gamma=gamma, skip_deg=skip_deg, profile=profile,
-            max_elevation_deg=max_elevation_deg,
-            fit_radius=None if zoom_margin is None else zoom_margin * lift.radius, up=up_axis)
-    finally:
-        if bar[0] is not None:
-            bar[0].close()
-    seconds["vaas"] = time.perf_counter() - t0 - (seconds["operators"] - t_op)
-
-    # 5. Tracking: propagate m* along each clip (frame 0 is the reference).
-    t0 = time.perf_counter()
-    views, clips, masks, ops = [], [], [], []
-    clip_list = [("flat", flat_frames)] + ([("spiral", spiral_frames)] if spiral_frames else [])
-    import inspect
-
-    try:
-        takes_refs = "references" in inspect.signature(tracker.track).parameters
-    except (TypeError, ValueError):
-        takes_refs = False
-    labelled = []
-    for name, frames in _progress(clip_list, len(clip_list), "tracking", progress):
-        # Trackers that accept already labelled views (the model-free one)
-        # get the flat clip as extra sources for the spiral.
-        out = list(tracker.track(frames, seed_ref, references=labelled) if takes_refs
-                   else tracker.track(frames, seed_ref))
-        if len(out) != len(frames):
-            raise ValidationError(f"tracker returned {len(out)} masks for a {name} clip of {len(frames)} frames")
-        for k, (f, m) in enumerate(zip(frames, out)):
-            if name == "spiral" and k == 0:
-                continue  # the reference view is already the flat clip's frame 0
-            m = np.asarray(m, dtype=np.float32)
-            if m.shape != f.camera.image_shape:
-                raise ValidationError(f"tracker mask {k} of the {name} clip has shape {m.shape}, "
-                                      f"expected {f.camera.image_shape}")
-            labelled.append((f, m))
-            views.append(f.camera)
-            clips.append(name)
-            masks.append(m)
-            ops.append(ops_by_view[(name, k)])
-    seconds["tracking"] = time.perf_counter() - t0
-
-    # 6. Solve for q, initialised from G0.
-    t0 = time.perf_counter()
-    stack = OperatorStack(ops, fingerprint=scene_fingerprint(scene))
-    opts = dict(SOLVER_DEFAULTS.get(method, {}))
-    opts.update(solver_options or {})
-    result = solve(stack, masks, method=method, init=lift.support, **opts)
-    # Gaussians seen (almost) only on unknown pixels carry no evidence; an
-    # unregularised fit can still drive their logits anywhere on a trace of
-    # weight, so they keep the prior (G0 membership) instead.
-    q = np.asarray(result.q, dtype=np.float32).copy()
-    evidence = np.zeros(len(scene))
-    for op, m in zip(ops, masks):
-        evidence += np.asarray(op.W.T @ (~np.isnan(m)).ravel().astype(np.float32), dtype=np.float64)
-    weak = evidence < min_evidence
-    q[weak] = lift.support[weak].astype(np.float32)
-    tau = result.threshold if threshold is None else float(threshold)
-    selected = q > tau
-    seconds["solve"] = time.perf_counter() - t0
-
-    settings = {"method": method, "n_views": int(n_views), "a_max_deg": float(a_max_deg),
-                "gamma": float(gamma), "skip_deg": float(skip_deg), "profile": profile,
-                "max_elevation_deg": float(max_elevation_deg), "orbit_scale": float(orbit_scale),
-                "view_scale": float(scale), "max_view_pixels": max_view_pixels,
-                "reference_scale": float(ref_scale), "max_reference_pixels": max_reference_pixels,
-                "roi_margin": roi_margin, "min_weight": float(min_weight), "cull": bool(cull), "cull_far": cull_far,
-                "min_evidence": float(min_evidence), "n_weak_evidence": int(weak.sum()), "zoom_margin": zoom_margin,
-                "up": np.asarray(up_axis, float).tolist(), "threshold": float(tau), "mode": mode,
-                "tracker": type(tracker).__name__,
-                "grounder": None if grounder is None else type(grounder).__name__,
-                "lift_options": dict(lift_options or {}), "solver_options": {
-                    k: v for k, v in opts.items() if isinstance(v, (int, float, str, bool))}}
-    return Extraction(scene, q, selected, tau, seed, prompt_info, camera, ref, lift, plan, views,
-                      clips, masks, stack, result, seconds, settings)
+    tracker = _check_tracker(tracker)
+    progress = bool(getattr(sys.stderr, "isatty", lambda: False)()) if s.progress is None else s.progress
+    timer = _StageTimer()
+    with _Renderer(scene, s.mode) as renderer:
+        with timer("render"):
+            reference = render_reference(renderer, camera)
+        with timer("grounding"):
+            seed, prompt_info = seed_from_prompt(prompt, reference, grounder)
+        with timer("operators"):
+            ref = reference_view(renderer, camera, seed, s.max_reference_pixels)
+        with timer("lift"):
+            lift = lift_seed(scene, ref, s.lift_options)
+        before = renderer.operator_seconds
+        with timer("vaas"), _Progress("VAAS views", progress) as bar:
+            orbits = orbit_views(renderer, camera, ref, lift, s, bar)
+        timer.move("vaas", "operators", renderer.operator_seconds - before)
+    with timer("tracking"), _Progress("tracking", progress, total=len(orbits.clips())) as bar:
+        labelled = track_clips(tracker, orbits, ref.seed, bar)
+    with timer("solve"):
+        stack = stack_operators(labelled, scene)
+        masks = [m for _, m in labelled]
+        sel = solve_selection(stack, masks, lift, s)
+    resolved = {"view_scale": float(orbits.view_scale), "reference_scale": float(ref.scale),
+                "up": orbits.up.tolist(), "threshold": float(sel.threshold),
+                "solver_options": {k: v for k, v in s.solver_kwargs().items()
+                                   if isinstance(v, (int, float, str, bool))},
+                "n_weak_evidence": sel.n_weak_evidence, "tracker": type(tracker).__name__,
+                "grounder": None if grounder is None else type(grounder).__name__}
+    return Extraction(scene, sel.q, sel.selected, sel.threshold, seed, prompt_info, camera, reference, lift,
+                      orbits.plan, [f.camera for f, _ in labelled], [f.clip for f, _ in labelled], masks, stack,
+                      sel.result, timer.seconds, s, resolved)

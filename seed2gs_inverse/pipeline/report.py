@@ -57,7 +57,7 @@ def report_figure(extraction, n_strip: int = 8):
         ax.set_title(f"{ex.clips[int(i)]} {int(i)}", fontsize=7)
         ax.axis("off")
     s = ex.seconds
-    fig.suptitle(f"{ex.settings.get('method', '')}: {len(ex.views)} views, "
+    fig.suptitle(f"{ex.settings.method if ex.settings is not None else ''}: {len(ex.views)} views, "
                  f"V={ex.vaas.visibility:.2f}, A={ex.vaas.amplitude_deg:.1f} deg, "
                  f"{sum(s.values()):.1f} s", fontsize=9)
     fig.tight_layout()

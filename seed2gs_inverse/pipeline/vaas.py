@@ -55,7 +55,9 @@ class ClipFrame:
 
     ``rgb`` (H, W, 3) float32 in [0, 1]; ``depth`` (H, W) float32 expected
     depth (0 where empty); ``alpha`` (H, W) float32; ``camera`` the view;
-    ``clip`` ("flat" or "spiral") and ``index`` within the clip.
+    ``clip`` ("flat" or "spiral") and ``index`` within the clip;
+    ``operator`` the view's ``ViewOperator`` when the pipeline built it in
+    the same rasterization pass (None otherwise).
     """
 
     rgb: np.ndarray
@@ -64,6 +66,7 @@ class ClipFrame:
     camera: Camera
     clip: str = ""
     index: int = 0
+    operator: object = None
 
 
 @dataclass
@@ -314,7 +317,7 @@ def run_vaas(support_means: np.ndarray, support_sigma: np.ndarray, reference: Ca
         Orbit centre ``o``.
     view : callable ``view(camera, clip, index) -> ClipFrame``
         Renders one view (the pipeline builds the view's operator in the same
-        pass and keeps it); called once per flat view, then once per spiral
+        pass and returns it as ``ClipFrame.operator``); called once per flat view, then once per spiral
         view when the spiral is not skipped.
     n_views, a_max_deg, gamma, skip_deg, profile, max_elevation_deg, eps_rel, eps_sigma
         See the module docstring and :data:`DEFAULTS`.

@@ -4,7 +4,7 @@ Every method solves the same problem: given fixed per-view operators
 ``W(c)`` (pixels x N) and target masks ``Y(c)``, find ``q in [0, 1]^N`` with
 ``W(c) q ~ Y(c)`` in every view. One call, interchangeable methods::
 
-    result = solve(operators, masks, method="weighted_bce", init=None, **options)
+    result = solve(operators, masks, method="weighted_bce", init=None, min_evidence=0.0, **options)
 
 Methods (one module each, equations in their docstrings):
 
@@ -23,6 +23,7 @@ import time
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from ..errors import ValidationError
 from ._common import (Problem, SolveResult, available_methods, check_options, get_method, prepare,
                       register_method)
 from . import beta_bernoulli, least_squares, voting, weighted_bce  # noqa: F401  (importing registers them)
@@ -30,7 +31,8 @@ from . import beta_bernoulli, least_squares, voting, weighted_bce  # noqa: F401 
 __all__ = ["solve", "available_methods", "register_method", "SolveResult", "Problem", "prepare"]
 
 
-def solve(operators, masks, method: str = "weighted_bce", init=None, **options) -> SolveResult:
+def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidence: float = 0.0,
+          **options) -> SolveResult:
     """Recover per-Gaussian foreground probabilities ``q`` from per-view masks.
 
     Parameters
@@ -47,6 +49,12 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, **options) 
         Prior: a support set (e.g. the seed lift's G0) or a prior ``q``.
         Gaussians no view sees keep it (default 0); ``weighted_bce`` also
         starts from it.
+    min_evidence : float
+        Common to every method: a Gaussian whose summed weight over the known
+        (non-NaN) pixels of all views, ``e = sum_c W(c)^T k(c)``
+        (``Problem.known_weight``), is below this keeps the prior after the
+        method has run: ``q[e < min_evidence] = prior``. Default 0 (off);
+        ``extract()`` passes 0.05. The count is ``result.info["n_weak_evidence"]``.
     **options
         Method options; see each method's documentation.
 
@@ -62,6 +70,9 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, **options) 
     """
     fn = get_method(method)
     check_options(method, fn, options)
+    if isinstance(min_evidence, bool) or not isinstance(min_evidence, (int, float, np.integer, np.floating)) \
+            or not np.isfinite(min_evidence) or min_evidence < 0:
+        raise ValidationError(f"min_evidence must be a finite number >= 0, got {min_evidence!r}")
     t0 = time.perf_counter()
     problem = prepare(operators, masks, init)
     # Solvers call BLAS on vectors of length N every iteration; a multi-threaded
@@ -77,9 +88,15 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, **options) 
     observed = np.asarray(out.get("observed", problem.observed), dtype=bool)
     unobserved = ~observed
     q = np.where(unobserved, problem.prior, np.clip(q, 0.0, 1.0)).astype(np.float32)
+    # Gaussians seen (almost) only on unknown pixels carry no evidence: an
+    # unregularised fit can drive their logits anywhere on a trace of weight.
+    weak = problem.known_weight < float(min_evidence)
+    q[weak] = problem.prior[weak].astype(np.float32)
+    info = dict(out.get("info", {}))
+    info["n_weak_evidence"] = int(weak.sum())
     weights = out.get("view_weights")
     weights = np.ones(problem.n_views) if weights is None else np.asarray(weights, dtype=np.float64)
     return SolveResult(q=q, method=method, iterations=int(out.get("iterations", 0)),
                        history=list(out.get("history", [])), view_weights=weights, unobserved=unobserved,
                        seconds=time.perf_counter() - t0, threshold=float(out.get("threshold", 0.5)),
-                       info=dict(out.get("info", {})))
+                       info=info)

@@ -1,0 +1,156 @@
+"""ExtractSettings: today's defaults, validation naming the option, dict round trips, extract() overrides."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from seed2gs_inverse import ValidationError
+from seed2gs_inverse.pipeline import ExtractSettings, extract
+from seed2gs_inverse.pipeline.settings import SOLVER_DEFAULTS
+from seed2gs_inverse.synthetic import make_scene
+
+# The keyword defaults of extract() before issue 9 (its signature, copied):
+# the settings object must keep every one of them.
+DEFAULTS_BEFORE = {
+    "method": "weighted_bce", "n_views": 24, "a_max_deg": 60.0, "gamma": 1.0, "skip_deg": 5.0,
+    "profile": "linear", "max_elevation_deg": 85.0, "orbit_scale": 0.5, "max_view_pixels": 40_000,
+    "max_reference_pixels": 1_000_000, "roi_margin": 2.0, "zoom_margin": 2.0, "up": "level",
+    "min_weight": 0.0, "cull": True, "cull_far": 4.0, "min_evidence": 0.05, "threshold": None,
+    "lift_options": None, "solver_options": None, "mode": "classic", "progress": None}
+
+
+def test_defaults_are_those_of_the_old_extract():
+    s = ExtractSettings()
+    assert ExtractSettings.names() == list(DEFAULTS_BEFORE)
+    for name, want in DEFAULTS_BEFORE.items():
+        got = getattr(s, name)
+        if want is None and name.endswith("_options"):
+            assert dict(got) == {}, name  # None meant "no options"
+        else:
+            assert got == want and type(got) is type(want), name
+    assert s.solver_kwargs() == SOLVER_DEFAULTS["weighted_bce"] == {"max_iter": 30}
+    assert ExtractSettings(method="voting").solver_kwargs() == {}
+    assert ExtractSettings(solver_options={"max_iter": 5}).solver_kwargs() == {"max_iter": 5}
+
+
+@pytest.mark.parametrize("name,value,match", [
+    ("method", "newton", "unknown solver method 'newton'"),
+    ("n_views", 1, "n_views must be >= 2"),
+    ("n_views", 2.5, "n_views must be an integer"),
+    ("n_views", True, "n_views must be an integer"),
+    ("a_max_deg", -1.0, "a_max_deg must be >= 0"),
+    ("a_max_deg", float("nan"), "a_max_deg must be finite"),
+    ("gamma", 0.0, "gamma must be > 0"),
+    ("skip_deg", float("inf"), "skip_deg must be finite"),
+    ("profile", "cubic", "profile must be one of"),
+    ("max_elevation_deg", 90.0, "max_elevation_deg must be < 90"),
+    ("orbit_scale", 0.0, "orbit_scale must be > 0"),
+    ("orbit_scale", 5.0, "orbit_scale must be <= 4"),
+    ("orbit_scale", "half", "orbit_scale must be a number"),
+    ("max_view_pixels", 10, "max_view_pixels must be >= 64"),
+    ("max_view_pixels", 1e5, "max_view_pixels must be an integer or None"),
+    ("max_reference_pixels", 0, "max_reference_pixels must be >= 64"),
+    ("roi_margin", 0.0, "roi_margin must be > 0"),
+    ("zoom_margin", float("nan"), "zoom_margin must be finite"),
+    ("up", "sideways", "up must be one of"),
+    ("up", (0.0, 0.0, 0.0), "up must be 'level', 'camera' or a non-zero"),
+    ("up", (0.0, 1.0), "up must be 'level', 'camera' or a non-zero"),
+    ("min_weight", -1e-3, "min_weight must be >= 0"),
+    ("cull", 1, "cull must be True or False"),
+    ("cull_far", -1.0, "cull_far must be > 0"),
+    ("min_evidence", float("nan"), "min_evidence must be finite"),
+    ("min_evidence", -0.1, "min_evidence must be >= 0"),
+    ("threshold", float("inf"), "threshold must be finite"),
+    ("lift_options", {"eps": 1.0}, "seed_lift has no option"),
+    ("lift_options", [1], "lift_options must be a dict"),
+    ("solver_options", {"max_iterations": 3}, "has no option"),
+    ("mode", "fancy", "mode must be one of"),
+    ("progress", "yes", "progress must be True, False or None"),
+])
+def test_validation_names_the_option(name, value, match):
+    with pytest.raises(ValidationError, match=match):
+        ExtractSettings(**{name: value})
+
+
+def test_values_are_normalised_and_frozen():
+    s = ExtractSettings(n_views=np.int64(6), a_max_deg=45, up=np.array([0, 0, 2]), lift_options={"eps_rel": 0.03},
+                        cull=np.bool_(False))
+    assert type(s.n_views) is int and s.n_views == 6
+    assert type(s.a_max_deg) is float and s.a_max_deg == 45.0
+    assert s.up == (0.0, 0.0, 2.0) and s.cull is False
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        s.n_views = 8
+    with pytest.raises(TypeError):
+        s.lift_options["eps_rel"] = 1.0  # read-only: the settings cannot change behind extract's back
+    src = {"max_iter": 3}
+    t = ExtractSettings(solver_options=src)
+    src["max_iter"] = 99
+    assert t.solver_options["max_iter"] == 3
+
+
+def test_to_dict_from_dict_round_trip_through_json():
+    s = ExtractSettings(method="voting", n_views=7, up=(0.0, -1.0, 0.0), max_view_pixels=None, threshold=0.4,
+                        lift_options={"eps_rel": 0.03}, cull_far=None, profile="sin", progress=False)
+    d = s.to_dict()
+    assert list(d) == ExtractSettings.names()
+    text = json.dumps(d)
+    back = ExtractSettings.from_dict(json.loads(text))
+    assert back == s and back.to_dict() == d
+    assert d["up"] == [0.0, -1.0, 0.0] and d["lift_options"] == {"eps_rel": 0.03}
+    # missing keys take their defaults
+    assert ExtractSettings.from_dict({"n_views": 5}) == ExtractSettings(n_views=5)
+    assert ExtractSettings.from_dict(ExtractSettings().to_dict()) == ExtractSettings()
+
+
+def test_unknown_keys_are_rejected_listing_the_valid_ones():
+    with pytest.raises(ValidationError, match=r"\['nviews'\].*valid names: method, n_views, a_max_deg"):
+        ExtractSettings.from_dict({"nviews": 3})
+    with pytest.raises(ValidationError, match="must be a dict"):
+        ExtractSettings.from_dict([("n_views", 3)])
+    with pytest.raises(ValidationError, match=r"\['view_count'\].*valid names: .*min_evidence"):
+        ExtractSettings().replace(view_count=3)
+    assert ExtractSettings().replace(n_views=9).n_views == 9
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    syn = make_scene(seed=0)
+    return syn, syn.reference_camera(32, 24)
+
+
+def test_extract_rejects_unknown_keywords_before_any_work(tiny):
+    syn, cam = tiny
+    with pytest.raises(ValidationError, match=r"\['n_view'\].*valid names: .*n_views"):
+        extract(syn.scene, cam, np.ones((24, 32), bool), n_view=3)
+    with pytest.raises(ValidationError, match="n_views must be >= 2"):
+        extract(syn.scene, cam, np.ones((24, 32), bool), n_views=1)
+    with pytest.raises(ValidationError, match="settings must be an ExtractSettings"):
+        extract(syn.scene, cam, np.ones((24, 32), bool), settings={"n_views": 3})
+    with pytest.raises(ValidationError, match="unknown solver method 'nope'"):
+        extract(syn.scene, cam, np.ones((24, 32), bool), None, None, "nope")  # the old positional method
+
+
+def test_extract_settings_and_overrides(tiny):
+    syn, _ = tiny
+    cam = syn.reference_camera(64, 48)
+    truth = syn.labels == 2
+    from seed2gs_inverse.operators.render import build_operator
+
+    seed = (build_operator(syn.scene, cam).W @ truth.astype(np.float32)).reshape(cam.image_shape) > 0.5
+    base = ExtractSettings(method="voting", n_views=3, progress=False)
+    ex = extract(syn.scene, cam, seed, settings=base, n_views=4)
+    assert ex.settings == base.replace(n_views=4)
+    assert ex.clips.count("flat") == 4
+    old = extract(syn.scene, cam, seed, None, None, "voting", n_views=4, progress=False)  # positional method
+    np.testing.assert_array_equal(old.q, ex.q)
+    rep = json.loads(json.dumps(ex.report()))
+    assert ExtractSettings.from_dict(rep["settings"]) == ex.settings
+    assert set(rep["resolved"]) == {"view_scale", "reference_scale", "up", "threshold", "solver_options",
+                                    "n_weak_evidence", "tracker", "grounder"}
+    assert rep["resolved"]["tracker"] == "GeometricTracker" and rep["resolved"]["grounder"] is None
+    assert rep["resolved"]["threshold"] == ex.threshold and rep["resolved"]["reference_scale"] == 1.0
+    assert rep["resolved"]["n_weak_evidence"] == ex.result.info["n_weak_evidence"]

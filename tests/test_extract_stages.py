@@ -1,0 +1,311 @@
+"""extract()'s stage functions one by one on a procedural scene, the tracker protocol, and q unchanged.
+
+Each stage is checked against a direct computation from the lower-level API
+(render / build_operator / seed_lift / solve) or from the formulas, not
+against itself. ``data/extract_q_before_issue9.npz`` holds q from the code
+before issue 9 (commit 85e770d, ``/work/main``), produced by::
+
+    syn = make_scene(seed=0); cam = syn.reference_camera(96, 72)
+    seed = W(cam) @ (labels == label) > 0.5          # label 2: weighted_bce, label 1: voting
+    q = extract(syn.scene, cam, seed, n_views=6, progress=False[, method="voting"]).q
+"""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from seed2gs_inverse import Camera, ValidationError
+from seed2gs_inverse.frontend.base import Tracker
+from seed2gs_inverse.frontend.model_free import GeometricTracker
+from seed2gs_inverse.frontend.sam2 import SAM2VideoTracker
+from seed2gs_inverse.operators.operator import scene_fingerprint
+from seed2gs_inverse.operators.render import build_operator, render
+from seed2gs_inverse.pipeline import ExtractSettings, extract, seed_lift
+from seed2gs_inverse.solvers import solve
+from seed2gs_inverse.synthetic import make_scene
+
+ex_mod = importlib.import_module("seed2gs_inverse.pipeline.extract")
+DATA = Path(__file__).resolve().parent / "data"
+
+
+class Counter:
+    """Stands in for the progress bar: counts updates."""
+
+    def __init__(self):
+        self.n = 0
+
+    def update(self, n=1):
+        self.n += n
+
+
+@pytest.fixture(scope="module")
+def syn():
+    return make_scene(seed=0)
+
+
+@pytest.fixture(scope="module")
+def setup(syn):
+    cam = syn.reference_camera(96, 72)
+    truth = syn.labels == 2
+    seed = (build_operator(syn.scene, cam).W @ truth.astype(np.float32)).reshape(cam.image_shape) > 0.5
+    return cam, seed
+
+
+@pytest.fixture(scope="module")
+def staged(syn, setup):
+    """The stages run in order as extract() runs them (n_views=5)."""
+    cam, seed = setup
+    s = ExtractSettings(n_views=5, progress=False)
+    with ex_mod._Renderer(syn.scene, s.mode) as r:
+        ref_img = ex_mod.render_reference(r, cam)
+        seed2, info = ex_mod.seed_from_prompt(seed, ref_img)
+        ref = ex_mod.reference_view(r, cam, seed2, s.max_reference_pixels)
+        lift = ex_mod.lift_seed(syn.scene, ref, s.lift_options)
+        bar = Counter()
+        orbits = ex_mod.orbit_views(r, cam, ref, lift, s, bar)
+    labelled = ex_mod.track_clips(GeometricTracker(), orbits, ref.seed)
+    stack = ex_mod.stack_operators(labelled, syn.scene)
+    sel = ex_mod.solve_selection(stack, [m for _, m in labelled], lift, s)
+    return SimpleNamespace(settings=s, ref_img=ref_img, seed=seed2, info=info, ref=ref, lift=lift, bar=bar,
+                           orbits=orbits, labelled=labelled, stack=stack, sel=sel, renderer=r)
+
+
+def test_render_reference_is_the_full_rendering(syn, setup, staged):
+    cam, _ = setup
+    want = render(syn.scene, cam)
+    for a in ("rgb", "depth", "alpha"):
+        np.testing.assert_array_equal(getattr(staged.ref_img, a), getattr(want, a))
+    away = Camera.look_at(cam.center, cam.center - 5 * (syn.origin - cam.center), syn.up, 50, 32, 24)
+    with ex_mod._Renderer(syn.scene) as r, pytest.raises(ValidationError, match="sees nothing"):
+        ex_mod.render_reference(r, away)
+
+
+def test_seed_from_prompt(setup, staged):
+    _, seed = setup
+    np.testing.assert_array_equal(staged.seed, seed)
+    assert staged.info["kind"] == "mask"
+    sky = np.zeros_like(seed)
+    empty = np.flatnonzero(staged.ref_img.alpha.ravel() <= 0.05)
+    if empty.size:
+        sky.flat[empty[0]] = True
+        with pytest.raises(ValidationError, match="does not touch the scene"):
+            ex_mod.seed_from_prompt(sky, staged.ref_img)
+
+
+def test_reference_view_full_and_capped(syn, setup, staged):
+    cam, seed = setup
+    ref = staged.ref
+    assert ref.scale == 1.0 and ref.camera is cam
+    ys, xs = np.nonzero(seed)
+    x0, y0, x1, y1 = ref_box = ex_mod._mask_roi(seed)
+    assert x0 <= xs.min() and xs.max() < x1 and y0 <= ys.min() and ys.max() < y1
+    want = build_operator(syn.scene, cam, roi=ref_box)
+    assert abs(ref.operator.W - want.W).max() == 0
+    # capped at a quarter of the pixels: half the resolution, the seed area-averaged over 2x2 blocks
+    with ex_mod._Renderer(syn.scene) as r:
+        half = ex_mod.reference_view(r, cam, seed, 48 * 36)
+    assert half.scale == pytest.approx(0.5) and half.camera.image_shape == (36, 48)
+    blocks = seed.reshape(36, 2, 48, 2).mean(axis=(1, 3))
+    np.testing.assert_array_equal(half.seed, blocks > 0.5)
+    assert half.operator.camera.image_shape == (36, 48)
+    with ex_mod._Renderer(syn.scene) as r, pytest.raises(ValidationError, match="vanishes at the lift resolution"):
+        one = np.zeros_like(seed)
+        one[ys[0], xs[0]] = True
+        ex_mod.reference_view(r, cam, one, 64)
+
+
+def test_lift_seed_is_seed_lift(syn, setup, staged):
+    cam, _ = setup
+    op = staged.ref.operator
+    want = seed_lift(syn.scene, cam, staged.ref.seed, op.rendering.depth, op.W)
+    np.testing.assert_array_equal(staged.lift.support, want.support)
+    np.testing.assert_array_equal(staged.lift.center, want.center)
+    assert staged.lift.radius == want.radius
+
+
+def test_orbit_views_frames_carry_their_operators(syn, setup, staged):
+    cam, _ = setup
+    o = staged.orbits
+    assert len(o.flat) == 5 and len(o.spiral) in (0, 5)
+    assert [name for name, _ in o.clips()] == ["flat"] + (["spiral"] if o.spiral else [])
+    assert staged.bar.n == len(o.flat) + len(o.spiral)  # one progress update per rendered view
+    assert o.view_scale == pytest.approx(min(0.5, np.sqrt(40_000 / (96 * 72))))
+    assert o.flat[0].operator is staged.ref.operator  # frame 0 is the reference view
+    if o.spiral:
+        assert o.spiral[0].operator is staged.ref.operator
+    lift = staged.lift
+    for f in o.flat[1:3]:
+        op = f.operator
+        assert op.camera is f.camera and f.clip == "flat"
+        np.testing.assert_array_equal(f.rgb, op.rendering.rgb)
+        np.testing.assert_array_equal(f.depth, op.rendering.depth)
+        # the culled operator (cut at cull_far) equals the uncut one on the pixels that it keeps,
+        # and the uncut culled one equals the plain build_operator (exact culling)
+        roi = ex_mod._roi_box(f.camera, lift.center, lift.radius, 2.0)
+        plain = build_operator(syn.scene, f.camera, roi=roi)
+        with ex_mod._Renderer(syn.scene) as r:
+            exact = r.operator(f.camera, roi=roi, cull=True, far=None)
+        assert abs(exact.W - plain.W).max() == 0
+        assert op.W.shape == plain.W.shape
+    # the orbit axis of up="level" is estimate_up's from the reference weights
+    from seed2gs_inverse.pipeline.vaas import estimate_up
+
+    want_up = estimate_up(syn.scene, cam.scaled(o.view_scale),
+                          weights=np.asarray(staged.ref.operator.W.sum(axis=0)).ravel())
+    np.testing.assert_array_equal(o.up, want_up)
+
+
+class Recorder:
+    """A tracker that labels everything 1 and records what it was given."""
+
+    def __init__(self, n_out=None, shape=None):
+        self.calls = []
+        self.n_out, self.shape = n_out, shape
+
+    def track(self, frames, seed_mask, references=()):
+        self.calls.append((list(frames), list(references)))
+        n = len(frames) if self.n_out is None else self.n_out
+        return [np.ones(self.shape or frames[min(k, len(frames) - 1)].camera.image_shape, np.float32)
+                for k in range(n)]
+
+
+def test_track_clips_passes_references_and_drops_spiral_frame_0(staged):
+    o = staged.orbits
+    rec = Recorder()
+    bar = Counter()
+    labelled = ex_mod.track_clips(rec, o, staged.ref.seed, bar)
+    assert bar.n == len(o.clips())
+    assert rec.calls[0][1] == []  # the flat clip has no labelled views yet
+    assert [f for f, _ in labelled[:len(o.flat)]] == o.flat
+    if o.spiral:
+        refs = rec.calls[1][1]
+        assert [f for f, _ in refs] == o.flat  # the spiral gets the whole tracked flat clip
+        assert [f for f, _ in labelled[len(o.flat):]] == o.spiral[1:]
+    assert all(m.dtype == np.float32 and m.shape == f.camera.image_shape for f, m in labelled)
+    with pytest.raises(ValidationError, match="returned 1 masks for a flat clip of 5"):
+        ex_mod.track_clips(Recorder(n_out=1), o, staged.ref.seed)
+    with pytest.raises(ValidationError, match=r"tracker mask 0 of the flat clip has shape \(3, 3\)"):
+        ex_mod.track_clips(Recorder(shape=(3, 3)), o, staged.ref.seed)
+
+    class Old:
+        def track(self, frames, seed_mask):
+            return [seed_mask] * len(frames)
+
+    with pytest.raises(ValidationError, match="must accept references"):
+        ex_mod.track_clips(Old(), o, staged.ref.seed)
+
+
+def test_stack_operators(syn, staged):
+    st = staged.stack
+    assert len(st) == len(staged.labelled) and st.fingerprint == scene_fingerprint(syn.scene)
+    assert all(v is f.operator for v, (f, _) in zip(st, staged.labelled))
+
+
+def test_solve_selection_equals_the_old_evidence_reset(syn, staged):
+    """q: the solver's q with Gaussians of evidence e = sum_c W(c)^T k(c) < 0.05 reset to G0 (the old loop)."""
+    masks = [m for _, m in staged.labelled]
+    sel = staged.sel
+    raw = solve(staged.stack, masks, method="weighted_bce", init=staged.lift.support, max_iter=30)
+    evidence = np.zeros(len(syn.scene))
+    for (f, m) in staged.labelled:
+        W = f.operator.W.toarray().astype(np.float64)  # dense, independent of the sparse products
+        evidence += W.T @ (~np.isnan(m)).ravel()
+    weak = evidence < 0.05
+    assert 0 < weak.sum() < len(weak)
+    want = np.asarray(raw.q, np.float32).copy()
+    want[weak] = staged.lift.support[weak]
+    np.testing.assert_array_equal(sel.q, want)
+    assert sel.n_weak_evidence == int(weak.sum())
+    assert sel.threshold == 0.5 and np.array_equal(sel.selected, sel.q > 0.5)
+    t = ex_mod.solve_selection(staged.stack, masks, staged.lift, staged.settings.replace(threshold=0.3))
+    assert t.threshold == 0.3 and np.array_equal(t.selected, t.q > 0.3)
+
+
+def test_solve_min_evidence_option_validation(staged):
+    masks = [m for _, m in staged.labelled]
+    for bad in (-1.0, float("nan"), "0.1", True):
+        with pytest.raises(ValidationError, match="min_evidence"):
+            solve(staged.stack, masks, method="voting", min_evidence=bad)
+    r = solve(staged.stack, masks, method="voting")
+    assert r.info["n_weak_evidence"] == 0  # default 0: off
+
+
+def test_extract_runs_the_stages(syn, setup, staged):
+    cam, seed = setup
+    ex = extract(syn.scene, cam, seed, n_views=5, progress=False)
+    np.testing.assert_array_equal(ex.q, staged.sel.q)
+    assert len(ex.views) == len(staged.labelled)
+    for v, (f, _) in zip(ex.views, staged.labelled):
+        np.testing.assert_array_equal(v.world_to_camera, f.camera.world_to_camera)
+        assert v.image_shape == f.camera.image_shape
+    assert ex.resolved["n_weak_evidence"] == staged.sel.n_weak_evidence
+    assert set(ex.seconds) == set(ex_mod.STAGES) and all(v >= 0 for v in ex.seconds.values())
+
+
+@pytest.mark.parametrize("name,label,kw", [("weighted_bce", 2, {}), ("voting", 1, {"method": "voting"})])
+def test_q_unchanged_from_before_issue_9(syn, name, label, kw):
+    ref = np.load(DATA / "extract_q_before_issue9.npz", allow_pickle=False)
+    cam = syn.reference_camera(96, 72)
+    truth = syn.labels == label
+    seed = (build_operator(syn.scene, cam).W @ truth.astype(np.float32)).reshape(cam.image_shape) > 0.5
+    ex = extract(syn.scene, cam, seed, n_views=6, progress=False, **kw)
+    q0 = ref[f"q_{name}"]
+    # Bit-identical on the machine that made the file; other BLAS builds may
+    # differ in the last bits of an L-BFGS-B solve, never in the selection.
+    assert float(np.abs(ex.q - q0).max()) <= 1e-5
+    clear = np.abs(q0 - 0.5) > 1e-4
+    np.testing.assert_array_equal(ex.selected[clear], (q0 > 0.5)[clear])
+    assert ex.resolved["n_weak_evidence"] == int(ref[f"n_weak_{name}"])
+
+
+def test_every_tracker_takes_references():
+    for cls in (Tracker, GeometricTracker, SAM2VideoTracker):
+        p = inspect.signature(cls.track).parameters
+        assert "references" in p and p["references"].default == (), cls.__name__
+    assert isinstance(GeometricTracker(), Tracker)
+    from seed2gs_inverse.frontend import external
+
+    for obj in vars(external).values():
+        if inspect.isclass(obj) and callable(getattr(obj, "track", None)):
+            assert "references" in inspect.signature(obj.track).parameters, obj.__name__
+
+
+def test_geometric_tracker_uses_references(syn, staged):
+    """The spiral tracked with the flat clip as references differs from without, where the flat clip sees more."""
+    o = staged.orbits
+    if not o.spiral:
+        pytest.skip("spiral skipped on this scene")
+    t = GeometricTracker()
+    flat = t.track(o.flat, staged.ref.seed)
+    with_refs = t.track(o.spiral, staged.ref.seed, references=list(zip(o.flat, flat)))
+    without = t.track(o.spiral, staged.ref.seed)
+    known = lambda ms: sum(int((~np.isnan(m)).sum()) for m in ms)  # noqa: E731
+    assert known(with_refs) >= known(without)
+
+
+def test_progress_bar_is_owned_by_its_with_block(capsys):
+    with ex_mod._Progress("views", True, total=3) as bar:
+        for _ in range(3):
+            bar.update()
+        assert bar._bar is not None and bar._bar.n == 3
+    assert bar._bar is None  # closed on leaving the block
+    assert "views" in capsys.readouterr().err
+    with ex_mod._Progress("quiet", False) as off:
+        off.update()
+    assert off._bar is None and capsys.readouterr().err == ""
+
+
+def test_stage_timer_moves_seconds_between_stages():
+    t = ex_mod._StageTimer()
+    with t("vaas"):
+        pass
+    t.seconds["vaas"] = 1.0
+    t.move("vaas", "operators", 0.25)
+    assert t.seconds["vaas"] == 0.75 and t.seconds["operators"] == 0.25
+    assert list(t.seconds) == list(ex_mod.STAGES)
