@@ -43,7 +43,7 @@ t0 = time.perf_counter()
 import numpy as np
 from seed2gs_inverse.camera import Camera
 from seed2gs_inverse.scene import GaussianScene
-from seed2gs_inverse.operators.render import build_operator
+from seed2gs_inverse.raster import build_operator
 rng = np.random.default_rng(0)
 n = 50
 scene = GaussianScene(rng.normal(0, 0.5, (n, 3)), rng.normal(size=(n, 4)), np.full((n, 3), -2.0),
@@ -105,7 +105,7 @@ def main(argv=None) -> int:
 
     from seed2gs_inverse.camera import Camera
     from seed2gs_inverse.io import read_camera, read_scene
-    from seed2gs_inverse.operators.render import _rasterize, build_operator, project_gaussians, render
+    from seed2gs_inverse.raster import _rasterize, build_operator, project_gaussians, render
 
     threads = os.environ.get("NUMBA_NUM_THREADS", "default")
     load = os.getloadavg()[0]
@@ -181,7 +181,7 @@ def _orbit_views(scene, cam, depth, repeat):
 
     import scipy.sparse as sp
 
-    from seed2gs_inverse.operators.render import build_operator
+    from seed2gs_inverse.raster import build_operator
     from seed2gs_inverse.pipeline.vaas import flat_orbit
 
     render_mod = importlib.import_module("seed2gs_inverse.operators.render")

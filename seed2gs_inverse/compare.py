@@ -30,7 +30,7 @@ import scipy.sparse as sp
 
 from .errors import ValidationError
 from .metrics import boundary_iou, iou, membership_scores
-from .operators.operator import OperatorStack, ViewOperator
+from .operators import OperatorStack, ViewOperator
 from .solvers import available_methods, solve
 
 __all__ = ["compare", "Comparison", "holdout_views", "COLUMNS"]

@@ -718,7 +718,7 @@ def surface_point(camera: Camera, depth, pixel) -> np.ndarray:
     centre ``(x + 0.5, y + 0.5)``) to view depth ``z = depth[y, x]``:
     ``X_cam = ((x + 0.5 - cx) z / fx, (y + 0.5 - cy) z / fy, z)``, then
     ``X = R^T (X_cam - t)``. With ``depth`` from
-    :func:`seed2gs_inverse.operators.render.render` this is where to stand
+    :func:`seed2gs_inverse.raster.render` this is where to stand
     an object with :func:`pose_on_point` ("put it there" in a real scene).
 
     Parameters
@@ -815,11 +815,11 @@ def render_label_masks(scene: GaussianScene, cameras, selected,
     """Ground-truth masks of ``selected`` Gaussians seen by ``cameras``.
 
     Builds each view's operator with
-    :func:`seed2gs_inverse.operators.render.build_operator` and applies
+    :func:`seed2gs_inverse.raster.build_operator` and applies
     :func:`masks_from_labels`. Use the operators directly when you have
     them already (building is the expensive part).
     """
-    from .operators.render import build_operator  # the renderer sits above this module
+    from .raster import build_operator  # the renderer sits above this module
 
     cams = list(cameras)
     if not cams:

@@ -13,7 +13,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from seed2gs_inverse.camera import Camera
-from seed2gs_inverse.operators.operator import OperatorStack, ViewOperator
+from seed2gs_inverse.operators import OperatorStack, ViewOperator
 
 
 def splat_operator(points, radii, opacities, camera: Camera) -> sp.csr_matrix:

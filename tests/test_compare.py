@@ -103,7 +103,7 @@ def test_cli_build_info_solve_compare(run_cli, scene_files, tmp_path, capsys):
     ops = tmp_path / "ops"
     assert run_cli("operators", "build", d / "scene.ply", "--cameras", d / "cameras.json", "-o", ops,
                    "--no-progress") == 0
-    from seed2gs_inverse.operators.operator import OperatorStack, scene_fingerprint
+    from seed2gs_inverse.operators import OperatorStack, scene_fingerprint
 
     stack = OperatorStack.load(ops, scene=s.scene)
     assert len(stack) == 5 and stack.fingerprint == scene_fingerprint(s.scene)

@@ -11,7 +11,7 @@ import scipy.sparse as sp
 
 from seed2gs_inverse.camera import Camera
 from seed2gs_inverse.errors import FormatError, ValidationError
-from seed2gs_inverse.operators.operator import OperatorStack, ViewOperator, scene_fingerprint
+from seed2gs_inverse.operators import OperatorStack, ViewOperator, scene_fingerprint
 from seed2gs_inverse.scene import GaussianScene
 
 
@@ -138,7 +138,7 @@ def test_save_load_round_trip_is_exact(rng, tmp_path, mmap):
 
 
 def test_save_load_keeps_rendering(rng, tmp_path):
-    from seed2gs_inverse.operators.render import Rendering
+    from seed2gs_inverse.operators import Rendering
 
     v = _random_view(rng, h=6, w=8)
     r = Rendering(rng.random((6, 8, 3)).astype(np.float32), v.alpha(), rng.random((6, 8)).astype(np.float32),

@@ -11,7 +11,7 @@ from scipy.stats import beta as beta_dist
 from _solver_scenes import blob_stack
 from seed2gs_inverse.errors import ValidationError
 from seed2gs_inverse.metrics import iou
-from seed2gs_inverse.operators.operator import ViewOperator
+from seed2gs_inverse.operators import ViewOperator
 from seed2gs_inverse.solvers import Problem, available_methods, prepare, register_method, solve
 from seed2gs_inverse.solvers.beta_bernoulli import beta_entropy
 from seed2gs_inverse.solvers.voting import bias_to_threshold

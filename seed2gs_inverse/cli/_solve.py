@@ -119,7 +119,7 @@ def _npy_bytes(arr) -> bytes:
 
 
 def solve_command(args) -> int:
-    from ..operators.operator import OperatorStack
+    from ..operators import OperatorStack
     from ..solvers import solve
     from ..solvers._common import get_method
     from .._atomic import check_output_parent, write_files
@@ -144,7 +144,7 @@ def solve_command(args) -> int:
 
 def compare_command(args) -> int:
     from ..compare import compare
-    from ..operators.operator import OperatorStack
+    from ..operators import OperatorStack
     from .._atomic import check_output_parent, write_files
 
     if args.output:

@@ -11,7 +11,6 @@ what happened.
 
 from __future__ import annotations
 
-import functools
 import sys
 import time
 from dataclasses import dataclass, field
@@ -200,59 +199,6 @@ def _roi_box(camera: Camera, center, radius, margin):
     return (x0, y0, x1, y1)
 
 
-def _cone_subset(scene, camera: Camera, roi, sigma3: np.ndarray, far: float | None = None) -> np.ndarray:
-    """Indices of Gaussians that can reach the pixels of ``roi`` in ``camera``.
-
-    Keeps Gaussians in front of the near plane whose centre lies within the
-    cone through the roi's corner pixels, widened by the Gaussian's own 3-sigma
-    size (``sigma3``, world units): every Gaussian whose footprint reaches a
-    roi pixel passes, so rasterizing the subset gives the same roi pixels.
-    ``far``: also drop Gaussians whose depth along the cone axis exceeds it
-    (minus their 3-sigma size).
-    """
-    h, w = camera.image_shape
-    x0, y0, x1, y1 = (0, 0, w, h) if roi is None else roi
-    xs = (np.array([x0, x1, x1, x0], float) - camera.cx) / camera.fx
-    ys = (np.array([y0, y0, y1, y1], float) - camera.cy) / camera.fy
-    # Axis: through the roi centre; half-angle: to the farthest corner.
-    axis = np.array([(0.5 * (x0 + x1) - camera.cx) / camera.fx, (0.5 * (y0 + y1) - camera.cy) / camera.fy, 1.0])
-    axis /= np.linalg.norm(axis)
-    corners = np.stack([xs, ys, np.ones(4)], 1)
-    corners /= np.linalg.norm(corners, axis=1, keepdims=True)
-    cos_a = float(np.clip((corners @ axis).min(), 1e-3, 1.0))
-    tan_a = np.sqrt(max(1.0 - cos_a ** 2, 0.0)) / cos_a
-    from ..operators import _raster
-
-    # One parallel pass over the scene (this runs for every orbit view).
-    keep = np.empty(len(scene), bool)
-    _raster.cone_cull(scene.means, np.ascontiguousarray(camera.rotation, dtype=np.float64),
-                      np.ascontiguousarray(camera.translation, dtype=np.float64), axis, tan_a, cos_a,
-                      float(camera.near), np.ascontiguousarray(sigma3, dtype=np.float64),
-                      np.inf if far is None else float(far), keep)
-    return np.flatnonzero(keep)
-
-
-def _with_frozen_scene(fn):
-    """Run ``fn(scene, ...)`` inside ``operators.render.frozen(scene)``.
-
-    extract() renders the same unchanged scene for ~50 views: the covariance
-    factors, opacities and SH-0 colours are then computed once, not per view
-    (identical results).
-    """
-
-    @functools.wraps(fn)
-    def wrapper(scene, *args, **kwargs):
-        from ..operators.render import frozen
-
-        if not isinstance(scene, GaussianScene):
-            return fn(scene, *args, **kwargs)  # which raises the error
-        with frozen(scene):
-            return fn(scene, *args, **kwargs)
-
-    return wrapper
-
-
-@_with_frozen_scene
 def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker=None,
             method: str = "weighted_bce", *, n_views: int = VAAS_DEFAULTS["n_views"],
             a_max_deg: float = VAAS_DEFAULTS["a_max_deg"], gamma: float = VAAS_DEFAULTS["gamma"],
@@ -323,7 +269,7 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
         flat orbit then tilts by the camera's pitch); or a world vector.
     min_weight : float
         Orbit operators drop compositing weights below this
-        (:func:`~seed2gs_inverse.operators.render.build_operator`): fewer
+        (:func:`~seed2gs_inverse.raster.build_operator`): fewer
         non-zeros, faster solves, ``W 1`` short of alpha by at most the
         dropped weights.
     cull : bool
@@ -364,8 +310,8 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
     from ..frontend.model_free import GeometricTracker
     from ..frontend.prompts import seed_mask_from_prompt
 
-    from ..operators.operator import OperatorStack, scene_fingerprint
-    from ..operators.render import build_operator, render
+    from ..operators import OperatorStack, scene_fingerprint
+    from ..raster import FrozenScene, build_operator, cone_cull, render
     from ..solvers import solve
 
     if not isinstance(scene, GaussianScene):
@@ -374,6 +320,9 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
         raise ValidationError("the scene has no Gaussians")
     if not isinstance(camera, Camera):
         raise ValidationError(f"camera must be a Camera, got {type(camera).__name__}")
+    # extract() renders the same unchanged scene for ~50 views: the covariance
+    # factors, opacities, SH-0 colours and 3-sigma sizes are computed once.
+    frozen = FrozenScene(scene)
     from ..solvers import available_methods
 
     if method not in available_methods():
@@ -387,7 +336,7 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
 
     # 1. Reference canvas I_r.
     t0 = time.perf_counter()
-    ref = render(scene, camera, mode=mode)
+    ref = render(frozen, camera, mode=mode)
     seconds["render"] = time.perf_counter() - t0
     if float(ref.alpha.max()) < 0.05:
         raise ValidationError(
@@ -414,7 +363,7 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
         raise ValidationError(
             f"the seed mask ({int(seed.sum())} px) vanishes at the lift resolution "
             f"{ref_cam.width}x{ref_cam.height}; raise max_reference_pixels or give a larger mask")
-    op_ref = build_operator(scene, ref_cam, roi=_mask_roi(seed_ref), mode=mode)
+    op_ref = build_operator(frozen, ref_cam, roi=_mask_roi(seed_ref), mode=mode)
     t_op = time.perf_counter() - t0
     t1 = time.perf_counter()
     lift = seed_lift(scene, ref_cam, seed_ref, op_ref.rendering.depth, op_ref.W, **(lift_options or {}))
@@ -432,9 +381,7 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
         if up_axis.shape != (3,) or not np.all(np.isfinite(up_axis)) or np.linalg.norm(up_axis) == 0:
             raise ValidationError(f"up must be 'level', 'camera' or a non-zero 3-vector, got {up!r}")
     ops_by_view = {}
-    sigma_all = scene.scales.max(axis=1)
-    sigma3_all = 3.0 * sigma_all.astype(np.float64)
-    sigma = sigma_all[lift.support]
+    sigma = scene.scales.max(axis=1)[lift.support]
     bar = [None]
 
     def view(cam, clip, k):
@@ -448,10 +395,10 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
                 # columns are scene indices): same W, far less work.
                 far = None if cull_far is None else float(
                     np.linalg.norm(cam.center - lift.center) + cull_far * lift.radius)
-                idx = _cone_subset(scene, cam, roi, sigma3_all, far)
-                op = build_operator(scene, cam, roi=roi, min_weight=min_weight, mode=mode, subset=idx)
+                idx = cone_cull(frozen, cam, roi, far)
+                op = build_operator(frozen, cam, roi=roi, min_weight=min_weight, mode=mode, subset=idx)
             else:
-                op = build_operator(scene, cam, roi=roi, min_weight=min_weight, mode=mode)
+                op = build_operator(frozen, cam, roi=roi, min_weight=min_weight, mode=mode)
             seconds["operators"] += time.perf_counter() - ts
         ops_by_view[(clip, k)] = op
         if bar[0] is not None:

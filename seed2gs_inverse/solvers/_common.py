@@ -224,7 +224,7 @@ def normalize_mask(mask, image_shape, label: str) -> np.ndarray:
 
 def _views_of(operators):
     """(list of sparse matrices, list of image shapes or None, names, stack or None)."""
-    from ..operators.operator import OperatorStack, ViewOperator
+    from ..operators import OperatorStack, ViewOperator
 
     if isinstance(operators, OperatorStack):
         return [v.W for v in operators], operators.image_shapes, [v.name for v in operators], operators
