@@ -73,5 +73,5 @@ def blob_stack(seed=0, n_views=12, **kw) -> tuple:
     points, radii, opac, labels = blob_scene(seed, **kw)
     views = [ViewOperator(splat_operator(points, radii, opac, c), c, c.image_shape) for c in orbit_cameras(n_views)]
     stack = OperatorStack(views, fingerprint=f"blob-{seed}")
-    masks = [v.matvec(labels.astype(np.float32)) > 0.5 for v in stack]
+    masks = [v.image(labels.astype(np.float32)) > 0.5 for v in stack]
     return stack, labels, masks

@@ -12,7 +12,8 @@ from _solver_scenes import blob_stack
 from seed2gs_inverse.errors import ValidationError
 from seed2gs_inverse.metrics import iou
 from seed2gs_inverse.operators import ViewOperator
-from seed2gs_inverse.solvers import Problem, available_methods, prepare, register_method, solve
+from seed2gs_inverse.solvers import (MethodResult, Problem, available_methods, get_method, method_options, prepare,
+                                     register_method, solve)
 from seed2gs_inverse.solvers.beta_bernoulli import beta_entropy
 from seed2gs_inverse.solvers.voting import bias_to_threshold
 from seed2gs_inverse.solvers.weighted_bce import BCEObjective, view_weights
@@ -278,8 +279,8 @@ def blob():
 def _heldout_miou(stack, q_selected, labels, views):
     ious = []
     for i in views:
-        pred = stack[i].matvec(q_selected.astype(np.float32)) > 0.5
-        truth = stack[i].matvec(labels.astype(np.float32)) > 0.5
+        pred = stack[i].image(q_selected.astype(np.float32)) > 0.5
+        truth = stack[i].image(labels.astype(np.float32)) > 0.5
         ious.append(iou(pred, truth))
     return float(np.mean(ious))
 
@@ -315,7 +316,7 @@ def test_identity_switch_views_get_low_weight(blob):
     bad = [2, 6]
     other = np.zeros_like(labels)
     other[np.flatnonzero(~labels)[:60]] = True  # the tracker jumped to background splats
-    fit = [stack[i].matvec(other.astype(np.float32)) > 0.5 if i in bad else masks[i] for i in train]
+    fit = [stack[i].image(other.astype(np.float32)) > 0.5 if i in bad else masks[i] for i in train]
     r = solve(stack.subset(train), fit, method="weighted_bce", max_iter=80)
     good = [i for i in train if i not in bad]
     assert r.view_weights[bad].max() < r.view_weights[good].min()
@@ -368,14 +369,34 @@ def test_register_a_new_method(rng, monkeypatch):
 
     monkeypatch.setattr(_common, "_METHODS", dict(_common._METHODS))  # keep the registry clean for others
 
-    def half(problem, *, value: float = 0.5):
-        return {"q": np.full(problem.n_gaussians, value)}
+    def half(problem, *, value: float = 0.5, note: str = "x"):
+        return MethodResult(q=np.full(problem.n_gaussians, value), iterations=3, info={"note": note})
 
     register_method("constant_test", half)
     mats, masks = _random_problem(rng)
     r = solve(mats, masks, method="constant_test", value=0.7)
-    assert "constant_test" in available_methods()
+    assert "constant_test" in available_methods() and get_method("constant_test") is half
+    assert method_options("constant_test") == {"value": 0.5, "note": "x"}
     assert np.all(r.q[~r.unobserved] == np.float32(0.7)) and np.all(r.q[r.unobserved] == 0)
+    assert r.iterations == 3 and r.info["note"] == "x" and r.info["n_weak_evidence"] == int(r.unobserved.sum())
+    # a method must return a MethodResult, not the old dict
+    register_method("dict_test", lambda problem: {"q": np.zeros(problem.n_gaussians)})
+    with pytest.raises(RuntimeError, match="MethodResult"):
+        solve(mats, masks, method="dict_test")
+    with pytest.raises(ValidationError, match="unknown method"):
+        method_options("no_such_method")
+
+
+def test_method_options_list_every_builtin_option():
+    import inspect
+
+    for name in available_methods():
+        opts = method_options(name)
+        params = inspect.signature(get_method(name)).parameters
+        assert list(opts) == [k for k, p in params.items() if p.kind == p.KEYWORD_ONLY]
+        assert opts == {k: params[k].default for k in opts}
+    assert method_options("voting") == {"bias": 0.0}
+    assert method_options("weighted_bce")["max_iter"] == 200
 
 
 def test_stack_and_matrix_list_give_the_same_answer(blob):
@@ -394,7 +415,7 @@ def test_stack_and_matrix_list_give_the_same_answer(blob):
 @pytest.mark.parametrize("normalize", [False, True])
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 def test_bce_pixel_kernel_matches_numpy_formula(rng, normalize, dtype):
-    from seed2gs_inverse.solvers._kernels import bce_pixels
+    from seed2gs_inverse.solvers.weighted_bce import bce_pixels
 
     n, eps = 500, 1e-3
     pred = rng.uniform(-0.01, 1.01, n).astype(dtype)

@@ -121,7 +121,7 @@ def _npy_bytes(arr) -> bytes:
 def solve_command(args) -> int:
     from ..operators import OperatorStack
     from ..solvers import solve
-    from ..solvers._common import get_method
+    from ..solvers import get_method
     from .._atomic import check_output_parent, write_files
 
     get_method(args.method)  # fail fast on a typo, before loading anything

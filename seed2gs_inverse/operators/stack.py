@@ -31,7 +31,8 @@ class OperatorStack(LinearOperator):
     Parameters
     ----------
     views : sequence of ViewOperator
-        At least one; all with the same number of columns.
+        At least one; all with the same number of columns. Kept as a tuple
+        (``.views``): a stack does not change after it is made.
     fingerprint : str, optional
         :func:`scene_fingerprint` of the scene the views were built from.
     """
@@ -51,7 +52,8 @@ class OperatorStack(LinearOperator):
         if fingerprint is not None and not isinstance(fingerprint, str):
             raise ValidationError(f"fingerprint must be a string, got {type(fingerprint).__name__}")
         super().__init__(np.float32, (sum(v.n_pixels for v in views), n))
-        self.views = views
+        # A tuple: the shape and the cached stacked matrix depend on the views.
+        self.views = tuple(views)
         self.fingerprint = fingerprint
         self._stacked = None
         self._stacked_T = None
