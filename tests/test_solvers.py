@@ -378,7 +378,7 @@ def test_register_a_new_method(rng, monkeypatch):
     assert "constant_test" in available_methods() and get_method("constant_test") is half
     assert method_options("constant_test") == {"value": 0.5, "note": "x"}
     assert np.all(r.q[~r.unobserved] == np.float32(0.7)) and np.all(r.q[r.unobserved] == 0)
-    assert r.iterations == 3 and r.info["note"] == "x" and r.info["n_weak_evidence"] == int(r.unobserved.sum())
+    assert r.iterations == 3 and r.info["note"] == "x" and r.info["n_weak_evidence"] == 0
     # a method must return a MethodResult, not the old dict
     register_method("dict_test", lambda problem: {"q": np.zeros(problem.n_gaussians)})
     with pytest.raises(RuntimeError, match="MethodResult"):
@@ -505,3 +505,46 @@ def test_weighted_bce_accepts_numpy_integer_options(rng):
     mats, masks = _random_problem(rng)
     r = solve(mats, masks, method="weighted_bce", maxcor=np.int64(3), inner_iters=np.int32(10), max_iter=40)
     assert 0 < r.iterations <= 40 and np.isfinite(r.q).all()
+
+
+# -- min_evidence (common to every method) and the typed method result ----------------------
+@pytest.mark.parametrize("method", METHODS)
+def test_min_evidence_gives_weakly_seen_gaussians_the_prior(blob, method):
+    stack, labels, masks = blob
+    holes = [m.astype(np.float32) for m in masks]
+    for m in holes:
+        m[: m.shape[0] // 2] = np.nan  # the upper half of every view is unknown
+    prior = np.random.default_rng(0).random(stack.n_gaussians)
+    # independent evidence: dense column sums over the known pixels, view by view
+    evidence = sum(v.W.toarray().astype(np.float64).T @ (~np.isnan(m)).ravel() for v, m in zip(stack, holes))
+    base = solve(stack, holes, method=method, init=prior)
+    # min_evidence = 0: only the unobserved Gaussians (no known weight at all) take the prior
+    assert base.info["n_weak_evidence"] == 0 and int(base.unobserved.sum()) == int((evidence <= 0).sum())
+    # a threshold midway between two evidence values, so float32 sums cannot fall on its other side
+    ev = np.unique(evidence[evidence > 0])
+    k = int(np.argmax(np.diff(ev[ev.size // 4: ev.size // 2]))) + ev.size // 4
+    thr = float(0.5 * (ev[k] + ev[k + 1]))
+    weak = evidence < thr
+    r = solve(stack, holes, method=method, init=prior, min_evidence=thr)
+    assert 0 < weak.sum() < stack.n_gaussians and r.info["n_weak_evidence"] == int(weak.sum())
+    np.testing.assert_array_equal(r.q[weak], prior[weak].astype(np.float32))
+    np.testing.assert_array_equal(r.q[~weak], base.q[~weak])
+    np.testing.assert_array_equal(r.unobserved, base.unobserved)  # unobserved keeps its meaning
+    assert r.info["min_evidence"] == thr
+
+
+@pytest.mark.parametrize("bad", [-0.1, float("nan"), float("inf"), "0.05", True, None])
+def test_min_evidence_is_validated(bad):
+    mats, masks = _random_problem(np.random.default_rng(0))
+    with pytest.raises(ValidationError, match="min_evidence"):
+        solve(mats, masks, method="voting", min_evidence=bad)
+
+
+def test_methods_return_a_method_result(blob):
+    stack, labels, masks = blob
+    problem = prepare(stack, masks)
+    for name in METHODS:
+        out = get_method(name)(problem)
+        assert isinstance(out, MethodResult) and out.q.shape == (stack.n_gaussians,)
+        assert isinstance(out.info, dict) and isinstance(out.history, list)
+    assert get_method("voting")(problem, bias=0.2).threshold > 0.5
