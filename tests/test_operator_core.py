@@ -107,6 +107,10 @@ def test_stack_is_the_vertical_stack_of_its_views(built):
     assert np.shares_memory(T.data, stack.stacked().data)  # a view, no copy
     assert stack.as_linear_operator() is stack
     assert isinstance(stack.views, tuple)
+    with pytest.raises(ValidationError, match="q must have shape"):
+        stack.matvec(np.zeros(3))
+    with pytest.raises(ValidationError, match="r must have shape"):
+        stack.rmatvec(np.zeros(3))
 
 
 def test_as_stack_accepts_every_input_kind(built):

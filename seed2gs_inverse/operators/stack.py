@@ -138,6 +138,21 @@ class OperatorStack(LinearOperator):
         """The stack itself: it already is a ``scipy.sparse.linalg.LinearOperator`` (float32)."""
         return self
 
+    def matvec(self, x) -> np.ndarray:
+        """``[W(1) q; W(2) q; ...]`` flat (sum of pixels,) for ``q`` (N,) (or (N, 1))."""
+        x = np.asarray(x)
+        if x.shape not in ((self.n_gaussians,), (self.n_gaussians, 1)):
+            raise ValidationError(f"q must have shape ({self.n_gaussians},) for this stack, got {x.shape}")
+        return super().matvec(x)
+
+    def rmatvec(self, x) -> np.ndarray:
+        """``sum_c W(c)^T r_c`` (N,) for the concatenated per-view vectors ``r`` (sum of pixels,)."""
+        y = np.asarray(x)
+        if y.shape not in ((self.shape[0],), (self.shape[0], 1)):
+            raise ValidationError(f"r must have shape ({self.shape[0]},) (all views' pixels, concatenated), "
+                                  f"got {y.shape}")
+        return super().rmatvec(y)
+
     def _matvec(self, x):
         return np.asarray(self.stacked() @ np.ravel(x))
 
