@@ -43,6 +43,7 @@ def test_W_matches_brute_force_entry_by_entry(seed, mode):
     np.testing.assert_allclose(op.rendering.rgb, rgb, atol=1e-5)
     np.testing.assert_allclose(op.rendering.alpha, alpha, atol=1e-5)
     np.testing.assert_allclose(op.rendering.depth, depth, atol=1e-5)
+    dottest(op, rng=seed)
 
 
 @pytest.mark.parametrize("i", [0, 1])
@@ -61,12 +62,8 @@ def test_identities_and_dot_test(i, rng):
     rb = render(scene, cam, background=bg)
     np.testing.assert_allclose((W @ p.colors + (1 - W @ np.ones(n))[:, None] * bg).reshape(rb.rgb.shape),
                                rb.rgb, atol=2e-6)
-    for _ in range(3):
-        x = rng.normal(size=n)
-        y = rng.normal(size=W.shape[0])
-        lhs = np.dot(W @ x, y)
-        rhs = np.dot(x, W.T @ y)
-        assert lhs == pytest.approx(rhs, rel=1e-10, abs=1e-10)
+    for seed in range(3):
+        assert dottest(op, rtol=1e-6, rng=seed)  # the ViewOperator's matvec / rmatvec
     assert (W @ np.ones(n)).max() > 0.5
 
 

@@ -44,10 +44,15 @@ def test_view_matvec_rmatvec_match_dense(rng):
     np.testing.assert_array_equal(v.observed(), dense.any(0))
 
 
-def test_view_dot_test(rng):
-    from seed2gs_inverse.operators import dottest
+def test_view_dot_test():
+    """The dot test on an operator of the rasterizer, alone, stacked and after a save/load."""
+    from render_reference import random_scene
 
-    dottest(_random_view(rng, n=80, h=10, w=12), rng=0)
+    from seed2gs_inverse.raster import build_operator
+
+    cam = Camera.look_at([0.2, -0.6, -4.0], [0, 0, 0], [0, -1, 0], 48, 24, 20)
+    op = build_operator(random_scene(3, n=80, cam=cam), cam)
+    assert dottest(op, rng=0) and dottest(OperatorStack([op, op]), rng=1)
 
 
 @pytest.mark.parametrize("bad, match", [
