@@ -45,7 +45,7 @@ def test_view_matvec_rmatvec_match_dense(rng):
 
 
 def test_view_dot_test():
-    """The dot test on an operator of the rasterizer, alone, stacked and after a save/load."""
+    """The dot test on an operator of the rasterizer, alone and stacked."""
     from render_reference import random_scene
 
     from seed2gs_inverse.raster import build_operator
