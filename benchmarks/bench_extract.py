@@ -65,7 +65,7 @@ def main(argv=None) -> int:
 
     from seed2gs_inverse.io import read_camera, read_scene
     from seed2gs_inverse.metrics import boundary_iou, iou, membership_scores
-    from seed2gs_inverse.operators.render import build_operator, render
+    from seed2gs_inverse.raster import build_operator, render
     from seed2gs_inverse.pipeline import extract
     from seed2gs_inverse.pipeline.vaas import estimate_up
     from seed2gs_inverse.synthetic import compose, pose_on_point

@@ -43,7 +43,7 @@ t0 = time.perf_counter()
 import numpy as np
 from seed2gs_inverse.camera import Camera
 from seed2gs_inverse.scene import GaussianScene
-from seed2gs_inverse.operators.render import build_operator
+from seed2gs_inverse.raster import build_operator
 rng = np.random.default_rng(0)
 n = 50
 scene = GaussianScene(rng.normal(0, 0.5, (n, 3)), rng.normal(size=(n, 4)), np.full((n, 3), -2.0),
@@ -105,7 +105,8 @@ def main(argv=None) -> int:
 
     from seed2gs_inverse.camera import Camera
     from seed2gs_inverse.io import read_camera, read_scene
-    from seed2gs_inverse.operators.render import _rasterize, build_operator, project_gaussians, render
+    from seed2gs_inverse.raster import build_operator, project_gaussians, render
+    from seed2gs_inverse.raster.rasterize import _rasterize
 
     threads = os.environ.get("NUMBA_NUM_THREADS", "default")
     load = os.getloadavg()[0]
@@ -128,7 +129,7 @@ def main(argv=None) -> int:
     render(scene, cam)  # warm-up (compiles or loads the Numba cache)
     med, best, cpu, r = _timeit(lambda: render(scene, cam), args.repeat)
     stats = {}
-    _rasterize(scene, cam, None, "classic", None, 0.0, False, stats)
+    _rasterize(scene, None, cam, None, "classic", None, 0.0, False, stats)
     print(f"render 960x540: median {med:.3f} s, best {best:.3f} s ({cpu:.3f} CPU s) -> {_mark(med, 1.0, 's')}")
     print("  stages: project {project_s:.3f} s, depth sort {sort_s:.3f} s, tile binning {bin_s:.3f} s, "
           "composite {composite_s:.3f} s".format(**stats))
@@ -170,7 +171,7 @@ def _orbit_views(scene, cam, depth, repeat):
     the overview camera), its centre back-projected from the rendered depth
     and its radius from the box. Views of 40k pixels zoomed on the sphere of
     twice that radius, composited in its projected box, Gaussians culled to
-    the view cone (with extract's far cut), inside ``frozen(scene)``.
+    the view cone (with extract's far cut), from one ``FrozenScene``.
     Baseline in the same run: the path before the fast one, i.e. a copy
     ``scene.subset(idx)`` per view, its columns mapped back, activations
     per view, and the second compositing pass for every tile (the first
@@ -181,10 +182,10 @@ def _orbit_views(scene, cam, depth, repeat):
 
     import scipy.sparse as sp
 
-    from seed2gs_inverse.operators.render import build_operator
     from seed2gs_inverse.pipeline.vaas import flat_orbit
+    from seed2gs_inverse.raster import FrozenScene, build_operator, cone_cull
 
-    render_mod = importlib.import_module("seed2gs_inverse.operators.render")
+    render_mod = importlib.import_module("seed2gs_inverse.raster.rasterize")
     extract_mod = importlib.import_module("seed2gs_inverse.pipeline.extract")
     x0, y0, x1, y1 = 533, 276, 645, 368
     u, v = (x0 + x1) // 2, (y0 + y1) // 2
@@ -194,7 +195,6 @@ def _orbit_views(scene, cam, depth, repeat):
     radius = 0.5 * np.hypot(x1 - x0, y1 - y0) * z / cam.fx
     small = cam.scaled(np.sqrt(40_000 / (cam.width * cam.height)))
     views = flat_orbit(small, center, n_views=24, fit_radius=2.0 * radius)
-    sigma3 = 3.0 * scene.scales.max(axis=1).astype(np.float64)
     plan = []
     for vc in views:
         roi = extract_mod._roi_box(vc, center, radius, 2.0)
@@ -203,10 +203,10 @@ def _orbit_views(scene, cam, depth, repeat):
 
     def fast():
         out = []
-        with render_mod.frozen(scene):  # as in extract: activations once per scene
-            for vc, roi, far in plan:
-                idx = extract_mod._cone_subset(scene, vc, roi, sigma3, far)
-                out.append(build_operator(scene, vc, roi=roi, subset=idx).W)
+        frozen = FrozenScene(scene)  # as in extract: activations once per scene
+        for vc, roi, far in plan:
+            idx = cone_cull(frozen, vc, roi, far)
+            out.append(build_operator(frozen, vc, roi=roi, subset=idx).W)
         return out
 
     def plain():
@@ -215,7 +215,7 @@ def _orbit_views(scene, cam, depth, repeat):
         try:
             out = []
             for vc, roi, far in plan:
-                idx = extract_mod._cone_subset(scene, vc, roi, sigma3, far)
+                idx = cone_cull(scene, vc, roi, far)
                 sub = build_operator(scene.subset(idx), vc, roi=roi).W
                 out.append(sp.csr_matrix((sub.data, idx[sub.indices].astype(sub.indices.dtype), sub.indptr),
                                          shape=(sub.shape[0], len(scene))))

@@ -35,7 +35,8 @@ import numpy as np
 
 from seed2gs_inverse.camera import Camera
 from seed2gs_inverse.compare import compare
-from seed2gs_inverse.operators import OperatorStack, build_operator
+from seed2gs_inverse.operators import OperatorStack
+from seed2gs_inverse.raster import build_operator
 from seed2gs_inverse.solvers import available_methods, solve
 from seed2gs_inverse.synthetic import NOISE_KINDS, make_scene, masks_from_labels, perturb_masks
 
@@ -77,7 +78,7 @@ def _orbit(center, radius, n_views, width, height, fov=50.0):
 
 def composite_problem(data: Path, n_views: int, width: int):
     from seed2gs_inverse.io import read_cameras, read_scene
-    from seed2gs_inverse.operators.render import render
+    from seed2gs_inverse.raster import render
     from seed2gs_inverse.synthetic import compose, pose_on_point, surface_point
 
     fire = read_scene(data / "firepit_562k_sh0.ply")

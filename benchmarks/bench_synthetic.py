@@ -75,7 +75,7 @@ def bench_noise(n_views):
 
 def bench_composite(data, out):
     from seed2gs_inverse.io import read_cameras, read_scene
-    from seed2gs_inverse.operators.render import build_operator, render
+    from seed2gs_inverse.raster import build_operator, render
 
     fire = read_scene(data / "firepit_562k_sh0.ply")
     uni = read_scene(data / "unicorn_49k_sh3.ply")

@@ -67,7 +67,7 @@ def synthetic_inputs(args):
     truth = syn.object_mask(args.object)
     camera = syn.reference_camera(*args.size)
     op = sgi.build_operator(syn.scene, camera)
-    visible = (op.matvec(truth.astype(np.float32)) > 0.5).reshape(op.image_shape)
+    visible = op.image(truth.astype(np.float32)) > 0.5
     ys, xs = np.nonzero(visible)
     box = (xs.min() - 2, ys.min() - 2, xs.max() + 3, ys.max() + 3)  # exclusive max, a little slack
     print(f"procedural scene: {len(syn.scene)} Gaussians; extracting {args.object!r} "

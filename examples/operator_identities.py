@@ -87,9 +87,10 @@ def main(argv=None) -> int:
     ok &= report("W @ z == depth * alpha (rel)", (W @ proj.depths) / zmax, (r.depth * r.alpha).ravel() / zmax, 1e-5)
 
     # Dot test: W and its adjoint (rmatvec) agree for random vectors. The
-    # ViewOperator speaks images: matvec returns (H, W), rmatvec takes one.
+    # ViewOperator is a scipy LinearOperator: matvec returns the flat
+    # (H*W,) rendering (op.image(x) the (H, W) picture), rmatvec takes one.
     rng = np.random.default_rng(0)
-    x, y = rng.standard_normal(n), rng.standard_normal(op.image_shape)
+    x, y = rng.standard_normal(n), rng.standard_normal(op.n_pixels)
     lhs, rhs = float(np.vdot(op.matvec(x), y)), float(x @ op.rmatvec(y))
     rel = abs(lhs - rhs) / max(abs(lhs), abs(rhs))
     print(f"  dot test <Wx, y> = {lhs:.6g}, <x, W^T y> = {rhs:.6g}, relative diff {rel:.1e}  "

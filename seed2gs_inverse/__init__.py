@@ -32,9 +32,10 @@ __version__ = "0.1.0.dev0"
 _LAZY = {
     **dict.fromkeys(["read_scene", "write_scene", "detect_format", "read_cameras", "read_camera",
                      "write_cameras"], "io"),
-    **dict.fromkeys(["render", "Rendering", "build_operator", "project_gaussians", "Projection", "frozen"],
-                    "operators.render"),
-    **dict.fromkeys(["ViewOperator", "OperatorStack", "scene_fingerprint"], "operators.operator"),
+    **dict.fromkeys(["render", "build_operator", "project_gaussians", "Projection", "FrozenScene", "cone_cull"],
+                    "raster"),
+    **dict.fromkeys(["Rendering", "ViewOperator", "OperatorStack", "as_stack", "dottest", "scene_fingerprint"],
+                    "operators"),
     **dict.fromkeys(["solve", "available_methods", "SolveResult"], "solvers"),
     **dict.fromkeys(["iou", "boundary_iou", "membership_scores"], "metrics"),
     **dict.fromkeys(["compare", "Comparison"], "compare"),

@@ -26,11 +26,10 @@ import tracemalloc
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.sparse as sp
 
 from .errors import ValidationError
 from .metrics import boundary_iou, iou, membership_scores
-from .operators.operator import OperatorStack, ViewOperator
+from .operators import as_stack
 from .solvers import available_methods, solve
 
 __all__ = ["compare", "Comparison", "holdout_views", "COLUMNS"]
@@ -132,28 +131,6 @@ class Comparison:
         plt.close(fig)
 
 
-def _as_stack(operators, masks) -> OperatorStack:
-    if isinstance(operators, OperatorStack):
-        return operators
-    try:
-        items = list(operators)
-        mlist = list(masks)
-    except TypeError:
-        raise ValidationError("operators and masks must be sequences (or an OperatorStack)") from None
-    views = []
-    for i, v in enumerate(items):
-        if isinstance(v, ViewOperator):
-            views.append(v)
-        elif sp.issparse(v):
-            shape = np.shape(mlist[i]) if i < len(mlist) else ()
-            if len(shape) != 2:
-                raise ValidationError(f"view {i}: a bare sparse operator needs a 2-D mask to give its image shape")
-            views.append(ViewOperator(sp.csr_matrix(v, dtype=np.float32), None, shape))
-        else:
-            raise ValidationError(f"view {i}: expected a ViewOperator or a scipy.sparse matrix, got {type(v).__name__}")
-    return OperatorStack(views)
-
-
 def compare(operators, masks, truth, methods=None, holdout_every: int | None = 4, holdout=None, init=None,
             options=None, threshold: float | None = None, render_threshold: float = 0.5) -> Comparison:
     """Fit several solvers on the same views and score them against ground truth.
@@ -183,8 +160,11 @@ def compare(operators, masks, truth, methods=None, holdout_every: int | None = 4
     -------
     Comparison
     """
-    stack = _as_stack(operators, masks)
-    masks = list(masks)
+    try:
+        masks = list(masks)
+    except TypeError:
+        raise ValidationError("operators and masks must be sequences (or an OperatorStack)") from None
+    stack = as_stack(operators, masks)
     V, N = len(stack), stack.n_gaussians
     if len(masks) != V:
         raise ValidationError(f"got {len(masks)} masks for {V} views; give one mask per view")
@@ -214,7 +194,7 @@ def compare(operators, masks, truth, methods=None, holdout_every: int | None = 4
     fit_stack.stacked_transpose()
     eval_idx = held if held.size else train
     tf = t.astype(np.float32)
-    truth_masks = [stack[i].matvec(tf) > 0.5 for i in eval_idx]
+    truth_masks = [stack[i].image(tf) > 0.5 for i in eval_idx]
     visibility = stack.column_sums()  # how much each Gaussian is seen over all views
     rows, per_view, results = [], {}, {}
     for m in methods:
@@ -228,7 +208,7 @@ def compare(operators, masks, truth, methods=None, holdout_every: int | None = 4
         sf = sel.astype(np.float32)
         ious, bious = [], []
         for k, i in enumerate(eval_idx):
-            pred = stack[i].matvec(sf) > render_threshold
+            pred = stack[i].image(sf) > render_threshold
             ious.append(iou(pred, truth_masks[k]))
             bious.append(boundary_iou(pred, truth_masks[k]))
         s3 = membership_scores(sel, t, weights=visibility)

@@ -13,7 +13,7 @@ import numpy as np
 
 from .errors import ValidationError
 
-__all__ = ["SH_C0", "num_sh_coeffs", "sh_degree_from_coeffs", "sh_basis",
+__all__ = ["SH_C0", "SH_C1", "SH_C2", "SH_C3", "num_sh_coeffs", "sh_degree_from_coeffs", "sh_basis",
            "eval_sh", "sh_to_rgb", "rgb_to_sh", "sh_rotation_matrices", "rotate_sh"]
 
 SH_C0 = 0.28209479177387814
@@ -23,6 +23,8 @@ _C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005,
 _C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658,
        0.3731763325901154, -0.4570457994644658, 1.445305721320277,
        -0.5900435899266435)
+# Public names of the degree 1-3 constants (the rasterizer's kernels use them).
+SH_C1, SH_C2, SH_C3 = _C1, _C2, _C3
 
 
 def num_sh_coeffs(degree: int) -> int:

@@ -13,7 +13,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from seed2gs_inverse.camera import Camera
-from seed2gs_inverse.operators.operator import OperatorStack, ViewOperator
+from seed2gs_inverse.operators import OperatorStack, ViewOperator
 
 
 def splat_operator(points, radii, opacities, camera: Camera) -> sp.csr_matrix:
@@ -73,5 +73,5 @@ def blob_stack(seed=0, n_views=12, **kw) -> tuple:
     points, radii, opac, labels = blob_scene(seed, **kw)
     views = [ViewOperator(splat_operator(points, radii, opac, c), c, c.image_shape) for c in orbit_cameras(n_views)]
     stack = OperatorStack(views, fingerprint=f"blob-{seed}")
-    masks = [v.matvec(labels.astype(np.float32)) > 0.5 for v in stack]
+    masks = [v.image(labels.astype(np.float32)) > 0.5 for v in stack]
     return stack, labels, masks

@@ -9,8 +9,9 @@ import scipy.sparse as sp
 from render_reference import random_scene, reference_render
 from seed2gs_inverse.camera import Camera
 from seed2gs_inverse.errors import ValidationError
-from seed2gs_inverse.operators.operator import ViewOperator
-from seed2gs_inverse.operators.render import build_operator, project_gaussians, render
+from seed2gs_inverse.operators import ViewOperator
+from seed2gs_inverse.operators import dottest
+from seed2gs_inverse.raster import FrozenScene, build_operator, cone_cull, project_gaussians, render
 
 
 def _camera(i):
@@ -42,6 +43,7 @@ def test_W_matches_brute_force_entry_by_entry(seed, mode):
     np.testing.assert_allclose(op.rendering.rgb, rgb, atol=1e-5)
     np.testing.assert_allclose(op.rendering.alpha, alpha, atol=1e-5)
     np.testing.assert_allclose(op.rendering.depth, depth, atol=1e-5)
+    dottest(op, rng=seed)
 
 
 @pytest.mark.parametrize("i", [0, 1])
@@ -60,12 +62,8 @@ def test_identities_and_dot_test(i, rng):
     rb = render(scene, cam, background=bg)
     np.testing.assert_allclose((W @ p.colors + (1 - W @ np.ones(n))[:, None] * bg).reshape(rb.rgb.shape),
                                rb.rgb, atol=2e-6)
-    for _ in range(3):
-        x = rng.normal(size=n)
-        y = rng.normal(size=W.shape[0])
-        lhs = np.dot(W @ x, y)
-        rhs = np.dot(x, W.T @ y)
-        assert lhs == pytest.approx(rhs, rel=1e-10, abs=1e-10)
+    for seed in range(3):
+        assert dottest(op, rtol=1e-6, rng=seed)  # the ViewOperator's matvec / rmatvec
     assert (W @ np.ones(n)).max() > 0.5
 
 
@@ -184,17 +182,17 @@ def test_logged_fill_equals_second_pass(scene_and_camera, monkeypatch, per_pair)
     """W assembled from the first pass's log (room for all, some or no tiles) is the two-pass W."""
     import importlib
 
-    render_mod = importlib.import_module("seed2gs_inverse.operators.render")
+    render_mod = importlib.import_module("seed2gs_inverse.raster.rasterize")
     scene, cam = scene_and_camera
     calls = []
-    real_composite = render_mod._raster.composite
+    real_composite = render_mod._kernels.composite
 
-    def spy(*args):
-        if args[14]:  # the fill flag: the second pass, over these tiles
-            calls.append(len(args[2]))
-        return real_composite(*args)
+    def spy(tiles, splats, width, height, roi, background, min_weight, fill, *rest):
+        if fill:  # the second pass, over these tiles
+            calls.append(len(tiles.tile_order))
+        return real_composite(tiles, splats, width, height, roi, background, min_weight, fill, *rest)
 
-    monkeypatch.setattr(render_mod._raster, "composite", spy)
+    monkeypatch.setattr(render_mod._kernels, "composite", spy)
     monkeypatch.setattr(render_mod, "_SCRATCH_PER_PAIR", per_pair)
     for roi in (None, (5, 7, 33, 30)):
         op = build_operator(scene, cam, roi=roi)
@@ -256,10 +254,7 @@ def test_bad_subset(scene_and_camera):
 
 @pytest.mark.parametrize("sh_degree", [0, 2])
 def test_frozen_scene_gives_identical_results(sh_degree):
-    """Activations computed once per scene (frozen) or per call: same bits, and the brute-force W."""
-    import importlib
-
-    render_mod = importlib.import_module("seed2gs_inverse.operators.render")
+    """Activations computed once per scene (FrozenScene) or per call: same bits, and the brute-force W."""
     cam = _camera(0)
     scene = random_scene(40 + sh_degree, n=120, sh_degree=sh_degree, cam=cam)
     idx = np.arange(0, len(scene), 2)
@@ -267,29 +262,31 @@ def test_frozen_scene_gives_identical_results(sh_degree):
              build_operator(scene, _camera(1))]
     plain_render = render(scene, cam, mode="antialiased")
     plain_proj = project_gaussians(scene, cam)
-    with render_mod.frozen(scene):
-        with render_mod.frozen(scene):  # nesting is fine
-            fast = [build_operator(scene, cam, roi=(2, 3, 45, 38)), build_operator(scene, cam, subset=idx)]
-        assert id(scene) in render_mod._FROZEN
-        fast.append(build_operator(scene, _camera(1)))
-        fast_render = render(scene, cam, mode="antialiased")
-        fast_proj = project_gaussians(scene, cam)
-    assert id(scene) not in render_mod._FROZEN  # dropped with the outermost block
+    frozen = FrozenScene(scene)
+    assert len(frozen) == len(scene) and FrozenScene(frozen).scene is scene
+    fast = [build_operator(frozen, cam, roi=(2, 3, 45, 38)), build_operator(frozen, cam, subset=idx),
+            build_operator(frozen, _camera(1))]
+    fast_render = render(frozen, cam, mode="antialiased")
+    fast_proj = project_gaussians(frozen, cam)
     for a, b in zip(plain, fast):
         _same_csr(a.W, b.W)
         np.testing.assert_array_equal(a.rendering.rgb, b.rendering.rgb)
+        np.testing.assert_array_equal(a.rendering.depth, b.rendering.depth)
+        dottest(b, rng=0)
     np.testing.assert_array_equal(plain_render.rgb, fast_render.rgb)
     for a, b in zip(plain_proj, fast_proj):
         np.testing.assert_array_equal(a, b)
+    for roi, far in ((None, None), ((3, 4, 30, 20), 5.0)):
+        np.testing.assert_array_equal(cone_cull(scene, cam, roi, far), cone_cull(frozen, cam, roi, far))
     _, _, _, W_ref = reference_render(scene, _camera(1))
     np.testing.assert_allclose(fast[2].W.toarray(), W_ref, rtol=1e-6, atol=1e-8)
     rgb_ref, _, _, _ = reference_render(scene, cam, "antialiased")
     np.testing.assert_allclose(fast_render.rgb, rgb_ref, atol=1e-5)
-    # another scene object with the same arrays is not frozen by this block
-    with render_mod.frozen(scene):
-        other = scene.copy()
-        other.opacity_logits[:] = -10.0
-        assert build_operator(other, cam).W.nnz == 0
+    # the frozen activations belong to that scene object: another one is computed afresh
+    other = scene.copy()
+    other.opacity_logits[:] = -10.0
+    assert build_operator(other, cam).W.nnz == 0
     with pytest.raises(ValidationError, match="GaussianScene"):
-        with render_mod.frozen("scene.ply"):
-            pass
+        FrozenScene("scene.ply")
+    with pytest.raises(ValidationError, match="GaussianScene or FrozenScene"):
+        render("scene.ply", cam)

@@ -8,7 +8,7 @@ import pytest
 
 import seed2gs_inverse.cli as cli
 from seed2gs_inverse.io import read_scene, write_cameras, write_scene
-from seed2gs_inverse.operators.render import build_operator
+from seed2gs_inverse.raster import build_operator
 from seed2gs_inverse.synthetic import make_scene
 
 

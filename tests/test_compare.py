@@ -38,8 +38,8 @@ def test_compare_scores_match_direct_evaluation(blob):
         sel = res.selected()
         ious, bious = [], []
         for i in (3, 7):
-            pred = stack[i].matvec(sel.astype(np.float32)) > 0.5
-            truth = stack[i].matvec(labels.astype(np.float32)) > 0.5
+            pred = stack[i].image(sel.astype(np.float32)) > 0.5
+            truth = stack[i].image(labels.astype(np.float32)) > 0.5
             ious.append(iou(pred, truth))
             bious.append(boundary_iou(pred, truth))
         assert row["miou"] == pytest.approx(np.mean(ious)) and row["mbiou"] == pytest.approx(np.mean(bious))
@@ -103,7 +103,7 @@ def test_cli_build_info_solve_compare(run_cli, scene_files, tmp_path, capsys):
     ops = tmp_path / "ops"
     assert run_cli("operators", "build", d / "scene.ply", "--cameras", d / "cameras.json", "-o", ops,
                    "--no-progress") == 0
-    from seed2gs_inverse.operators.operator import OperatorStack, scene_fingerprint
+    from seed2gs_inverse.operators import OperatorStack, scene_fingerprint
 
     stack = OperatorStack.load(ops, scene=s.scene)
     assert len(stack) == 5 and stack.fingerprint == scene_fingerprint(s.scene)
@@ -114,7 +114,7 @@ def test_cli_build_info_solve_compare(run_cli, scene_files, tmp_path, capsys):
     masks.mkdir()
     truth = s.object_mask(1)
     for k, v in enumerate(stack):
-        m = v.matvec(truth.astype(np.float32)) > 0.5
+        m = v.image(truth.astype(np.float32)) > 0.5
         if k % 2:
             Image.fromarray(m.astype(np.uint8) * 255).save(masks / f"view_{k:03d}.png")
         else:
@@ -124,7 +124,7 @@ def test_cli_build_info_solve_compare(run_cli, scene_files, tmp_path, capsys):
     assert q.shape == (len(s.scene),) and q.dtype == np.float32
     from seed2gs_inverse.solvers import solve
 
-    np.testing.assert_array_equal(q, solve(stack, [np.asarray(v.matvec(truth.astype(np.float32)) > 0.5)
+    np.testing.assert_array_equal(q, solve(stack, [np.asarray(v.image(truth.astype(np.float32)) > 0.5)
                                                    for v in stack], method="voting", bias=0.1).q)
     assert run_cli("compare", ops, masks, "--truth", d / "truth.npy", "--methods", "voting,beta_bernoulli",
                    "--holdout-every", "3", "-o", tmp_path / "cmp") == 0

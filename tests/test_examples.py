@@ -17,8 +17,11 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 
 def run_example(name, *args, check=True):
+    # The scripts import the package of this checkout (as the tests do), not
+    # whichever copy is installed.
+    path = os.pathsep.join(p for p in (str(EXAMPLES.parent), os.environ.get("PYTHONPATH", "")) if p)
     env = dict(os.environ, NUMBA_NUM_THREADS=os.environ.get("NUMBA_NUM_THREADS", "2"),
-               VTK_DEFAULT_OPENGL_WINDOW="vtkEGLRenderWindow")
+               VTK_DEFAULT_OPENGL_WINDOW="vtkEGLRenderWindow", PYTHONPATH=path)
     proc = subprocess.run([sys.executable, str(EXAMPLES / name), *map(str, args)], capture_output=True,
                           text=True, env=env, timeout=300)
     if check:

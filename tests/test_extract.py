@@ -5,7 +5,7 @@ import pytest
 
 from seed2gs_inverse import Camera, ValidationError
 from seed2gs_inverse.metrics import iou, membership_scores
-from seed2gs_inverse.operators.render import build_operator
+from seed2gs_inverse.raster import build_operator
 from seed2gs_inverse.pipeline import extract
 from seed2gs_inverse.synthetic import compose, make_scene, pose_on_point
 

@@ -138,7 +138,7 @@ def test_extract_settings_and_overrides(tiny):
     syn, _ = tiny
     cam = syn.reference_camera(64, 48)
     truth = syn.labels == 2
-    from seed2gs_inverse.operators.render import build_operator
+    from seed2gs_inverse.raster import build_operator
 
     seed = (build_operator(syn.scene, cam).W @ truth.astype(np.float32)).reshape(cam.image_shape) > 0.5
     base = ExtractSettings(method="voting", n_views=3, progress=False)

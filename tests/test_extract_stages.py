@@ -24,8 +24,8 @@ from seed2gs_inverse import Camera, ValidationError
 from seed2gs_inverse.frontend.base import Tracker
 from seed2gs_inverse.frontend.model_free import GeometricTracker
 from seed2gs_inverse.frontend.sam2 import SAM2VideoTracker
-from seed2gs_inverse.operators.operator import scene_fingerprint
-from seed2gs_inverse.operators.render import build_operator, render
+from seed2gs_inverse.operators import scene_fingerprint
+from seed2gs_inverse.raster import build_operator, render
 from seed2gs_inverse.pipeline import ExtractSettings, extract, seed_lift
 from seed2gs_inverse.solvers import solve
 from seed2gs_inverse.synthetic import make_scene
@@ -62,13 +62,13 @@ def staged(syn, setup):
     """The stages run in order as extract() runs them (n_views=5)."""
     cam, seed = setup
     s = ExtractSettings(n_views=5, progress=False)
-    with ex_mod._Renderer(syn.scene, s.mode) as r:
-        ref_img = ex_mod.render_reference(r, cam)
-        seed2, info = ex_mod.seed_from_prompt(seed, ref_img)
-        ref = ex_mod.reference_view(r, cam, seed2, s.max_reference_pixels)
-        lift = ex_mod.lift_seed(syn.scene, ref, s.lift_options)
-        bar = Counter()
-        orbits = ex_mod.orbit_views(r, cam, ref, lift, s, bar)
+    r = ex_mod.Renderer(syn.scene, s.mode)
+    ref_img = ex_mod.render_reference(r, cam)
+    seed2, info = ex_mod.seed_from_prompt(seed, ref_img)
+    ref = ex_mod.reference_view(r, cam, seed2, s.max_reference_pixels)
+    lift = ex_mod.lift_seed(syn.scene, ref, s.lift_options)
+    bar = Counter()
+    orbits = ex_mod.orbit_views(r, cam, ref, lift, s, bar)
     labelled = ex_mod.track_clips(GeometricTracker(), orbits, ref.seed)
     stack = ex_mod.stack_operators(labelled, syn.scene)
     sel = ex_mod.solve_selection(stack, [m for _, m in labelled], lift, s)
@@ -82,7 +82,8 @@ def test_render_reference_is_the_full_rendering(syn, setup, staged):
     for a in ("rgb", "depth", "alpha"):
         np.testing.assert_array_equal(getattr(staged.ref_img, a), getattr(want, a))
     away = Camera.look_at(cam.center, cam.center - 5 * (syn.origin - cam.center), syn.up, 50, 32, 24)
-    with ex_mod._Renderer(syn.scene) as r, pytest.raises(ValidationError, match="sees nothing"):
+    r = ex_mod.Renderer(syn.scene)
+    with pytest.raises(ValidationError, match="sees nothing"):
         ex_mod.render_reference(r, away)
 
 
@@ -108,13 +109,14 @@ def test_reference_view_full_and_capped(syn, setup, staged):
     want = build_operator(syn.scene, cam, roi=ref_box)
     assert abs(ref.operator.W - want.W).max() == 0
     # capped at a quarter of the pixels: half the resolution, the seed area-averaged over 2x2 blocks
-    with ex_mod._Renderer(syn.scene) as r:
-        half = ex_mod.reference_view(r, cam, seed, 48 * 36)
+    r = ex_mod.Renderer(syn.scene)
+    half = ex_mod.reference_view(r, cam, seed, 48 * 36)
     assert half.scale == pytest.approx(0.5) and half.camera.image_shape == (36, 48)
     blocks = seed.reshape(36, 2, 48, 2).mean(axis=(1, 3))
     np.testing.assert_array_equal(half.seed, blocks > 0.5)
     assert half.operator.camera.image_shape == (36, 48)
-    with ex_mod._Renderer(syn.scene) as r, pytest.raises(ValidationError, match="vanishes at the lift resolution"):
+    r = ex_mod.Renderer(syn.scene)
+    with pytest.raises(ValidationError, match="vanishes at the lift resolution"):
         one = np.zeros_like(seed)
         one[ys[0], xs[0]] = True
         ex_mod.reference_view(r, cam, one, 64)
@@ -149,8 +151,8 @@ def test_orbit_views_frames_carry_their_operators(syn, setup, staged):
         # and the uncut culled one equals the plain build_operator (exact culling)
         roi = ex_mod._roi_box(f.camera, lift.center, lift.radius, 2.0)
         plain = build_operator(syn.scene, f.camera, roi=roi)
-        with ex_mod._Renderer(syn.scene) as r:
-            exact = r.operator(f.camera, roi=roi, cull=True, far=None)
+        r = ex_mod.Renderer(syn.scene)
+        exact = r.operator(f.camera, roi=roi, cull=True, far=None)
         assert abs(exact.W - plain.W).max() == 0
         assert op.W.shape == plain.W.shape
     # the orbit axis of up="level" is estimate_up's from the reference weights

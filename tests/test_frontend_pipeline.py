@@ -9,7 +9,7 @@ from _pipeline_scenes import reference_camera, sphere_scene
 from seed2gs_inverse.errors import ValidationError
 from seed2gs_inverse.frontend.config import ENV_VAR, NO_MODELS_NOTICE, load_models, resolve_models
 from seed2gs_inverse.metrics import iou, membership_scores
-from seed2gs_inverse.operators.render import build_operator
+from seed2gs_inverse.raster import build_operator
 from seed2gs_inverse.pipeline.extract import extract
 
 

@@ -11,7 +11,7 @@ import scipy.sparse as sp
 
 from seed2gs_inverse.camera import Camera
 from seed2gs_inverse.errors import FormatError, ValidationError
-from seed2gs_inverse.operators.operator import OperatorStack, ViewOperator, scene_fingerprint
+from seed2gs_inverse.operators import OperatorStack, ViewOperator, dottest, scene_fingerprint
 from seed2gs_inverse.scene import GaussianScene
 
 
@@ -36,20 +36,23 @@ def test_view_matvec_rmatvec_match_dense(rng):
     dense = v.W.toarray().astype(np.float64)
     q = rng.random(v.n_gaussians).astype(np.float32)
     img = rng.random(v.image_shape).astype(np.float32)
-    np.testing.assert_allclose(v.matvec(q), (dense @ q).reshape(v.image_shape), rtol=1e-5)
+    np.testing.assert_allclose(v.matvec(q), dense @ q, rtol=1e-5)
+    np.testing.assert_allclose(v.image(q), (dense @ q).reshape(v.image_shape), rtol=1e-5)
     np.testing.assert_allclose(v.rmatvec(img), dense.T @ img.ravel(), rtol=1e-5)
+    np.testing.assert_allclose(v.rmatvec(img.ravel()), dense.T @ img.ravel(), rtol=1e-5)
     np.testing.assert_allclose(v.alpha(), dense.sum(1).reshape(v.image_shape), rtol=1e-5)
     np.testing.assert_array_equal(v.observed(), dense.any(0))
 
 
-def test_view_dot_test(rng):
-    v = _random_view(rng, n=80, h=10, w=12)
-    for _ in range(3):
-        x = rng.normal(size=v.n_gaussians)
-        y = rng.normal(size=v.image_shape)
-        lhs = np.dot(v.matvec(x).ravel(), y.ravel())
-        rhs = np.dot(x, v.rmatvec(y))
-        assert abs(lhs - rhs) <= 1e-10 * max(1.0, abs(lhs))
+def test_view_dot_test():
+    """The dot test on an operator of the rasterizer, alone and stacked."""
+    from render_reference import random_scene
+
+    from seed2gs_inverse.raster import build_operator
+
+    cam = Camera.look_at([0.2, -0.6, -4.0], [0, 0, 0], [0, -1, 0], 48, 24, 20)
+    op = build_operator(random_scene(3, n=80, cam=cam), cam)
+    assert dottest(op, rng=0) and dottest(OperatorStack([op, op]), rng=1)
 
 
 @pytest.mark.parametrize("bad, match", [
@@ -122,7 +125,7 @@ def _assert_same(a: OperatorStack, b: OperatorStack):
 @pytest.mark.parametrize("mmap", [True, False])
 def test_save_load_round_trip_is_exact(rng, tmp_path, mmap):
     s = _stack(rng)
-    s.views.append(_random_view(rng, name="", with_camera=False))
+    s = OperatorStack([*s.views, _random_view(rng, name="", with_camera=False)], s.fingerprint)
     s.save(tmp_path / "ops")
     t = OperatorStack.load(tmp_path / "ops", mmap=mmap)
     _assert_same(s, t)
@@ -130,6 +133,8 @@ def test_save_load_round_trip_is_exact(rng, tmp_path, mmap):
     assert t[0].W.data.flags.writeable is (not mmap)
     x = rng.random(50).astype(np.float32)
     np.testing.assert_array_equal(t.as_linear_operator().matvec(x), s.as_linear_operator().matvec(x))
+    np.testing.assert_array_equal(t @ x, s @ x)
+    dottest(t, rng=2)
     # no pickle anywhere: every file is JSON or a plain .npy
     for f in (tmp_path / "ops").iterdir():
         assert f.suffix in (".json", ".npy")
@@ -138,7 +143,7 @@ def test_save_load_round_trip_is_exact(rng, tmp_path, mmap):
 
 
 def test_save_load_keeps_rendering(rng, tmp_path):
-    from seed2gs_inverse.operators.render import Rendering
+    from seed2gs_inverse.operators import Rendering
 
     v = _random_view(rng, h=6, w=8)
     r = Rendering(rng.random((6, 8, 3)).astype(np.float32), v.alpha(), rng.random((6, 8)).astype(np.float32),

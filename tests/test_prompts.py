@@ -9,7 +9,7 @@ from seed2gs_inverse.frontend.base import Candidate
 from seed2gs_inverse.frontend.prompts import (BoxPrompt, MaskPrompt, PointPrompt, TextPrompt, as_prompt,
                                               seed_mask_from_prompt)
 from seed2gs_inverse.metrics import iou
-from seed2gs_inverse.operators.render import build_operator
+from seed2gs_inverse.raster import build_operator
 
 from _pipeline_scenes import reference_camera, sphere_scene
 

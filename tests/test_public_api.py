@@ -27,3 +27,15 @@ def test_import_does_not_load_heavy_modules():
             "if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_operator_core_and_raster_names():
+    from seed2gs_inverse import operators, raster, solvers
+
+    assert set(operators.__all__) == {"ViewOperator", "OperatorStack", "Rendering", "as_stack", "dottest",
+                                      "scene_fingerprint"}
+    assert set(raster.__all__) == {"render", "build_operator", "project_gaussians", "Projection", "cone_cull",
+                                   "FrozenScene", "MODES"}
+    assert {"get_method", "method_options", "MethodResult"} <= set(solvers.__all__)
+    assert sgi.FrozenScene is raster.FrozenScene and sgi.as_stack is operators.as_stack
+    assert sgi.Rendering is operators.Rendering and not hasattr(sgi, "frozen")

@@ -8,7 +8,8 @@ import pytest
 from render_reference import random_scene, reference_projection, reference_render
 from seed2gs_inverse.camera import Camera
 from seed2gs_inverse.errors import ValidationError
-from seed2gs_inverse.operators.render import Rendering, project_gaussians, render
+from seed2gs_inverse.operators import Rendering
+from seed2gs_inverse.raster import project_gaussians, render
 from seed2gs_inverse.scene import GaussianScene
 from seed2gs_inverse.sh import rgb_to_sh
 
@@ -188,7 +189,7 @@ def test_real_scene_matches_independent_reference(shared_data):
 def test_depth_order_equals_stable_sort_with_ties():
     import importlib
 
-    _render = importlib.import_module("seed2gs_inverse.operators.render")
+    _render = importlib.import_module("seed2gs_inverse.raster.rasterize")
     rng = np.random.default_rng(1)
     for _ in range(100):
         n = int(rng.integers(1, 80))
@@ -223,7 +224,7 @@ def test_extreme_values_do_not_break_the_rasterizer():
 @pytest.mark.parametrize("n", [0, 7, 70_000])
 def test_bin_tiles_equals_sequential_lists(n):
     """Parallel chunked binning gives each tile its Gaussians in the given order."""
-    from seed2gs_inverse.operators import _raster
+    from seed2gs_inverse.raster import _kernels
 
     rng = np.random.default_rng(n)
     tiles_x, tiles_y = 9, 5
@@ -232,7 +233,7 @@ def test_bin_tiles_equals_sequential_lists(n):
     rects = np.stack([x0, y0, np.minimum(x0 + rng.integers(0, 3, n), tiles_x),
                       np.minimum(y0 + rng.integers(0, 3, n), tiles_y)], 1).astype(np.int32)
     order = rng.permutation(n).astype(np.int64)
-    start, gauss = _raster.bin_tiles(order, rects, tiles_x, tiles_x * tiles_y)
+    start, gauss = _kernels.bin_tiles(order, rects, tiles_x, tiles_x * tiles_y)
     lists = [[] for _ in range(tiles_x * tiles_y)]
     for g in order:
         for ty in range(rects[g, 1], rects[g, 3]):

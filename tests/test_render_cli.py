@@ -10,7 +10,7 @@ import seed2gs_inverse.cli as cli
 from render_reference import random_scene
 from seed2gs_inverse.camera import Camera
 from seed2gs_inverse.io import read_scene, write_cameras, write_scene
-from seed2gs_inverse.operators.render import render
+from seed2gs_inverse.raster import render
 
 
 @pytest.fixture

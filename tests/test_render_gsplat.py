@@ -10,7 +10,7 @@ import pytest
 
 from render_reference import random_scene
 from seed2gs_inverse.camera import Camera
-from seed2gs_inverse.operators.render import project_gaussians
+from seed2gs_inverse.raster import project_gaussians
 
 torch = pytest.importorskip("torch")
 _impl = pytest.importorskip("gsplat.cuda._torch_impl")

@@ -11,8 +11,9 @@ from scipy.stats import beta as beta_dist
 from _solver_scenes import blob_stack
 from seed2gs_inverse.errors import ValidationError
 from seed2gs_inverse.metrics import iou
-from seed2gs_inverse.operators.operator import ViewOperator
-from seed2gs_inverse.solvers import Problem, available_methods, prepare, register_method, solve
+from seed2gs_inverse.operators import ViewOperator
+from seed2gs_inverse.solvers import (MethodResult, Problem, available_methods, get_method, method_options, prepare,
+                                     register_method, solve)
 from seed2gs_inverse.solvers.beta_bernoulli import beta_entropy
 from seed2gs_inverse.solvers.voting import bias_to_threshold
 from seed2gs_inverse.solvers.weighted_bce import BCEObjective, view_weights
@@ -278,8 +279,8 @@ def blob():
 def _heldout_miou(stack, q_selected, labels, views):
     ious = []
     for i in views:
-        pred = stack[i].matvec(q_selected.astype(np.float32)) > 0.5
-        truth = stack[i].matvec(labels.astype(np.float32)) > 0.5
+        pred = stack[i].image(q_selected.astype(np.float32)) > 0.5
+        truth = stack[i].image(labels.astype(np.float32)) > 0.5
         ious.append(iou(pred, truth))
     return float(np.mean(ious))
 
@@ -315,7 +316,7 @@ def test_identity_switch_views_get_low_weight(blob):
     bad = [2, 6]
     other = np.zeros_like(labels)
     other[np.flatnonzero(~labels)[:60]] = True  # the tracker jumped to background splats
-    fit = [stack[i].matvec(other.astype(np.float32)) > 0.5 if i in bad else masks[i] for i in train]
+    fit = [stack[i].image(other.astype(np.float32)) > 0.5 if i in bad else masks[i] for i in train]
     r = solve(stack.subset(train), fit, method="weighted_bce", max_iter=80)
     good = [i for i in train if i not in bad]
     assert r.view_weights[bad].max() < r.view_weights[good].min()
@@ -368,14 +369,34 @@ def test_register_a_new_method(rng, monkeypatch):
 
     monkeypatch.setattr(_common, "_METHODS", dict(_common._METHODS))  # keep the registry clean for others
 
-    def half(problem, *, value: float = 0.5):
-        return {"q": np.full(problem.n_gaussians, value)}
+    def half(problem, *, value: float = 0.5, note: str = "x"):
+        return MethodResult(q=np.full(problem.n_gaussians, value), iterations=3, info={"note": note})
 
     register_method("constant_test", half)
     mats, masks = _random_problem(rng)
     r = solve(mats, masks, method="constant_test", value=0.7)
-    assert "constant_test" in available_methods()
+    assert "constant_test" in available_methods() and get_method("constant_test") is half
+    assert method_options("constant_test") == {"value": 0.5, "note": "x"}
     assert np.all(r.q[~r.unobserved] == np.float32(0.7)) and np.all(r.q[r.unobserved] == 0)
+    assert r.iterations == 3 and r.info["note"] == "x" and r.info["n_weak_evidence"] == 0
+    # a method must return a MethodResult, not the old dict
+    register_method("dict_test", lambda problem: {"q": np.zeros(problem.n_gaussians)})
+    with pytest.raises(RuntimeError, match="MethodResult"):
+        solve(mats, masks, method="dict_test")
+    with pytest.raises(ValidationError, match="unknown method"):
+        method_options("no_such_method")
+
+
+def test_method_options_list_every_builtin_option():
+    import inspect
+
+    for name in available_methods():
+        opts = method_options(name)
+        params = inspect.signature(get_method(name)).parameters
+        assert list(opts) == [k for k, p in params.items() if p.kind == p.KEYWORD_ONLY]
+        assert opts == {k: params[k].default for k in opts}
+    assert method_options("voting") == {"bias": 0.0}
+    assert method_options("weighted_bce")["max_iter"] == 200
 
 
 def test_stack_and_matrix_list_give_the_same_answer(blob):
@@ -394,7 +415,7 @@ def test_stack_and_matrix_list_give_the_same_answer(blob):
 @pytest.mark.parametrize("normalize", [False, True])
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 def test_bce_pixel_kernel_matches_numpy_formula(rng, normalize, dtype):
-    from seed2gs_inverse.solvers._kernels import bce_pixels
+    from seed2gs_inverse.solvers.weighted_bce import bce_pixels
 
     n, eps = 500, 1e-3
     pred = rng.uniform(-0.01, 1.01, n).astype(dtype)
@@ -484,3 +505,46 @@ def test_weighted_bce_accepts_numpy_integer_options(rng):
     mats, masks = _random_problem(rng)
     r = solve(mats, masks, method="weighted_bce", maxcor=np.int64(3), inner_iters=np.int32(10), max_iter=40)
     assert 0 < r.iterations <= 40 and np.isfinite(r.q).all()
+
+
+# -- min_evidence (common to every method) and the typed method result ----------------------
+@pytest.mark.parametrize("method", METHODS)
+def test_min_evidence_gives_weakly_seen_gaussians_the_prior(blob, method):
+    stack, labels, masks = blob
+    holes = [m.astype(np.float32) for m in masks]
+    for m in holes:
+        m[: m.shape[0] // 2] = np.nan  # the upper half of every view is unknown
+    prior = np.random.default_rng(0).random(stack.n_gaussians)
+    # independent evidence: dense column sums over the known pixels, view by view
+    evidence = sum(v.W.toarray().astype(np.float64).T @ (~np.isnan(m)).ravel() for v, m in zip(stack, holes))
+    base = solve(stack, holes, method=method, init=prior)
+    # min_evidence = 0: only the unobserved Gaussians (no known weight at all) take the prior
+    assert base.info["n_weak_evidence"] == 0 and int(base.unobserved.sum()) == int((evidence <= 0).sum())
+    # a threshold midway between two evidence values, so float32 sums cannot fall on its other side
+    ev = np.unique(evidence[evidence > 0])
+    k = int(np.argmax(np.diff(ev[ev.size // 4: ev.size // 2]))) + ev.size // 4
+    thr = float(0.5 * (ev[k] + ev[k + 1]))
+    weak = evidence < thr
+    r = solve(stack, holes, method=method, init=prior, min_evidence=thr)
+    assert 0 < weak.sum() < stack.n_gaussians and r.info["n_weak_evidence"] == int(weak.sum())
+    np.testing.assert_array_equal(r.q[weak], prior[weak].astype(np.float32))
+    np.testing.assert_array_equal(r.q[~weak], base.q[~weak])
+    np.testing.assert_array_equal(r.unobserved, base.unobserved)  # unobserved keeps its meaning
+    assert r.info["min_evidence"] == thr
+
+
+@pytest.mark.parametrize("bad", [-0.1, float("nan"), float("inf"), "0.05", True, None])
+def test_min_evidence_is_validated(bad):
+    mats, masks = _random_problem(np.random.default_rng(0))
+    with pytest.raises(ValidationError, match="min_evidence"):
+        solve(mats, masks, method="voting", min_evidence=bad)
+
+
+def test_methods_return_a_method_result(blob):
+    stack, labels, masks = blob
+    problem = prepare(stack, masks)
+    for name in METHODS:
+        out = get_method(name)(problem)
+        assert isinstance(out, MethodResult) and out.q.shape == (stack.n_gaussians,)
+        assert isinstance(out.info, dict) and isinstance(out.history, list)
+    assert get_method("voting")(problem, bias=0.2).threshold > 0.5

@@ -5,7 +5,8 @@ from __future__ import annotations
 import pytest
 
 from seed2gs_inverse.compare import compare
-from seed2gs_inverse.operators import OperatorStack, build_operator
+from seed2gs_inverse.operators import OperatorStack, dottest
+from seed2gs_inverse.raster import build_operator
 from seed2gs_inverse.synthetic import make_scene, masks_from_labels
 
 
@@ -19,6 +20,7 @@ def rendered():
 @pytest.mark.parametrize("name", ["sphere", "box"])
 def test_every_method_recovers_a_rendered_object(rendered, name):
     s, stack = rendered
+    assert dottest(stack, rng=0)
     truth = s.object_mask(name)
     masks = masks_from_labels(stack, truth)
     c = compare(stack, masks, truth, holdout_every=4,

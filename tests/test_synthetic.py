@@ -275,7 +275,7 @@ def test_surface_point_inverts_the_projection(rng):
 
 
 def test_surface_point_on_a_rendered_ground_is_near_the_plane():
-    from seed2gs_inverse.operators.render import render
+    from seed2gs_inverse.raster import render
 
     s = make_scene(seed=2, n_per_object=200, up=(0, 0, 1))
     cam = s.reference_camera(128, 96, azimuth_deg=180.0)
@@ -295,7 +295,7 @@ def test_masks_from_labels_on_a_hand_made_operator():
     sel = np.array([True, False, True])
     (m,) = masks_from_labels([(sp.csr_matrix(W), (2, 2))], sel)
     assert np.array_equal(m, np.array([[1, 0], [0, 1]], np.float32))   # 1.0, 0.2, 0, 0.6
-    from seed2gs_inverse.operators.operator import OperatorStack, ViewOperator
+    from seed2gs_inverse.operators import OperatorStack, ViewOperator
 
     stack = OperatorStack([ViewOperator(sp.csr_matrix(W), None, (2, 2))] * 2)
     assert all(np.array_equal(x, m) for x in masks_from_labels(stack, sel))
@@ -308,7 +308,7 @@ def test_masks_from_labels_on_a_hand_made_operator():
 
 
 def test_masks_from_labels_of_everything_is_alpha_of_a_real_render():
-    from seed2gs_inverse.operators.render import build_operator
+    from seed2gs_inverse.raster import build_operator
 
     s = make_scene(seed=0, n_per_object=40)
     op = build_operator(s.scene, s.reference_camera(32, 24))

@@ -7,7 +7,7 @@ import pytest
 
 from seed2gs_inverse import Camera, ValidationError
 from seed2gs_inverse.frontend.model_free import GeometricTracker, warp_labels
-from seed2gs_inverse.operators.render import build_operator
+from seed2gs_inverse.raster import build_operator
 from seed2gs_inverse.pipeline.vaas import ClipFrame, flat_orbit
 
 from _pipeline_scenes import reference_camera, sphere_scene

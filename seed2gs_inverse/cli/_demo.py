@@ -55,8 +55,8 @@ def held_out_cameras(center, frame, dist, width, height):
 def run_demo(seed=0, obj="box", views=12, size=(192, 144), method="weighted_bce"):
     """Extract ``obj`` from the procedural scene; returns (extraction, scores dict)."""
     from ..metrics import boundary_iou, iou, membership_scores
-    from ..operators.render import build_operator
     from ..pipeline import ExtractSettings, extract
+    from ..raster import build_operator
     from ..synthetic import make_scene
 
     syn = make_scene(seed=seed)

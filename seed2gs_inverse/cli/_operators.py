@@ -44,8 +44,8 @@ def register(subparsers) -> None:
 def build(args) -> int:
     from ..errors import ValidationError
     from ..io import read_cameras, read_scene
-    from ..operators.operator import OperatorStack, scene_fingerprint
-    from ..operators.render import build_operator
+    from ..operators import OperatorStack, scene_fingerprint
+    from ..raster import build_operator
 
     if not (np.isfinite(args.scale) and args.scale > 0):
         raise ValidationError(f"--scale must be positive, got {args.scale}")
@@ -70,7 +70,7 @@ def build(args) -> int:
 
 
 def info(args) -> int:
-    from ..operators.operator import OperatorStack
+    from ..operators import OperatorStack
 
     scene = None
     if args.scene:

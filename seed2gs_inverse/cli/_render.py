@@ -129,7 +129,7 @@ def _encode(path, array, kind):
 
 def run(args) -> int:
     from ..io import read_scene
-    from ..operators.render import render
+    from ..raster import render
 
     out = _check_output("-o", args.output)
     depth_path = _check_output("--depth", args.depth)

@@ -76,8 +76,8 @@ def _npy_bytes(arr) -> bytes:
 
 
 def solve_command(args) -> int:
-    from ..operators.operator import OperatorStack
     from ..io import read_masks
+    from ..operators import OperatorStack
     from ..solvers import get_method, solve
     from .._atomic import check_output_parent, write_files
 
@@ -102,7 +102,7 @@ def solve_command(args) -> int:
 def compare_command(args) -> int:
     from ..compare import compare
     from ..io import read_masks
-    from ..operators.operator import OperatorStack
+    from ..operators import OperatorStack
     from .._atomic import check_output_parent, write_files
 
     if args.output:

@@ -34,7 +34,7 @@ from .seed_lift import SeedLift, seed_lift
 from .settings import SOLVER_DEFAULTS, ExtractSettings
 from .vaas import ClipFrame, VAASPlan, estimate_up, run_vaas
 
-__all__ = ["Extraction", "extract", "ExtractSettings", "EXTRACT_DEFAULTS", "SOLVER_DEFAULTS", "STAGES",
+__all__ = ["Extraction", "extract", "Renderer", "ExtractSettings", "EXTRACT_DEFAULTS", "SOLVER_DEFAULTS", "STAGES",
            "ReferenceView", "OrbitViews", "Selection", "render_reference", "seed_from_prompt",
            "reference_view", "lift_seed", "orbit_views", "track_clips", "stack_operators", "solve_selection"]
 
@@ -206,93 +206,46 @@ def _roi_box(camera: Camera, center, radius, margin):
     return (x0, y0, x1, y1)
 
 
-def _cone_subset(scene, camera: Camera, roi, sigma3: np.ndarray, far: float | None = None) -> np.ndarray:
-    """Indices of Gaussians that can reach the pixels of ``roi`` in ``camera``.
-
-    Keeps Gaussians in front of the near plane whose centre lies within the
-    cone through the roi's corner pixels, widened by the Gaussian's own 3-sigma
-    size (``sigma3``, world units): every Gaussian whose footprint reaches a
-    roi pixel passes, so rasterizing the subset gives the same roi pixels.
-    ``far``: also drop Gaussians whose depth along the cone axis exceeds it
-    (minus their 3-sigma size).
-    """
-    h, w = camera.image_shape
-    x0, y0, x1, y1 = (0, 0, w, h) if roi is None else roi
-    xs = (np.array([x0, x1, x1, x0], float) - camera.cx) / camera.fx
-    ys = (np.array([y0, y0, y1, y1], float) - camera.cy) / camera.fy
-    # Axis: through the roi centre; half-angle: to the farthest corner.
-    axis = np.array([(0.5 * (x0 + x1) - camera.cx) / camera.fx, (0.5 * (y0 + y1) - camera.cy) / camera.fy, 1.0])
-    axis /= np.linalg.norm(axis)
-    corners = np.stack([xs, ys, np.ones(4)], 1)
-    corners /= np.linalg.norm(corners, axis=1, keepdims=True)
-    cos_a = float(np.clip((corners @ axis).min(), 1e-3, 1.0))
-    tan_a = np.sqrt(max(1.0 - cos_a ** 2, 0.0)) / cos_a
-    from ..operators import _raster
-
-    # One parallel pass over the scene (this runs for every orbit view).
-    keep = np.empty(len(scene), bool)
-    _raster.cone_cull(scene.means, np.ascontiguousarray(camera.rotation, dtype=np.float64),
-                      np.ascontiguousarray(camera.translation, dtype=np.float64), axis, tan_a, cos_a,
-                      float(camera.near), np.ascontiguousarray(sigma3, dtype=np.float64),
-                      np.inf if far is None else float(far), keep)
-    return np.flatnonzero(keep)
-
-
-
-
 # -- the rasterizer, in one place ---------------------------------------------------------------
-class _Renderer:
+class Renderer:
     """The only place extract() calls the rasterizer: renders and operators of one frozen scene.
 
-    Use as a context manager: inside it, the view-independent activations
-    of ``scene`` (covariance factors, opacities, SH-0 colours) are computed
-    once for the ~50 views of an extraction instead of per view (identical
-    results). ``operator_seconds`` accumulates the time spent building
-    operators (reported under the ``operators`` stage).
-
-    When the ``raster`` package lands, only this class changes: ``__init__``
-    holds ``raster.FrozenScene(scene)`` (no ``frozen()`` context, no
-    ``_sigma3``), ``render``/``build_operator`` take it in place of the
-    scene, and :func:`_cone_subset` becomes ``raster.cone_cull(frozen,
-    camera, roi, far)``.
+    Holds a :class:`~seed2gs_inverse.raster.FrozenScene`, so the
+    view-independent activations of the scene (covariance factors,
+    opacities, SH-0 colours, 3-sigma sizes) are computed once for the ~50
+    views of an extraction instead of per view (identical results).
+    ``operator_seconds`` accumulates the time spent building operators
+    (reported under the ``operators`` stage).
     """
 
     def __init__(self, scene: GaussianScene, mode: str = "classic"):
+        from ..raster import FrozenScene
+
         self.scene = scene
+        self.frozen = FrozenScene(scene)
         self.mode = mode
         self.operator_seconds = 0.0
-        # 3-sigma sizes for the cone culling of orbit views
-        self._sigma3 = 3.0 * scene.scales.max(axis=1).astype(np.float64)
-        self._frozen = contextlib.ExitStack()
-
-    def __enter__(self) -> "_Renderer":
-        from ..operators.render import frozen
-
-        self._frozen.enter_context(frozen(self.scene))
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self._frozen.close()
 
     def render(self, camera: Camera):
         """The full rendering of ``camera`` (a ``Rendering``)."""
-        from ..operators.render import render
+        from ..raster import render
 
-        return render(self.scene, camera, mode=self.mode)
+        return render(self.frozen, camera, mode=self.mode)
 
     def operator(self, camera: Camera, roi=None, min_weight: float = 0.0, cull: bool = False,
                  far: float | None = None):
         """``W(camera)`` (a ``ViewOperator`` with its rendering), composited only in ``roi``.
 
         ``cull``: rasterize only the Gaussians that can reach the roi pixels
-        (:func:`_cone_subset`, optionally cut at depth ``far``); W's columns
-        stay scene indices, and the operator is the same when ``far`` is None.
+        (:func:`~seed2gs_inverse.raster.cone_cull`, optionally cut at depth
+        ``far``); W's columns stay scene indices, and the operator is the
+        same when ``far`` is None.
         """
-        from ..operators.render import build_operator
+        from ..raster import build_operator, cone_cull
 
         t0 = time.perf_counter()
-        subset = _cone_subset(self.scene, camera, roi, self._sigma3, far) if cull else None
-        op = build_operator(self.scene, camera, roi=roi, min_weight=min_weight, mode=self.mode, subset=subset)
+        subset = cone_cull(self.frozen, camera, roi, far) if cull else None
+        op = build_operator(self.frozen, camera, roi=roi, min_weight=min_weight, mode=self.mode, subset=subset)
         self.operator_seconds += time.perf_counter() - t0
         return op
 
@@ -406,7 +359,7 @@ class Selection:
 
 
 # -- the stages ---------------------------------------------------------------------------------
-def render_reference(renderer: _Renderer, camera: Camera):
+def render_reference(renderer: Renderer, camera: Camera):
     """Stage 1: the reference canvas ``I_r`` (full resolution ``Rendering``).
 
     Raises ValidationError when the camera sees (almost) nothing: max alpha < 0.05.
@@ -436,7 +389,7 @@ def seed_from_prompt(prompt, reference, grounder=None):
     return seed, info
 
 
-def reference_view(renderer: _Renderer, camera: Camera, seed: np.ndarray,
+def reference_view(renderer: Renderer, camera: Camera, seed: np.ndarray,
                    max_reference_pixels: int | None) -> ReferenceView:
     """Stage 3: ``W(c_r)`` at the camera's resolution capped at ``max_reference_pixels``.
 
@@ -475,7 +428,7 @@ def _clip_frame(op, clip: str, index: int) -> ClipFrame:
     return ClipFrame(r.rgb, r.depth, r.alpha, op.camera, clip, index, operator=op)
 
 
-def orbit_views(renderer: _Renderer, camera: Camera, ref: ReferenceView, lift: SeedLift,
+def orbit_views(renderer: Renderer, camera: Camera, ref: ReferenceView, lift: SeedLift,
                 settings: ExtractSettings, progress: _Progress | None = None) -> OrbitViews:
     """Stage 5: VAAS (flat orbit, visibility, ascending spiral); each view rendered with its operator.
 
@@ -547,7 +500,7 @@ def track_clips(tracker, orbits: OrbitViews, seed: np.ndarray, progress: _Progre
 
 def stack_operators(labelled, scene: GaussianScene):
     """Stage 7: the ``OperatorStack`` of the supervision views (``frame.operator`` of each pair)."""
-    from ..operators.operator import OperatorStack, scene_fingerprint
+    from ..operators import OperatorStack, scene_fingerprint
 
     return OperatorStack([f.operator for f, _ in labelled], fingerprint=scene_fingerprint(scene))
 
@@ -637,19 +590,19 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
     tracker = _check_tracker(tracker)
     progress = bool(getattr(sys.stderr, "isatty", lambda: False)()) if s.progress is None else s.progress
     timer = _StageTimer()
-    with _Renderer(scene, s.mode) as renderer:
-        with timer("render"):
-            reference = render_reference(renderer, camera)
-        with timer("grounding"):
-            seed, prompt_info = seed_from_prompt(prompt, reference, grounder)
-        with timer("operators"):
-            ref = reference_view(renderer, camera, seed, s.max_reference_pixels)
-        with timer("lift"):
-            lift = lift_seed(scene, ref, s.lift_options)
-        before = renderer.operator_seconds
-        with timer("vaas"), _Progress("VAAS views", progress) as bar:
-            orbits = orbit_views(renderer, camera, ref, lift, s, bar)
-        timer.move("vaas", "operators", renderer.operator_seconds - before)
+    renderer = Renderer(scene, s.mode)
+    with timer("render"):
+        reference = render_reference(renderer, camera)
+    with timer("grounding"):
+        seed, prompt_info = seed_from_prompt(prompt, reference, grounder)
+    with timer("operators"):
+        ref = reference_view(renderer, camera, seed, s.max_reference_pixels)
+    with timer("lift"):
+        lift = lift_seed(scene, ref, s.lift_options)
+    before = renderer.operator_seconds
+    with timer("vaas"), _Progress("VAAS views", progress) as bar:
+        orbits = orbit_views(renderer, camera, ref, lift, s, bar)
+    timer.move("vaas", "operators", renderer.operator_seconds - before)
     with timer("tracking"), _Progress("tracking", progress, total=len(orbits.clips())) as bar:
         labelled = track_clips(tracker, orbits, ref.seed, bar)
     with timer("solve"):

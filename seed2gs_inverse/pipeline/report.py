@@ -30,7 +30,7 @@ def report_figure(extraction, n_strip: int = 8):
     """
     from matplotlib.figure import Figure
 
-    from ..operators.render import render
+    from ..raster import render
 
     ex = extraction
     cam = ex.reference_camera

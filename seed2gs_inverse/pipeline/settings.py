@@ -154,7 +154,7 @@ class ExtractSettings:
         flat orbit then tilts by the camera's pitch); or a world vector.
     min_weight : float
         Orbit operators drop compositing weights below this
-        (:func:`~seed2gs_inverse.operators.render.build_operator`): fewer
+        (:func:`~seed2gs_inverse.raster.build_operator`): fewer
         non-zeros, faster solves, ``W 1`` short of alpha by at most the
         dropped weights.
     cull : bool

@@ -13,7 +13,9 @@ Methods (one module each, equations in their docstrings):
 ``weighted_bce``    Seed2GS reliability-weighted BCE on logits (L-BFGS-B).
 ``least_squares``   box-constrained least squares, the classical baseline.
 
-New methods register themselves with :func:`register_method`.
+New methods register themselves with :func:`register_method` and return a
+:class:`MethodResult`; :func:`method_options` lists a method's options.
+This package needs only numpy and scipy (never the rasterizer or Numba).
 """
 
 from __future__ import annotations
@@ -24,11 +26,12 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from ..errors import ValidationError
-from ._common import (Problem, SolveResult, available_methods, check_options, get_method, prepare,
-                      register_method)
+from ._common import (MethodResult, Problem, SolveResult, available_methods, check_options, get_method,
+                      method_options, prepare, register_method)
 from . import beta_bernoulli, least_squares, voting, weighted_bce  # noqa: F401  (importing registers them)
 
-__all__ = ["solve", "available_methods", "register_method", "SolveResult", "Problem", "prepare"]
+__all__ = ["solve", "available_methods", "register_method", "get_method", "method_options", "SolveResult",
+           "MethodResult", "Problem", "prepare"]
 
 
 def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidence: float = 0.0,
@@ -49,12 +52,13 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
         Prior: a support set (e.g. the seed lift's G0) or a prior ``q``.
         Gaussians no view sees keep it (default 0); ``weighted_bce`` also
         starts from it.
-    min_evidence : float
-        Common to every method: a Gaussian whose summed weight over the known
-        (non-NaN) pixels of all views, ``e = sum_c W(c)^T k(c)``
-        (``Problem.known_weight``), is below this keeps the prior after the
-        method has run: ``q[e < min_evidence] = prior``. Default 0 (off);
-        ``extract()`` passes 0.05. The count is ``result.info["n_weak_evidence"]``.
+    min_evidence : float, default 0
+        Common to every method: a Gaussian whose summed weight over the
+        known (non-NaN) pixels of all views, ``k_i = sum_u A[u, i] [u known]``
+        (:attr:`Problem.known_weight`), is below this has no real evidence
+        and keeps the prior, ``q_i = q0_i`` (an unregularised fit can drive
+        such Gaussians anywhere on a trace of weight). ``0`` only gives the
+        unobserved Gaussians (``k_i = 0``) the prior.
     **options
         Method options; see each method's documentation.
 
@@ -66,7 +70,8 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
     Raises
     ------
     ValidationError
-        Bad operators, masks, init or options (messages name the view).
+        Bad operators, masks, init, min_evidence or options (messages name
+        the view).
     """
     fn = get_method(method)
     check_options(method, fn, options)
@@ -81,22 +86,21 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
     # on 2 cores).
     with threadpool_limits(limits=1, user_api="blas"):
         out = fn(problem, **options)
-    q = np.asarray(out["q"], dtype=np.float64).reshape(-1)
+    if not isinstance(out, MethodResult):
+        raise RuntimeError(f"method '{method}' returned {type(out).__name__}, not a MethodResult")
+    q = np.asarray(out.q, dtype=np.float64).reshape(-1)
     if q.shape != (problem.n_gaussians,) or not np.all(np.isfinite(q)):
         raise RuntimeError(f"method '{method}' returned an invalid q (shape {q.shape})")
     # A method that ignores some views (a view budget) reports what it did see.
-    observed = np.asarray(out.get("observed", problem.observed), dtype=bool)
+    observed = np.asarray(problem.observed if out.observed is None else out.observed, dtype=bool)
     unobserved = ~observed
     q = np.where(unobserved, problem.prior, np.clip(q, 0.0, 1.0)).astype(np.float32)
-    # Gaussians seen (almost) only on unknown pixels carry no evidence: an
-    # unregularised fit can drive their logits anywhere on a trace of weight.
-    weak = problem.known_weight < float(min_evidence)
+    # Gaussians seen (almost) only on unknown pixels carry no evidence: the prior.
+    weak = problem.known_weight < min_evidence
     q[weak] = problem.prior[weak].astype(np.float32)
-    info = dict(out.get("info", {}))
-    info["n_weak_evidence"] = int(weak.sum())
-    weights = out.get("view_weights")
-    weights = np.ones(problem.n_views) if weights is None else np.asarray(weights, dtype=np.float64)
-    return SolveResult(q=q, method=method, iterations=int(out.get("iterations", 0)),
-                       history=list(out.get("history", [])), view_weights=weights, unobserved=unobserved,
-                       seconds=time.perf_counter() - t0, threshold=float(out.get("threshold", 0.5)),
-                       info=info)
+    weights = np.ones(problem.n_views) if out.view_weights is None else np.asarray(out.view_weights, np.float64)
+    info = dict(out.info)
+    info.update(min_evidence=float(min_evidence), n_weak_evidence=int(weak.sum()))
+    return SolveResult(q=q, method=method, iterations=int(out.iterations), history=list(out.history),
+                       view_weights=weights, unobserved=unobserved, seconds=time.perf_counter() - t0,
+                       threshold=float(out.threshold), info=info)

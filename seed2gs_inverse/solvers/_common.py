@@ -1,10 +1,12 @@
 """Shared machinery of the solvers: input validation, the stacked problem, results.
 
-Solvers see only operators and masks (never the rasterizer). ``prepare``
-turns an :class:`~seed2gs_inverse.operators.operator.OperatorStack` (or a list
-of views / sparse matrices) and one mask per view into a :class:`Problem`: the
+Solvers see only operators and masks (never the rasterizer, never Numba).
+``prepare`` turns anything :func:`~seed2gs_inverse.operators.as_stack`
+accepts (an :class:`~seed2gs_inverse.operators.OperatorStack`, or a list of
+views / sparse matrices) and one mask per view into a :class:`Problem`: the
 views stacked into one CSR matrix ``A`` (rows = all pixels of all views) and
-its transpose, the flattened masks and which pixels are known.
+its transpose, the flattened masks and which pixels are known. A method
+returns a :class:`MethodResult`.
 """
 
 from __future__ import annotations
@@ -17,8 +19,8 @@ import scipy.sparse as sp
 
 from ..errors import ValidationError
 
-__all__ = ["Problem", "SolveResult", "prepare", "normalize_mask", "prior_from_init",
-           "register_method", "available_methods", "get_method"]
+__all__ = ["Problem", "SolveResult", "MethodResult", "prepare", "normalize_mask", "prior_from_init",
+           "register_method", "available_methods", "get_method", "method_options"]
 
 _METHODS: dict = {}
 
@@ -26,12 +28,14 @@ _METHODS: dict = {}
 def register_method(name: str, fn) -> None:
     """Make ``fn`` available as ``solve(..., method=name)``.
 
-    ``fn(problem, **options) -> dict`` receives a :class:`Problem` and the
-    method's keyword options (each with a documented default) and returns a
-    dict with key ``"q"`` ((N,) values in [0, 1]; entries of unobserved
-    Gaussians are overwritten by the prior) and optionally ``"iterations"``,
-    ``"history"``, ``"view_weights"``, ``"threshold"``, ``"info"`` and
-    ``"observed"`` ((N,) bool, when the method used fewer views than given).
+    ``fn(problem, *, option=default, ...) -> MethodResult`` receives a
+    :class:`Problem` and the method's keyword-only options (each with a
+    documented default; :func:`method_options` lists them) and returns a
+    :class:`MethodResult`: ``q`` ((N,) values in [0, 1]; entries of
+    unobserved Gaussians are overwritten by the prior) and optionally
+    ``iterations``, ``history``, ``view_weights``, ``threshold``, ``info``
+    and ``observed`` ((N,) bool, when the method used fewer views than
+    given).
     """
     if not isinstance(name, str) or not name.isidentifier():
         raise ValidationError(f"method name must be an identifier string, got {name!r}")
@@ -46,9 +50,28 @@ def available_methods() -> list:
 
 
 def get_method(name: str):
-    if name not in _METHODS:
+    """The function registered as ``name`` (see :func:`register_method`).
+
+    Raises
+    ------
+    ValidationError
+        No such method (the message lists the available ones).
+    """
+    if not isinstance(name, str) or name not in _METHODS:
         raise ValidationError(f"unknown method {name!r}; available: {', '.join(available_methods())}")
     return _METHODS[name]
+
+
+def method_options(name: str) -> dict:
+    """The keyword options of method ``name`` with their defaults, in signature order.
+
+    Examples
+    --------
+    >>> method_options("voting")                                  # doctest: +SKIP
+    {'bias': 0.0}
+    """
+    params = inspect.signature(get_method(name)).parameters
+    return {k: p.default for k, p in params.items() if p.kind == p.KEYWORD_ONLY}
 
 
 def check_options(name: str, fn, options: dict) -> None:
@@ -60,6 +83,39 @@ def check_options(name: str, fn, options: dict) -> None:
     bad = sorted(set(options) - set(known))
     if bad:
         raise ValidationError(f"method '{name}' has no option(s) {bad}; its options are {known}")
+
+
+@dataclass
+class MethodResult:
+    """What a registered method returns to :func:`~seed2gs_inverse.solvers.solve`.
+
+    Attributes
+    ----------
+    q : (N,) array
+        Per-Gaussian foreground probability in [0, 1] (``solve`` clips it and
+        gives unobserved Gaussians the prior).
+    iterations : int
+        Solver iterations (0 for closed forms).
+    history : list of dict
+        Per-iteration (or per-step) records, method specific.
+    view_weights : (V,) array or None
+        Final weight of each view; None means all ones.
+    threshold : float
+        Default selection threshold (0.5 unless the method says otherwise).
+    info : dict
+        Method-specific extras.
+    observed : (N,) bool or None
+        The Gaussians the method had evidence for, when it used fewer views
+        (or pixels) than given; None means :attr:`Problem.observed`.
+    """
+
+    q: np.ndarray
+    iterations: int = 0
+    history: list = field(default_factory=list)
+    view_weights: np.ndarray | None = None
+    threshold: float = 0.5
+    info: dict = field(default_factory=dict)
+    observed: np.ndarray | None = None
 
 
 @dataclass
@@ -80,6 +136,8 @@ class SolveResult:
         Final weight of each view (ones for methods that do not weight views).
     unobserved : (N,) bool
         Gaussians with no weight on any known pixel; their ``q`` is the prior.
+        (Gaussians with some but too little evidence, below ``min_evidence``,
+        also take the prior; ``info["n_weak_evidence"]`` counts all of them.)
     seconds : float
         Wall-clock time of the solve.
     threshold : float
@@ -222,38 +280,6 @@ def normalize_mask(mask, image_shape, label: str) -> np.ndarray:
     return out.reshape(-1)
 
 
-def _views_of(operators):
-    """(list of sparse matrices, list of image shapes or None, names, stack or None)."""
-    from ..operators.operator import OperatorStack, ViewOperator
-
-    if isinstance(operators, OperatorStack):
-        return [v.W for v in operators], operators.image_shapes, [v.name for v in operators], operators
-    if isinstance(operators, ViewOperator) or sp.issparse(operators):
-        raise ValidationError("operators must be an OperatorStack or a sequence of views, "
-                              "not a single operator; wrap it in a list")
-    try:
-        items = list(operators)
-    except TypeError:
-        raise ValidationError(f"operators must be an OperatorStack or a sequence of ViewOperator / "
-                              f"sparse matrices, got {type(operators).__name__}") from None
-    mats, shapes, names = [], [], []
-    for i, v in enumerate(items):
-        if isinstance(v, ViewOperator):
-            mats.append(v.W)
-            shapes.append(v.image_shape)
-            names.append(v.name)
-        elif sp.issparse(v):
-            if v.ndim != 2:
-                raise ValidationError(f"view {i}: operator must be 2-D, got shape {v.shape}")
-            mats.append(v)
-            shapes.append(None)
-            names.append("")
-        else:
-            raise ValidationError(f"view {i}: expected a ViewOperator or a scipy.sparse matrix, "
-                                  f"got {type(v).__name__}")
-    return mats, shapes, names, None
-
-
 def prior_from_init(init, n: int) -> np.ndarray:
     """The prior ``q0`` (N,) float64 from ``init``.
 
@@ -299,46 +325,31 @@ def prepare(operators, masks, init=None) -> Problem:
         the wrong dtype/range, masks that are all NaN in every view, or a
         mask count different from the view count. Messages name the view.
     """
-    mats, shapes, names, stack = _views_of(operators)
-    if not mats:
-        raise ValidationError("no views: the operator stack is empty")
+    from ..operators import as_stack  # the operator core: numpy/scipy only
+
+    stack = as_stack(operators, masks)
     try:
         mask_list = list(masks) if not isinstance(masks, np.ndarray) or masks.ndim >= 2 else None
     except TypeError:
         mask_list = None
     if mask_list is None:
         raise ValidationError("masks must be a sequence with one array per view (or a (V, H, W) array)")
-    if len(mask_list) != len(mats):
-        raise ValidationError(f"got {len(mask_list)} masks for {len(mats)} views; give one mask per view")
-    n = int(mats[0].shape[1])
-    for i, W in enumerate(mats):
-        if W.shape[1] != n:
-            raise ValidationError(f"{_label(i, names[i])} has {W.shape[1]} Gaussians (columns) but view 0 has "
-                                  f"{n}: operators from different scenes cannot be combined")
-    ys = []
-    for i, (W, shape, m) in enumerate(zip(mats, shapes, mask_list)):
-        label = _label(i, names[i])
-        if shape is None:
-            ma = np.asarray(m)
-            shape = ma.shape if ma.ndim == 2 else (1, ma.size)
-            if shape[0] * shape[1] != W.shape[0]:
-                raise ValidationError(f"{label}: mask has {ma.size} pixels (shape {ma.shape}) but the operator "
-                                      f"has {W.shape[0]} rows")
-            shapes[i] = tuple(int(s) for s in shape)
-        ys.append(normalize_mask(m, shapes[i], label))
+    if len(mask_list) != len(stack):
+        raise ValidationError(f"got {len(mask_list)} masks for {len(stack)} views; give one mask per view")
+    n = stack.n_gaussians
+    shapes = stack.image_shapes
+    names = [v.name for v in stack]
+    ys = [normalize_mask(m, shape, _label(i, names[i]))
+          for i, (shape, m) in enumerate(zip(shapes, mask_list))]
     y = np.concatenate(ys)
     known = ~np.isnan(y)
     if not known.any():
         raise ValidationError(f"every mask is entirely NaN (views 0..{len(ys) - 1} carry no known pixel); "
                               "nothing to fit")
     y = np.where(known, y, np.float32(0)).astype(np.float32)
-    if stack is not None:
-        A, AT = stack.stacked(), stack.stacked_transpose()
-    else:
-        A = sp.vstack([sp.csr_matrix(W) for W in mats], format="csr").astype(np.float32, copy=False)
-        AT = A.T  # a CSC view; see OperatorStack.stacked_transpose
-    offsets = np.concatenate([[0], np.cumsum([s[0] * s[1] for s in shapes])]).astype(np.int64)
-    if stack is not None and known.all():
+    A, AT = stack.stacked(), stack.stacked_transpose()
+    offsets = stack.row_offsets()
+    if known.all():
         # every pixel known: the known weight is the stack's (cached) column sums
         known_weight = stack.column_sums()
     else:

@@ -36,7 +36,7 @@ import numpy as np
 from scipy.special import betaln, digamma
 
 from ..errors import ValidationError
-from ._common import Problem, register_method
+from ._common import MethodResult, Problem, register_method
 from .voting import vote_counts
 
 __all__ = ["beta_bernoulli", "beta_entropy"]
@@ -62,7 +62,7 @@ def _view_evidence(problem: Problem, c: int) -> tuple:
 
 
 def beta_bernoulli(problem: Problem, *, a0: float = 1.0, b0: float = 1.0, order: str = "given",
-                   budget: int | None = None) -> dict:
+                   budget: int | None = None) -> MethodResult:
     """B3-Seg Beta posterior; see the module docstring.
 
     Parameters
@@ -77,7 +77,7 @@ def beta_bernoulli(problem: Problem, *, a0: float = 1.0, b0: float = 1.0, order:
 
     Returns
     -------
-    dict with ``q`` the posterior mean, ``iterations`` the number of views
+    MethodResult with ``q`` the posterior mean, ``iterations`` the number of views
     used, ``view_weights`` 1 for used views and 0 otherwise, ``history`` one
     record per absorbed view (``view``, ``eig`` for the eig order,
     ``entropy`` the summed Beta entropy after it) and ``info["order"]``.
@@ -97,8 +97,8 @@ def beta_bernoulli(problem: Problem, *, a0: float = 1.0, b0: float = 1.0, order:
     if order == "given" and budget == V:
         # All views in any order: the posterior needs only the two vote sums (one transposed pass).
         a_bg, a_fg = vote_counts(problem)
-        return {"q": (a0 + a_fg) / (a0 + b0 + a_fg + a_bg), "iterations": V, "view_weights": np.ones(V),
-                "info": {"order": list(range(V)), "budget": V, "a0": a0, "b0": b0}}
+        return MethodResult(q=(a0 + a_fg) / (a0 + b0 + a_fg + a_bg), iterations=V, view_weights=np.ones(V),
+                            info={"order": list(range(V)), "budget": V, "a0": a0, "b0": b0})
     a = np.full(n, a0)
     b = np.full(n, b0)
     seen = np.zeros(n, dtype=bool)
@@ -135,8 +135,8 @@ def beta_bernoulli(problem: Problem, *, a0: float = 1.0, b0: float = 1.0, order:
         history.append(rec)
     weights = np.zeros(V)
     weights[chosen] = 1.0
-    return {"q": a / (a + b), "iterations": len(chosen), "history": history, "view_weights": weights,
-            "observed": seen, "info": {"order": chosen, "budget": budget, "a0": a0, "b0": b0}}
+    return MethodResult(q=a / (a + b), iterations=len(chosen), history=history, view_weights=weights,
+                        observed=seen, info={"order": chosen, "budget": budget, "a0": a0, "b0": b0})
 
 
 register_method("beta_bernoulli", beta_bernoulli)

@@ -30,7 +30,7 @@ import numpy as np
 from scipy.optimize import lsq_linear
 
 from ..errors import ValidationError
-from ._common import Problem, register_method
+from ._common import MethodResult, Problem, register_method
 
 __all__ = ["least_squares", "operator_norm_sq"]
 
@@ -50,7 +50,7 @@ def operator_norm_sq(A, AT, rows_weight, n_iter: int = 30, seed: int = 0) -> flo
 
 
 def least_squares(problem: Problem, *, target: str = "alpha", algorithm: str = "fista", max_iter: int = 500,
-                  tol: float = 1e-4, power_iters: int = 30) -> dict:
+                  tol: float = 1e-4, power_iters: int = 30) -> MethodResult:
     """Box-constrained least squares; see the module docstring.
 
     Parameters
@@ -67,7 +67,7 @@ def least_squares(problem: Problem, *, target: str = "alpha", algorithm: str = "
 
     Returns
     -------
-    dict with ``q``, ``iterations`` and ``history`` (FISTA: ``objective`` at the extrapolated point
+    MethodResult with ``q``, ``iterations`` and ``history`` (FISTA: ``objective`` at the extrapolated point
     and ``step`` (max change) every iteration).
     """
     if algorithm not in ("fista", "lsq_linear"):
@@ -89,13 +89,13 @@ def least_squares(problem: Problem, *, target: str = "alpha", algorithm: str = "
                          tol=tol, max_iter=max_iter, lsmr_tol="auto")
         q = np.zeros(problem.n_gaussians)
         q[idx] = res.x
-        return {"q": q, "iterations": int(res.nit),
-                "info": {"status": int(res.status), "cost": float(res.cost)}}
+        return MethodResult(q=q, iterations=int(res.nit),
+                            info={"status": int(res.status), "cost": float(res.cost)})
     d = rows.astype(np.float32)
     yd = rhs * d
     L = 1.05 * operator_norm_sq(A, AT, d, power_iters)
     if L == 0.0:
-        return {"q": np.zeros(problem.n_gaussians), "iterations": 0}
+        return MethodResult(q=np.zeros(problem.n_gaussians), iterations=0)
     start = problem.prior if problem.init_given else np.full(problem.n_gaussians, 0.5)
     unobs = ~obs
     x = np.where(obs, start, 0.0).astype(np.float32)
@@ -117,7 +117,7 @@ def least_squares(problem: Problem, *, target: str = "alpha", algorithm: str = "
         history.append({"objective": 0.5 * float(np.dot(r, r)), "step": step})
         if step < tol:
             break
-    return {"q": x, "iterations": it, "history": history, "info": {"lipschitz": L}}
+    return MethodResult(q=x, iterations=it, history=history, info={"lipschitz": L})
 
 
 register_method("least_squares", least_squares)

@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import ValidationError
-from ._common import Problem, register_method
+from ._common import MethodResult, Problem, register_method
 
 __all__ = ["voting", "vote_counts", "bias_to_threshold"]
 
@@ -51,7 +51,7 @@ def bias_to_threshold(bias: float) -> float:
     return 0.5 * (1.0 + b / np.sqrt(2.0 - b * b))
 
 
-def voting(problem: Problem, *, bias: float = 0.0) -> dict:
+def voting(problem: Problem, *, bias: float = 0.0) -> MethodResult:
     """FlashSplat closed-form vote; see the module docstring.
 
     Parameters
@@ -63,7 +63,7 @@ def voting(problem: Problem, *, bias: float = 0.0) -> dict:
 
     Returns
     -------
-    dict with ``q = A1 / (A0 + A1)`` (0 where no vote), ``threshold =
+    MethodResult with ``q = A1 / (A0 + A1)`` (0 where no vote), ``threshold =
     tau(bias)`` and ``info`` holding the normalised votes' range.
     """
     tau = bias_to_threshold(bias)
@@ -71,8 +71,8 @@ def voting(problem: Problem, *, bias: float = 0.0) -> dict:
     total = a0 + a1
     with np.errstate(invalid="ignore", divide="ignore"):
         q = np.where(total > 0, a1 / total, 0.0)
-    return {"q": q, "threshold": tau, "iterations": 0,
-            "info": {"bias": float(bias), "total_votes": float(total.sum())}}
+    return MethodResult(q=q, threshold=tau, iterations=0,
+                        info={"bias": float(bias), "total_votes": float(total.sum())})
 
 
 register_method("voting", voting)

@@ -31,7 +31,8 @@ Gradient (chain rule through the clip; per-pixel work in float64):
     dL/dl = q (1 - q) * A^T g,   g_u = dL/dPhat_u / alpha_u (normalize) or dL/dPhat_u,
 
 one pass of ``A`` and one of ``A^T`` per evaluation (scipy) with the
-per-pixel work between them fused in one Numba loop.
+per-pixel work between them in numpy, on the weighted pixels only
+(:class:`~seed2gs_inverse.solvers._bce.PixelBCE`).
 
 View weights (Eq. 6). ``D_c`` is the running residual of view ``c``, the
 weighted mean BCE of its pixels at the current ``q`` (exponential moving
@@ -85,11 +86,11 @@ from scipy.optimize import minimize
 from scipy.special import expit
 
 from ..errors import ValidationError
-from ._common import Problem, register_method
-from ._kernels import bce_pixels
+from ._common import MethodResult, Problem, register_method
+from ._bce import PixelBCE, bce_pixels
 from .voting import voting
 
-__all__ = ["weighted_bce", "view_weights", "BCEObjective"]
+__all__ = ["weighted_bce", "view_weights", "BCEObjective", "bce_pixels"]
 
 
 def view_weights(residuals, r_min: float = 0.05, lam: float = 0.5) -> np.ndarray:
@@ -109,7 +110,7 @@ class BCEObjective:
 
     One evaluation is one pass of ``A`` and one of ``A^T`` (scipy, in the dtype
     of ``A``: float32 in the solver, float64 in gradient checks) with the
-    per-pixel work between them fused in one kernel (:mod:`._kernels`).
+    per-pixel work between them in numpy (:class:`~._bce.PixelBCE`).
 
     Parameters
     ----------
@@ -145,15 +146,16 @@ class BCEObjective:
         self.pixel_view = problem.view_of_rows()
         self.evidence = np.asarray(self.AT @ use.astype(self.dtype)).ravel() > 0
         self._w_key, self._w = None, None
+        self._pixels = PixelBCE(self.y, self.inv_alpha, eps, self.dtype)
 
     def _forward(self, q: np.ndarray, w: np.ndarray) -> tuple:
         """(BCE per pixel (P,) float64, pixel gradient ``g`` (P,) in A's dtype) at ``q`` (N,)."""
         pred = self.A @ np.asarray(q, dtype=self.dtype)
-        return bce_pixels(pred, self.y, w, self.inv_alpha, self.eps)
+        return self._pixels(pred, w)
 
     def pixel_bce(self, q: np.ndarray) -> np.ndarray:
         """BCE of every usable pixel (P,) at ``q`` (N,); 0 at the others."""
-        return self._forward(q, self.s)[0]
+        return self._forward(q, self.s)[0].copy()
 
     def residuals(self, q: np.ndarray) -> np.ndarray:
         """``D_c``: weighted mean BCE of each view (V,) at ``q``; 0 for a view with no usable pixel."""
@@ -268,7 +270,7 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
                  reweight: bool = True, normalize: bool = False, alpha_min: float = 1e-3, eps: float = 1e-4,
                  max_iter: int = 200, inner_iters: int = 20, weight_tol: float = 1e-3, ftol: float = 1e-10,
                  gtol: float = 1e-9, init_clip: float = 0.1, maxcor: int = 5, start: str = "vote",
-                 optimizer: str = "scipy") -> dict:
+                 optimizer: str = "scipy") -> MethodResult:
     """Seed2GS reliability-weighted BCE; see the module docstring.
 
     Parameters
@@ -311,7 +313,7 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
 
     Returns
     -------
-    dict with ``q``, ``iterations``, ``view_weights`` (final omega; 0 for a
+    MethodResult with ``q``, ``iterations``, ``view_weights`` (final omega; 0 for a
     view without usable pixels),
     ``history`` (one record per outer step: ``loss``, ``iterations``,
     ``weights``, ``residuals``), ``observed`` ((N,) bool, the Gaussians with
@@ -344,14 +346,14 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
     active = obj.s_view > 0
     rows = np.flatnonzero(obj.evidence)
     if rows.size == 0:
-        return {"q": problem.prior.copy(), "iterations": 0, "view_weights": np.zeros(V), "history": [],
-                "observed": obj.evidence,
-                "info": {"function_evaluations": 0, "message": "no usable pixel (every known pixel has "
-                         f"alpha < alpha_min = {alpha_min:g})", "outer_steps": 0}}
+        return MethodResult(q=problem.prior.copy(), iterations=0, view_weights=np.zeros(V), history=[],
+                            observed=obj.evidence,
+                            info={"function_evaluations": 0, "message": "no usable pixel (every known pixel has "
+                                     f"alpha < alpha_min = {alpha_min:g})", "outer_steps": 0})
     if problem.init_given:
         q0 = problem.prior
     elif start == "vote":
-        q0 = voting(problem)["q"]
+        q0 = voting(problem).q
     else:
         q0 = np.full(problem.n_gaussians, 0.5)
     logits = _logit(np.clip(q0, init_clip, 1.0 - init_clip))
@@ -399,9 +401,9 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
         omega = new_omega
         if (status == 0 or nit == 0) and change < weight_tol:
             break
-    return {"q": q_of(x), "iterations": total, "view_weights": omega, "history": history,
-            "observed": obj.evidence,
-            "info": {"function_evaluations": nfev[0], "message": message, "outer_steps": len(history)}}
+    return MethodResult(q=q_of(x), iterations=total, view_weights=omega, history=history,
+                        observed=obj.evidence,
+                        info={"function_evaluations": nfev[0], "message": message, "outer_steps": len(history)})
 
 
 register_method("weighted_bce", weighted_bce)

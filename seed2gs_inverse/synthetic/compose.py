@@ -194,7 +194,7 @@ def surface_point(camera: Camera, depth, pixel) -> np.ndarray:
     centre ``(x + 0.5, y + 0.5)``) to view depth ``z = depth[y, x]``:
     ``X_cam = ((x + 0.5 - cx) z / fx, (y + 0.5 - cy) z / fy, z)``, then
     ``X = R^T (X_cam - t)``. With ``depth`` from
-    :func:`seed2gs_inverse.operators.render.render` this is where to stand
+    :func:`seed2gs_inverse.raster.render` this is where to stand
     an object with :func:`pose_on_point` ("put it there" in a real scene).
 
     Parameters

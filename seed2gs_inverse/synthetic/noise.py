@@ -38,10 +38,10 @@ def masks_from_labels(operators, selected, threshold: float | None = 0.5) -> lis
 
     Parameters
     ----------
-    operators : iterable
-        Items with ``.W`` ((H*W, N) sparse or dense) and ``.image_shape``
-        ``(H, W)`` (``ViewOperator``, ``OperatorStack``), or ``(W, (H, W))``
-        pairs. Needs only numpy/scipy.
+    operators : OperatorStack or sequence
+        Anything :func:`~seed2gs_inverse.operators.as_stack` accepts:
+        ``ViewOperator`` items, sparse matrices or ``(W, (H, W))`` pairs (W
+        sparse or dense). Needs only numpy/scipy.
     selected : (N,) bool or float in [0, 1]
         Membership of each Gaussian.
     threshold : float or None
@@ -53,27 +53,16 @@ def masks_from_labels(operators, selected, threshold: float | None = 0.5) -> lis
     """
     if threshold is not None and not (np.isfinite(threshold) and 0 <= threshold < 1):
         raise ValidationError(f"threshold must be in [0, 1) or None, got {threshold!r}")
-    out, sel = [], None
-    for v, item in enumerate(operators):
-        if hasattr(item, "W") and hasattr(item, "image_shape"):
-            W, shape = item.W, item.image_shape
-        elif isinstance(item, (tuple, list)) and len(item) == 2:
-            W, shape = item
-        else:
-            raise ValidationError(f"view {v}: expected an operator with .W and .image_shape "
-                                  f"or a (W, (H, W)) pair, got {type(item).__name__}")
-        shape = tuple(int(s) for s in shape)
-        if len(shape) != 2 or getattr(W, "ndim", 2) != 2 or W.shape[0] != shape[0] * shape[1]:
-            raise ValidationError(f"view {v}: W has shape {W.shape}, which does not match "
-                                  f"image shape {shape} (rows must be H*W)")
-        if sel is None:
-            sel = _selection(selected, W.shape[1])
-        elif W.shape[1] != sel.shape[0]:
-            raise ValidationError(f"view {v}: W has {W.shape[1]} columns; view 0 had {sel.shape[0]}")
-        p = np.asarray(W @ sel, dtype=np.float32).reshape(shape)
-        out.append(np.clip(p, 0, 1) if threshold is None else (p > threshold).astype(np.float32))
-    if sel is None:
+    from ..operators import as_stack  # numpy/scipy only
+
+    if isinstance(operators, (list, tuple)) and not operators:
         raise ValidationError("masks_from_labels needs at least one view")
+    stack = as_stack(operators)
+    sel = _selection(selected, stack.n_gaussians)
+    out = []
+    for view in stack:
+        p = np.asarray(view.W @ sel, dtype=np.float32).reshape(view.image_shape)
+        out.append(np.clip(p, 0, 1) if threshold is None else (p > threshold).astype(np.float32))
     return out
 
 
@@ -82,11 +71,11 @@ def render_label_masks(scene: GaussianScene, cameras, selected,
     """Ground-truth masks of ``selected`` Gaussians seen by ``cameras``.
 
     Builds each view's operator with
-    :func:`seed2gs_inverse.operators.render.build_operator` and applies
+    :func:`seed2gs_inverse.raster.build_operator` and applies
     :func:`masks_from_labels`. Use the operators directly when you have
     them already (building is the expensive part).
     """
-    from ..operators.render import build_operator  # the renderer sits above this module
+    from ..raster import build_operator  # the renderer sits above this module
 
     cams = list(cameras)
     if not cams:

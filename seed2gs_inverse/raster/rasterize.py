@@ -58,205 +58,18 @@ and tiles); outputs are float32.
 
 from __future__ import annotations
 
-import contextlib
 import mmap
-import threading
 import time
-from dataclasses import dataclass
-from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
 
-from .. import scene as _scene_mod
-from ..camera import Camera
 from ..errors import ValidationError
-from . import _raster
+from ..operators.view import Rendering, ViewOperator
+from . import _kernels
+from .project import check_inputs, project
 
-__all__ = ["Rendering", "Projection", "project_gaussians", "render", "build_operator", "frozen", "MODES"]
-
-MODES = ("classic", "antialiased")
-_EPS2D = 0.3
-
-
-@dataclass(eq=False)
-class Rendering:
-    """The image of one view.
-
-    Attributes
-    ----------
-    rgb : (H, W, 3) float32
-        Composited colour, background added with the remaining transmittance.
-    alpha : (H, W) float32
-        Accumulated opacity ``1 - T_final`` in [0, 1].
-    depth : (H, W) float32
-        Expected view depth ``sum_i w_i z_i / alpha``; 0 where ``alpha == 0``.
-    n_contrib : (H, W) int32
-        Number of Gaussians that contributed a nonzero weight to the pixel.
-    """
-
-    rgb: np.ndarray
-    alpha: np.ndarray
-    depth: np.ndarray
-    n_contrib: np.ndarray
-
-    @property
-    def image_shape(self) -> tuple[int, int]:
-        return tuple(self.alpha.shape)
-
-
-class Projection(NamedTuple):
-    """Per-Gaussian screen-space quantities of one view (see module docstring).
-
-    Attributes
-    ----------
-    means2d : (N, 2) float32
-        Pixel coordinates of the projected means (0 where culled).
-    conics : (N, 3) float32
-        ``(a, b, c)`` of the inverse 2D covariance (0 where culled).
-    radii : (N,) int32
-        3-sigma radius in pixels; 0 marks a culled Gaussian.
-    depths : (N,) float32
-        View depth ``z`` of every Gaussian (also the culled ones).
-    colors : (N, 3) float32
-        View-dependent colour ``max(eval_sh + 0.5, 0)`` of every Gaussian.
-    opacities : (N,) float32
-        Opacity used for compositing (sigmoid of the logit, times the
-        antialiasing compensation in mode "antialiased").
-    """
-
-    means2d: np.ndarray
-    conics: np.ndarray
-    radii: np.ndarray
-    depths: np.ndarray
-    colors: np.ndarray
-    opacities: np.ndarray
-
-
-def _check_inputs(scene, camera, mode):
-    if not isinstance(scene, _scene_mod.GaussianScene):
-        raise ValidationError(f"scene must be a GaussianScene, got {type(scene).__name__}")
-    if len(scene) == 0:
-        raise ValidationError("scene is empty (0 Gaussians): there is nothing to render")
-    if not isinstance(camera, Camera):
-        raise ValidationError(f"camera must be a Camera, got {type(camera).__name__}")
-    if mode not in MODES:
-        raise ValidationError(f"mode must be one of {MODES}, got {mode!r}")
-
-
-# Scenes inside ``frozen()`` blocks: id -> [scene, activations or None, depth].
-_FROZEN: dict = {}
-_FROZEN_LOCK = threading.Lock()
-
-
-@contextlib.contextmanager
-def frozen(scene):
-    """Reuse a scene's view-independent quantities across renders.
-
-    Inside the block, :func:`render`, :func:`build_operator` and
-    :func:`project_gaussians` of this very ``scene`` object compute the
-    covariance factors ``R(q) diag(s)``, the opacities and (SH degree 0) the
-    colours once, instead of once per call; the results are identical. The
-    caller promises that the scene's arrays do not change inside the block
-    (they are not checked). Blocks may nest; the state is dropped when the
-    outermost one ends.
-
-    Examples
-    --------
-    >>> with frozen(scene):                                      # doctest: +SKIP
-    ...     ops = [build_operator(scene, cam) for cam in cameras]
-    """
-    if not isinstance(scene, _scene_mod.GaussianScene):
-        raise ValidationError(f"frozen() needs a GaussianScene, got {type(scene).__name__}")
-    key = id(scene)
-    with _FROZEN_LOCK:
-        entry = _FROZEN.setdefault(key, [scene, None, 0])
-        entry[2] += 1
-    try:
-        yield scene
-    finally:
-        with _FROZEN_LOCK:
-            entry[2] -= 1
-            if entry[2] == 0:
-                del _FROZEN[key]
-
-
-def _activate(scene, idx):
-    """Kernel ``activate`` on the rows ``idx``: (mfac, opac, col0)."""
-    n = idx.size
-    mfac = np.empty((n, 9))
-    opac = np.empty(n)
-    col0 = np.empty((n if scene.sh.shape[1] == 1 else 0, 3))
-    _raster.activate(idx, scene.quats, scene.log_scales, scene.opacity_logits, scene.sh, mfac, opac, col0)
-    return mfac, opac, col0
-
-
-def _activations(scene, idx):
-    """Activations for the rows ``idx`` and the row of each in them.
-
-    Inside ``frozen(scene)``: the whole scene's, computed on first use;
-    else only those of ``idx``.
-    """
-    entry = _FROZEN.get(id(scene))
-    if entry is None or entry[0] is not scene:
-        return _activate(scene, idx), np.arange(idx.size, dtype=np.int64)
-    with _FROZEN_LOCK:
-        if entry[1] is None:
-            entry[1] = _activate(scene, np.arange(len(scene), dtype=np.int64))
-    return entry[1], idx
-
-
-def _project(scene, camera, mode, idx=None, tile_box=None):
-    """Run the projection kernel on the rows ``idx`` (default all) of ``scene``.
-
-    Returns float64 arrays plus tile rectangles, one row per entry of ``idx``;
-    rectangles are clipped to ``tile_box`` (default the whole tile grid).
-    """
-    if idx is None:
-        idx = np.arange(len(scene), dtype=np.int64)
-    n = idx.size
-    if tile_box is None:
-        tile_box = np.array([0, 0, (camera.width + _raster.TILE - 1) // _raster.TILE,
-                             (camera.height + _raster.TILE - 1) // _raster.TILE], np.int64)
-    (mfac, opac_all, col0), act_rows = _activations(scene, idx)
-    rot = np.ascontiguousarray(camera.rotation, dtype=np.float64)
-    trans = np.ascontiguousarray(camera.translation, dtype=np.float64)
-    center = np.ascontiguousarray(camera.center, dtype=np.float64)
-    means2d = np.empty((n, 2))
-    conics = np.empty((n, 3))
-    radii = np.empty(n, np.int32)
-    depths = np.empty(n)
-    colors = np.empty((n, 3))
-    opac = np.empty(n)
-    support = np.empty((n, 3))
-    rects = np.empty((n, 4), np.int32)
-    _raster.project(idx, act_rows, scene.means, mfac, opac_all, col0, scene.sh,
-                    rot, trans, center, camera.fx, camera.fy, camera.cx, camera.cy,
-                    camera.width, camera.height, camera.near, _EPS2D, mode == "antialiased", tile_box,
-                    means2d, conics, radii, depths, colors, opac, support, rects)
-    return means2d, conics, radii, depths, colors, opac, support, rects
-
-
-def project_gaussians(scene, camera, mode: str = "classic") -> Projection:
-    """Project every Gaussian of ``scene`` into ``camera``.
-
-    Parameters
-    ----------
-    scene : GaussianScene
-    camera : Camera
-    mode : {"classic", "antialiased"}
-
-    Returns
-    -------
-    Projection
-        ``means2d, conics, radii, depths, colors, opacities`` as float32
-        (radii int32); culled Gaussians have ``radii == 0``.
-    """
-    _check_inputs(scene, camera, mode)
-    means2d, conics, radii, depths, colors, opac, _, _ = _project(scene, camera, mode)
-    f32 = np.float32
-    return Projection(means2d.astype(f32), conics.astype(f32), radii, depths.astype(f32),
-                      colors.astype(f32), opac.astype(f32))
+__all__ = ["render", "build_operator"]
 
 
 def _roi_mask(roi, shape):
@@ -352,7 +165,7 @@ def _tile_box(roi_mask):
     cols = np.flatnonzero(roi_mask.any(axis=0))
     if rows.size == 0:
         return np.zeros(4, np.int64)
-    t = _raster.TILE
+    t = _kernels.TILE
     return np.array([cols[0] // t, rows[0] // t, cols[-1] // t + 1, rows[-1] // t + 1], np.int64)
 
 
@@ -377,9 +190,10 @@ def _subset_index(subset, n):
     return sel
 
 
-def _rasterize(scene, camera, background, mode, roi, min_weight, build_w, stats=None, subset=None):
+def _rasterize(scene, frozen, camera, background, mode, roi, min_weight, build_w, stats=None, subset=None):
     """One rasterizer pass; returns (Rendering, W or None).
 
+    ``frozen``: the scene's :class:`~.frozen.FrozenScene` or None.
     ``subset``: ascending int64 scene indices to rasterize (default all); W
     keeps one column per scene Gaussian. ``stats``, a dict, receives stage
     timings (s) and work counts for benchmarks.
@@ -389,8 +203,8 @@ def _rasterize(scene, camera, background, mode, roi, min_weight, build_w, stats=
     roi_mask = _roi_mask(roi, (h, w))
     bg = _check_background(background)
     gid = np.arange(len(scene), dtype=np.int64) if subset is None else subset
-    means2d, conics, radii, depths, colors, opac, support, rects = _project(
-        scene, camera, mode, gid, _tile_box(roi_mask))
+    splats = project(scene, frozen, camera, mode, gid, _tile_box(roi_mask))
+    rects = splats.rects
     clock.append(time.perf_counter())
 
     # Front-to-back order of the binned Gaussians: by depth, ties by index
@@ -399,24 +213,21 @@ def _rasterize(scene, camera, background, mode, roi, min_weight, build_w, stats=
     # rectangle (culled, outside the roi, or never passing the alpha test)
     # are not binned.
     vis = np.flatnonzero((rects[:, 2] > rects[:, 0]) & (rects[:, 3] > rects[:, 1]))
-    order = _depth_order(depths, vis)
+    order = _depth_order(splats.depths, vis)
     clock.append(time.perf_counter())
-    tiles_x = (w + _raster.TILE - 1) // _raster.TILE
-    tiles_y = (h + _raster.TILE - 1) // _raster.TILE
+    tiles_x = (w + _kernels.TILE - 1) // _kernels.TILE
+    tiles_y = (h + _kernels.TILE - 1) // _kernels.TILE
     n_tiles = tiles_x * tiles_y
-    tile_start, tile_gauss = _raster.bin_tiles(order, rects, tiles_x, n_tiles)
+    tile_start, tile_gauss = _kernels.bin_tiles(order, rects, tiles_x, n_tiles)
     # Tiles differ a lot in cost and prange splits the range into equal
     # contiguous chunks, so visit them in a fixed shuffled order.
     tile_order = np.random.default_rng(0).permutation(n_tiles).astype(np.int64)
     clock.append(time.perf_counter())
 
-    rgb = np.zeros((h, w, 3), np.float32)
-    alpha = np.zeros((h, w), np.float32)
-    depth = np.zeros((h, w), np.float32)
-    n_contrib = np.zeros((h, w), np.int32)
-    n_kept = np.zeros(h * w, np.int64)
+    img = _kernels.Image(rgb=np.zeros((h, w, 3), np.float32), alpha=np.zeros((h, w), np.float32),
+                         depth=np.zeros((h, w), np.float32), n_contrib=np.zeros((h, w), np.int32),
+                         n_kept=np.zeros(h * w, np.int64))
     tile_evals = np.zeros(n_tiles, np.int64)
-    scr_used = np.zeros(n_tiles, np.int64)
     if build_w:
         pairs = np.diff(tile_start)
         per_pair = min(float(_SCRATCH_PER_PAIR), _SCRATCH_MAX / max(int(tile_start[-1]), 1))
@@ -425,17 +236,13 @@ def _rasterize(scene, camera, background, mode, roi, min_weight, build_w, stats=
     else:
         scr_start = np.zeros(n_tiles + 1, np.int64)
     n_scr = int(scr_start[-1])
-    scr_pix = _lazy_empty(n_scr, np.int16)
-    scr_gi = _lazy_empty(n_scr, np.int32)
-    scr_w = _lazy_empty(n_scr, np.float32)
-    dummy_ptr = np.zeros(1, np.int64)
-    args = (tile_start, tile_gauss, tile_order, means2d, conics, opac, support, colors, depths,
-            w, h, roi_mask, bg, float(min_weight))
-    _raster.composite(*args, False, gid, rgb, alpha, depth, n_contrib, n_kept,
-                      dummy_ptr, np.zeros(0, np.int32), np.zeros(0, np.float32),
-                      scr_start, scr_pix, scr_gi, scr_w, scr_used, tile_evals)
+    scr = _kernels.Scratch(start=scr_start, pix=_lazy_empty(n_scr, np.int16), gi=_lazy_empty(n_scr, np.int32),
+                           w=_lazy_empty(n_scr, np.float32), used=np.zeros(n_tiles, np.int64))
+    no_csr = _kernels.CSR(np.zeros(1, np.int64), np.zeros(0, np.int32), np.zeros(0, np.float32))
+    _kernels.composite(_kernels.TileLists(tile_start, tile_gauss, tile_order), splats, w, h, roi_mask, bg,
+                       float(min_weight), False, gid, img, no_csr, scr, tile_evals)
     clock.append(time.perf_counter())
-    rendering = Rendering(rgb, alpha, depth, n_contrib)
+    rendering = Rendering(img.rgb, img.alpha, img.depth, img.n_contrib)
     if stats is not None:
         stats.update(project_s=clock[1] - clock[0], sort_s=clock[2] - clock[1],
                      bin_s=clock[3] - clock[2], composite_s=clock[4] - clock[3],
@@ -445,23 +252,22 @@ def _rasterize(scene, camera, background, mode, roi, min_weight, build_w, stats=
         return rendering, None
 
     indptr = np.zeros(h * w + 1, np.int64)
-    np.cumsum(n_kept, out=indptr[1:])
+    np.cumsum(img.n_kept, out=indptr[1:])
     nnz = int(indptr[-1])
-    indices = np.empty(nnz, np.int32)
-    data = np.empty(nnz, np.float32)
+    csr = _kernels.CSR(indptr, np.empty(nnz, np.int32), np.empty(nnz, np.float32))
     # Tiles whose log is complete are copied into the rows sized by the first
     # pass; the others composite again (bit-identical arithmetic) and write
     # their weights directly.
-    logged = np.flatnonzero(scr_used > 0)
-    _raster.scatter(logged, scr_start[logged], scr_start[logged] + scr_used[logged], w, h,
-                    scr_pix, scr_gi, scr_w, gid, indptr, indices, data)
-    redo = np.flatnonzero(scr_used < 0)
+    logged = np.flatnonzero(scr.used > 0)
+    _kernels.scatter(logged, scr_start[logged], scr_start[logged] + scr.used[logged], w, h,
+                     scr.pix, scr.gi, scr.w, gid, indptr, csr.indices, csr.data)
+    redo = np.flatnonzero(scr.used < 0)
     if redo.size:
-        _raster.composite(*args[:2], redo, *args[3:], True, gid, rgb, alpha, depth, n_contrib, n_kept,
-                          indptr, indices, data, scr_start, scr_pix, scr_gi, scr_w, scr_used, tile_evals)
+        _kernels.composite(_kernels.TileLists(tile_start, tile_gauss, redo), splats, w, h, roi_mask, bg,
+                           float(min_weight), True, gid, img, csr, scr, tile_evals)
     if nnz <= np.iinfo(np.int32).max:
         indptr = indptr.astype(np.int32)
-    W = sp.csr_matrix((data, indices, indptr), shape=(h * w, len(scene)), copy=False)
+    W = sp.csr_matrix((csr.data, csr.indices, indptr), shape=(h * w, len(scene)), copy=False)
     # Columns within a row are in compositing (depth) order, not sorted.
     W.has_sorted_indices = False
     if stats is not None:
@@ -475,7 +281,7 @@ def render(scene, camera, background=None, mode: str = "classic") -> Rendering:
 
     Parameters
     ----------
-    scene : GaussianScene
+    scene : GaussianScene or FrozenScene
         Non-empty.
     camera : Camera
     background : None, float or (3,) array
@@ -489,8 +295,8 @@ def render(scene, camera, background=None, mode: str = "classic") -> Rendering:
         ``rgb`` (H, W, 3), ``alpha`` (H, W), ``depth`` (H, W) float32 and
         ``n_contrib`` (H, W) int32.
     """
-    _check_inputs(scene, camera, mode)
-    return _rasterize(scene, camera, background, mode, None, 0.0, build_w=False)[0]
+    scene, frozen = check_inputs(scene, camera, mode)
+    return _rasterize(scene, frozen, camera, background, mode, None, 0.0, build_w=False)[0]
 
 
 def build_operator(scene, camera, scale: float = 1.0, roi=None, min_weight: float = 0.0,
@@ -505,8 +311,8 @@ def build_operator(scene, camera, scale: float = 1.0, roi=None, min_weight: floa
 
     Parameters
     ----------
-    scene : GaussianScene
-        Non-empty.
+    scene : GaussianScene or FrozenScene
+        Non-empty (a :class:`~.frozen.FrozenScene` reuses its activations).
     camera : Camera
     scale : float
         Resolution factor; the operator is built for ``camera.scaled(scale)``.
@@ -536,9 +342,7 @@ def build_operator(scene, camera, scale: float = 1.0, roi=None, min_weight: floa
         ``W``, ``camera`` (the scaled one), ``image_shape`` and the
         ``rendering`` (black background) of the pass.
     """
-    from .operator import ViewOperator
-
-    _check_inputs(scene, camera, mode)
+    scene, frozen = check_inputs(scene, camera, mode)
     if not isinstance(scale, (int, float, np.integer, np.floating)) or isinstance(scale, bool):
         raise ValidationError(f"scale must be a positive number, got {scale!r}")
     mw = float(min_weight) if isinstance(min_weight, (int, float, np.integer, np.floating)) else np.nan
@@ -546,5 +350,5 @@ def build_operator(scene, camera, scale: float = 1.0, roi=None, min_weight: floa
         raise ValidationError(f"min_weight must be a number in [0, 1], got {min_weight!r}")
     idx = None if subset is None else _subset_index(subset, len(scene))
     cam = camera if float(scale) == 1.0 else camera.scaled(scale)
-    rendering, W = _rasterize(scene, cam, None, mode, roi, mw, build_w=True, subset=idx)
+    rendering, W = _rasterize(scene, frozen, cam, None, mode, roi, mw, build_w=True, subset=idx)
     return ViewOperator(W, cam, cam.image_shape, rendering)

@@ -1,4 +1,4 @@
-"""Numba kernels of the tile rasterizer (private; use :mod:`.render`).
+"""Numba kernels of the tile rasterizer (private; use :mod:`seed2gs_inverse.raster`).
 
 Three stages, each a kernel over plain arrays, plus the CSR assembly:
 
@@ -18,33 +18,108 @@ Three stages, each a kernel over plain arrays, plus the CSR assembly:
 ``scatter``     per tile (parallel): copies a tile's logged weights into the
                 CSR rows sized by the first pass.
 
-``cone_cull`` (parallel) picks the Gaussians that can reach a view cone, for
-the orbit views of :func:`seed2gs_inverse.pipeline.extract`.
+``cone_cull`` (parallel) picks the Gaussians that can reach a view cone
+(:func:`seed2gs_inverse.raster.cone_cull`).
 
 All arithmetic is float64; the public wrapper converts outputs to float32.
-See :mod:`seed2gs_inverse.operators.render` for the exact semantics.
+Arguments are packed in the NamedTuples below. See
+:mod:`seed2gs_inverse.raster.rasterize` for the exact semantics.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
+
+from ..sh import SH_C0, SH_C1, SH_C2, SH_C3
 
 TILE = 16
 ALPHA_MAX = 0.99
 ALPHA_MIN = 1.0 / 255.0
 T_MIN = 1e-4
 
-_C0 = 0.28209479177387814
-_C1 = 0.4886025119029199
-_C20, _C21, _C22, _C23, _C24 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005,
-                               -1.0925484305920792, 0.5462742152960396)
-_C30, _C31, _C32, _C33, _C34, _C35, _C36 = (
-    -0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154,
-    -0.4570457994644658, 1.445305721320277, -0.5900435899266435)
+# One source of the SH constants: seed2gs_inverse.sh (module-level floats are
+# compile-time constants for Numba).
+_C0 = SH_C0
+_C1 = SH_C1
+_C20, _C21, _C22, _C23, _C24 = SH_C2
+_C30, _C31, _C32, _C33, _C34, _C35, _C36 = SH_C3
 
+
+# -- argument bundles (Numba passes NamedTuples of arrays and scalars as typed tuples) --
+class Activations(NamedTuple):
+    """View-independent quantities of :func:`activate`, one row per Gaussian activated."""
+
+    mfac: np.ndarray   # (M, 9) float64 covariance factor R(q) diag(s), row-major
+    opac: np.ndarray   # (M,) float64 sigmoid of the opacity logit
+    col0: np.ndarray   # (M, 3) float64 SH-0 colour, or (0, 3) when the scene has higher SH
+
+
+class CameraParams(NamedTuple):
+    """A camera as plain numbers: world-to-camera ``rot``/``trans``, centre, intrinsics."""
+
+    rot: np.ndarray     # (3, 3) float64
+    trans: np.ndarray   # (3,) float64
+    center: np.ndarray  # (3,) float64
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+    near: float
+
+
+class Splats(NamedTuple):
+    """Per-Gaussian screen-space outputs of :func:`project`, inputs of :func:`composite`."""
+
+    means2d: np.ndarray    # (M, 2) float64
+    conics: np.ndarray     # (M, 3) float64
+    radii: np.ndarray      # (M,) int32
+    depths: np.ndarray     # (M,) float64
+    colors: np.ndarray     # (M, 3) float64
+    opacities: np.ndarray  # (M,) float64
+    support: np.ndarray    # (M, 3) float64
+    rects: np.ndarray      # (M, 4) int32
+
+
+class TileLists(NamedTuple):
+    """Tile lists of :func:`bin_tiles` and the order in which tiles are visited."""
+
+    tile_start: np.ndarray  # (n_tiles+1,) int64
+    tile_gauss: np.ndarray  # (pairs,) int32
+    tile_order: np.ndarray  # (n,) int64 tiles to composite
+
+
+class Image(NamedTuple):
+    """Per-pixel outputs of :func:`composite`."""
+
+    rgb: np.ndarray        # (H, W, 3) float32
+    alpha: np.ndarray      # (H, W) float32
+    depth: np.ndarray      # (H, W) float32
+    n_contrib: np.ndarray  # (H, W) int32
+    n_kept: np.ndarray     # (H*W,) int64
+
+
+class CSR(NamedTuple):
+    """Arrays of the operator W being filled."""
+
+    indptr: np.ndarray   # (H*W+1,) int64
+    indices: np.ndarray  # (nnz,) int32
+    data: np.ndarray     # (nnz,) float32
+
+
+class Scratch(NamedTuple):
+    """Per-tile log of the first compositing pass (see :func:`composite`)."""
+
+    start: np.ndarray  # (n_tiles+1,) int64
+    pix: np.ndarray    # int16 local pixel
+    gi: np.ndarray     # int32 Gaussian row
+    w: np.ndarray      # float32 weight
+    used: np.ndarray   # (n_tiles,) int64 entries logged, -1 on overflow
 
 
 @njit(cache=True, inline="always")
@@ -82,8 +157,15 @@ def _clamp_floor(v, hi):
     return int(math.floor(v))
 
 
+@njit(cache=True)
+def activate(idx, quats, log_scales, opacity_logits, sh, act):
+    """:func:`_activate` with its outputs in ``act`` (:class:`Activations`)."""
+    mfac, opac, col0 = act
+    _activate(idx, quats, log_scales, opacity_logits, sh, mfac, opac, col0)
+
+
 @njit(cache=True, parallel=True)
-def activate(idx, quats, log_scales, opacity_logits, sh, mfac, opac, col0):
+def _activate(idx, quats, log_scales, opacity_logits, sh, mfac, opac, col0):
     """View-independent quantities of the Gaussians ``idx`` (parallel).
 
     Row ``i`` of the outputs belongs to Gaussian ``idx[i]``: ``mfac`` (M, 9)
@@ -122,10 +204,27 @@ def activate(idx, quats, log_scales, opacity_logits, sh, mfac, opac, col0):
         mfac[i, 8] = (1.0 - 2.0 * (qx * qx + qy * qy)) * s2
 
 
+@njit(cache=True)
+def project(idx, act_rows, means, sh, act, cam, eps2d, antialiased, tile_box, out):
+    """:func:`_project` with the activations ``act`` (:class:`Activations`), the camera
+    ``cam`` (:class:`CameraParams`) and the outputs ``out`` (:class:`Splats`) bundled.
+
+    The bundles are unpacked here, outside the parallel loop: writes through
+    arrays unpacked from a tuple inside a ``prange`` kernel were lost (Numba
+    0.68.1 parfor lowering; the depths came back uninitialised).
+    """
+    mfac, opac, col0 = act
+    rot, trans, center, fx, fy, cx, cy, width, height, near = cam
+    means2d, conics, radii, depths, colors, opacities, support, rects = out
+    _project(idx, act_rows, means, mfac, opac, col0, sh, rot, trans, center,
+             fx, fy, cx, cy, width, height, near, eps2d, antialiased, tile_box,
+             means2d, conics, radii, depths, colors, opacities, support, rects)
+
+
 @njit(cache=True, parallel=True)
-def project(idx, act_rows, means, mfac, opac, col0, sh, rot, trans, center,
-            fx, fy, cx, cy, width, height, near, eps2d, antialiased, tile_box,
-            means2d, conics, radii, depths, colors, opacities, support, rects):
+def _project(idx, act_rows, means, mfac, opac, col0, sh, rot, trans, center,
+             fx, fy, cx, cy, width, height, near, eps2d, antialiased, tile_box,
+             means2d, conics, radii, depths, colors, opacities, support, rects):
     """Project the Gaussians ``idx``; see ``render.project_gaussians`` for the maths.
 
     ``idx`` (M,) int64 lists the scene rows to project (so a subset needs no
@@ -344,11 +443,8 @@ def bin_tiles(order, rects, tiles_x, n_tiles):
     return tile_start, tile_gauss
 
 
-@njit(cache=True, parallel=True)
-def composite(tile_start, tile_gauss, tile_order, means2d, conics, opacities, support, colors, depths,
-              width, height, roi, background, min_weight, fill, gid,
-              rgb, alpha, depth, n_contrib, n_kept, indptr, indices, data,
-              scr_start, scr_pix, scr_gi, scr_w, scr_used, tile_evals):
+@njit(cache=True)
+def composite(tiles, splats, width, height, roi, background, min_weight, fill, gid, img, csr, scr, tile_evals):
     """Front-to-back compositing of every tile (parallel over tiles).
 
     For pixel centre ``p = (x + 0.5, y + 0.5)`` and each Gaussian g of the
@@ -383,7 +479,30 @@ def composite(tile_start, tile_gauss, tile_order, means2d, conics, opacities, su
     log nothing.
     ``tile_evals`` (n_tiles,) int64 receives the number of Gaussian-pixel
     evaluations (power computed) per tile, for benchmarks.
+
+    Bundles: ``tiles`` :class:`TileLists` (the tiles to visit), ``splats``
+    :class:`Splats` (projection), ``img`` :class:`Image` (rgb, alpha, depth,
+    n_contrib, n_kept), ``csr`` :class:`CSR` (indptr, indices, data) and
+    ``scr`` :class:`Scratch` (scr_start, scr_pix, scr_gi, scr_w, scr_used).
     """
+    # Unpacked outside the parallel loop, as in project().
+    tile_start, tile_gauss, tile_order = tiles
+    means2d, conics, _radii, depths, colors, opacities, support, _rects = splats
+    rgb, alpha, depth, n_contrib, n_kept = img
+    indptr, indices, data = csr
+    scr_start, scr_pix, scr_gi, scr_w, scr_used = scr
+    _composite_tiles(tile_start, tile_gauss, tile_order, means2d, conics, opacities, support, colors, depths,
+                     width, height, roi, background, min_weight, fill, gid,
+                     rgb, alpha, depth, n_contrib, n_kept, indptr, indices, data,
+                     scr_start, scr_pix, scr_gi, scr_w, scr_used, tile_evals)
+
+
+@njit(cache=True, parallel=True)
+def _composite_tiles(tile_start, tile_gauss, tile_order, means2d, conics, opacities, support, colors, depths,
+                     width, height, roi, background, min_weight, fill, gid,
+                     rgb, alpha, depth, n_contrib, n_kept, indptr, indices, data,
+                     scr_start, scr_pix, scr_gi, scr_w, scr_used, tile_evals):
+    """The parallel loop of :func:`composite` (same arguments, unpacked)."""
     tiles_x = (width + TILE - 1) // TILE
     n_tiles = tile_order.shape[0]
     for it in prange(n_tiles):
@@ -540,8 +659,14 @@ def scatter(tiles, lo, hi, width, height, scr_pix, scr_gi, scr_w, gid, indptr, i
             cursor[lp] = c + 1
 
 
+@njit(cache=True)
+def cone_cull(means, cam, axis, tan_a, cos_a, sigma3, far, keep):
+    """:func:`_cone_cull` with the camera ``cam`` (:class:`CameraParams`) bundled."""
+    _cone_cull(means, cam.rot, cam.trans, axis, tan_a, cos_a, cam.near, sigma3, far, keep)
+
+
 @njit(cache=True, parallel=True)
-def cone_cull(means, rot, trans, axis, tan_a, cos_a, near, sigma3, far, keep):
+def _cone_cull(means, rot, trans, axis, tan_a, cos_a, near, sigma3, far, keep):
     """Gaussians whose 3-sigma ball can meet a view cone (parallel).
 
     With ``v = R x + t`` (view frame), ``s = sigma3[i]``, ``t_a = v . axis``

@@ -1,0 +1,247 @@
+"""The linear forward model of one view: :class:`ViewOperator` and :class:`Rendering`.
+
+A frozen 3DGS scene turns every camera view ``c`` into a fixed sparse matrix
+``W(c)`` of shape ``(H*W, N)``: entry ``W(c)[u, i] = alpha_i(u) T_i(u)`` is the
+compositing weight of Gaussian ``i`` at pixel ``u`` (rows row-major,
+``u = y*width + x``). A per-Gaussian quantity ``q`` (N,) renders as
+
+    P(c) = W(c) q,
+
+and the adjoint ``W(c)^T r`` splats a per-pixel quantity back onto the
+Gaussians. :class:`ViewOperator` is a ``scipy.sparse.linalg.LinearOperator``
+(flat vectors in and out); :meth:`ViewOperator.image` gives the ``(H, W)``
+picture. This module needs only numpy and scipy (no rasterizer, no Numba).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import LinearOperator
+
+from ..camera import Camera
+from ..errors import ValidationError
+
+__all__ = ["Rendering", "ViewOperator", "view_label"]
+
+# The per-view rendering arrays kept next to W (what the view looked like).
+RENDER_FIELDS = ("rgb", "alpha", "depth", "n_contrib")
+
+
+@dataclass(eq=False)
+class Rendering:
+    """The image of one view; every field is optional (``None`` when absent).
+
+    A rasterizer pass fills all four; a saved operator stack loads as a
+    ``Rendering`` with whichever arrays were saved (never as a dict).
+
+    Attributes
+    ----------
+    rgb : (H, W, 3) float32 or None
+        Composited colour, background added with the remaining transmittance.
+    alpha : (H, W) float32 or None
+        Accumulated opacity ``1 - T_final`` in [0, 1].
+    depth : (H, W) float32 or None
+        Expected view depth ``sum_i w_i z_i / alpha``; 0 where ``alpha == 0``.
+    n_contrib : (H, W) int32 or None
+        Number of Gaussians that contributed a nonzero weight to the pixel.
+    """
+
+    rgb: np.ndarray | None = None
+    alpha: np.ndarray | None = None
+    depth: np.ndarray | None = None
+    n_contrib: np.ndarray | None = None
+
+    @property
+    def image_shape(self) -> tuple | None:
+        """``(H, W)`` of the first array present, or None when all are absent."""
+        for key in RENDER_FIELDS:
+            arr = getattr(self, key)
+            if arr is not None:
+                return tuple(np.shape(arr)[:2])
+        return None
+
+
+def view_label(camera, index=None) -> str:
+    """``view 'name'`` / ``view 3 ('name')`` for error messages."""
+    name = getattr(camera, "name", "") if camera is not None else ""
+    if index is None:
+        return f"view '{name}'" if name else "view"
+    return f"view {index}" + (f" ('{name}')" if name else "")
+
+
+class ViewOperator(LinearOperator):
+    """The linear forward model of one view, ``P = W q``, as a ``LinearOperator``.
+
+    Shape ``(H*W, N)``, dtype float32: ``matvec(q)`` (or ``op @ q``) returns
+    the flat ``(H*W,)`` rendering ``W q``, ``rmatvec(y)`` the ``(N,)`` splat
+    ``W^T y``, and :meth:`image` the ``(H, W)`` picture of ``W q``.
+
+    Parameters
+    ----------
+    W : scipy.sparse.csr_matrix or csr_array, shape (H*W, N), float32
+        Compositing weights; row ``y*width + x`` is pixel ``(x, y)``, column
+        ``i`` is scene Gaussian ``i``. Row sums equal the rendered alpha (<= 1).
+    camera : Camera or None
+        The view's camera; when given, its ``image_shape`` must equal
+        ``image_shape``. ``None`` for operators without geometry (tests,
+        matrices from elsewhere).
+    image_shape : (int, int), optional
+        ``(H, W)`` of the view's image; default the camera's, else
+        ``(1, H*W)``.
+    rendering : Rendering, optional
+        The rendering the operator was built from (``rgb``, ``alpha``,
+        ``depth``, ``n_contrib`` arrays, any of them None).
+    """
+
+    def __init__(self, W, camera: Camera | None = None, image_shape=None, rendering: Rendering | None = None):
+        label = view_label(camera)
+        if image_shape is None:
+            if isinstance(camera, Camera):
+                image_shape = camera.image_shape
+            elif sp.issparse(W) and W.ndim == 2:
+                image_shape = (1, W.shape[0])
+        try:
+            shape = tuple(int(s) for s in image_shape)
+        except (TypeError, ValueError):
+            raise ValidationError(f"{label}: image_shape must be (H, W) integers, got {image_shape!r}") from None
+        if len(shape) != 2 or min(shape) <= 0:
+            raise ValidationError(f"{label}: image_shape must be two positive integers (H, W), got {shape}")
+        if camera is not None:
+            if not isinstance(camera, Camera):
+                raise ValidationError(f"{label}: camera must be a Camera or None, got {type(camera).__name__}")
+            if tuple(camera.image_shape) != shape:
+                raise ValidationError(
+                    f"{label}: image_shape {shape} differs from the camera's {camera.image_shape}; "
+                    "pass the (scaled) camera the operator was built for")
+        if not sp.issparse(W) or W.format != "csr":
+            kind = W.format if sp.issparse(W) else type(W).__name__
+            raise ValidationError(f"{label}: W must be a scipy.sparse CSR matrix, got {kind}; "
+                                  "convert with scipy.sparse.csr_matrix(W)")
+        if W.dtype != np.float32:
+            raise ValidationError(f"{label}: W must be float32, got {W.dtype}; use W.astype(numpy.float32)")
+        if W.shape[0] != shape[0] * shape[1]:
+            raise ValidationError(f"{label}: W has {W.shape[0]} rows but the image {shape} has "
+                                  f"{shape[0] * shape[1]} pixels")
+        if rendering is not None and not isinstance(rendering, Rendering):
+            raise ValidationError(f"{label}: rendering must be a Rendering or None, got {type(rendering).__name__}")
+        super().__init__(np.float32, W.shape)
+        self.W = W
+        self.camera = camera
+        self.image_shape = shape
+        self.rendering = rendering
+
+    # -- facts -------------------------------------------------------------
+    @property
+    def n_gaussians(self) -> int:
+        """Number of columns of ``W`` (Gaussians in the scene)."""
+        return int(self.W.shape[1])
+
+    @property
+    def n_pixels(self) -> int:
+        return int(self.W.shape[0])
+
+    @property
+    def nnz(self) -> int:
+        return int(self.W.nnz)
+
+    @property
+    def name(self) -> str:
+        return self.camera.name if self.camera is not None else ""
+
+    def __repr__(self) -> str:
+        return (f"ViewOperator({view_label(self.camera)}, image_shape={self.image_shape}, "
+                f"n_gaussians={self.n_gaussians}, nnz={self.nnz})")
+
+    def observed(self) -> np.ndarray:
+        """Bool (N,): Gaussians with a nonzero weight at some pixel of this view."""
+        out = np.zeros(self.n_gaussians, dtype=bool)
+        out[np.asarray(self.W.indices)[np.asarray(self.W.data) != 0]] = True
+        return out
+
+    def alpha(self) -> np.ndarray:
+        """Rendered opacity ``W 1`` as an (H, W) float32 image."""
+        return np.asarray(self.W.sum(axis=1), dtype=np.float32).reshape(self.image_shape)
+
+    # -- forward / adjoint --------------------------------------------------
+    def matvec(self, x) -> np.ndarray:
+        """Render a per-Gaussian quantity: ``W q``, flat (H*W,) (or (H*W, 1) for an (N, 1) input).
+
+        Parameters
+        ----------
+        x : (N,) or (N, 1) array
+        """
+        x = np.asarray(x)
+        if x.shape not in ((self.n_gaussians,), (self.n_gaussians, 1)):
+            raise ValidationError(f"{view_label(self.camera)}: q must have shape ({self.n_gaussians},), "
+                                  f"got {x.shape}")
+        return super().matvec(x)
+
+    def rmatvec(self, x) -> np.ndarray:
+        """Splat a per-pixel quantity onto the Gaussians: ``W^T y``, (N,).
+
+        Parameters
+        ----------
+        x : (H*W,) or (H*W, 1) array, or an (H, W) image
+        """
+        y = np.asarray(x)
+        if y.shape == self.image_shape and y.shape != (self.n_pixels, 1):
+            y = y.reshape(-1)
+        if y.shape not in ((self.n_pixels,), (self.n_pixels, 1)):
+            raise ValidationError(f"{view_label(self.camera)}: image must have shape {self.image_shape} or "
+                                  f"({self.n_pixels},), got {y.shape}")
+        return super().rmatvec(y)
+
+    def image(self, q) -> np.ndarray:
+        """``W q`` as the (H, W) image of the view.
+
+        Parameters
+        ----------
+        q : (N,) array
+        """
+        return self.matvec(q).reshape(self.image_shape)
+
+    def _matvec(self, x):
+        return np.asarray(self.W @ np.ravel(x))
+
+    def _rmatvec(self, y):
+        return np.asarray(self.W.T @ np.ravel(y))
+
+    def _matmat(self, X):
+        return np.asarray(self.W @ X)
+
+    def _rmatmat(self, Y):
+        return np.asarray(self.W.T @ Y)
+
+    def _adjoint(self):
+        # The transpose as a plain LinearOperator (W is real: adjoint == transpose).
+        return _Transposed(self)
+
+    _transpose = _adjoint
+
+
+class _Transposed(LinearOperator):
+    """``W^T`` of a view or stack (real weights: the adjoint is the transpose)."""
+
+    def __init__(self, op):
+        super().__init__(op.dtype, (op.shape[1], op.shape[0]))
+        self.op = op
+
+    def _matvec(self, y):
+        return self.op._rmatvec(y)
+
+    def _rmatvec(self, x):
+        return self.op._matvec(x)
+
+    def _matmat(self, Y):
+        return self.op._rmatmat(Y)
+
+    def _rmatmat(self, X):
+        return self.op._matmat(X)
+
+    def _adjoint(self):
+        return self.op
+
+    _transpose = _adjoint
