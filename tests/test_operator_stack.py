@@ -262,7 +262,53 @@ def _corruptions():
         "nnz lies": (lambda d: _edit_manifest(d, lambda m: m["views"][0].update(nnz=3)), "nnz"),
         "2-D data": (lambda d: np.save(d / "view_000_data.npy", np.load(d / "view_000_data.npy")[:, None]), "1-D"),
         "index dtype": (arr("view_000_indices.npy", np.zeros(3, np.float32)), "int32"),
+        # issue 12: loads that used to succeed on corrupt stacks, or raised outside Seed2GSError
+        "version true": (lambda d: _edit_manifest(d, lambda m: m.update(version=True)), "version"),
+        "n beyond int32": (lambda d: _edit_manifest(d, lambda m: m.update(n_gaussians=2 ** 31 + 5)), "n_gaussians"),
+        "huge json int": (lambda d: (d / "manifest.json").write_text(
+            (d / "manifest.json").read_text().replace('"n_gaussians": 50', '"n_gaussians": ' + "9" * 5000)),
+            "JSON"),
+        "huge camera int": (lambda d: _edit_manifest(d, lambda m: m["views"][0]["camera"].update(width=10 ** 400)),
+                            "view 0"),
+        "huge image shape": (lambda d: _edit_manifest(d, lambda m: m["views"][0].update(image_shape=[10 ** 30, 2])),
+                             "image_shape"),
+        "nested manifest": (lambda d: (d / "manifest.json").write_text("[" * 100_000 + "]" * 100_000), "manifest"),
+        "npz under npy name": (lambda d: np.savez(open(d / "view_000_data.npy", "wb"), a=np.zeros(3)), "npy"),
+        "header claims 2**40": (lambda d: (d / "view_000_data.npy").write_bytes(_npy_header_only((2 ** 40,))),
+                                "promises"),
+        "weight 1e30": (lambda d: np.save(d / "view_001_data.npy", np.full_like(
+            np.load(d / "view_001_data.npy"), 1e30)), r"\[0, 1\]"),
+        "duplicate column": (_duplicate_first_column, "same column twice"),
+        "rgb as strings": (lambda d: (np.save(d / "view_000_rgb.npy", np.full((6, 8, 3), "x")),
+                                      _edit_manifest(d, lambda m: m["views"][0]["files"].update(
+                                          rgb="view_000_rgb.npy"))), "rgb"),
+        "link outside": (_link_outside, "outside the operator directory"),
     }
+
+
+def _npy_header_only(shape):
+    """The bytes of a float32 .npy header for ``shape`` with no data after it."""
+    import io
+
+    buf = io.BytesIO()
+    np.lib.format.write_array_header_1_0(buf, {"descr": "<f4", "fortran_order": False, "shape": shape})
+    return buf.getvalue()
+
+
+def _duplicate_first_column(d: Path):
+    """Make the first row with two entries list its first column twice (nnz unchanged)."""
+    ind = np.load(d / "view_000_indices.npy")
+    ptr = np.load(d / "view_000_indptr.npy")
+    r = int(np.flatnonzero(np.diff(ptr) >= 2)[0])
+    ind[ptr[r] + 1] = ind[ptr[r]]
+    np.save(d / "view_000_indices.npy", ind)
+
+
+def _link_outside(d: Path):
+    outside = d.parent / "elsewhere.npy"
+    np.save(outside, np.load(d / "view_000_data.npy"))
+    (d / "view_000_data.npy").unlink()
+    (d / "view_000_data.npy").symlink_to(outside)
 
 
 @pytest.mark.parametrize("name", list(_corruptions()))

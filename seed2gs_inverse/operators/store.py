@@ -34,6 +34,12 @@ __all__ = ["save", "load", "check_target", "scene_fingerprint", "FORMAT_NAME", "
 FORMAT_NAME = "seed2gs-operators"
 FORMAT_VERSION = 1
 _CSR_FILES = ("data", "indices", "indptr")
+# Loading bounds: W's columns are int32-indexable scene Gaussians and a view
+# is a camera image (the camera readers' limit of 32,768 px a side).
+_MAX_GAUSSIANS = np.iinfo(np.int32).max
+_MAX_SIDE = 32768
+# dtype kind each rendering array must have ("f" float, "iu" integer).
+_RENDER_KINDS = {"rgb": "f", "alpha": "f", "depth": "f", "n_contrib": "iu"}
 
 
 def scene_fingerprint(scene) -> str:
@@ -168,17 +174,19 @@ def load(directory, mmap: bool = True, scene=None) -> tuple:
     try:
         with open(mpath, "r", encoding="utf-8") as fh:
             manifest = json.load(fh)
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+    except (UnicodeDecodeError, ValueError) as exc:  # JSONDecodeError, and ints of > 4300 digits
         raise FormatError(f"{mpath}: not valid JSON ({exc})") from None
+    except RecursionError:
+        raise FormatError(f"{mpath}: not an operator manifest (nested too deeply to read)") from None
     if not isinstance(manifest, dict) or manifest.get("format") != FORMAT_NAME:
         raise FormatError(f"{mpath}: not a seed2gs operator manifest (format field must be '{FORMAT_NAME}')")
     version = manifest.get("version")
-    if version != FORMAT_VERSION:
+    if not _is_int(version) or version != FORMAT_VERSION:
         raise FormatError(f"{mpath}: unsupported format version {version!r}; this reader knows "
                           f"version {FORMAT_VERSION}")
     n = manifest.get("n_gaussians")
-    if isinstance(n, bool) or not isinstance(n, int) or n <= 0:
-        raise FormatError(f"{mpath}: n_gaussians must be a positive integer, got {n!r}")
+    if not _is_int(n) or not 0 < n <= _MAX_GAUSSIANS:
+        raise FormatError(f"{mpath}: n_gaussians must be an integer in [1, {_MAX_GAUSSIANS}], got {n!r}")
     fingerprint = manifest.get("fingerprint")
     if fingerprint is not None and not isinstance(fingerprint, str):
         raise FormatError(f"{mpath}: fingerprint must be a string or null")
@@ -196,6 +204,33 @@ def load(directory, mmap: bool = True, scene=None) -> tuple:
     return [_load_view(d, mpath, i, e, n, mmap) for i, e in enumerate(entries)], fingerprint
 
 
+def _is_int(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _npy_header(path: Path, label: str, key: str):
+    """``(shape, dtype)`` from a .npy header, checked against the file size before any allocation."""
+    fmt = np.lib.format
+    try:
+        with open(path, "rb") as fh:
+            version = fmt.read_magic(fh)
+            read = {(1, 0): fmt.read_array_header_1_0, (2, 0): fmt.read_array_header_2_0}.get(version)
+            if read is None:
+                raise ValueError(f"unsupported .npy version {version}")
+            shape, _, dtype = read(fh, max_header_size=10_000)
+            offset = fh.tell()
+    except (ValueError, OSError, EOFError, SyntaxError) as exc:
+        raise FormatError(f"{path}: not a readable .npy array ({label}, '{key}'): {exc}") from None
+    if dtype.hasobject:
+        raise FormatError(f"{path}: holds Python objects ({label}, '{key}'); operator arrays are numeric")
+    need = int(np.prod(shape, dtype=object)) * dtype.itemsize
+    have = path.stat().st_size - offset
+    if need > have:
+        raise FormatError(f"{path}: the header promises {need} bytes of data but the file holds {have} "
+                          f"({label}, '{key}'); the file is truncated or corrupt")
+    return shape, dtype
+
+
 def _load_array(d: Path, mpath: Path, label: str, files: dict, key: str, mmap: bool):
     fname = files.get(key)
     if not isinstance(fname, str) or not fname or Path(fname).name != fname or fname in (".", ".."):
@@ -203,10 +238,20 @@ def _load_array(d: Path, mpath: Path, label: str, files: dict, key: str, mmap: b
     path = d / fname
     if not path.is_file():
         raise FormatError(f"{path}: missing ({label}, array '{key}')")
+    if path.is_symlink() and d.resolve() not in path.resolve().parents:
+        raise FormatError(f"{path}: a link to {path.resolve()}, outside the operator directory ({label}, "
+                          f"'{key}'); operator directories must hold their own files")
+    _npy_header(path, label, key)
     try:
-        return np.load(path, allow_pickle=False, mmap_mode="r" if mmap else None)
+        arr = np.load(path, allow_pickle=False, mmap_mode="r" if mmap else None)
     except (ValueError, OSError, EOFError) as exc:
         raise FormatError(f"{path}: not a readable .npy array ({label}, '{key}'): {exc}") from None
+    if not isinstance(arr, np.ndarray):  # e.g. an .npz archive under a .npy name
+        getattr(arr, "close", lambda: None)()
+        raise FormatError(f"{path}: not a .npy array ({label}, '{key}'; found {type(arr).__name__})")
+    return arr
+
+
 def _load_view(d: Path, mpath: Path, i: int, entry, n: int, mmap: bool) -> ViewOperator:
     label = f"view {i}"
     if not isinstance(entry, dict):
@@ -215,12 +260,13 @@ def _load_view(d: Path, mpath: Path, i: int, entry, n: int, mmap: bool) -> ViewO
     if entry.get("camera") is not None:
         try:
             camera = Camera.from_dict(entry["camera"])
-        except ValidationError as exc:
-            raise FormatError(f"{mpath}: {label}: {exc}") from None
+        except (ValidationError, TypeError, ValueError, OverflowError) as exc:
+            raise FormatError(f"{mpath}: {label}: bad camera ({exc})") from None
     shape = entry.get("image_shape")
     if (not isinstance(shape, list) or len(shape) != 2
-            or not all(isinstance(s, int) and not isinstance(s, bool) and s > 0 for s in shape)):
-        raise FormatError(f"{mpath}: {label}: image_shape must be two positive integers, got {shape!r}")
+            or not all(_is_int(s) and 0 < s <= _MAX_SIDE for s in shape)):
+        raise FormatError(f"{mpath}: {label}: image_shape must be two integers in [1, {_MAX_SIDE}], "
+                          f"got {shape!r}")
     shape = tuple(shape)
     if camera is not None and camera.image_shape != shape:
         raise FormatError(f"{mpath}: {label}: image_shape {shape} differs from its camera's {camera.image_shape}")
@@ -249,8 +295,12 @@ def _load_view(d: Path, mpath: Path, i: int, entry, n: int, mmap: bool) -> ViewO
     if data.size:
         if int(indices.min()) < 0 or int(indices.max()) >= n:
             raise FormatError(f"{d / files['indices']} ({label}): column indices must lie in [0, {n})")
-        if not np.all(np.isfinite(data)) or float(data.min()) < 0:
-            raise FormatError(f"{where}: weights must be finite and non-negative")
+        # Compositing weights alpha_i(u) T_i(u) lie in [0, 1].
+        if not np.all(np.isfinite(data)) or float(data.min()) < 0 or float(data.max()) > 1:
+            raise FormatError(f"{where}: weights must be finite and lie in [0, 1] (compositing weights)")
+        if _has_duplicate_columns(indices, indptr, n):
+            raise FormatError(f"{d / files['indices']} ({label}): a row lists the same column twice; "
+                              "each Gaussian has one weight per pixel")
     if indices.dtype != indptr.dtype:
         raise FormatError(f"{d / files['indices']} ({label}): indices and indptr must share one dtype")
     W = sp.csr_matrix((data, indices, indptr), shape=(rows, n), copy=False)
@@ -258,9 +308,25 @@ def _load_view(d: Path, mpath: Path, i: int, entry, n: int, mmap: bool) -> ViewO
     extra = {k: _load_array(d, mpath, label, files, k, mmap) for k in RENDER_FIELDS if k in files}
     if extra:
         for k, arr in extra.items():
-            if arr.shape[:2] != shape:
-                raise FormatError(f"{d / files[k]} ({label}): rendering '{k}' has shape {arr.shape}, "
-                                  f"expected {shape} leading")
+            want = shape + ((3,) if k == "rgb" else ())
+            if arr.shape != want or arr.dtype.kind not in _RENDER_KINDS[k]:
+                kind = "a float" if _RENDER_KINDS[k] == "f" else "an integer"
+                raise FormatError(f"{d / files[k]} ({label}): rendering '{k}' must be {kind} array of shape "
+                                  f"{want}, got {arr.dtype} {arr.shape}")
+            if k != "n_contrib" and not np.all(np.isfinite(arr)):
+                raise FormatError(f"{d / files[k]} ({label}): rendering '{k}' holds non-finite values")
         rendering = Rendering(**extra)
     return ViewOperator(W, camera, shape, rendering)
 
+
+def _has_duplicate_columns(indices, indptr, n: int) -> bool:
+    """Whether some row of the CSR structure lists a column twice.
+
+    Sorts the (row, column) keys once, O(nnz log nnz): rows are stored in
+    compositing order, not column order, so scipy's canonical-format test
+    does not apply.
+    """
+    counts = np.diff(np.asarray(indptr, dtype=np.int64))
+    rows = np.repeat(np.arange(counts.size, dtype=np.int64), counts)
+    keys = np.sort(rows * np.int64(n) + np.asarray(indices, dtype=np.int64))
+    return bool(np.any(keys[1:] == keys[:-1]))
