@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -287,8 +289,7 @@ def test_frozen_scene_gives_identical_results(sh_degree):
     np.testing.assert_allclose(fast_render.rgb, rgb_ref, atol=1e-5)
     # another scene object with the same arrays is not frozen by this block
     with render_mod.frozen(scene):
-        other = scene.copy()
-        other.opacity_logits[:] = -10.0
+        other = dataclasses.replace(scene, opacity_logits=np.full(len(scene), -10.0))
         assert build_operator(other, cam).W.nnz == 0
     with pytest.raises(ValidationError, match="GaussianScene"):
         with render_mod.frozen("scene.ply"):
