@@ -114,35 +114,88 @@ def bounded_zstd(path, data, expected: int, what: str) -> bytes:
     return bytes(out)
 
 
+_ARRAYS = ("means", "quats", "log_scales", "opacity_logits", "sh")
+
+
+def _column_labels(key: str, arr: np.ndarray, fields) -> list:
+    """One label per column of ``arr`` (trailing dimensions flattened)."""
+    width = int(np.prod(arr.shape[1:], dtype=np.int64))
+    given = (fields or {}).get(key)
+    if given is not None and len(given) == width:
+        return list(given)
+    if width == 1:
+        return [key]
+    return [f"{key}[{j}]" for j in range(width)]
+
+
+def saturate_opacity(path, opacity_logits: np.ndarray, field: str = "opacity") -> np.ndarray:
+    """Opacity logits with +-inf replaced by +-``OPACITY_LOGIT_LIMIT`` (a warning says how many).
+
+    Some exporters (splat-transform among them) write an opacity of exactly
+    1 or 0 as an infinite logit. ``sigmoid(+-40)`` is 1 and 4e-18 in float32,
+    so the finite logit keeps the rendered opacity and every Gaussian is kept;
+    NaN stays NaN and is refused by :func:`finish_scene`.
+    """
+    inf = np.isinf(opacity_logits)
+    if not inf.any():
+        return opacity_logits
+    n_pos = int(np.count_nonzero(inf & (opacity_logits > 0)))
+    n_neg = int(np.count_nonzero(inf)) - n_pos
+    out = np.where(inf, np.copysign(OPACITY_LOGIT_LIMIT, opacity_logits), opacity_logits)
+    warnings.warn(f"{os.fspath(path)}: {n_pos} '{field}' logits are +inf and {n_neg} are -inf; "
+                  f"read as +-{OPACITY_LOGIT_LIMIT:g} (saturated opacity 1 or 0)", stacklevel=4)
+    return out.astype(opacity_logits.dtype, copy=False)
+
+
 def finish_scene(path, means, quats, log_scales, opacity_logits, sh, extra=None,
-                 drop_nonfinite: bool = False) -> GaussianScene:
+                 drop_nonfinite: bool = False, fields=None) -> GaussianScene:
     """Validate decoded arrays and build the scene.
 
-    A Gaussian is *invalid* when any of its values is NaN or infinite, or its
-    quaternion has zero length (its rotation is undefined). By default any
-    invalid Gaussian is an error naming the file and the count; with
-    ``drop_nonfinite=True`` they are removed and a warning says how many.
+    Infinite opacity logits are read as saturated (:func:`saturate_opacity`).
+    Any other NaN or infinite value, or a quaternion of zero length (its
+    rotation is undefined), makes the Gaussian *invalid*. By default an invalid
+    Gaussian is an error naming the file, the offending fields (``fields``
+    maps an array name -- ``"means"``, ``"quats"``, ``"log_scales"``,
+    ``"opacity_logits"``, ``"sh"`` or an extra's name -- to the file's names
+    of its columns) and the first index; with ``drop_nonfinite=True`` they
+    are removed and a warning says how many and why.
     """
     extra = dict(extra or {})
     n = means.shape[0]
+    opacity_logits = saturate_opacity(path, opacity_logits,
+                                      _column_labels("opacity_logits", opacity_logits, fields)[0])
+    named = dict(zip(_ARRAYS, (means, quats, log_scales, opacity_logits, sh)))
+    named.update((k, v) for k, v in extra.items() if v.dtype.kind == "f")
     bad = np.zeros(n, dtype=bool)
-    arrays = [means, quats, log_scales, opacity_logits, sh]
-    arrays += [a for a in extra.values() if a.dtype.kind == "f"]
-    for arr in arrays:
+    problems = []  # (label, count, first index)
+    for key, arr in named.items():
         finite = np.isfinite(arr)
-        if not finite.all():  # the per-row pass is only paid for files with bad values
-            bad |= ~finite.reshape(n, int(np.prod(arr.shape[1:]))).all(axis=1)
+        if finite.all():  # the per-column pass is only paid for files with bad values
+            continue
+        cols = finite.reshape(n, -1)
+        for label, col in zip(_column_labels(key, arr, fields), cols.T):
+            if not col.all():
+                problems.append((f"non-finite '{label}'", int(n - col.sum()), int(np.argmin(col))))
+        bad |= ~cols.all(axis=1)
     # quats @ ones would lose tiny components to underflow; compare with zero instead
-    bad |= ~(quats != 0).any(axis=1)
+    zero_rot = ~(quats != 0).any(axis=1)
+    if zero_rot.any():
+        label = "/".join(_column_labels("quats", quats, fields))
+        problems.append((f"zero-length rotation '{label}'", int(zero_rot.sum()),
+                         int(np.argmax(zero_rot))))
+        bad |= zero_rot
     nbad = int(bad.sum())
     if nbad:
-        first = int(np.argmax(bad))
+        what = "; ".join(f"{label} in {count} (first at index {first})"
+                         for label, count, first in problems[:6])
+        if len(problems) > 6:
+            what += f"; and {len(problems) - 6} more fields"
         if not drop_nonfinite:
-            raise fail(path, f"{nbad} of {n} Gaussians have non-finite values or a zero-length "
-                             f"rotation (first at index {first}); read with drop_nonfinite=True "
-                             f"(CLI: --drop-nonfinite) to drop them")
-        warnings.warn(f"{os.fspath(path)}: dropped {nbad} of {n} Gaussians with non-finite "
-                      f"values or a zero-length rotation", stacklevel=3)
+            raise fail(path, f"{nbad} of {n} Gaussians are invalid: {what}. Fix the file, or "
+                             f"read with drop_nonfinite=True (CLI: --drop-nonfinite) to drop "
+                             f"those Gaussians")
+        warnings.warn(f"{os.fspath(path)}: dropped {nbad} of {n} invalid Gaussians: {what}",
+                      stacklevel=3)
         keep = ~bad
         means, quats, log_scales = means[keep], quats[keep], log_scales[keep]
         opacity_logits, sh = opacity_logits[keep], sh[keep]

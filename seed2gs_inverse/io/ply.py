@@ -40,7 +40,7 @@ from ..scene import GaussianScene
 from ._common import atomic_write, fail, file_size, finish_scene
 
 __all__ = ["PlyHeader", "PlyElement", "read_ply_header", "read_ply_elements",
-           "read_standard_ply", "write_standard_ply"]
+           "read_standard_ply", "write_standard_ply", "ply_field_names"]
 
 # PLY scalar type names (both spellings) -> numpy type codes without byte order.
 _TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
@@ -311,7 +311,17 @@ def read_standard_ply(path, header: PlyHeader, drop_nonfinite: bool = False) -> 
     return finish_scene(path, columns(vert, ["x", "y", "z"]),
                         columns(vert, ["rot_0", "rot_1", "rot_2", "rot_3"]),
                         columns(vert, ["scale_0", "scale_1", "scale_2"]),
-                        columns(vert, ["opacity"])[:, 0].copy(), sh, extra, drop_nonfinite)
+                        columns(vert, ["opacity"])[:, 0].copy(), sh, extra, drop_nonfinite,
+                        fields=ply_field_names(k))
+
+
+def ply_field_names(k: int) -> dict:
+    """PLY property names of each column of the scene arrays, for error messages."""
+    sh = [f"f_dc_{c}" if j == 0 else f"f_rest_{c * (k - 1) + j - 1}"
+          for j in range(k) for c in range(3)]  # sh[:, j, c] flattened row-major
+    return {"means": ["x", "y", "z"], "quats": [f"rot_{i}" for i in range(4)],
+            "log_scales": [f"scale_{i}" for i in range(3)], "opacity_logits": ["opacity"],
+            "sh": sh}
 
 
 def standard_property_names(sh_degree: int) -> list:

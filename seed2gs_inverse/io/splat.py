@@ -70,7 +70,10 @@ def read_splat(path, drop_nonfinite: bool = False) -> GaussianScene:
     sh = ((rgba[:, None, :3] - 0.5) / SH_C0).astype(np.float32)
     quats = (rec["rotation"].astype(np.float32) - 128.0) / 128.0
     return finish_scene(path, rec["position"].astype(np.float32), quats, log_scales,
-                        logit_from_unorm(rgba[:, 3]), sh, None, drop_nonfinite)
+                        logit_from_unorm(rgba[:, 3]), sh, None, drop_nonfinite,
+                        fields={"means": [f"position[{i}]" for i in range(3)],
+                                "log_scales": [f"scale[{i}] (log of a non-positive scale)"
+                                               for i in range(3)]})
 
 
 def write_splat(path, scene: GaussianScene) -> None:
