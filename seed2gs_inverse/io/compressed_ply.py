@@ -100,7 +100,7 @@ def read_compressed_ply(path, header: PlyHeader, drop_nonfinite: bool = False) -
         return _decode(path, data, n, has_color, rest_names, drop_nonfinite)
 
 
-_BLOCK = CHUNK_SIZE * 256  # Gaussians decoded at a time: bounds the float64 temporaries
+_BLOCK = CHUNK_SIZE * 64  # Gaussians decoded at a time: bounds the float64 temporaries
 
 
 def _decode(path, data, n, has_color, rest_names, drop_nonfinite) -> GaussianScene:

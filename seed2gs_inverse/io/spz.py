@@ -166,7 +166,7 @@ def _read_v4(path, data: bytes, size: int, drop_nonfinite: bool) -> GaussianScen
     return _decode(path, raw, n, sh_degree, frac, version, drop_nonfinite)
 
 
-_BLOCK = 1 << 16  # Gaussians decoded at a time: bounds the float64 temporaries
+_BLOCK = 1 << 14  # Gaussians decoded at a time: bounds the float64 temporaries
 
 
 def _decode(path, buf: np.ndarray, n: int, sh_degree: int, frac: int, version: int,
