@@ -262,7 +262,7 @@ def _read_ascii(path, header, needed, wanted) -> dict:
                 got = len(lines.take(min(left, 1 << 16)))
                 if not got:
                     raise fail(path, f"file is truncated: element '{el.name}' needs {el.count} "
-                                     f"lines but only {el.count - left} remain")
+                                     f"lines but the file holds only {el.count - left}")
                 left -= got
     return out
 
@@ -297,7 +297,7 @@ def _parse_ascii_element(path, el: PlyElement, lines: _AsciiLines) -> np.ndarray
         block = lines.take(min(rows_per_block, el.count - done))
         if not block:
             raise fail(path, f"file is truncated: element '{el.name}' needs {el.count} lines "
-                             f"but only {done} remain")
+                             f"but the file holds only {done}")
         try:
             text = b"\n".join(block).decode("ascii")
         except UnicodeDecodeError:
