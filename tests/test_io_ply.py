@@ -436,3 +436,13 @@ def test_other_nonfinite_values_name_the_field(tmp_path, rng):
     assert any("dropped 3 of 8 invalid Gaussians: non-finite 'scale_2'" in str(w.message)
                for w in caught)
     assert len(got) == 5 and got.opacity_logits[np.argmax(got.opacity_logits)] == 40.0
+
+
+@pytest.mark.parametrize("count", ["\u00b2", "1" * 5000, "-1", "1e3"])
+def test_element_count_must_be_ascii_digits(tmp_path, count):
+    path = tmp_path / "c.ply"
+    path.write_bytes(f"ply\nformat ascii 1.0\nelement vertex {count}\nproperty float x\n"
+                     f"end_header\n".encode())
+    with pytest.raises(FormatError, match="malformed PLY element line|non-ASCII") as err:
+        read_scene(path)
+    assert "cannot decode" not in str(err.value)

@@ -124,9 +124,11 @@ def read_ply_header(path) -> PlyHeader:
                     raise fail(path, f"unsupported PLY version '{words[2]}' (expected 1.0)")
                 fmt = words[1]
             elif key == "element":
-                if len(words) != 3 or not words[2].isdigit():
-                    raise fail(path, f"malformed PLY element line '{line}' "
-                                     f"(expected 'element NAME COUNT')")
+                # ASCII digits only: str.isdigit() accepts '²', and a 5000-digit count
+                # would make int() raise
+                if len(words) != 3 or not re.fullmatch(r"[0-9]{1,19}", words[2]):
+                    raise fail(path, f"malformed PLY element line '{line[:80]}' "
+                                     f"(expected 'element NAME COUNT' with COUNT below 10^19)")
                 if any(el.name == words[1] for el in elements):
                     raise fail(path, f"PLY header declares element '{words[1]}' twice")
                 elements.append(PlyElement(words[1], int(words[2])))
