@@ -308,7 +308,7 @@ def test_fuzz_readers(samples, camera_samples, fuzz_dir, fmt):
     """FUZZ_N mutated inputs: only Seed2GSError, memory within 3x the file + 64 MB."""
     rng = np.random.default_rng(list(fmt.encode()))  # a fixed stream per format
     base = fmt.split(":")[0]
-    work = fuzz_dir / fmt.replace(":", "_")
+    work = fuzz_dir / ("loop-" + fmt.replace(":", "_"))
     work.mkdir(exist_ok=True)
     failures = []
     for k in range(FUZZ_N):
