@@ -92,9 +92,11 @@ class Camera:
             if isinstance(v, bool) or not whole:
                 raise ValidationError(f"{label}: {attr} must be an integer, got {v!r}")
             # compare before converting: int(1e308) or a 400-digit JSON integer is valid Python
-            if not 0 < v <= MAX_IMAGE_SIDE:
-                raise ValidationError(f"{label}: {attr} must be between 1 and {MAX_IMAGE_SIDE} "
-                                      f"pixels, got {_show(v)}")
+            if v <= 0:
+                raise ValidationError(f"{label}: {attr} must be positive, got {_show(v)}")
+            if v > MAX_IMAGE_SIDE:
+                raise ValidationError(f"{label}: {attr} must be at most {MAX_IMAGE_SIDE} pixels "
+                                      f"(a corrupt file?), got {_show(v)}")
             object.__setattr__(self, attr, int(v))
         for attr in ("fx", "fy", "cx", "cy", "near"):
             object.__setattr__(self, attr, _real(label, attr, getattr(self, attr)))

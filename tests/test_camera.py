@@ -57,9 +57,9 @@ def test_camera_to_world_inverse():
 
 
 @pytest.mark.parametrize("kw,match", [
-    (dict(width=0), "width must be between 1 and 32768"),
-    (dict(width=1e308), "width must be between 1 and 32768 pixels, got 1e"),
-    (dict(height=10 ** 400), "height must be between 1 and 32768"),
+    (dict(width=0), "width must be positive"),
+    (dict(width=1e308), r"width must be at most 32768 pixels \(a corrupt file\?\), got 1e\+308"),
+    (dict(height=10 ** 400), "height must be at most 32768"),
     (dict(width=32769), "width"),
     (dict(width=True), "integer"),
     (dict(fx=-1.0), "focal lengths must be positive"),

@@ -352,8 +352,8 @@ _HUGE = 10 ** 400  # a valid JSON integer far beyond float range
 
 
 @pytest.mark.parametrize("change, match", [
-    ({"width": 1e308}, "width must be between 1 and 32768"),
-    ({"height": 32769}, "height must be between 1 and 32768"),
+    ({"width": 1e308}, "width must be at most 32768"),
+    ({"height": 32769}, "height must be at most 32768"),
     ({"width": _HUGE}, "'width' is out of range"),
     ({"fx": _HUGE}, "'fx' is out of range"),
     ({"fx": -50.0}, "focal lengths must be positive"),
@@ -375,13 +375,13 @@ def test_absurd_cameras_json(tmp_path, change, match):
 def test_absurd_to_dict_entry(tmp_path):
     d = Camera(10, 10, 5.0, 5.0, 5.0, 5.0, name="v").to_dict()
     path = _write_json(tmp_path / "c.json", [{**d, "height": _HUGE}])
-    with pytest.raises(ValidationError, match=r"c\.json: camera 0 \('v'\).*height must be between"):
+    with pytest.raises(ValidationError, match=r"c\.json: camera 0 \('v'\).*height must be at most"):
         read_cameras(path)
 
 
 @pytest.mark.parametrize("change, match", [
     ({"w": _HUGE}, "'w' is out of range"),
-    ({"h": 1e308}, "height must be between 1 and 32768"),
+    ({"h": 1e308}, "height must be at most 32768"),
     ({"fl_x": 0.0}, "focal lengths must be positive"),
     ({"fl_y": -1.0}, "focal lengths must be positive"),
     ({"cy": _HUGE}, "'cy' is out of range"),
@@ -409,7 +409,7 @@ def test_transform_matrix_out_of_range(tmp_path):
     ("\u00b2 PINHOLE 64 48 50 52 31 25", FormatError, r"cameras\.txt: line 2: expected 'CAMERA_ID"),
     ("\u0663 PINHOLE 64 48 50 52 31 25", FormatError, r"cameras\.txt: line 2: .*whole number"),
     ("1 PINHOLE 1e308 48 50 52 31 25", ValidationError,
-     r"cameras\.txt \(line 2\): camera 1 \(PINHOLE\): width must be between 1 and 32768"),
+     r"cameras\.txt \(line 2\): camera 1 \(PINHOLE\): width must be at most 32768"),
     ("1 PINHOLE 64 48 -50 52 31 25", ValidationError, r"camera 1 \(PINHOLE\): focal"),
     ("1 PINHOLE 64 48 50 52 nan 25", ValidationError, r"camera 1 \(PINHOLE\): cx is not finite"),
 ])
@@ -434,5 +434,5 @@ def test_colmap_binary_absurd_size(tmp_path):
     cams += struct.pack("<iiQQ4d", 2, 2, 80, 60, 70.0, 40.0, 30.0, 0.01)
     (tmp_path / "cameras.bin").write_bytes(cams)
     with pytest.raises(ValidationError, match=r"cameras\.bin \(record 0\): camera 1 \(PINHOLE\): "
-                                              r"width must be between 1 and 32768"):
+                                              r"width must be at most 32768"):
         read_cameras(tmp_path)
