@@ -8,6 +8,7 @@ import numpy as np
 import plyfile
 import pytest
 
+from _memory import traced
 from _io_encoders import SH_C0, encode_compressed_ply, random_scene
 from seed2gs_inverse.errors import FormatError
 from seed2gs_inverse.io import detect_format, read_scene
@@ -147,8 +148,6 @@ def test_overflowing_chunk_range_is_nonfinite_without_warnings(tmp_path):
 
 def test_huge_counts_are_refused_before_allocating(tmp_path):
     # a header claiming 2^32 Gaussians (and the matching chunk count) over a few bytes
-    import tracemalloc
-
     n = 2 ** 32 - 256
     head = (f"ply\nformat binary_little_endian 1.0\nelement chunk {n // 256}\n"
             + "".join(f"property float {p}\n" for p in CHUNK)
@@ -157,26 +156,17 @@ def test_huge_counts_are_refused_before_allocating(tmp_path):
             + "end_header\n").encode()
     path = tmp_path / "huge.compressed.ply"
     path.write_bytes(head + bytes(4096))
-    tracemalloc.start()
-    try:
+
+    def read():
         with pytest.raises(FormatError, match="huge.compressed.ply: file is truncated"):
             read_scene(path)
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
-    assert peak < 2_000_000
+
+    assert traced(read)[1] < 2_000_000
 
 
 def test_real_compressed_ply_memory(shared_data):
-    import tracemalloc
-
     path = shared_data / "guitar_90k.compressed.ply"
-    tracemalloc.start()
-    try:
-        scene = read_scene(path)
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
+    scene, peak = traced(read_scene, path)
     out = sum(a.nbytes for a in (scene.means, scene.quats, scene.log_scales,
                                  scene.opacity_logits, scene.sh))
     # the decoded scene is ~15x the packed file; beyond it only the records and one block

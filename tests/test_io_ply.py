@@ -9,6 +9,7 @@ import numpy as np
 import plyfile
 import pytest
 
+from _memory import traced
 from _io_encoders import random_scene, standard_columns, write_ply_plyfile
 from seed2gs_inverse.errors import FormatError, ValidationError
 from seed2gs_inverse.io import detect_format, read_scene, write_scene
@@ -339,12 +340,7 @@ def test_ascii_memory_within_3x_the_file(tmp_path):
         np.savetxt(fh, vals, fmt="%.3g")
     size = path.stat().st_size
     assert size > 20_000_000  # large enough that the per-block constant does not hide a ratio
-    tracemalloc.start()
-    try:
-        scene = read_scene(path)
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
+    scene, peak = traced(read_scene, path)
     assert peak < 3 * size, f"peak {peak / 1e6:.1f} MB for a {size / 1e6:.1f} MB file"
     # values as numpy's own formatter wrote them, read back by Python's float()
     expect = np.array([[float(f"{v:.3g}") for v in row] for row in vals[::9973]], np.float32)

@@ -7,6 +7,7 @@ import struct
 import numpy as np
 import pytest
 
+from _memory import traced
 from _io_encoders import SH_C0, encode_splat, random_scene
 from seed2gs_inverse.errors import FormatError, ValidationError
 from seed2gs_inverse.io import detect_format, read_scene, write_scene
@@ -118,8 +119,6 @@ def test_detect_format_checks_content(tmp_path):
 
 
 def test_memory_within_3x_the_file(tmp_path):
-    import tracemalloc
-
     from seed2gs_inverse.io.splat import SPLAT_DTYPE
 
     n = 500_000
@@ -132,12 +131,7 @@ def test_memory_within_3x_the_file(tmp_path):
     rec["rotation"][:, 0] = 255  # never a zero quaternion
     path = tmp_path / "big.splat"
     rec.tofile(path)
-    tracemalloc.start()
-    try:
-        scene = read_scene(path)
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
+    scene, peak = traced(read_scene, path)
     assert peak < 3 * path.stat().st_size, peak
     np.testing.assert_array_equal(scene.means, rec["position"])
     np.testing.assert_allclose(scene.opacities, rec["rgba"][:, 3] / 255.0, atol=1e-6)

@@ -10,6 +10,7 @@ import tracemalloc
 import numpy as np
 import pytest
 
+from _memory import traced
 from _io_encoders import encode_spz, random_scene
 from seed2gs_inverse.errors import FormatError
 from seed2gs_inverse.io import detect_format, read_scene
@@ -187,15 +188,6 @@ def test_detect_format_checks_magic(tmp_path):
 # decompression bombs: consistent headers that no file of that size could justify
 # (issue 12, item 1)
 
-def _peak_of(fn):
-    tracemalloc.start()
-    try:
-        fn()
-        return tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
-
-
 def _zero_v4(n, sizes=None, frame_sizes=None):
     """A v4 file of n degree-0 Gaussians whose streams are zstd frames of zeros."""
     import zstandard
@@ -222,7 +214,7 @@ def test_zstd_bomb_is_refused_before_decompressing(tmp_path):
                                               r".*decompression bomb"):
             read_scene(path)
 
-    assert _peak_of(read) < 1_000_000
+    assert traced(read)[1] < 1_000_000
 
 
 def test_gzip_bomb_is_refused_before_decompressing(tmp_path):
@@ -235,7 +227,7 @@ def test_gzip_bomb_is_refused_before_decompressing(tmp_path):
         with pytest.raises(FormatError, match="decompression bomb"):
             read_scene(path)
 
-    assert _peak_of(read) < 1_000_000
+    assert traced(read)[1] < 1_000_000
 
 
 def test_first_inconsistent_stream_stops_the_read(tmp_path):
@@ -251,7 +243,7 @@ def test_first_inconsistent_stream_stops_the_read(tmp_path):
         with pytest.raises(FormatError, match="stream 'rotations' is declared as 400001 bytes"):
             read_scene(path)
 
-    assert _peak_of(read) < 200_000  # far below the 900 KB of the positions stream
+    assert traced(read)[1] < 200_000  # far below the 900 KB of the positions stream
 
 
 def test_stream_longer_than_declared_is_refused(tmp_path):
@@ -282,13 +274,8 @@ def test_compressible_but_plausible_file_still_reads(tmp_path, rng):
 
 def test_real_spz_memory(shared_data):
     path = shared_data / "biker_152k.spz"
-    scene = [None]
-
-    def read():
-        scene[0] = read_scene(path)
-
-    peak = _peak_of(read)
-    out = sum(a.nbytes for a in (scene[0].means, scene[0].quats, scene[0].log_scales,
-                                 scene[0].opacity_logits, scene[0].sh))
+    scene, peak = traced(read_scene, path)
+    out = sum(a.nbytes for a in (scene.means, scene.quats, scene.log_scales,
+                                 scene.opacity_logits, scene.sh))
     # output + decompressed streams + one block of temporaries
     assert peak < out + 2 * path.stat().st_size + 16 * 2 ** 20, (peak, out)
