@@ -222,6 +222,12 @@ class GaussianScene:
         return self.means.min(axis=0), self.means.max(axis=0)
 
     # -- edits -------------------------------------------------------------
+    def __copy__(self) -> "GaussianScene":
+        return self  # immutable: a shallow copy may share everything
+
+    def __deepcopy__(self, memo) -> "GaussianScene":
+        return self.copy()  # the read-only extra mapping cannot be deep-copied generically
+
     def copy(self) -> "GaussianScene":
         """A scene holding its own copies of the arrays (still read-only)."""
         return GaussianScene(self.means.copy(), self.quats.copy(), self.log_scales.copy(),

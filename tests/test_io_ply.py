@@ -442,3 +442,19 @@ def test_element_count_must_be_ascii_digits(tmp_path, count):
     with pytest.raises(FormatError, match="malformed PLY element line|non-ASCII") as err:
         read_scene(path)
     assert "cannot decode" not in str(err.value)
+
+
+def test_ascii_long_lines_and_blank_runs_stay_bounded(tmp_path):
+    head = ("ply\nformat ascii 1.0\nelement vertex 2\n"
+            + "".join(f"property float {p}\n" for p in _PROPS14) + "end_header\n")
+    row = "1 2 3 0.1 0.2 0.3 0 -1 -1 -1 1 0 0 0\n"
+    # 3 MB of blank lines between the rows, and rows padded with 2 MB of spaces
+    path = tmp_path / "blank.ply"
+    path.write_text(head + row + "\n" * 3_000_000 + " " * 2_000_000 + row)
+    scene, peak = traced(read_scene, path)
+    assert len(scene) == 2 and peak < 3 * path.stat().st_size
+    # one 8 MB line is not a row of 14 numbers
+    path = tmp_path / "long.ply"
+    path.write_text(head + "1 " * 4_000_000 + "\n" + row)
+    with pytest.raises(FormatError, match="line longer than"):
+        traced(read_scene, path)

@@ -213,3 +213,14 @@ def test_edits_still_work_on_read_only_scenes(rng):
     np.testing.assert_allclose(SH_C0 * red.sh[:5, 0] + 0.5, np.tile([1.0, 0, 0], (5, 1)), atol=1e-6)
     assert np.all(red.sh[:5, 1:] == 0) and np.array_equal(red.sh[5:], s.sh[5:])
     assert not red.sh.flags.writeable and s.sh.flags.writeable is False
+
+
+def test_copy_module_works_on_frozen_scenes(rng):
+    import copy
+
+    s = random_scene(rng)
+    assert copy.copy(s) is s
+    d = copy.deepcopy(s)
+    assert d is not s and not np.shares_memory(d.means, s.means)
+    np.testing.assert_array_equal(d.sh, s.sh)
+    np.testing.assert_array_equal(d.extra["label"], s.extra["label"])

@@ -208,13 +208,22 @@ def read_ply_elements(path, header: PlyHeader, wanted) -> dict:
 _ASCII_BLOCK_BYTES = 1 << 20  # text read at a time: bounds the temporaries of a block
 
 
+_ASCII_MAX_LINE = 1 << 22  # a row of a few hundred numbers is far shorter
+
+
 class _AsciiLines:
-    """Non-blank lines of an ASCII PLY body, read in blocks of about 1 MiB."""
+    """Non-blank lines of an ASCII PLY body, read about 1 MiB at a time.
+
+    :meth:`take` hands out at most about 1 MiB of text at once however long
+    the lines are, and a line longer than ``_ASCII_MAX_LINE`` is an error, so
+    the text held in memory stays bounded whatever the file holds.
+    """
 
     def __init__(self, path, fh):
         self.path, self.fh = path, fh
         self.lines: list = []
         self.pos = 0
+        self.buffered = 0  # bytes in self.lines[self.pos:]
         self.tail = b""
         self.eof = False
 
@@ -223,18 +232,28 @@ class _AsciiLines:
         if not raw:
             self.eof = True
             raw, self.tail = self.tail, b""
+        elif b"\n" in raw:
+            raw, self.tail = (self.tail + raw).rsplit(b"\n", 1)
         else:
-            raw, self.tail = (self.tail + raw).rsplit(b"\n", 1) if b"\n" in raw \
-                else (b"", self.tail + raw)
-        self.lines = self.lines[self.pos:] + [ln for ln in raw.split(b"\n") if ln.strip()]
+            raw, self.tail = b"", self.tail + raw
+        if len(self.tail) > _ASCII_MAX_LINE:
+            raise fail(self.path, f"ASCII PLY body has a line longer than {_ASCII_MAX_LINE} bytes "
+                                  f"(corrupt file or binary data under an ascii header)")
+        new = [ln for ln in raw.split(b"\n") if ln.strip()]
+        self.lines = self.lines[self.pos:] + new
         self.pos = 0
+        self.buffered += sum(map(len, new))
 
     def take(self, k: int) -> list:
-        """Up to ``k`` lines (fewer only at the end of the file)."""
-        while len(self.lines) - self.pos < k and not self.eof:
+        """Up to ``k`` lines, fewer when they hold more than ~1 MiB; none only at the end."""
+        # read on while short of k lines and of ~1 MiB of text; an empty buffer always
+        # reads on (blank lines, or a line longer than one read)
+        while not self.eof and (self.pos == len(self.lines) or (
+                len(self.lines) - self.pos < k and self.buffered < _ASCII_BLOCK_BYTES)):
             self._fill()
         out = self.lines[self.pos:self.pos + k]
         self.pos += len(out)
+        self.buffered -= sum(map(len, out))
         return out
 
 
