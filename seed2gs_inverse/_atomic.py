@@ -52,6 +52,8 @@ def _temp_pattern(name: str, suffix: str) -> re.Pattern:
 def _pid_alive(pid: int) -> bool:
     if pid == os.getpid():
         return True  # another thread of this process may be writing the same target
+    if os.name == "nt":
+        return True  # os.kill(pid, 0) sends CTRL_C_EVENT there: rely on the age limit
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
