@@ -458,3 +458,23 @@ def test_ascii_long_lines_and_blank_runs_stay_bounded(tmp_path):
     path.write_text(head + "1 " * 4_000_000 + "\n" + row)
     with pytest.raises(FormatError, match="line longer than"):
         traced(read_scene, path)
+
+
+def test_guitar_as_splat_transform_writes_it(shared_data, tmp_path):
+    # splat-transform decodes the guitar's opacity byte 255 as logit(1) = +inf and
+    # writes it into a standard PLY: those 667 Gaussians used to be refused
+    packed = read_scene(shared_data / "guitar_90k.compressed.ply")
+    cols = dict(standard_columns(packed, normals=False))
+    cols["opacity"] = np.where(packed.opacity_logits == 40.0, np.float32(np.inf),
+                               packed.opacity_logits)
+    assert np.isinf(cols["opacity"]).sum() == 667
+    rec = np.empty(len(packed), dtype=[(n, "f4") for n in cols])
+    for n, vals in cols.items():
+        rec[n] = vals
+    path = tmp_path / "guitar_splat_transform.ply"
+    plyfile.PlyData([plyfile.PlyElement.describe(rec, "vertex")]).write(str(path))
+    with pytest.warns(UserWarning, match=r"667 'opacity' logits are \+inf and 0 are -inf"):
+        got = read_scene(path)
+    assert len(got) == len(packed) == 90854
+    np.testing.assert_array_equal(got.opacity_logits, packed.opacity_logits)
+    np.testing.assert_array_equal(got.means, packed.means)
