@@ -4,17 +4,121 @@ Every writer of the toolkit (scene files, images, operator directories,
 extraction outputs) goes through :func:`atomic_path`, so a failure at any
 point leaves neither a partial file nor a half-written directory behind, and
 an existing target is only replaced by a complete one.
+
+A process killed while writing (SIGKILL, power loss) cannot remove its
+temporary sibling. Temporaries are therefore named
+``.NAME.HOST-PID-XXXXXXXX.tmp[.ext]`` (``.old`` for a replaced directory on
+its way out), and the next write to the same target removes the ones that
+are clearly abandoned (:func:`clean_stale_temps`) with a warning.
 """
 
 from __future__ import annotations
 
+import hashlib
 import os
+import re
 import shutil
+import socket
+import stat
 import tempfile
+import time
+import warnings
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["atomic_path", "write_files", "check_output_parent"]
+__all__ = ["atomic_path", "write_files", "check_output_parent", "clean_stale_temps",
+           "STALE_AGE_S"]
+
+#: A temporary whose creator cannot be checked (another host, or a name
+#: without a process id from an older version) is abandoned after this long.
+STALE_AGE_S = 24 * 3600
+
+# Short tag of this host: a process id is only meaningful on the machine that
+# made it (directories may be shared over a network file system).
+_HOST = hashlib.sha1(socket.gethostname().encode("utf-8", "replace")).hexdigest()[:6]
+
+
+def _temp_prefix(name: str) -> str:
+    return f".{name}.{_HOST}-{os.getpid()}-"
+
+
+def _temp_pattern(name: str, suffix: str) -> re.Pattern:
+    """Our temporaries for ``name``: mkstemp/mkdtemp's 8 random characters, with
+    the host-pid tag (this version) or without (earlier versions)."""
+    return re.compile(rf"^\.{re.escape(name)}\.(?:(?P<host>[0-9a-f]{{6}})-(?P<pid>[0-9]{{1,10}})-)?"
+                      rf"[a-z0-9_]{{8}}\.(?:tmp(?:{re.escape(suffix)})?|old)$")
+
+
+def _pid_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True  # another thread of this process may be writing the same target
+    if os.name == "nt":
+        return True  # os.kill(pid, 0) sends CTRL_C_EVENT there: rely on the age limit
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, ValueError):
+        return True  # exists (another user's), or not a pid we can judge: keep
+    return True
+
+
+def clean_stale_temps(target, now: float | None = None) -> list:
+    """Remove abandoned temporaries of earlier writes to ``target``; the paths removed.
+
+    Only names of :func:`atomic_path`'s own pattern for this very target are
+    considered, and only when clearly abandoned: made on this host by a
+    process that no longer exists, or (creator unknown: other host, older
+    naming) not modified for ``STALE_AGE_S`` seconds. A temporary of a
+    running process -- a concurrent writer of the same target -- is never
+    touched. Symbolic links are removed, never followed. A warning lists what
+    was removed; errors while removing are ignored (another process may be
+    cleaning up too).
+    """
+    target = Path(target)
+    parent = target.parent if str(target.parent) else Path(".")
+    pattern = _temp_pattern(target.name, target.suffix)
+    now = time.time() if now is None else now
+    removed = []
+    try:
+        entries = list(os.scandir(parent))
+    except OSError:
+        return removed
+    for entry in entries:
+        match = pattern.match(entry.name)
+        if not match:
+            continue
+        try:
+            st = entry.stat(follow_symlinks=False)
+        except OSError:
+            continue
+        if match["pid"] is not None and match["host"] == _HOST:
+            stale = not _pid_alive(int(match["pid"]))
+        else:
+            stale = now - st.st_mtime > STALE_AGE_S
+        if not stale:
+            continue
+        if entry.name.endswith(".old") and not os.path.lexists(target):
+            # killed between moving the old output aside and moving the new one in:
+            # the .old directory holds the only copy of the previous output
+            continue
+        path = Path(entry.path)
+        try:
+            if stat.S_ISDIR(st.st_mode):
+                shutil.rmtree(path)
+            else:
+                path.unlink()
+        except FileNotFoundError:
+            continue
+        except OSError:
+            continue
+        removed.append(path)
+    if removed:
+        names = ", ".join(p.name for p in removed[:3]) + (", ..." if len(removed) > 3 else "")
+        warnings.warn(f"removed {len(removed)} stale temporary "
+                      f"{'entry' if len(removed) == 1 else 'entries'} left in {parent} by an "
+                      f"interrupted write of {target.name}: {names}", stacklevel=3)
+    return removed
 
 
 def _umask() -> int:
@@ -37,11 +141,14 @@ def atomic_path(target, directory: bool = False):
 
     The temporary path gets the permissions a plain ``open``/``mkdir`` would
     (``mkstemp``/``mkdtemp`` create private ones). If the block raises, the
-    temporary path is removed and the exception propagates.
+    temporary path is removed and the exception propagates. Abandoned
+    temporaries of earlier, killed writes to the same target are removed
+    first (:func:`clean_stale_temps`, with a warning).
     """
     target = Path(target)
     parent = target.parent if str(target.parent) else Path(".")
-    prefix = f".{target.name}."
+    clean_stale_temps(target)
+    prefix = _temp_prefix(target.name)
     if directory:
         tmp = Path(tempfile.mkdtemp(prefix=prefix, suffix=".tmp", dir=parent))
         mode = 0o777

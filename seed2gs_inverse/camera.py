@@ -16,7 +16,34 @@ import numpy as np
 from .errors import ValidationError
 from .geometry import axis_angle
 
-__all__ = ["Camera", "look_at_orbit", "orbit_directions"]
+__all__ = ["Camera", "MAX_IMAGE_SIDE", "look_at_orbit", "orbit_directions"]
+
+
+#: Largest image side accepted (pixels). Larger sizes come from corrupt files
+#: and would make rendering allocate terabytes.
+MAX_IMAGE_SIDE = 32768
+
+
+def _show(v) -> str:
+    """A short rendering of a possibly enormous number for error messages."""
+    try:
+        return repr(v) if abs(v) < 1e15 else f"{float(v):.3g}"
+    except OverflowError:
+        return f"an integer of {len(str(abs(int(v))))} digits"
+
+
+def _real(label, attr, value) -> float:
+    """``value`` as a finite float, else ValidationError naming the camera and field."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer,
+                                                                       np.floating)):
+        raise ValidationError(f"{label}: {attr} must be a number, got {value!r}")
+    try:
+        v = float(value)
+    except OverflowError:  # a Python int beyond float range
+        v = float("inf")
+    if not np.isfinite(v):
+        raise ValidationError(f"{label}: {attr} is not finite ({_show(value)})")
+    return v
 
 
 def _finite(name, value, shape=None):
@@ -35,11 +62,12 @@ class Camera:
     Parameters
     ----------
     width, height : int
-        Image size in pixels (> 0).
+        Image size in pixels, 1 to ``MAX_IMAGE_SIDE`` (32768).
     fx, fy, cx, cy : float
-        Intrinsics in pixels; ``fx, fy > 0``.
+        Intrinsics in pixels, finite; ``fx, fy > 0``.
     world_to_camera : (4, 4) array
-        Rigid transform ``[R t; 0 1]`` with ``R`` orthonormal, ``det R = +1``.
+        Rigid transform ``[R t; 0 1]``, finite, with ``R`` orthonormal
+        (``|R R^T - I| <= 1e-4``) and ``det R = +1``.
     name : str
         Free-form label (file entry, view index), used in error messages.
     near : float
@@ -60,22 +88,27 @@ class Camera:
         label = f"camera '{self.name}'" if self.name else "camera"
         for attr in ("width", "height"):
             v = getattr(self, attr)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) and not (
-                    isinstance(v, (float, np.floating)) and float(v).is_integer()):
+            whole = isinstance(v, (int, np.integer)) or (
+                isinstance(v, (float, np.floating)) and float(v).is_integer())
+            if isinstance(v, bool) or not whole:
                 raise ValidationError(f"{label}: {attr} must be an integer, got {v!r}")
-            if int(v) <= 0:
-                raise ValidationError(f"{label}: {attr} must be positive, got {v}")
+            # compare before converting: int(1e308) or a 400-digit JSON integer is valid Python
+            if v <= 0:
+                raise ValidationError(f"{label}: {attr} must be positive, got {_show(v)}")
+            if v > MAX_IMAGE_SIDE:
+                raise ValidationError(f"{label}: {attr} must be at most {MAX_IMAGE_SIDE} pixels "
+                                      f"(a corrupt file?), got {_show(v)}")
             object.__setattr__(self, attr, int(v))
         for attr in ("fx", "fy", "cx", "cy", "near"):
-            v = float(getattr(self, attr))
-            if not np.isfinite(v):
-                raise ValidationError(f"{label}: {attr} is not finite ({v})")
-            object.__setattr__(self, attr, v)
+            object.__setattr__(self, attr, _real(label, attr, getattr(self, attr)))
         if self.fx <= 0 or self.fy <= 0:
             raise ValidationError(f"{label}: focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
         if self.near <= 0:
             raise ValidationError(f"{label}: near plane must be positive, got {self.near}")
-        m = np.asarray(self.world_to_camera, dtype=np.float64)
+        try:
+            m = np.asarray(self.world_to_camera, dtype=np.float64)
+        except (TypeError, ValueError, OverflowError):
+            raise ValidationError(f"{label}: world_to_camera must be a 4x4 array of numbers") from None
         if m.shape != (4, 4):
             raise ValidationError(f"{label}: world_to_camera must be 4x4, got shape {m.shape}")
         if not np.all(np.isfinite(m)):
@@ -239,9 +272,8 @@ class Camera:
             raise ValidationError(f"camera description lacks {missing}")
         try:
             return cls(d["width"], d["height"], d["fx"], d["fy"], d["cx"], d["cy"],
-                       np.asarray(d["world_to_camera"], dtype=np.float64),
-                       str(d.get("name", "")), float(d.get("near", 0.01)))
-        except (TypeError, ValueError) as exc:
+                       d["world_to_camera"], str(d.get("name", "")), d.get("near", 0.01))
+        except (TypeError, ValueError, OverflowError) as exc:
             if isinstance(exc, ValidationError):
                 raise
             raise ValidationError(f"camera description is malformed: {exc}") from None

@@ -9,6 +9,7 @@ A selection is a boolean mask of length N or an array of indices.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Callable
 
 import numpy as np
@@ -41,15 +42,17 @@ def selection_mask(scene: GaussianScene, selected) -> np.ndarray:
 
 def _replace(scene: GaussianScene, mask: np.ndarray, part: GaussianScene) -> GaussianScene:
     """``scene`` with the rows of ``mask`` replaced by ``part`` (same order and extras)."""
-    out = scene.copy()
-    out.means[mask] = part.means
-    out.quats[mask] = part.quats
-    out.log_scales[mask] = part.log_scales
-    out.opacity_logits[mask] = part.opacity_logits
-    out.sh[mask] = part.sh
-    for k in out.extra:
-        out.extra[k][mask] = part.extra[k]
-    return out
+    # Scene arrays are read-only: edit writeable copies and validate them as a new scene.
+    arrays = {}
+    for name in ("means", "quats", "log_scales", "opacity_logits", "sh"):
+        arr = getattr(scene, name).copy()
+        arr[mask] = getattr(part, name)
+        arrays[name] = arr
+    extra = {}
+    for k, v in scene.extra.items():
+        extra[k] = v.copy()
+        extra[k][mask] = part.extra[k]
+    return GaussianScene(extra=extra, **arrays)
 
 
 def _rigid(rotation, translation, pivot):
@@ -134,11 +137,11 @@ def recolour(scene: GaussianScene, selected, rgb, keep_view_dependence: bool = F
         new = np.broadcast_to(new, (m, 3))
     if new.shape != (m, 3) or not np.all(np.isfinite(new)):
         raise ValidationError(f"recolour: rgb must be finite (3,) or ({m}, 3), got shape {new.shape}")
-    out = scene.copy()
-    out.sh[mask, 0] = ((new - 0.5) / SH_C0).astype(np.float32)
+    sh = scene.sh.copy()  # scene arrays are read-only; the new scene validates the copy
+    sh[mask, 0] = ((new - 0.5) / SH_C0).astype(np.float32)
     if not keep_view_dependence:
-        out.sh[mask, 1:] = 0.0
-    return out
+        sh[mask, 1:] = 0.0
+    return dataclasses.replace(scene, sh=sh)
 
 
 recolor = recolour

@@ -19,6 +19,7 @@ extra            {name: (N,)} any other per-Gaussian property of the file
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from types import MappingProxyType
 from typing import Iterable, Mapping, Sequence
 
 import numpy as np
@@ -46,6 +47,13 @@ def _as_float32(name: str, value, shape_tail: tuple, n: int | None) -> np.ndarra
             f"scene array '{name}' has non-finite values in {rows.size} of {arr.shape[0]} "
             f"Gaussians (first at index {rows[0]})")
     return arr
+
+
+def _read_only(arr: np.ndarray) -> np.ndarray:
+    """A read-only view of ``arr`` (no copy; the caller's array stays writeable)."""
+    view = arr.view()
+    view.flags.writeable = False
+    return view
 
 
 def quat_to_rotmat(quats: np.ndarray) -> np.ndarray:
@@ -106,7 +114,7 @@ def _check_rotation(rotation) -> np.ndarray:
     return rot
 
 
-@dataclass(eq=False)
+@dataclass(eq=False, frozen=True)
 class GaussianScene:
     """A frozen 3DGS scene. See the module docstring for the arrays.
 
@@ -114,6 +122,17 @@ class GaussianScene:
     contiguous float32. ``extra`` keeps file properties this class does not
     interpret (e.g. ``nx, ny, nz`` or a trainer's custom fields) so they are
     written back unchanged.
+
+    A scene is immutable once validated, so no NaN or shape error can slip
+    in after the checks: the arrays are read-only views, ``extra`` is a
+    read-only mapping and the attributes cannot be reassigned. To change
+    values, build a new (re-validated) scene, e.g.
+    ``dataclasses.replace(scene, means=new_means)`` or
+    ``GaussianScene(means, ...)`` from writeable copies
+    (``scene.means.copy()``). Arrays passed in that are already contiguous
+    float32 are not copied: the scene holds read-only views of them, so
+    writing through the caller's own reference afterwards would bypass the
+    checks (pass copies if you keep modifying them).
     """
 
     means: np.ndarray
@@ -124,16 +143,16 @@ class GaussianScene:
     extra: dict = field(default_factory=dict)
 
     def __post_init__(self):
-        self.means = _as_float32("means", self.means, (3,), None)
-        n = self.means.shape[0]
-        self.quats = _as_float32("quats", self.quats, (4,), n)
-        norms = np.linalg.norm(self.quats, axis=1)
-        if np.any(norms == 0):
+        means = _as_float32("means", self.means, (3,), None)
+        n = means.shape[0]
+        quats = _as_float32("quats", self.quats, (4,), n)
+        zero = ~(quats != 0).any(axis=1)
+        if zero.any():
             raise ValidationError(
-                f"scene array 'quats' has {int(np.sum(norms == 0))} zero-length quaternions "
-                f"(first at index {int(np.argmax(norms == 0))})")
-        self.log_scales = _as_float32("log_scales", self.log_scales, (3,), n)
-        self.opacity_logits = _as_float32("opacity_logits", self.opacity_logits, (), n)
+                f"scene array 'quats' has {int(zero.sum())} zero-length quaternions "
+                f"(first at index {int(np.argmax(zero))})")
+        log_scales = _as_float32("log_scales", self.log_scales, (3,), n)
+        opacity_logits = _as_float32("opacity_logits", self.opacity_logits, (), n)
         sh = np.asarray(self.sh)
         if sh.ndim != 3 or sh.shape[2] != 3:
             raise ValidationError(f"scene array 'sh' has shape {sh.shape}; expected (N, K, 3)")
@@ -141,16 +160,24 @@ class GaussianScene:
             sh_degree_from_coeffs(sh.shape[1])
         except ValidationError as exc:
             raise ValidationError(f"scene array 'sh': {exc}") from None
-        self.sh = _as_float32("sh", sh, tuple(sh.shape[1:]), n)
+        sh = _as_float32("sh", sh, tuple(sh.shape[1:]), n)
+        extra_in = self.extra if self.extra is not None else {}
+        if not isinstance(extra_in, Mapping):
+            raise ValidationError(f"scene 'extra' must be a mapping of name -> (N,) array, "
+                                  f"got {type(extra_in).__name__}")
         extra = {}
-        for key, value in dict(self.extra or {}).items():
+        for key, value in extra_in.items():
             arr = np.asarray(value)
             if arr.ndim != 1 or arr.shape[0] != n:
                 raise ValidationError(f"extra property '{key}' has shape {arr.shape}; expected ({n},)")
             if arr.dtype.kind not in "fiub":
                 raise ValidationError(f"extra property '{key}' has dtype {arr.dtype}; expected numbers")
-            extra[str(key)] = np.ascontiguousarray(arr)
-        self.extra = extra
+            extra[str(key)] = _read_only(np.ascontiguousarray(arr))
+        # frozen dataclass: the validated values are set once, here, and never again
+        for name, arr in (("means", means), ("quats", quats), ("log_scales", log_scales),
+                          ("opacity_logits", opacity_logits), ("sh", sh)):
+            object.__setattr__(self, name, _read_only(arr))
+        object.__setattr__(self, "extra", MappingProxyType(extra))
 
     # -- basic facts -------------------------------------------------------
     def __len__(self) -> int:
@@ -195,7 +222,14 @@ class GaussianScene:
         return self.means.min(axis=0), self.means.max(axis=0)
 
     # -- edits -------------------------------------------------------------
+    def __copy__(self) -> "GaussianScene":
+        return self  # immutable: a shallow copy may share everything
+
+    def __deepcopy__(self, memo) -> "GaussianScene":
+        return self.copy()  # the read-only extra mapping cannot be deep-copied generically
+
     def copy(self) -> "GaussianScene":
+        """A scene holding its own copies of the arrays (still read-only)."""
         return GaussianScene(self.means.copy(), self.quats.copy(), self.log_scales.copy(),
                              self.opacity_logits.copy(), self.sh.copy(),
                              {k: v.copy() for k, v in self.extra.items()})

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -283,8 +285,7 @@ def test_frozen_scene_gives_identical_results(sh_degree):
     rgb_ref, _, _, _ = reference_render(scene, cam, "antialiased")
     np.testing.assert_allclose(fast_render.rgb, rgb_ref, atol=1e-5)
     # the frozen activations belong to that scene object: another one is computed afresh
-    other = scene.copy()
-    other.opacity_logits[:] = -10.0
+    other = dataclasses.replace(scene, opacity_logits=np.full(len(scene), -10.0))
     assert build_operator(other, cam).W.nnz == 0
     with pytest.raises(ValidationError, match="GaussianScene"):
         FrozenScene("scene.ply")

@@ -58,6 +58,16 @@ def test_camera_to_world_inverse():
 
 @pytest.mark.parametrize("kw,match", [
     (dict(width=0), "width must be positive"),
+    (dict(width=1e308), r"width must be at most 32768 pixels \(a corrupt file\?\), got 1e\+308"),
+    (dict(height=10 ** 400), "height must be at most 32768"),
+    (dict(width=32769), "width"),
+    (dict(width=True), "integer"),
+    (dict(fx=-1.0), "focal lengths must be positive"),
+    (dict(fy=10 ** 400), "fy is not finite"),
+    (dict(cx=np.inf), "cx is not finite"),
+    (dict(cy="5"), "cy must be a number"),
+    (dict(near=0.0), "near"),
+    (dict(world_to_camera=[[10 ** 400] * 4] * 4), "world_to_camera"),
     (dict(height=-3), "height"),
     (dict(fx=0.0), "focal"),
     (dict(fy=np.nan), "not finite"),
@@ -68,6 +78,7 @@ def test_camera_to_world_inverse():
     (dict(width=2.5), "integer"),
 ])
 def test_degenerate_cameras_rejected(kw, match):
+    # every path that builds a Camera (readers, from_dict, scaled) goes through these checks
     args = dict(width=10, height=10, fx=5.0, fy=5.0, cx=5.0, cy=5.0, world_to_camera=np.eye(4))
     args.update(kw)
     with pytest.raises(ValidationError, match=match):
@@ -81,3 +92,16 @@ def test_look_at_degenerate():
         Camera.look_at([0, 0, 0], [0, 1, 0], [0, 1, 0], 60, 10, 10)
     with pytest.raises(ValidationError, match="fov"):
         Camera.look_at([0, 0, 1], [0, 0, 0], [0, 1, 0], 180, 10, 10)
+
+
+def test_largest_image_side_is_accepted():
+    cam = Camera(32768, 1, 5.0, 5.0, 0.0, 0.0, name="wide")
+    assert cam.width == 32768 and isinstance(cam.width, int)
+    with pytest.raises(ValidationError, match="camera 'wide': width"):
+        cam.scaled(2.0)
+
+
+def test_from_dict_overflow_is_validation_error():
+    d = Camera(10, 10, 5.0, 5.0, 5.0, 5.0).to_dict()
+    with pytest.raises(ValidationError, match="near is not finite"):
+        Camera.from_dict({**d, "near": 10 ** 400})

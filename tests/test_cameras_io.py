@@ -259,7 +259,8 @@ def test_colmap_text_errors(tmp_path):
         read_cameras(tmp_path)
     (tmp_path / "cameras.txt").write_text("1 PINHOLE 64 48 0 52 31 20\n")
     (tmp_path / "images.txt").write_text("1 1 0 0 0 0 0 0 1 x.png\n\n")
-    with pytest.raises(ValidationError, match=r"image 1 \('x.png'\).*focal"):
+    # named where the intrinsics are stored, not by the image that uses them
+    with pytest.raises(ValidationError, match=r"cameras\.txt \(line 1\): camera 1 \(PINHOLE\): focal"):
         read_cameras(tmp_path)
     (tmp_path / "images.txt").unlink()
     with pytest.raises(FormatError, match="no COLMAP model"):
@@ -341,4 +342,97 @@ def test_directory_without_cameras_says_what_it_is(tmp_path):
         read_cameras(tmp_path)
     (tmp_path / "manifest.json").write_text("{}")
     with pytest.raises(FormatError, match="operators info"):
+        read_cameras(tmp_path)
+
+
+# --------------------------------------------------------------------------
+# absurd values are refused on read, naming the file, camera and field (issue 12, items 3-4)
+
+_HUGE = 10 ** 400  # a valid JSON integer far beyond float range
+
+
+@pytest.mark.parametrize("change, match", [
+    ({"width": 1e308}, "width must be at most 32768"),
+    ({"height": 32769}, "height must be at most 32768"),
+    ({"width": _HUGE}, "'width' is out of range"),
+    ({"fx": _HUGE}, "'fx' is out of range"),
+    ({"fx": -50.0}, "focal lengths must be positive"),
+    ({"cx": float("inf")}, "cx is not finite"),
+    ({"position": [_HUGE, 0, 0]}, "'position' holds a number out of range"),
+    ({"rotation": [[1, 0, 0], [0, 1, 0], [0, 0.1, 1]]}, "rotation is not orthonormal"),
+    ({"rotation": [[1, 0, 0], [0, 1, 0], [0, 0, -1]]}, "determinant"),
+])
+def test_absurd_cameras_json(tmp_path, change, match):
+    entry = _entry(np.eye(3), [0, 0, 0], name="bad")
+    entry.update(change)
+    path = tmp_path / "cameras.json"
+    path.write_text(json.dumps([_entry(np.eye(3), [0, 0, 0], name="ok"), entry]))
+    with pytest.raises(ValidationError, match=match) as err:
+        read_cameras(path)
+    assert str(err.value).startswith(f"{path}: camera 1 ('bad')")
+
+
+def test_absurd_to_dict_entry(tmp_path):
+    d = Camera(10, 10, 5.0, 5.0, 5.0, 5.0, name="v").to_dict()
+    path = _write_json(tmp_path / "c.json", [{**d, "height": _HUGE}])
+    with pytest.raises(ValidationError, match=r"c\.json: camera 0 \('v'\).*height must be at most"):
+        read_cameras(path)
+
+
+@pytest.mark.parametrize("change, match", [
+    ({"w": _HUGE}, "'w' is out of range"),
+    ({"h": 1e308}, "height must be at most 32768"),
+    ({"fl_x": 0.0}, "focal lengths must be positive"),
+    ({"fl_y": -1.0}, "focal lengths must be positive"),
+    ({"cy": _HUGE}, "'cy' is out of range"),
+])
+def test_absurd_transforms_json(tmp_path, change, match):
+    doc = {"fl_x": 40.0, "fl_y": 42.0, "cx": 30.0, "cy": 20.0, "w": 64, "h": 48,
+           "frames": [{"file_path": "a.png", "transform_matrix": np.eye(4).tolist()},
+                      {"file_path": "b.png", "transform_matrix": np.eye(4).tolist(), **change}]}
+    path = _write_json(tmp_path / "transforms.json", doc)
+    with pytest.raises(ValidationError, match=match) as err:
+        read_cameras(path)
+    assert str(err.value).startswith(f"{path}: camera 1 ('b.png')")
+
+
+def test_transform_matrix_out_of_range(tmp_path):
+    m = np.eye(4).tolist()
+    m[0][3] = _HUGE
+    path = _write_json(tmp_path / "transforms.json", {"fl_x": 40.0, "w": 64, "h": 48,
+                                                      "frames": [{"transform_matrix": m}]})
+    with pytest.raises(ValidationError, match="'transform_matrix' holds a number out of range"):
+        read_cameras(path)
+
+
+@pytest.mark.parametrize("line, error, match", [
+    ("\u00b2 PINHOLE 64 48 50 52 31 25", FormatError, r"cameras\.txt: line 2: expected 'CAMERA_ID"),
+    ("\u0663 PINHOLE 64 48 50 52 31 25", FormatError, r"cameras\.txt: line 2: .*whole number"),
+    ("1 PINHOLE 1e308 48 50 52 31 25", ValidationError,
+     r"cameras\.txt \(line 2\): camera 1 \(PINHOLE\): width must be at most 32768"),
+    ("1 PINHOLE 64 48 -50 52 31 25", ValidationError, r"camera 1 \(PINHOLE\): focal"),
+    ("1 PINHOLE 64 48 50 52 nan 25", ValidationError, r"camera 1 \(PINHOLE\): cx is not finite"),
+])
+def test_colmap_text_bad_cameras(tmp_path, line, error, match):
+    (tmp_path / "cameras.txt").write_text(f"# header\n{line}\n", encoding="utf-8")
+    (tmp_path / "images.txt").write_text("1 1 0 0 0 0 0 0 1 x.png\n\n")
+    with pytest.raises(error, match=match):
+        read_cameras(tmp_path)
+
+
+def test_colmap_text_bad_image_ids(tmp_path):
+    (tmp_path / "cameras.txt").write_text("1 PINHOLE 64 48 50 52 31 25\n")
+    (tmp_path / "images.txt").write_text("1 1 0 0 0 0 0 0 \u00b2 x.png\n\n", encoding="utf-8")
+    with pytest.raises(FormatError, match=r"images\.txt: line 1: .*whole-number ids"):
+        read_cameras(tmp_path)
+
+
+def test_colmap_binary_absurd_size(tmp_path):
+    _write_colmap_binary(tmp_path)
+    cams = struct.pack("<Q", 2)
+    cams += struct.pack("<iiQQ4d", 1, 1, 2 ** 63, 48, 50.0, 52.0, 31.0, 25.0)
+    cams += struct.pack("<iiQQ4d", 2, 2, 80, 60, 70.0, 40.0, 30.0, 0.01)
+    (tmp_path / "cameras.bin").write_bytes(cams)
+    with pytest.raises(ValidationError, match=r"cameras\.bin \(record 0\): camera 1 \(PINHOLE\): "
+                                              r"width must be at most 32768"):
         read_cameras(tmp_path)

@@ -110,3 +110,22 @@ def test_help(command, capsys):
     assert exc.value.code == 0
     out = capsys.readouterr().out
     assert "usage: seed2gs " + command in out and "--drop-nonfinite" in out
+
+
+def test_convert_removes_and_reports_stale_temps(tmp_path, rng, capsys):
+    # what a SIGKILL during an earlier `seed2gs convert` into the same place leaves behind
+    import subprocess
+    import sys
+
+    from seed2gs_inverse import _atomic
+
+    child = subprocess.Popen([sys.executable, "-c", "pass"])
+    child.wait()  # a process id that no longer exists
+    stale = tmp_path / f".o.ply.{_atomic._HOST}-{child.pid}-abcd1234.tmp.ply"
+    stale.write_bytes(b"partial output")
+    src = tmp_path / "s.ply"
+    write_scene(src, random_scene(rng, n=5))
+    code, _, err = run(["convert", src, tmp_path / "o.ply"], capsys)
+    assert code == 0, err
+    assert "seed2gs convert: warning: removed 1 stale temporary entry" in err and stale.name in err
+    assert not stale.exists() and len(read_scene(tmp_path / "o.ply")) == 5

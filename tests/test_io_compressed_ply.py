@@ -8,6 +8,7 @@ import numpy as np
 import plyfile
 import pytest
 
+from _memory import traced
 from _io_encoders import SH_C0, encode_compressed_ply, random_scene
 from seed2gs_inverse.errors import FormatError
 from seed2gs_inverse.io import detect_format, read_scene
@@ -143,3 +144,30 @@ def test_overflowing_chunk_range_is_nonfinite_without_warnings(tmp_path):
         warnings.simplefilter("error")
         with pytest.raises(FormatError, match="1 of 2 Gaussians"):
             read_scene(path)
+
+
+def test_huge_counts_are_refused_before_allocating(tmp_path):
+    # a header claiming 2^32 Gaussians (and the matching chunk count) over a few bytes
+    n = 2 ** 32 - 256
+    head = (f"ply\nformat binary_little_endian 1.0\nelement chunk {n // 256}\n"
+            + "".join(f"property float {p}\n" for p in CHUNK)
+            + f"element vertex {n}\n" + "".join(f"property uint {p}\n" for p in PACKED)
+            + f"element sh {n}\n" + "".join(f"property uchar f_rest_{i}\n" for i in range(45))
+            + "end_header\n").encode()
+    path = tmp_path / "huge.compressed.ply"
+    path.write_bytes(head + bytes(4096))
+
+    def read():
+        with pytest.raises(FormatError, match="huge.compressed.ply: file is truncated"):
+            read_scene(path)
+
+    assert traced(read)[1] < 2_000_000
+
+
+def test_real_compressed_ply_memory(shared_data):
+    path = shared_data / "guitar_90k.compressed.ply"
+    scene, peak = traced(read_scene, path)
+    out = sum(a.nbytes for a in (scene.means, scene.quats, scene.log_scales,
+                                 scene.opacity_logits, scene.sh))
+    # the decoded scene is ~15x the packed file; beyond it only the records and one block
+    assert peak < out + 2 * path.stat().st_size + 16 * 2 ** 20, (peak, out)

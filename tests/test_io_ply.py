@@ -9,6 +9,7 @@ import numpy as np
 import plyfile
 import pytest
 
+from _memory import traced
 from _io_encoders import random_scene, standard_columns, write_ply_plyfile
 from seed2gs_inverse.errors import FormatError, ValidationError
 from seed2gs_inverse.io import detect_format, read_scene, write_scene
@@ -316,3 +317,164 @@ def test_nonzero_normals_are_kept(tmp_path, rng):
         got = read_scene(path)
     assert sorted(got.extra) == ["nx", "ny", "nz"]  # kept as a group
     np.testing.assert_array_equal(got.extra["ny"], cols["ny"])
+
+
+# --------------------------------------------------------------------------
+# ASCII memory (issue 12, item 2)
+
+_PROPS14 = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1",
+            "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+
+
+def test_ascii_memory_within_3x_the_file(tmp_path):
+    # Short values ("-0.57") are the worst case for a token-list parser: it used
+    # 17x the file (tracemalloc; 30-66x resident) for files like this one.
+    n = 400_000
+    rng = np.random.default_rng(11)
+    vals = np.round(rng.normal(0, 1, (n, 14)), 2)
+    vals[:, 10] = np.abs(vals[:, 10]) + 0.5  # non-zero quaternions
+    path = tmp_path / "short.ply"
+    with open(path, "w") as fh:
+        fh.write(f"ply\nformat ascii 1.0\nelement vertex {n}\n"
+                 + "".join(f"property float {p}\n" for p in _PROPS14) + "end_header\n")
+        np.savetxt(fh, vals, fmt="%.3g")
+    size = path.stat().st_size
+    assert size > 20_000_000  # large enough that the per-block constant does not hide a ratio
+    scene, peak = traced(read_scene, path)
+    assert peak < 3 * size, f"peak {peak / 1e6:.1f} MB for a {size / 1e6:.1f} MB file"
+    # values as numpy's own formatter wrote them, read back by Python's float()
+    expect = np.array([[float(f"{v:.3g}") for v in row] for row in vals[::9973]], np.float32)
+    got = np.concatenate([scene.means, scene.sh[:, 0], scene.opacity_logits[:, None],
+                          scene.log_scales, scene.quats], axis=1)[::9973]
+    np.testing.assert_array_equal(got, expect)
+
+
+@pytest.mark.parametrize("body, match", [
+    ("1 2 3 4 5 6 x 8 9 10 1 0 0 0\n", r"row 1: property 'opacity' is 'x', not a number"),
+    ("1 2 3 4 5 6 7 8 9 10 1 0 0\n", r"row 1 has 13 values; each row needs 14"),
+    ("1 2 3 4 5 6 7 8 9 10 1 0 0 0 0\n", r"row 1 has 15 values"),
+    ("1 2 3 4 5 6 7 8 9 10 1 0 0 0\n", r"needs 3 lines but the file holds only 2"),
+])
+def test_ascii_row_errors_name_row_and_property(tmp_path, body, match):
+    good = "1 2 3 4 5 6 7 8 9 10 1 0 0 0\n"
+    count = 2 if "holds only" not in match else 3
+    head = (f"ply\nformat ascii 1.0\nelement vertex {count}\n"
+            + "".join(f"property float {p}\n" for p in _PROPS14) + "end_header\n")
+    path = tmp_path / "rows.ply"
+    path.write_text(head + good + body + ("\n" * 60 if "holds only" in match else ""))
+    with pytest.raises(FormatError, match=match) as err:
+        read_scene(path)
+    assert str(err.value).startswith(str(path))
+
+
+def test_ascii_crlf_tabs_blank_lines(tmp_path):
+    head = ("ply\r\nformat ascii 1.0\r\nelement vertex 2\r\n"
+            + "".join(f"property float {p}\r\n" for p in _PROPS14) + "end_header\r\n")
+    body = "1 2 3 0.1 0.2 0.3 0 -1 -1 -1 1 0 0 0\r\n\r\n 4\t5 6 0.1 0.2 0.3 -0.5 -1 -1 -1 1 0 0 0"
+    path = tmp_path / "crlf.ply"
+    path.write_bytes((head + body).encode())
+    scene = read_scene(path)
+    np.testing.assert_array_equal(scene.means, [[1, 2, 3], [4, 5, 6]])
+    np.testing.assert_array_equal(scene.opacity_logits, [0, -0.5])
+
+
+# --------------------------------------------------------------------------
+# infinite opacity logits (splat-transform output) and field names (issue 12, item 11)
+
+def _ply_with(tmp_path, scene, changes, name="f.ply", text=False):
+    cols = dict(standard_columns(scene))
+    for (prop, i), value in changes.items():
+        cols[prop] = cols[prop].copy()
+        cols[prop][i] = value
+    rec = np.empty(len(scene), dtype=[(n, "f4") for n in cols])
+    for n, vals in cols.items():
+        rec[n] = vals
+    path = tmp_path / name
+    plyfile.PlyData([plyfile.PlyElement.describe(rec, "vertex")], text=text).write(str(path))
+    return path
+
+
+@pytest.mark.parametrize("text", [False, True])
+def test_infinite_opacity_is_saturated_and_kept(tmp_path, rng, text):
+    scene = random_scene(rng, n=8, degree=1)
+    path = _ply_with(tmp_path, scene, {("opacity", 2): np.inf, ("opacity", 5): -np.inf,
+                                       ("opacity", 6): np.inf}, text=text)
+    with pytest.warns(UserWarning, match=r"2 'opacity' logits are \+inf and 1 are -inf; read as "
+                                         r"\+-40"):
+        got = read_scene(path)
+    assert len(got) == 8  # nothing dropped
+    expect = scene.opacity_logits.copy()
+    expect[[2, 6]], expect[5] = 40.0, -40.0
+    np.testing.assert_array_equal(got.opacity_logits, expect)
+    # sigmoid(+-40) is the saturated opacity in float32: 1 and (practically) 0
+    assert got.opacities[2] == np.float32(1.0) and got.opacities[5] < 1e-17
+    np.testing.assert_array_equal(got.means, scene.means)
+    # --drop-nonfinite no longer deletes the most opaque Gaussians
+    with pytest.warns(UserWarning, match="read as"):
+        assert len(read_scene(path, drop_nonfinite=True)) == 8
+
+
+def test_other_nonfinite_values_name_the_field(tmp_path, rng):
+    scene = random_scene(rng, n=8, degree=1)
+    path = _ply_with(tmp_path, scene, {("opacity", 1): np.nan, ("scale_2", 4): -np.inf,
+                                       ("f_rest_7", 6): np.inf, ("opacity", 3): np.inf})
+    with pytest.warns(UserWarning, match="read as"):
+        with pytest.raises(FormatError) as err:
+            read_scene(path)
+    msg = str(err.value)
+    assert msg.startswith(f"{path}: 3 of 8 Gaussians are invalid")
+    for part in ("non-finite 'opacity' in 1 (first at index 1)",
+                 "non-finite 'scale_2' in 1 (first at index 4)",
+                 "non-finite 'f_rest_7' in 1 (first at index 6)", "--drop-nonfinite"):
+        assert part in msg, msg
+    with pytest.warns(UserWarning) as caught:
+        got = read_scene(path, drop_nonfinite=True)
+    assert any("dropped 3 of 8 invalid Gaussians: non-finite 'scale_2'" in str(w.message)
+               for w in caught)
+    assert len(got) == 5 and got.opacity_logits[np.argmax(got.opacity_logits)] == 40.0
+
+
+@pytest.mark.parametrize("count", ["\u00b2", "1" * 5000, "-1", "1e3"])
+def test_element_count_must_be_ascii_digits(tmp_path, count):
+    path = tmp_path / "c.ply"
+    path.write_bytes(f"ply\nformat ascii 1.0\nelement vertex {count}\nproperty float x\n"
+                     f"end_header\n".encode())
+    with pytest.raises(FormatError, match="malformed PLY element line|non-ASCII") as err:
+        read_scene(path)
+    assert "cannot decode" not in str(err.value)
+
+
+def test_ascii_long_lines_and_blank_runs_stay_bounded(tmp_path):
+    head = ("ply\nformat ascii 1.0\nelement vertex 2\n"
+            + "".join(f"property float {p}\n" for p in _PROPS14) + "end_header\n")
+    row = "1 2 3 0.1 0.2 0.3 0 -1 -1 -1 1 0 0 0\n"
+    # 3 MB of blank lines between the rows, and rows padded with 2 MB of spaces
+    path = tmp_path / "blank.ply"
+    path.write_text(head + row + "\n" * 3_000_000 + " " * 2_000_000 + row)
+    scene, peak = traced(read_scene, path)
+    assert len(scene) == 2 and peak < 3 * path.stat().st_size
+    # one 8 MB line is not a row of 14 numbers
+    path = tmp_path / "long.ply"
+    path.write_text(head + "1 " * 4_000_000 + "\n" + row)
+    with pytest.raises(FormatError, match="line longer than"):
+        traced(read_scene, path)
+
+
+def test_guitar_as_splat_transform_writes_it(shared_data, tmp_path):
+    # splat-transform decodes the guitar's opacity byte 255 as logit(1) = +inf and
+    # writes it into a standard PLY: those 667 Gaussians used to be refused
+    packed = read_scene(shared_data / "guitar_90k.compressed.ply")
+    cols = dict(standard_columns(packed, normals=False))
+    cols["opacity"] = np.where(packed.opacity_logits == 40.0, np.float32(np.inf),
+                               packed.opacity_logits)
+    assert np.isinf(cols["opacity"]).sum() == 667
+    rec = np.empty(len(packed), dtype=[(n, "f4") for n in cols])
+    for n, vals in cols.items():
+        rec[n] = vals
+    path = tmp_path / "guitar_splat_transform.ply"
+    plyfile.PlyData([plyfile.PlyElement.describe(rec, "vertex")]).write(str(path))
+    with pytest.warns(UserWarning, match=r"667 'opacity' logits are \+inf and 0 are -inf"):
+        got = read_scene(path)
+    assert len(got) == len(packed) == 90854
+    np.testing.assert_array_equal(got.opacity_logits, packed.opacity_logits)
+    np.testing.assert_array_equal(got.means, packed.means)

@@ -7,6 +7,7 @@ import struct
 import numpy as np
 import pytest
 
+from _memory import traced
 from _io_encoders import SH_C0, encode_splat, random_scene
 from seed2gs_inverse.errors import FormatError, ValidationError
 from seed2gs_inverse.io import detect_format, read_scene, write_scene
@@ -115,3 +116,22 @@ def test_detect_format_checks_content(tmp_path):
     path.write_bytes(b"\0" * 31)
     with pytest.raises(FormatError, match="multiple of 32"):
         detect_format(path)
+
+
+def test_memory_within_3x_the_file(tmp_path):
+    from seed2gs_inverse.io.splat import SPLAT_DTYPE
+
+    n = 500_000
+    rng = np.random.default_rng(2)
+    rec = np.empty(n, SPLAT_DTYPE)
+    rec["position"] = rng.normal(size=(n, 3))
+    rec["scale"] = rng.uniform(0.01, 1, (n, 3))
+    rec["rgba"] = rng.integers(0, 256, (n, 4))
+    rec["rotation"] = rng.integers(0, 256, (n, 4))
+    rec["rotation"][:, 0] = 255  # never a zero quaternion
+    path = tmp_path / "big.splat"
+    rec.tofile(path)
+    scene, peak = traced(read_scene, path)
+    assert peak < 3 * path.stat().st_size, peak
+    np.testing.assert_array_equal(scene.means, rec["position"])
+    np.testing.assert_allclose(scene.opacities, rec["rgba"][:, 3] / 255.0, atol=1e-6)

@@ -10,6 +10,7 @@ import tracemalloc
 import numpy as np
 import pytest
 
+from _memory import traced
 from _io_encoders import encode_spz, random_scene
 from seed2gs_inverse.errors import FormatError
 from seed2gs_inverse.io import detect_format, read_scene
@@ -181,3 +182,100 @@ def test_detect_format_checks_magic(tmp_path):
         detect_format(path)
     with pytest.raises(FileNotFoundError):
         detect_format(tmp_path / "missing.spz")
+
+
+# --------------------------------------------------------------------------
+# decompression bombs: consistent headers that no file of that size could justify
+# (issue 12, item 1)
+
+def _zero_v4(n, sizes=None, frame_sizes=None):
+    """A v4 file of n degree-0 Gaussians whose streams are zstd frames of zeros."""
+    import zstandard
+
+    sizes = sizes or [9 * n, n, 3 * n, 3 * n, 4 * n]
+    frame_sizes = frame_sizes or sizes
+    cctx = zstandard.ZstdCompressor(level=19)
+    frames = [cctx.compress(bytes(s)) for s in frame_sizes]
+    head = struct.pack("<IIIBBBBI12x", MAGIC, 4, n, 0, 12, 0, len(sizes), 32)
+    toc = b"".join(struct.pack("<QQ", len(f), s) for f, s in zip(frames, sizes))
+    return head + toc + b"".join(frames)
+
+
+def test_zstd_bomb_is_refused_before_decompressing(tmp_path):
+    # The reproducer of the issue: ~6.3 KB, 10 million Gaussians, every stream
+    # consistent with the header, 200 MB of zeros once decompressed (2.5 GB used before).
+    blob = _zero_v4(10_000_000)
+    assert len(blob) < 7000
+    path = tmp_path / "bomb.spz"
+    path.write_bytes(blob)
+
+    def read():
+        with pytest.raises(FormatError, match=r"bomb\.spz: the header claims 10000000 Gaussians"
+                                              r".*decompression bomb"):
+            read_scene(path)
+
+    assert traced(read)[1] < 1_000_000
+
+
+def test_gzip_bomb_is_refused_before_decompressing(tmp_path):
+    n = 2_000_000  # 40 MB of zeros in a ~40 KB gzip stream
+    blob = gzip.compress(struct.pack("<IIIBBBB", MAGIC, 3, n, 0, 12, 0, 0) + bytes(20 * n))
+    path = tmp_path / "bomb.spz"
+    path.write_bytes(blob)
+
+    def read():
+        with pytest.raises(FormatError, match="decompression bomb"):
+            read_scene(path)
+
+    assert traced(read)[1] < 1_000_000
+
+
+def test_first_inconsistent_stream_stops_the_read(tmp_path):
+    # 100,000 Gaussians (a ~2 MB payload, under the ratio limit); the 'rotations'
+    # entry is wrong, so nothing may be decompressed or allocated for the others.
+    n = 100_000
+    good = [9 * n, n, 3 * n, 3 * n, 4 * n]
+    blob = _zero_v4(n, sizes=good[:4] + [4 * n + 1], frame_sizes=good)
+    path = tmp_path / "inconsistent.spz"
+    path.write_bytes(blob)
+
+    def read():
+        with pytest.raises(FormatError, match="stream 'rotations' is declared as 400001 bytes"):
+            read_scene(path)
+
+    assert traced(read)[1] < 200_000  # far below the 900 KB of the positions stream
+
+
+def test_stream_longer_than_declared_is_refused(tmp_path):
+    n = 1000
+    sizes = [9 * n, n, 3 * n, 3 * n, 4 * n]
+    blob = _zero_v4(n, sizes=sizes, frame_sizes=sizes[:2] + [3 * n + 7] + sizes[3:])
+    path = tmp_path / "long.spz"
+    path.write_bytes(blob)
+    with pytest.raises(FormatError, match="the colors stream decompresses to more bytes"):
+        read_scene(path)
+
+
+def test_compressible_but_plausible_file_still_reads(tmp_path, rng):
+    # zero-valued SH bands compress extremely well, yet the whole file stays far
+    # below the ratio limit: a genuine degree-3 file of a degree-0 scene must read
+    scene = random_scene(rng, n=3000, degree=3)
+    sh = np.zeros_like(scene.sh)
+    sh[:, 0] = scene.sh[:, 0]
+    import dataclasses
+
+    flat = dataclasses.replace(scene, sh=sh)
+    for version in (3, 4):
+        path = tmp_path / f"flat{version}.spz"
+        path.write_bytes(encode_spz(flat, version=version))
+        got = read_scene(path)
+        assert len(got) == 3000 and np.all(got.sh[:, 1:] == 0)
+
+
+def test_real_spz_memory(shared_data):
+    path = shared_data / "biker_152k.spz"
+    scene, peak = traced(read_scene, path)
+    out = sum(a.nbytes for a in (scene.means, scene.quats, scene.log_scales,
+                                 scene.opacity_logits, scene.sh))
+    # output + decompressed streams + one block of temporaries
+    assert peak < out + 2 * path.stat().st_size + 16 * 2 ** 20, (peak, out)

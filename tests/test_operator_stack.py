@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import json
 from pathlib import Path
 
@@ -160,16 +162,17 @@ def test_fingerprint_checks_scene(rng, tmp_path):
     scene = _scene(rng)
     fp = scene_fingerprint(scene)
     assert fp == scene_fingerprint(scene.copy()) and len(fp) == 16
-    moved = scene.copy()
-    moved.means[7, 0] += 1e-3
+    # scene arrays are read-only: changed copies make new scenes
+    means = scene.means.copy()
+    means[7, 0] += 1e-3
+    moved = dataclasses.replace(scene, means=means)
     assert scene_fingerprint(moved) != fp
     # every array W depends on changes the fingerprint; colours do not
     for field in ("quats", "log_scales", "opacity_logits"):
-        other = scene.copy()
-        getattr(other, field).flat[3] += 1e-3
-        assert scene_fingerprint(other) != fp, field
-    recoloured = scene.copy()
-    recoloured.sh[:] += 0.25
+        arr = getattr(scene, field).copy()
+        arr.flat[3] += 1e-3
+        assert scene_fingerprint(dataclasses.replace(scene, **{field: arr})) != fp, field
+    recoloured = dataclasses.replace(scene, sh=scene.sh + 0.25)
     assert scene_fingerprint(recoloured) == fp
     s = OperatorStack(_stack(rng).views, fingerprint=fp)
     s.save(tmp_path / "ops")

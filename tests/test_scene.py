@@ -136,3 +136,91 @@ def test_sh_basis_normalisation():
     gram = 4 * np.pi * (y.T @ y) / len(d)
     np.testing.assert_allclose(gram, np.eye(16), atol=0.03)
     assert np.isclose(y[0, 0], SH_C0)
+
+
+# --------------------------------------------------------------------------
+# a validated scene cannot be changed behind the checks' back (issue 12, item 6)
+
+_FIELDS = ("means", "quats", "log_scales", "opacity_logits", "sh")
+
+
+def test_arrays_are_read_only_after_validation(rng):
+    s = random_scene(rng)
+    for name in _FIELDS:
+        arr = getattr(s, name)
+        assert not arr.flags.writeable, name
+        with pytest.raises(ValueError, match="read-only"):
+            arr.flat[0] = np.nan
+    with pytest.raises(ValueError, match="read-only"):
+        s.means[3] = np.nan  # the reproducer: NaN written after construction
+    with pytest.raises(ValueError, match="read-only"):
+        s.extra["label"][0] = 7
+    with pytest.raises(TypeError):
+        s.extra["new"] = np.zeros(len(s))
+    import dataclasses
+
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        s.means = np.full((len(s), 3), np.nan)
+    assert np.all(np.isfinite(s.means))
+
+
+def test_changes_go_through_a_new_validated_scene(rng):
+    import dataclasses
+
+    s = random_scene(rng)
+    means = s.means.copy()  # copies are writeable
+    means[3] = np.nan
+    with pytest.raises(ValidationError, match="'means' has non-finite values in 1 of 20"):
+        dataclasses.replace(s, means=means)
+    means[3] = 1.0
+    moved = dataclasses.replace(s, means=means)
+    assert moved.means[3].tolist() == [1, 1, 1] and not moved.means.flags.writeable
+    assert np.array_equal(moved.extra["label"], s.extra["label"])
+    # copy(), subset() and transformed() give read-only scenes too
+    for other in (s.copy(), s.subset(np.arange(5)), s.transformed(translation=[1, 0, 0])):
+        assert not any(getattr(other, n).flags.writeable for n in _FIELDS)
+
+
+def test_caller_arrays_are_not_frozen(rng):
+    means = rng.normal(size=(5, 3)).astype(np.float32)  # float32: held without a copy
+    s = GaussianScene(means, np.tile([1.0, 0, 0, 0], (5, 1)), np.zeros((5, 3)), np.zeros(5),
+                      np.zeros((5, 1, 3)))
+    assert means.flags.writeable  # the caller's array keeps working as before
+    assert not s.means.flags.writeable and np.shares_memory(s.means, means)
+
+
+def test_read_scene_gives_read_only_arrays(tmp_path, rng):
+    from seed2gs_inverse.io import read_scene, write_scene
+
+    s = random_scene(rng)
+    write_scene(tmp_path / "s.ply", GaussianScene(s.means, s.quats, s.log_scales, s.opacity_logits,
+                                                  s.sh, {"tag": np.arange(len(s), dtype=np.int32)}))
+    got = read_scene(tmp_path / "s.ply")
+    assert not any(getattr(got, n).flags.writeable for n in _FIELDS)
+    assert not any(v.flags.writeable for v in got.extra.values())
+
+
+def test_edits_still_work_on_read_only_scenes(rng):
+    from seed2gs_inverse import edit
+
+    s = random_scene(rng)
+    sel = np.arange(20) < 5
+    moved = edit.move(s, sel, translation=[1.0, 0, 0])
+    np.testing.assert_allclose(moved.means[:5], s.means[:5] + [1, 0, 0], atol=1e-6)
+    np.testing.assert_array_equal(moved.means[5:], s.means[5:])
+    np.testing.assert_array_equal(moved.extra["label"], s.extra["label"])
+    red = edit.recolour(s, sel, [1.0, 0, 0])
+    np.testing.assert_allclose(SH_C0 * red.sh[:5, 0] + 0.5, np.tile([1.0, 0, 0], (5, 1)), atol=1e-6)
+    assert np.all(red.sh[:5, 1:] == 0) and np.array_equal(red.sh[5:], s.sh[5:])
+    assert not red.sh.flags.writeable and s.sh.flags.writeable is False
+
+
+def test_copy_module_works_on_frozen_scenes(rng):
+    import copy
+
+    s = random_scene(rng)
+    assert copy.copy(s) is s
+    d = copy.deepcopy(s)
+    assert d is not s and not np.shares_memory(d.means, s.means)
+    np.testing.assert_array_equal(d.sh, s.sh)
+    np.testing.assert_array_equal(d.extra["label"], s.extra["label"])

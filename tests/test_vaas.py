@@ -1,5 +1,6 @@
 """VAAS orbit geometry, visibility, amplitude (Eq. 5) and the skip rule."""
 
+import dataclasses
 import numpy as np
 import pytest
 
@@ -144,6 +145,5 @@ def test_estimate_up_removes_the_camera_pitch():
         assert np.degrees(np.arccos(np.clip(est @ true_up, -1, 1))) < 3
         assert abs(est @ cam.right) < 1e-9  # no roll is introduced
     # No flat Gaussians: fall back to the camera's image-up.
-    iso = syn.scene.copy()
-    iso.log_scales[:] = -3.0
+    iso = dataclasses.replace(syn.scene, log_scales=np.full_like(syn.scene.log_scales, -3.0))
     np.testing.assert_allclose(estimate_up(iso, cam), cam.up)

@@ -6,7 +6,6 @@ and ``cameras.py``.
 
 from __future__ import annotations
 
-import io
 import os
 import warnings
 import zlib
@@ -48,22 +47,54 @@ def logit_from_unorm(p: np.ndarray) -> np.ndarray:
     return out.astype(np.float32)
 
 
-def bounded_gzip(path, data: bytes, limit: int, header_bytes: int | None = None) -> bytes:
-    """Inflate a gzip stream, refusing to produce more than ``limit`` bytes.
+# Largest decompressed/compressed size ratio accepted for a scene file. Real
+# SPZ files compress their quantised arrays about 1.4x (biker_152k.spz: 1.36);
+# a degree-3 file whose SH bands are all zero stays below 5x. Zero-filled
+# streams reach 1000x (gzip) to 30000x (zstd): a 6 KB file could claim 10
+# million Gaussians. Together with the slack this bounds what a reader
+# allocates by what the file can justify.
+MAX_COMPRESSION_RATIO = 16
+COMPRESSION_SLACK = 1 << 20  # tiny files (a handful of Gaussians) compress badly
 
-    Memory stays bounded by ``limit`` whatever the stream claims. With
-    ``header_bytes`` only that many leading bytes are returned (used to read a
-    header before the payload size is known). Raises FormatError for corrupt
-    or truncated streams.
+
+def check_compression_ratio(path, claimed: int, file_bytes: int, what: str) -> None:
+    """Refuse a header whose decompressed size no real file of this size could hold.
+
+    ``claimed`` bytes must not exceed ``MAX_COMPRESSION_RATIO * file_bytes +
+    COMPRESSION_SLACK``. Called before anything is decompressed or allocated.
+    """
+    limit = MAX_COMPRESSION_RATIO * file_bytes + COMPRESSION_SLACK
+    if claimed > limit:
+        raise fail(path, f"the header claims {what} ({claimed} bytes once decompressed), "
+                         f"{claimed / max(file_bytes, 1):.0f} times the file's {file_bytes} bytes; "
+                         f"real files compress less than {MAX_COMPRESSION_RATIO}x, so the header "
+                         f"is corrupt or the file is a decompression bomb")
+
+
+def bounded_gzip(path, data: bytes, header_bytes: int) -> bytes:
+    """The first ``header_bytes`` decompressed bytes of a gzip stream (FormatError if fewer)."""
+    out = np.empty(header_bytes, np.uint8)
+    got = gzip_into(path, data, out, stop_when_full=True)
+    if got < header_bytes:
+        raise fail(path, f"file is truncated: the decompressed header has {got} "
+                         f"of {header_bytes} bytes")
+    return out.tobytes()
+
+
+def gzip_into(path, data, out: np.ndarray, stop_when_full: bool = False) -> int:
+    """Inflate a gzip stream into the uint8 buffer ``out``; the number of bytes written.
+
+    Never produces more than ``out.size`` bytes, whatever the stream claims:
+    more data than fits is a FormatError (unless ``stop_when_full``, used to
+    read just a header), as are corrupt or truncated streams.
     """
     d = zlib.decompressobj(16 + zlib.MAX_WBITS)
-    out = bytearray()
-    want = limit if header_bytes is None else header_bytes
+    cap = out.size
     src = memoryview(data)
-    pos = 0
+    pos = got = 0
     step = 1 << 20
     try:
-        while len(out) < want + 1:
+        while True:
             if d.unconsumed_tail:
                 chunk = d.unconsumed_tail
             elif pos < len(src):
@@ -71,78 +102,136 @@ def bounded_gzip(path, data: bytes, limit: int, header_bytes: int | None = None)
                 pos += len(chunk)
             else:
                 break
-            out += d.decompress(chunk, want + 1 - len(out))
-            if d.eof:
+            # ask for one byte more than fits, to tell "exactly full" from "too much"
+            piece = d.decompress(chunk, cap + 1 - got)
+            if got + len(piece) > cap:
+                if stop_when_full:
+                    out[got:] = np.frombuffer(piece, np.uint8, cap - got)
+                    return cap
+                raise fail(path, f"the gzip stream holds more than the {cap} bytes "
+                                 f"the header allows")
+            out[got:got + len(piece)] = np.frombuffer(piece, np.uint8)
+            got += len(piece)
+            if d.eof or (stop_when_full and got == cap):
                 break
     except zlib.error as exc:
         raise fail(path, f"corrupt gzip stream ({exc})") from None
-    if header_bytes is not None:
-        if len(out) < header_bytes:
-            raise fail(path, f"file is truncated: the decompressed header has {len(out)} "
-                             f"of {header_bytes} bytes")
-        return bytes(out[:header_bytes])
-    if len(out) > limit:
-        raise fail(path, f"decompressed data is larger than the header allows ({limit} bytes)")
-    if not d.eof:
+    if not d.eof and not stop_when_full:
         raise fail(path, f"file is truncated: the gzip stream ends early "
-                         f"after {len(out)} decompressed bytes")
-    return bytes(out)
+                         f"after {got} decompressed bytes")
+    return got
 
 
-def bounded_zstd(path, data, expected: int, what: str) -> bytes:
-    """Decompress one zstd frame that must hold exactly ``expected`` bytes.
+def zstd_into(path, data, out: np.ndarray, what: str) -> None:
+    """Decompress one zstd frame that must fill the uint8 buffer ``out`` exactly.
 
-    Output is read in pieces and capped at ``expected + 1`` bytes, so a
-    corrupt size field cannot make us allocate more than the header promised.
+    Output goes straight into ``out`` and one byte more is asked for only to
+    detect a frame that is too long, so a corrupt size field cannot make us
+    allocate more than the header promised.
     """
     import zstandard
 
-    out = bytearray()
+    expected = out.size
+    view = memoryview(out)
+    got = 0
     try:
-        reader = zstandard.ZstdDecompressor().stream_reader(io.BytesIO(bytes(data)))
-        while len(out) <= expected:
-            piece = reader.read(min(expected + 1 - len(out), 1 << 22))
-            if not piece:
+        reader = zstandard.ZstdDecompressor().stream_reader(data)
+        while got < expected:
+            k = reader.readinto(view[got:got + min(expected - got, 1 << 22)])
+            if not k:
                 break
-            out += piece
+            got += k
+        more = bool(reader.read(1)) if got == expected else False
     except zstandard.ZstdError as exc:
         raise fail(path, f"corrupt zstd stream for {what} ({exc})") from None
-    if len(out) != expected:
-        more = "more" if len(out) > expected else f"only {len(out)}"
-        raise fail(path, f"the {what} stream decompresses to {more} bytes; "
+    if got != expected or more:
+        amount = "more" if more else f"only {got}"
+        raise fail(path, f"the {what} stream decompresses to {amount} bytes; "
                          f"the header promises {expected}")
-    return bytes(out)
+
+
+_ARRAYS = ("means", "quats", "log_scales", "opacity_logits", "sh")
+
+
+def _column_labels(key: str, arr: np.ndarray, fields) -> list:
+    """One label per column of ``arr`` (trailing dimensions flattened)."""
+    width = int(np.prod(arr.shape[1:], dtype=np.int64))
+    given = (fields or {}).get(key)
+    if given is not None and len(given) == width:
+        return list(given)
+    if width == 1:
+        return [key]
+    return [f"{key}[{j}]" for j in range(width)]
+
+
+def saturate_opacity(path, opacity_logits: np.ndarray, field: str = "opacity") -> np.ndarray:
+    """Opacity logits with +-inf replaced by +-``OPACITY_LOGIT_LIMIT`` (a warning says how many).
+
+    Some exporters (splat-transform among them) write an opacity of exactly
+    1 or 0 as an infinite logit. ``sigmoid(+-40)`` is 1 and 4e-18 in float32,
+    so the finite logit keeps the rendered opacity and every Gaussian is kept;
+    NaN stays NaN and is refused by :func:`finish_scene`.
+    """
+    inf = np.isinf(opacity_logits)
+    if not inf.any():
+        return opacity_logits
+    n_pos = int(np.count_nonzero(inf & (opacity_logits > 0)))
+    n_neg = int(np.count_nonzero(inf)) - n_pos
+    out = np.where(inf, np.copysign(OPACITY_LOGIT_LIMIT, opacity_logits), opacity_logits)
+    warnings.warn(f"{os.fspath(path)}: {n_pos} '{field}' logits are +inf and {n_neg} are -inf; "
+                  f"read as +-{OPACITY_LOGIT_LIMIT:g} (saturated opacity 1 or 0)", stacklevel=4)
+    return out.astype(opacity_logits.dtype, copy=False)
 
 
 def finish_scene(path, means, quats, log_scales, opacity_logits, sh, extra=None,
-                 drop_nonfinite: bool = False) -> GaussianScene:
+                 drop_nonfinite: bool = False, fields=None) -> GaussianScene:
     """Validate decoded arrays and build the scene.
 
-    A Gaussian is *invalid* when any of its values is NaN or infinite, or its
-    quaternion has zero length (its rotation is undefined). By default any
-    invalid Gaussian is an error naming the file and the count; with
-    ``drop_nonfinite=True`` they are removed and a warning says how many.
+    Infinite opacity logits are read as saturated (:func:`saturate_opacity`).
+    Any other NaN or infinite value, or a quaternion of zero length (its
+    rotation is undefined), makes the Gaussian *invalid*. By default an invalid
+    Gaussian is an error naming the file, the offending fields (``fields``
+    maps an array name -- ``"means"``, ``"quats"``, ``"log_scales"``,
+    ``"opacity_logits"``, ``"sh"`` or an extra's name -- to the file's names
+    of its columns) and the first index; with ``drop_nonfinite=True`` they
+    are removed and a warning says how many and why.
     """
     extra = dict(extra or {})
     n = means.shape[0]
+    opacity_logits = saturate_opacity(path, opacity_logits,
+                                      _column_labels("opacity_logits", opacity_logits, fields)[0])
+    named = dict(zip(_ARRAYS, (means, quats, log_scales, opacity_logits, sh)))
+    named.update((k, v) for k, v in extra.items() if v.dtype.kind == "f")
     bad = np.zeros(n, dtype=bool)
-    arrays = [means, quats, log_scales, opacity_logits, sh]
-    arrays += [a for a in extra.values() if a.dtype.kind == "f"]
-    for arr in arrays:
+    problems = []  # (label, count, first index)
+    for key, arr in named.items():
         finite = np.isfinite(arr)
-        if not finite.all():  # the per-row pass is only paid for files with bad values
-            bad |= ~finite.reshape(n, int(np.prod(arr.shape[1:]))).all(axis=1)
+        if finite.all():  # the per-column pass is only paid for files with bad values
+            continue
+        cols = finite.reshape(n, -1)
+        for label, col in zip(_column_labels(key, arr, fields), cols.T):
+            if not col.all():
+                problems.append((f"non-finite '{label}'", int(n - col.sum()), int(np.argmin(col))))
+        bad |= ~cols.all(axis=1)
     # quats @ ones would lose tiny components to underflow; compare with zero instead
-    bad |= ~(quats != 0).any(axis=1)
+    zero_rot = ~(quats != 0).any(axis=1)
+    if zero_rot.any():
+        label = "/".join(_column_labels("quats", quats, fields))
+        problems.append((f"zero-length rotation '{label}'", int(zero_rot.sum()),
+                         int(np.argmax(zero_rot))))
+        bad |= zero_rot
     nbad = int(bad.sum())
     if nbad:
-        first = int(np.argmax(bad))
+        what = "; ".join(f"{label} in {count} (first at index {first})"
+                         for label, count, first in problems[:6])
+        if len(problems) > 6:
+            what += f"; and {len(problems) - 6} more fields"
         if not drop_nonfinite:
-            raise fail(path, f"{nbad} of {n} Gaussians have non-finite values or a zero-length "
-                             f"rotation (first at index {first}); read with drop_nonfinite=True "
-                             f"(CLI: --drop-nonfinite) to drop them")
-        warnings.warn(f"{os.fspath(path)}: dropped {nbad} of {n} Gaussians with non-finite "
-                      f"values or a zero-length rotation", stacklevel=3)
+            raise fail(path, f"{nbad} of {n} Gaussians are invalid: {what}. Fix the file, or "
+                             f"read with drop_nonfinite=True (CLI: --drop-nonfinite) to drop "
+                             f"those Gaussians")
+        warnings.warn(f"{os.fspath(path)}: dropped {nbad} of {n} invalid Gaussians: {what}",
+                      stacklevel=3)
         keep = ~bad
         means, quats, log_scales = means[keep], quats[keep], log_scales[keep]
         opacity_logits, sh = opacity_logits[keep], sh[keep]

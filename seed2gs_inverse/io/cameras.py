@@ -36,6 +36,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import struct
 import warnings
 from pathlib import Path
@@ -43,7 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from ..camera import Camera
-from ..errors import FormatError, ValidationError
+from ..errors import FormatError, Seed2GSError, ValidationError
 from ..scene import quat_to_rotmat
 from ._common import atomic_write, fail
 
@@ -58,8 +59,12 @@ def _label(path, index, name) -> str:
 
 def _number(label, key, value) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise FormatError(f"{label}: '{key}' must be a number, got {value!r}")
-    return float(value)
+        raise FormatError(f"{label}: '{key}' must be a number, got {str(value)[:60]!r}")
+    try:
+        return float(value)
+    except OverflowError:  # JSON integers have no size limit
+        raise ValidationError(f"{label}: '{key}' is out of range ({str(value)[:20]}... has "
+                              f"{len(str(value))} digits)") from None
 
 
 def _matrix(label, key, value, shapes) -> np.ndarray:
@@ -67,6 +72,8 @@ def _matrix(label, key, value, shapes) -> np.ndarray:
     want = " or ".join("x".join(map(str, sh)) for sh in shapes)
     try:
         arr = np.array(value, dtype=np.float64)
+    except OverflowError:  # a JSON integer beyond float range
+        raise ValidationError(f"{label}: '{key}' holds a number out of range") from None
     except (TypeError, ValueError):
         raise FormatError(f"{label}: '{key}' must be a {want} array of numbers") from None
     if arr.shape not in shapes:
@@ -109,7 +116,12 @@ def _camera(label, name, width, height, fx, fy, cx, cy, c2w_rot, center) -> Came
     try:
         return Camera(int(width), int(height), fx, fy, cx, cy, w2c, name=name)
     except ValidationError as exc:
-        raise ValidationError(f"{label}: {exc}") from None
+        raise ValidationError(f"{label}: {_strip_camera(exc)}") from None
+
+
+def _strip_camera(exc) -> str:
+    """Camera's message without its own "camera 'NAME': " prefix (the label says it)."""
+    return re.sub(r"^camera( '[^']*')?: ", "", str(exc), count=1)
 
 
 # --------------------------------------------------------------------------
@@ -133,7 +145,18 @@ def read_cameras(path) -> list:
         With ``name`` set from the file (``img_name``, image name or
         ``file_path``). See the module docstring for each layout.
     """
-    p = Path(path)
+    try:
+        return _read_cameras(Path(path))
+    except Seed2GSError:
+        raise
+    except (ValueError, TypeError, KeyError, IndexError, OverflowError, RecursionError,
+            struct.error) as exc:
+        # Last line of defence: an unforeseen corruption must still surface as
+        # the documented error type, naming the file.
+        raise fail(path, f"cannot read the cameras ({type(exc).__name__}: {exc})") from None
+
+
+def _read_cameras(p: Path) -> list:
     if p.is_dir():
         return _read_colmap_dir(p)
     if p.name.lower() in ("cameras.txt", "images.txt", "cameras.bin", "images.bin"):
@@ -229,7 +252,7 @@ def _read_json_entry(path, index, entry) -> Camera:
         try:
             cam = Camera.from_dict(entry)
         except ValidationError as exc:
-            raise ValidationError(f"{label}: {exc}") from None
+            raise ValidationError(f"{label}: {_strip_camera(exc)}") from None
         return cam if cam.name else Camera.from_dict({**entry, "name": name})
     missing = [k for k in ("width", "height", "position", "rotation", "fx", "fy") if k not in entry]
     if missing:
@@ -333,6 +356,17 @@ def _colmap_intrinsics(label, model, params):
                       f"the images first (colmap image_undistorter)")
 
 
+def _check_intrinsics(label, width, height, fx, fy, cx, cy) -> None:
+    """Validate image size and intrinsics where they are stored (Camera's own checks)."""
+    for key, v in (("width", width), ("height", height)):
+        if not (math.isfinite(v) and float(v).is_integer()):
+            raise ValidationError(f"{label}: {key} must be a whole number, got {v}")
+    try:
+        Camera(int(width), int(height), fx, fy, cx, cy)
+    except ValidationError as exc:
+        raise ValidationError(f"{label}: {_strip_camera(exc)}") from None
+
+
 def _read_colmap_dir(d: Path) -> list:
     for sub in (d, d / "sparse" / "0", d / "sparse"):
         for ext in (".bin", ".txt"):
@@ -363,8 +397,10 @@ def _read_colmap(d: Path, ext: str) -> list:
         label = f"{os.fspath(img_path)}: image {image_id} ('{name}')"
         if cam_id not in intr:
             raise FormatError(f"{label}: refers to camera {cam_id}, which {cam_path.name} lacks")
-        model, width, height, params = intr[cam_id]
+        model, width, height, params, where = intr[cam_id]
         fx, fy, cx, cy, dist = _colmap_intrinsics(label, model, params)
+        _check_intrinsics(f"{os.fspath(cam_path)} ({where}): camera {cam_id} ({model})",
+                          width, height, fx, fy, cx, cy)
         distorted += dist
         q = np.asarray(qvec, dtype=np.float64)
         t = np.asarray(tvec, dtype=np.float64)
@@ -378,6 +414,10 @@ def _read_colmap(d: Path, ext: str) -> list:
         warnings.warn(f"{os.fspath(cam_path)}: lens distortion of {distorted} images is ignored "
                       f"(pinhole projection is used)", stacklevel=4)
     return cams
+
+
+# COLMAP ids are 32-bit unsigned; str.isdigit() would accept '²' (and int() then fail)
+_ID_RE = re.compile(r"^[0-9]{1,10}$")
 
 
 def _text_lines(path):
@@ -403,8 +443,9 @@ def _colmap_cameras_txt(path) -> dict:
         words = line.split()
         if not words or words[0].startswith("#"):
             continue
-        if len(words) < 4 or not words[0].isdigit():
-            raise fail(path, f"line {lineno}: expected 'CAMERA_ID MODEL WIDTH HEIGHT PARAMS...'")
+        if len(words) < 4 or not _ID_RE.match(words[0]):
+            raise fail(path, f"line {lineno}: expected 'CAMERA_ID MODEL WIDTH HEIGHT PARAMS...' "
+                             f"with CAMERA_ID a whole number, got {line.strip()[:60]!r}")
         model = words[1]
         if model not in _COLMAP_NPARAMS:
             raise fail(path, f"line {lineno}: unknown camera model {model!r}")
@@ -412,7 +453,8 @@ def _colmap_cameras_txt(path) -> dict:
             raise fail(path, f"line {lineno}: model {model} takes {_COLMAP_NPARAMS[model]} "
                              f"parameters, found {len(words) - 4}")
         size = _floats(path, lineno, words[2:4])
-        out[int(words[0])] = (model, size[0], size[1], _floats(path, lineno, words[4:]))
+        out[int(words[0])] = (model, size[0], size[1], _floats(path, lineno, words[4:]),
+                              f"line {lineno}")
     return out
 
 
@@ -428,8 +470,9 @@ def _colmap_images_txt(path) -> list:
             continue
         # IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME; the next line lists
         # the 2-D points (possibly empty) and is skipped.
-        if len(words) < 10 or not words[0].isdigit() or not words[8].isdigit():
-            raise fail(path, f"line {lineno}: expected 'IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME'")
+        if len(words) < 10 or not _ID_RE.match(words[0]) or not _ID_RE.match(words[8]):
+            raise fail(path, f"line {lineno}: expected 'IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME' "
+                             f"with whole-number ids, got {lines[i - 1].strip()[:60]!r}")
         vals = _floats(path, lineno, words[1:8])
         out.append((int(words[0]), vals[:4], vals[4:], int(words[8]), " ".join(words[9:])))
         i += 1
@@ -482,12 +525,13 @@ def _colmap_cameras_bin(path) -> dict:
     r = _Reader(path, _read_bytes(path))
     (count,) = r.take("<Q")
     out = {}
-    for _ in range(count):
+    for record in range(count):
         cam_id, model_id, width, height = r.take("<iiQQ")
         if model_id not in _COLMAP_MODELS:
             raise fail(path, f"camera {cam_id} has unknown model id {model_id}")
         model, nparams = _COLMAP_MODELS[model_id]
-        out[cam_id] = (model, float(width), float(height), list(r.take(f"<{nparams}d")))
+        out[cam_id] = (model, float(width), float(height), list(r.take(f"<{nparams}d")),
+                       f"record {record}")
     r.done()
     return out
 

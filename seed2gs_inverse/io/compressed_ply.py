@@ -100,39 +100,50 @@ def read_compressed_ply(path, header: PlyHeader, drop_nonfinite: bool = False) -
         return _decode(path, data, n, has_color, rest_names, drop_nonfinite)
 
 
+_BLOCK = CHUNK_SIZE * 64  # Gaussians decoded at a time: bounds the float64 temporaries
+
+
 def _decode(path, data, n, has_color, rest_names, drop_nonfinite) -> GaussianScene:
-
-    chunks = columns(data["chunk"], _CHUNK_BASE + (_CHUNK_COLOR if has_color else [])).astype(np.float64)
-    per = np.repeat(chunks, CHUNK_SIZE, axis=0)[:n]  # chunk values for each Gaussian
+    names = _CHUNK_BASE + (_CHUNK_COLOR if has_color else [])
+    chunks = columns(data["chunk"], names).astype(np.float64)
     packed = data["vertex"]
-    pos_t = _unpack_11_10_11(packed["packed_position"])
-    scale_t = _unpack_11_10_11(packed["packed_scale"])
-    means = _lerp(per[:, 0:3], per[:, 3:6], pos_t)
-    log_scales = _lerp(per[:, 6:9], per[:, 9:12], scale_t)
+    k = 1 + len(rest_names) // 3
+    means = np.empty((n, 3), np.float32)
+    quats = np.empty((n, 4), np.float32)
+    log_scales = np.empty((n, 3), np.float32)
+    opacity = np.empty(n, np.float32)
+    sh = np.empty((n, k, 3), np.float32)
+    for a in range(0, n, _BLOCK):
+        b = min(n, a + _BLOCK)
+        # chunk values for each Gaussian of the block (a is a multiple of CHUNK_SIZE)
+        per = np.repeat(chunks[a // CHUNK_SIZE:-(-b // CHUNK_SIZE)], CHUNK_SIZE, axis=0)[:b - a]
+        block = packed[a:b]
+        means[a:b] = _lerp(per[:, 0:3], per[:, 3:6], _unpack_11_10_11(block["packed_position"]))
+        log_scales[a:b] = _lerp(per[:, 6:9], per[:, 9:12], _unpack_11_10_11(block["packed_scale"]))
+        quats[a:b] = _rotations(block["packed_rotation"])
+        col = block["packed_color"]
+        rgb = np.stack([_unorm(col, s, 8) for s in (24, 16, 8)], axis=1)
+        if has_color:
+            rgb = _lerp(per[:, 12:15], per[:, 15:18], rgb)
+        sh[a:b, 0, :] = (rgb - 0.5) / SH_C0
+        opacity[a:b] = logit_from_unorm(_unorm(col, 0, 8))
+        if rest_names:
+            rest = columns(data["sh"][a:b], rest_names).astype(np.float64) * (8.0 / 255.0) - 4.0
+            sh[a:b, 1:, :] = rest.reshape(b - a, 3, k - 1).transpose(0, 2, 1)
+    return finish_scene(path, means, quats, log_scales, opacity, sh, None, drop_nonfinite)
 
-    rot = packed["packed_rotation"]
+
+def _rotations(rot: np.ndarray) -> np.ndarray:
+    """w-first quaternions (m, 4) float64 from packed_rotation words."""
+    m = rot.shape[0]
     norm = np.sqrt(2.0)  # the three small components lie in [-1/sqrt(2), 1/sqrt(2)]
     small = np.stack([(_unorm(rot, s, 10) - 0.5) * norm for s in (20, 10, 0)], axis=1)
     largest = np.sqrt(np.maximum(0.0, 1.0 - (small ** 2).sum(axis=1)))
     which = (rot >> np.uint32(30)).astype(np.int64)
-    quats = np.empty((n, 4))
+    quats = np.empty((m, 4))
     # The small components fill the slots other than `which`, in order.
     slot = np.arange(4)[None, :]
     rank = slot - (slot > which[:, None])
     quats[:] = np.take_along_axis(small, np.clip(rank, 0, 2), axis=1)
-    quats[np.arange(n), which] = largest
-
-    col = packed["packed_color"]
-    rgba = np.stack([_unorm(col, s, 8) for s in (24, 16, 8, 0)], axis=1)
-    rgb = rgba[:, :3]
-    if has_color:
-        rgb = _lerp(per[:, 12:15], per[:, 15:18], rgb)
-    k = 1 + len(rest_names) // 3
-    sh = np.zeros((n, k, 3), np.float32)
-    sh[:, 0, :] = (rgb - 0.5) / SH_C0
-    if rest_names:
-        rest = columns(data["sh"], rest_names).astype(np.float64) * (8.0 / 255.0) - 4.0
-        sh[:, 1:, :] = rest.reshape(n, 3, k - 1).transpose(0, 2, 1)
-    return finish_scene(path, means.astype(np.float32), quats.astype(np.float32),
-                        log_scales.astype(np.float32), logit_from_unorm(rgba[:, 3]), sh,
-                        None, drop_nonfinite)
+    quats[np.arange(m), which] = largest
+    return quats

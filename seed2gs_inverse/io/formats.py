@@ -79,8 +79,10 @@ def read_scene(path, drop_nonfinite: bool = False) -> GaussianScene:
         (antimatter15) or ``.spz`` (Niantic, versions 2-4) file.
     drop_nonfinite : bool
         Gaussians with NaN/infinite values or a zero-length quaternion are an
-        error by default; with True they are dropped and a warning says how
-        many.
+        error by default (naming the fields and the first index); with True
+        they are dropped and a warning says how many and why. Infinite
+        opacity logits are not invalid: ``+-inf`` (some exporters' opacity 1
+        or 0) is read as ``+-40``, with a warning.
 
     Returns
     -------
@@ -93,8 +95,20 @@ def read_scene(path, drop_nonfinite: bool = False) -> GaussianScene:
     ------
     FormatError
         Unknown format, bad magic/header, truncated data, a header promising
-        more data than the file holds (checked before allocating), missing
-        properties, non-finite values. The message names the file.
+        more data than the file holds (checked before allocating; for the
+        compressed ``.spz`` streams, more than ``MAX_COMPRESSION_RATIO`` = 16
+        times the file size once decompressed), missing properties,
+        non-finite values. The message names the file.
+
+    Notes
+    -----
+    Memory is bounded by what the file justifies: headers are checked
+    against the file size before anything is allocated or decompressed,
+    compressed streams are inflated into one buffer of exactly the promised
+    size, and decoding runs in blocks. Peak memory is about the decoded scene
+    plus the file (binary PLY ~2.2-2.5x the file, ASCII PLY ~0.5-1.6x,
+    ``.splat`` ~2.2x; the compressed formats decode to 4-15x their size).
+    The arrays of the returned scene are read-only.
     OSError
         The file cannot be opened.
     """

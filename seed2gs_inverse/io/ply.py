@@ -40,7 +40,7 @@ from ..scene import GaussianScene
 from ._common import atomic_write, fail, file_size, finish_scene
 
 __all__ = ["PlyHeader", "PlyElement", "read_ply_header", "read_ply_elements",
-           "read_standard_ply", "write_standard_ply"]
+           "read_standard_ply", "write_standard_ply", "ply_field_names"]
 
 # PLY scalar type names (both spellings) -> numpy type codes without byte order.
 _TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
@@ -124,9 +124,11 @@ def read_ply_header(path) -> PlyHeader:
                     raise fail(path, f"unsupported PLY version '{words[2]}' (expected 1.0)")
                 fmt = words[1]
             elif key == "element":
-                if len(words) != 3 or not words[2].isdigit():
-                    raise fail(path, f"malformed PLY element line '{line}' "
-                                     f"(expected 'element NAME COUNT')")
+                # ASCII digits only: str.isdigit() accepts '²', and a 5000-digit count
+                # would make int() raise
+                if len(words) != 3 or not re.fullmatch(r"[0-9]{1,19}", words[2]):
+                    raise fail(path, f"malformed PLY element line '{line[:80]}' "
+                                     f"(expected 'element NAME COUNT' with COUNT below 10^19)")
                 if any(el.name == words[1] for el in elements):
                     raise fail(path, f"PLY header declares element '{words[1]}' twice")
                 elements.append(PlyElement(words[1], int(words[2])))
@@ -203,48 +205,147 @@ def read_ply_elements(path, header: PlyHeader, wanted) -> dict:
     return out
 
 
+_ASCII_BLOCK_BYTES = 1 << 20  # text read at a time: bounds the temporaries of a block
+
+
+_ASCII_MAX_LINE = 1 << 22  # a row of a few hundred numbers is far shorter
+
+
+class _AsciiLines:
+    """Non-blank lines of an ASCII PLY body, read about 1 MiB at a time.
+
+    :meth:`take` hands out at most about 1 MiB of text at once however long
+    the lines are, and a line longer than ``_ASCII_MAX_LINE`` is an error, so
+    the text held in memory stays bounded whatever the file holds.
+    """
+
+    def __init__(self, path, fh):
+        self.path, self.fh = path, fh
+        self.lines: list = []
+        self.pos = 0
+        self.buffered = 0  # bytes in self.lines[self.pos:]
+        self.tail = b""
+        self.eof = False
+
+    def _fill(self):
+        raw = self.fh.read(_ASCII_BLOCK_BYTES)
+        if not raw:
+            self.eof = True
+            raw, self.tail = self.tail, b""
+        elif b"\n" in raw:
+            raw, self.tail = (self.tail + raw).rsplit(b"\n", 1)
+        else:
+            raw, self.tail = b"", self.tail + raw
+        if len(self.tail) > _ASCII_MAX_LINE:
+            raise fail(self.path, f"ASCII PLY body has a line longer than {_ASCII_MAX_LINE} bytes "
+                                  f"(corrupt file or binary data under an ascii header)")
+        new = [ln for ln in raw.split(b"\n") if ln.strip()]
+        self.lines = self.lines[self.pos:] + new
+        self.pos = 0
+        self.buffered += sum(map(len, new))
+
+    def take(self, k: int) -> list:
+        """Up to ``k`` lines, fewer when they hold more than ~1 MiB; none only at the end."""
+        # read on while short of k lines and of ~1 MiB of text; an empty buffer always
+        # reads on (blank lines, or a line longer than one read)
+        while not self.eof and (self.pos == len(self.lines) or (
+                len(self.lines) - self.pos < k and self.buffered < _ASCII_BLOCK_BYTES)):
+            self._fill()
+        out = self.lines[self.pos:self.pos + k]
+        self.pos += len(out)
+        self.buffered -= sum(map(len, out))
+        return out
+
+
 def _read_ascii(path, header, needed, wanted) -> dict:
+    """ASCII elements, parsed by numpy one block of lines at a time.
+
+    A row of ``m`` values takes at least ``2 m`` bytes (``"0 0 ... 0\\n"``), so
+    counts that the file cannot hold are refused before anything is
+    allocated; memory is then the records themselves plus one block.
+    """
+    available = file_size(path) - header.data_offset
+    least = sum(el.count * 2 * max(1, len(el.properties) + len(el.lists)) for el in needed) - 1
+    if least > available:
+        counts = ", ".join(f"{el.count} x '{el.name}'" for el in needed)
+        raise fail(path, f"file is truncated: the header promises {counts} ASCII rows "
+                         f"(at least {least} bytes) but only {available} bytes follow the header")
+    out = {}
     with open(path, "rb") as fh:
         fh.seek(header.data_offset)
-        body = fh.read()
-    try:
-        text = body.decode("ascii")
-    except UnicodeDecodeError:
-        raise fail(path, "ASCII PLY body contains non-ASCII bytes") from None
-    lines = [ln for ln in text.splitlines() if ln.strip()]
-    out = {}
-    pos = 0
-    for el in needed:
-        if len(lines) - pos < el.count:
-            raise fail(path, f"file is truncated: element '{el.name}' needs {el.count} lines "
-                             f"but only {len(lines) - pos} remain")
-        if el.name in wanted:
-            out[el.name] = _parse_ascii_rows(path, el, lines[pos:pos + el.count])
-        pos += el.count
+        lines = _AsciiLines(path, fh)
+        for el in needed:
+            if el.name in wanted:
+                out[el.name] = _parse_ascii_element(path, el, lines)
+                continue
+            left = el.count
+            while left:
+                got = len(lines.take(min(left, 1 << 16)))
+                if not got:
+                    raise fail(path, f"file is truncated: element '{el.name}' needs {el.count} "
+                                     f"lines but the file holds only {el.count - left}")
+                left -= got
     return out
 
 
-def _parse_ascii_rows(path, el: PlyElement, rows) -> np.ndarray:
+def _ascii_row_error(path, el: PlyElement, text: str, first_row: int):
+    """The FormatError for the first bad row of a block numpy could not parse (error path only)."""
     nprop = len(el.properties)
-    tokens = " ".join(rows).split()
-    if len(tokens) != el.count * nprop:
-        raise fail(path, f"ASCII element '{el.name}' should have {nprop} values on each of its "
-                         f"{el.count} lines, found {len(tokens)} values in all")
-    try:
-        vals = np.array(tokens, dtype=np.float64).reshape(el.count, nprop)
-    except ValueError:
-        raise fail(path, f"ASCII element '{el.name}' has a value that is not a number") from None
+    for i, line in enumerate(text.split("\n")):
+        words = line.split()
+        if len(words) != nprop:
+            return fail(path, f"ASCII element '{el.name}' row {first_row + i} has {len(words)} "
+                              f"values; each row needs {nprop}")
+        for word, (name, _) in zip(words, el.properties):
+            try:
+                float(word)
+            except ValueError:
+                return fail(path, f"ASCII element '{el.name}' row {first_row + i}: property "
+                                  f"'{name}' is {word[:40]!r}, not a number")
+    return fail(path, f"ASCII element '{el.name}' rows {first_row}-{first_row + i} could "
+                      f"not be parsed as numbers")
+
+
+def _parse_ascii_element(path, el: PlyElement, lines: _AsciiLines) -> np.ndarray:
+    nprop = len(el.properties)
+    if nprop == 0 and el.count:
+        raise fail(path, f"ASCII element '{el.name}' has no properties")
     rec = np.empty(el.count, dtype=el.dtype("="))
-    for j, (name, code) in enumerate(el.properties):
-        col = vals[:, j]
-        if code[0] in "iu":
-            info = np.iinfo(np.dtype(code))
-            ok = np.isfinite(col) & (col == np.round(col)) & (col >= info.min) & (col <= info.max)
-            if not ok.all():
-                raise fail(path, f"ASCII property '{name}' holds a value that is not a {code} "
-                                 f"integer (row {int(np.argmin(ok))})")
-        with np.errstate(over="ignore"):
-            rec[name] = col
+    # ~1 MiB of text for values of ~20 characters; numpy's parser peaks at a few times that
+    rows_per_block = max(1, _ASCII_BLOCK_BYTES // (20 * max(nprop, 1)))
+    done = 0
+    while done < el.count:
+        block = lines.take(min(rows_per_block, el.count - done))
+        if not block:
+            raise fail(path, f"file is truncated: element '{el.name}' needs {el.count} lines "
+                             f"but the file holds only {done}")
+        try:
+            text = b"\n".join(block).decode("ascii")
+        except UnicodeDecodeError:
+            raise fail(path, "ASCII PLY body contains non-ASCII bytes") from None
+        del block
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # "input contained no data" is checked below
+                vals = np.loadtxt(text.split("\n"), dtype=np.float64, comments=None, ndmin=2)
+        except ValueError:
+            raise _ascii_row_error(path, el, text, done) from None
+        del text
+        if vals.shape[1] != nprop:
+            raise fail(path, f"ASCII element '{el.name}' should have {nprop} values on each of its "
+                             f"{el.count} lines; row {done} has {vals.shape[1]}")
+        m = vals.shape[0]
+        for j, (name, code) in enumerate(el.properties):
+            col = vals[:, j]
+            if code[0] in "iu":
+                info = np.iinfo(np.dtype(code))
+                ok = np.isfinite(col) & (col == np.round(col)) & (col >= info.min) & (col <= info.max)
+                if not ok.all():
+                    raise fail(path, f"ASCII property '{name}' holds a value that is not a {code} "
+                                     f"integer (row {done + int(np.argmin(ok))})")
+            with np.errstate(over="ignore"):
+                rec[name][done:done + m] = col
+        done += m
     return rec
 
 
@@ -311,7 +412,17 @@ def read_standard_ply(path, header: PlyHeader, drop_nonfinite: bool = False) -> 
     return finish_scene(path, columns(vert, ["x", "y", "z"]),
                         columns(vert, ["rot_0", "rot_1", "rot_2", "rot_3"]),
                         columns(vert, ["scale_0", "scale_1", "scale_2"]),
-                        columns(vert, ["opacity"])[:, 0].copy(), sh, extra, drop_nonfinite)
+                        columns(vert, ["opacity"])[:, 0].copy(), sh, extra, drop_nonfinite,
+                        fields=ply_field_names(k))
+
+
+def ply_field_names(k: int) -> dict:
+    """PLY property names of each column of the scene arrays, for error messages."""
+    sh = [f"f_dc_{c}" if j == 0 else f"f_rest_{c * (k - 1) + j - 1}"
+          for j in range(k) for c in range(3)]  # sh[:, j, c] flattened row-major
+    return {"means": ["x", "y", "z"], "quats": [f"rot_{i}" for i in range(4)],
+            "log_scales": [f"scale_{i}" for i in range(3)], "opacity_logits": ["opacity"],
+            "sh": sh}
 
 
 def standard_property_names(sh_degree: int) -> list:

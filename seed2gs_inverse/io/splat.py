@@ -60,17 +60,39 @@ def check_splat(path) -> int:
     return size // SPLAT_DTYPE.itemsize
 
 
+_BLOCK = 1 << 16  # Gaussians read and decoded at a time
+
+
 def read_splat(path, drop_nonfinite: bool = False) -> GaussianScene:
-    """Decode a ``.splat`` file (see the module docstring)."""
+    """Decode a ``.splat`` file (see the module docstring).
+
+    The records are read and decoded one block at a time straight into the
+    float32 outputs, so memory is the decoded scene (1.75x the file) plus a
+    block.
+    """
     n = check_splat(path)
-    rec = np.fromfile(path, dtype=SPLAT_DTYPE, count=n)
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        log_scales = np.log(rec["scale"].astype(np.float64)).astype(np.float32)
-    rgba = rec["rgba"].astype(np.float64) / 255.0
-    sh = ((rgba[:, None, :3] - 0.5) / SH_C0).astype(np.float32)
-    quats = (rec["rotation"].astype(np.float32) - 128.0) / 128.0
-    return finish_scene(path, rec["position"].astype(np.float32), quats, log_scales,
-                        logit_from_unorm(rgba[:, 3]), sh, None, drop_nonfinite)
+    means = np.empty((n, 3), np.float32)
+    log_scales = np.empty((n, 3), np.float32)
+    quats = np.empty((n, 4), np.float32)
+    opacity = np.empty(n, np.float32)
+    sh = np.empty((n, 1, 3), np.float32)
+    with open(path, "rb") as fh:
+        for a in range(0, n, _BLOCK):
+            rec = np.fromfile(fh, dtype=SPLAT_DTYPE, count=min(_BLOCK, n - a))
+            b = a + rec.shape[0]
+            if b == a:  # pragma: no cover - the size was checked; the file shrank meanwhile
+                raise fail(path, "file is truncated (it changed while being read)")
+            means[a:b] = rec["position"]
+            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                log_scales[a:b] = np.log(rec["scale"].astype(np.float64))
+            rgba = rec["rgba"].astype(np.float64) / 255.0
+            sh[a:b, 0, :] = (rgba[:, :3] - 0.5) / SH_C0
+            opacity[a:b] = logit_from_unorm(rgba[:, 3])
+            quats[a:b] = (rec["rotation"].astype(np.float32) - 128.0) / 128.0
+    return finish_scene(path, means, quats, log_scales, opacity, sh, None, drop_nonfinite,
+                        fields={"means": [f"position[{i}]" for i in range(3)],
+                                "log_scales": [f"scale[{i}] (log of a non-positive scale)"
+                                               for i in range(3)]})
 
 
 def write_splat(path, scene: GaussianScene) -> None:

@@ -46,7 +46,8 @@ import warnings
 import numpy as np
 
 from ..scene import GaussianScene
-from ._common import bounded_gzip, bounded_zstd, fail, finish_scene, logit_from_unorm
+from ._common import (bounded_gzip, check_compression_ratio, fail, finish_scene, gzip_into,
+                      logit_from_unorm, zstd_into)
 
 __all__ = ["read_spz", "check_spz", "SPZ_MAGIC"]
 
@@ -84,7 +85,13 @@ def check_spz(path) -> str:
 
 
 def read_spz(path, drop_nonfinite: bool = False) -> GaussianScene:
-    """Decode an ``.spz`` file (see the module docstring)."""
+    """Decode an ``.spz`` file (see the module docstring).
+
+    Memory is bounded by what the file can justify: the header's sizes are
+    checked against the file (:func:`check_compression_ratio`) before
+    anything is decompressed, streams are inflated straight into one buffer
+    of exactly that size, and decoding runs in blocks of Gaussians.
+    """
     kind = check_spz(path)
     with open(path, "rb") as fh:
         data = fh.read()
@@ -95,27 +102,30 @@ def read_spz(path, drop_nonfinite: bool = False) -> GaussianScene:
 
 
 def _read_gzip(path, data: bytes, drop_nonfinite: bool) -> GaussianScene:
-    head = bounded_gzip(path, data, 0, header_bytes=16)
+    head = bounded_gzip(path, data, header_bytes=16)
     magic, version, n, sh_degree, frac, flags, _ = struct.unpack("<IIIBBBB", head)
     if magic != SPZ_MAGIC:
         raise fail(path, "gzip stream does not hold an SPZ header (missing 'NGSP' magic)")
     _check_header(path, version, sh_degree)
     if version == 4:
         raise fail(path, "SPZ version 4 is not gzip-compressed; the file is inconsistent")
-    sizes = _sizes(n, sh_degree, version)
-    payload = sum(sizes)
+    payload = sum(_sizes(n, sh_degree, version))
+    check_compression_ratio(path, 16 + payload, len(data), f"{n} Gaussians of SH degree {sh_degree}")
     # Extension records sit between the header and the arrays; their total
     # length is whatever the stream holds beyond the arrays.
-    raw = bounded_gzip(path, data, 16 + payload + _MAX_EXTENSION_BYTES)
-    extra = len(raw) - 16 - payload
+    raw = np.empty(16 + payload + _MAX_EXTENSION_BYTES, np.uint8)
+    got = gzip_into(path, data, raw)
+    extra = got - 16 - payload
     if extra < 0:
         raise fail(path, f"file is truncated: the header promises {n} Gaussians "
-                         f"({payload} bytes of arrays) but the stream holds {len(raw) - 16}")
+                         f"({payload} bytes of arrays) but the stream holds {got - 16}")
     if extra and not flags & _FLAG_EXTENSIONS:
         raise fail(path, f"the stream holds {extra} bytes more than the {n} Gaussians of the "
                          f"header need (wrong point count?)")
-    return _decode(path, memoryview(raw)[16 + extra:], n, sh_degree, frac, version,
-                   drop_nonfinite)
+    return _decode(path, raw[16 + extra:got], n, sh_degree, frac, version, drop_nonfinite)
+
+
+_STREAMS = ["positions", "alphas", "colors", "scales", "rotations", "sh"]
 
 
 def _read_v4(path, data: bytes, size: int, drop_nonfinite: bool) -> GaussianScene:
@@ -133,66 +143,88 @@ def _read_v4(path, data: bytes, size: int, drop_nonfinite: bool) -> GaussianScen
     toc_end = toc + 16 * n_streams
     if toc < 32 or toc_end > size:
         raise fail(path, f"SPZ table of contents at byte {toc} lies outside the file ({size} bytes)")
+    # Every entry is checked against the header and the file before anything
+    # is decompressed or allocated: the first inconsistency stops the read.
     entries = [struct.unpack_from("<QQ", data, toc + 16 * i) for i in range(n_streams)]
     offset = toc_end
-    parts = []
-    names = ["positions", "alphas", "colors", "scales", "rotations", "sh"]
-    for i, ((comp, uncomp), want) in enumerate(zip(entries, expected)):
+    for name, (comp, uncomp), want in zip(_STREAMS, entries, expected):
         if uncomp != want:
-            raise fail(path, f"SPZ stream '{names[i]}' is declared as {uncomp} bytes; "
+            raise fail(path, f"SPZ stream '{name}' is declared as {uncomp} bytes; "
                              f"{n} Gaussians need {want}")
         if offset + comp > size:
-            raise fail(path, f"file is truncated: stream '{names[i]}' needs {comp} bytes at "
+            raise fail(path, f"file is truncated: stream '{name}' needs {comp} bytes at "
                              f"offset {offset} but the file has {size}")
-        parts.append(bounded_zstd(path, memoryview(data)[offset:offset + comp], want, names[i]))
         offset += comp
-    return _decode(path, memoryview(b"".join(parts)), n, sh_degree, frac, version, drop_nonfinite)
+    total = sum(expected)
+    check_compression_ratio(path, total, size, f"{n} Gaussians of SH degree {sh_degree}")
+    raw = np.empty(total, np.uint8)
+    offset, pos = toc_end, 0
+    for name, (comp, _), want in zip(_STREAMS, entries, expected):
+        zstd_into(path, memoryview(data)[offset:offset + comp], raw[pos:pos + want], name)
+        offset += comp
+        pos += want
+    return _decode(path, raw, n, sh_degree, frac, version, drop_nonfinite)
 
 
-def _decode(path, buf, n: int, sh_degree: int, frac: int, version: int,
+_BLOCK = 1 << 14  # Gaussians decoded at a time: bounds the float64 temporaries
+
+
+def _decode(path, buf: np.ndarray, n: int, sh_degree: int, frac: int, version: int,
             drop_nonfinite: bool) -> GaussianScene:
+    """Decode the attribute arrays held in the uint8 buffer ``buf`` (see the module docstring)."""
     sizes = _sizes(n, sh_degree, version)
     starts = np.concatenate([[0], np.cumsum(sizes)])
-    arrays = [np.frombuffer(buf, dtype=np.uint8, count=s, offset=int(o))
-              for s, o in zip(sizes, starts[:-1])]
-    pos_b, alpha_b, color_b, scale_b, rot_b, sh_b = arrays
-
-    p = pos_b.reshape(n, 3, 3).astype(np.int32)
-    fixed = p[..., 0] | (p[..., 1] << 8) | (p[..., 2] << 16)
-    fixed = np.where(fixed & 0x800000, fixed - (1 << 24), fixed)  # sign-extend 24 bits
-    means = np.ldexp(fixed.astype(np.float64), -frac).astype(np.float32)
-    log_scales = (scale_b.reshape(n, 3).astype(np.float32) / 16.0 - 10.0)
-    opacity = logit_from_unorm(alpha_b.astype(np.float64) / 255.0)
-
-    if version == 2:
-        xyz = rot_b.reshape(n, 3).astype(np.float64) / 127.5 - 1.0
-        w = np.sqrt(np.maximum(0.0, 1.0 - (xyz ** 2).sum(axis=1)))
-        xyzw = np.concatenate([xyz, w[:, None]], axis=1)
-    else:
-        comp = rot_b.view("<u4").astype(np.int64)
-        largest = comp >> 30
-        xyzw = np.empty((n, 4))
-        mask = (1 << 9) - 1
-        filled = np.zeros(n)
-        # Components are packed from the last to the first, skipping the largest.
-        for i in range(3, -1, -1):
-            here = largest != i
-            mag = (comp & mask) / mask * np.sqrt(0.5)
-            val = np.where((comp >> 9) & 1, -mag, mag)
-            xyzw[:, i] = np.where(here, val, 0.0)
-            filled += np.where(here, val * val, 0.0)
-            comp = np.where(here, comp >> 10, comp)
-        xyzw[np.arange(n), largest] = np.sqrt(np.maximum(0.0, 1.0 - filled))
-    quats = xyzw[:, [3, 0, 1, 2]].astype(np.float32)
-
+    pos_b, alpha_b, color_b, scale_b, rot_b, sh_b = (buf[int(o):int(o) + s]
+                                                     for s, o in zip(sizes, starts[:-1]))
+    pos_b = pos_b.reshape(n, 3, 3)
+    color_b, scale_b = color_b.reshape(n, 3), scale_b.reshape(n, 3)
+    rot_b = rot_b.reshape(n, 3 if version == 2 else 4)
     dim = _SH_DIM[sh_degree]
     keep = min(dim, 15)
     if dim > 15:
         warnings.warn(f"{os.fspath(path)}: SH degree 4 is not supported; "
                       f"the degree-4 band is dropped", stacklevel=4)
+    sh_b = sh_b.reshape(n, dim, 3)
+
+    means = np.empty((n, 3), np.float32)
+    quats = np.empty((n, 4), np.float32)
+    log_scales = np.empty((n, 3), np.float32)
+    opacity = np.empty(n, np.float32)
     sh = np.empty((n, 1 + keep, 3), np.float32)
-    sh[:, 0, :] = (color_b.reshape(n, 3).astype(np.float64) / 255.0 - 0.5) / _COLOR_SCALE
-    if keep:
-        rest = sh_b.reshape(n, dim, 3)[:, :keep, :]
-        sh[:, 1:, :] = (rest.astype(np.float32) - 128.0) / 128.0
+    for a in range(0, n, _BLOCK):
+        b = min(n, a + _BLOCK)
+        p = pos_b[a:b].astype(np.int32)
+        fixed = p[..., 0] | (p[..., 1] << 8) | (p[..., 2] << 16)
+        fixed = np.where(fixed & 0x800000, fixed - (1 << 24), fixed)  # sign-extend 24 bits
+        means[a:b] = np.ldexp(fixed.astype(np.float64), -frac)
+        log_scales[a:b] = scale_b[a:b].astype(np.float32) / 16.0 - 10.0
+        opacity[a:b] = logit_from_unorm(alpha_b[a:b].astype(np.float64) / 255.0)
+        quats[a:b] = _rotations(rot_b[a:b], version)[:, [3, 0, 1, 2]]
+        sh[a:b, 0, :] = (color_b[a:b].astype(np.float64) / 255.0 - 0.5) / _COLOR_SCALE
+        if keep:
+            sh[a:b, 1:, :] = (sh_b[a:b, :keep, :].astype(np.float32) - 128.0) / 128.0
     return finish_scene(path, means, quats, log_scales, opacity, sh, None, drop_nonfinite)
+
+
+def _rotations(rot_b: np.ndarray, version: int) -> np.ndarray:
+    """x, y, z, w quaternions (m, 4) float64 from the stored rotation bytes."""
+    m = rot_b.shape[0]
+    if version == 2:
+        xyz = rot_b.astype(np.float64) / 127.5 - 1.0
+        w = np.sqrt(np.maximum(0.0, 1.0 - (xyz ** 2).sum(axis=1)))
+        return np.concatenate([xyz, w[:, None]], axis=1)
+    comp = np.ascontiguousarray(rot_b).view("<u4")[:, 0].astype(np.int64)
+    largest = comp >> 30
+    xyzw = np.empty((m, 4))
+    mask = (1 << 9) - 1
+    filled = np.zeros(m)
+    # Components are packed from the last to the first, skipping the largest.
+    for i in range(3, -1, -1):
+        here = largest != i
+        mag = (comp & mask) / mask * np.sqrt(0.5)
+        val = np.where((comp >> 9) & 1, -mag, mag)
+        xyzw[:, i] = np.where(here, val, 0.0)
+        filled += np.where(here, val * val, 0.0)
+        comp = np.where(here, comp >> 10, comp)
+    xyzw[np.arange(m), largest] = np.sqrt(np.maximum(0.0, 1.0 - filled))
+    return xyzw
