@@ -110,9 +110,9 @@ def test_extract_bad_input_leaves_nothing(files, capsys, tmp_path):
            capsys, "threshold", out)
     # options the settings object rejects fail before any work, naming the option
     _fails(["extract", scene, "--camera", cams, "--mask", d / "mask.png", "--orbit-scale", 5, "-o", out],
-           capsys, "orbit_scale must be <= 4", out)
+           capsys, "--orbit-scale must be <= 4", out)
     _fails(["extract", scene, "--camera", cams, "--mask", d / "mask.png", "--views", 1, "-o", out],
-           capsys, "--views must be >= 2", out)
+           capsys, "--views must be in 2..360", out)
     _fails(["extract", scene, "--camera", cams, "--box", 1, 1, 50, 50, "--negative", 3, 3, "-o", out],
            capsys, "--point", out)
     # A mask on empty space (the sky) does not touch the scene.
