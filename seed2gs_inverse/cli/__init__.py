@@ -45,7 +45,17 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
     for name in _COMMAND_MODULES:
         importlib.import_module(f"{__name__}.{name}").register(sub)
+    _tag_leaves(parser)
     return parser
+
+
+def _tag_leaves(parser) -> None:
+    """Give every command's parser a default ``_parser`` = itself (for its own usage errors)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for child in action.choices.values():
+                child.set_defaults(_parser=child)
+                _tag_leaves(child)
 
 
 def main(argv=None) -> int:
@@ -55,7 +65,9 @@ def main(argv=None) -> int:
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        args, extra = parser.parse_known_args(argv)
+        if extra:  # reported by the command's own parser: "seed2gs extract: error: ..."
+            getattr(args, "_parser", parser).error(f"unrecognized arguments: {' '.join(extra)}")
     except SystemExit as exc:  # --help, --version, usage errors: their status, no traceback
         return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
     try:
