@@ -209,3 +209,34 @@ def test_every_positional_argument_has_help_and_options_are_listed():
             if command[0] == "solve":
                 for opt in method_options(m):
                     assert opt in text, (m, opt)
+
+
+def test_force_replaces_for_every_writing_command(files, tmp_path, capsys):
+    """One overwrite rule: an existing output is refused without --force (the table) and replaced with it."""
+    import shutil
+
+    d = tmp_path
+    for name in ("scene.ply", "cameras.json", "truth.npy"):
+        shutil.copy(files / name, d / name)
+    shutil.copytree(files / "ops", d / "ops")
+    (d / "masks").mkdir()
+    for k, shape in enumerate([(48, 64), (24, 32)]):
+        np.save(d / "masks" / f"view_{k:03d}.npy", np.zeros(shape, np.float32))
+    for name in ("out.ply", "out.png", "q.npy"):
+        (d / name).write_bytes(b"old")
+    (d / "cmp").mkdir()
+    (d / "ops2").mkdir()
+    cmds = [["convert", d / "scene.ply", d / "out.ply"],
+            ["render", d / "scene.ply", "--camera", d / "cameras.json", "-o", d / "out.png"],
+            ["solve", d / "ops", d / "masks", "--method", "voting", "-o", d / "q.npy"],
+            ["compare", d / "ops", d / "masks", "--truth", d / "truth.npy", "--methods", "voting",
+             "--holdout-every", 0, "-o", d / "cmp"],
+            ["operators", "build", d / "scene.ply", "--cameras", d / "cameras.json", "--scale", 0.25,
+             "-o", d / "ops2", "--no-progress"]]
+    for cmd in cmds:
+        assert cli.main([str(a) for a in cmd]) == 2, cmd
+        assert "exists" in capsys.readouterr().err
+        assert cli.main([str(a) for a in cmd] + ["--force"]) == 0, capsys.readouterr().err
+    for name in ("out.ply", "out.png", "q.npy"):
+        assert (d / name).read_bytes() != b"old"
+    assert (d / "cmp" / "comparison.csv").is_file() and (d / "ops2" / "manifest.json").is_file()
