@@ -225,8 +225,8 @@ def compare(operators, masks, truth, methods=None, holdout_every: int | None = 4
     if progress is not None and not callable(progress):
         raise ValidationError(f"progress must be a callable or None, got {type(progress).__name__}")
     rows, per_view, results = [], {}, {}
-    for k, m in enumerate(methods):
-        step = None if progress is None else (lambda p, m=m, k=k: progress(m, k, len(methods), p))
+    for j, m in enumerate(methods):
+        step = None if progress is None else (lambda p, m=m, j=j: progress(m, j, len(methods), p))
         tracemalloc.start()
         try:
             res = solve(fit_stack, fit_masks, method=m, init=init, progress=step, **options.get(m, {}))
@@ -250,5 +250,5 @@ def compare(operators, masks, truth, methods=None, holdout_every: int | None = 4
         per_view[m] = {"views": [int(i) for i in eval_idx], "iou": ious, "biou": bious}
         results[m] = res
         if progress is not None:
-            progress(m, k, len(methods), None)
+            progress(m, j, len(methods), None)
     return Comparison(rows=rows, per_view=per_view, holdout=[int(i) for i in held], results=results)
