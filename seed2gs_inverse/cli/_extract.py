@@ -66,7 +66,8 @@ def register(subparsers) -> None:
                    help="q threshold in [0, 1) (default: the solver's, 0.5)")
     p.add_argument("--up", default=None, metavar="level|camera|X,Y,Z",
                    help="orbit axis: 'level' (default: the camera's up without its pitch), "
-                        "'camera' (the image up) or a world direction X,Y,Z")
+                        "'camera' (the image up) or a world direction X,Y,Z (--up=-1,0,0 when it starts "
+                        "with a minus)")
     p.add_argument("--format", choices=("ply", "splat"), default=None, help="object/remainder format (default ply)")
     p.add_argument("--no-progress", action="store_true",
                    help="no progress bars (they are shown only when stderr is a terminal)")
@@ -205,7 +206,13 @@ def _up(text):
         return text
     from ._common import parse_vector
 
-    return tuple(parse_vector("--up", text).tolist())
+    try:
+        return tuple(parse_vector("--up", text).tolist())
+    except ValidationError as exc:
+        if "expected three numbers" not in str(exc):
+            raise
+        raise ValidationError(f"--up {text!r}: expected 'level', 'camera' or three numbers X,Y,Z "
+                              f"(e.g. 0,-1,0)") from None
 
 
 def settings_from_args(args):

@@ -34,7 +34,7 @@ def register(subparsers) -> None:
                      help="camera position and the point it looks at, each 'x,y,z'")
     p.add_argument("--up", default="0,-1,0", metavar="X,Y,Z",
                    help="with --look-at: world direction shown upwards (default 0,-1,0, the "
-                        "usual up of COLMAP-trained scenes)")
+                        "usual up of COLMAP-trained scenes; --up=-1,0,0 when it starts with a minus)")
     p.add_argument("--fov", type=float, default=60.0, metavar="DEG",
                    help="with --look-at: vertical field of view in degrees (default 60)")
     p.add_argument("--size", default="960x540", metavar="WxH",

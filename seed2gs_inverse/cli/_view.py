@@ -36,7 +36,8 @@ def register(subparsers) -> None:
     p.add_argument("--view", default=None, metavar="NAME|INDEX",
                    help="deprecated: write --camera FILE:NAME")
     p.add_argument("--up", nargs="+", default=None, metavar="X,Y,Z",
-                   help="without --camera: world direction shown upwards (COLMAP-like scenes: 0,-1,0)")
+                   help="without --camera: world direction shown upwards (COLMAP-like scenes: 0,-1,0; "
+                        "--up=-1,0,0 when it starts with a minus)")
     p.add_argument("--size", default=None, metavar="WxH",
                    help="window/screenshot size (default: the camera's, else 1024x768)")
     p.add_argument("--screenshot", metavar="OUT.png", help="write a PNG instead of opening a window")

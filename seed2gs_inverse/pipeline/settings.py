@@ -196,7 +196,9 @@ class ExtractSettings:
     mode : {"classic", "antialiased"}
         Rasterization mode of every rendering.
     progress : bool or None
-        Progress bars on stderr; default: only when stderr is a terminal.
+        Progress bars on stderr (orbit views, tracking, and the solve's
+        iterations with its current loss); default None: only when stderr is
+        a terminal, so logs never fill with bars.
     """
 
     method: str = "weighted_bce"

@@ -29,7 +29,9 @@ class SolveProgress(NamedTuple):
         The most iterations the method will run (its ``max_iter`` or view
         budget); it may stop earlier on convergence.
     loss : float or None
-        The method's current objective, when it has one.
+        The method's current objective: the weighted BCE (``weighted_bce``),
+        ``0.5 ||r||^2`` (``least_squares``, FISTA), the summed posterior
+        entropy (sequential ``beta_bernoulli``).
     """
 
     iteration: int
