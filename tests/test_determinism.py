@@ -63,3 +63,27 @@ def test_five_extract_calls_with_a_box_prompt_give_identical_q(syn, reference):
         assert np.array_equal(ex.q, runs[0].q)
         np.testing.assert_array_equal(ex.selected, runs[0].selected)
     assert runs[0].selected.any()
+
+
+def test_grabcut_equals_the_first_grabcut_of_a_fresh_process(reference, tmp_path):
+    """GRABCUT_SEED = -1 is OpenCV's default RNG state: the reference is a plain cv2.grabCut
+    in a new interpreter, where nothing has drawn from the RNG yet."""
+    import subprocess
+    import sys
+
+    from seed2gs_inverse.frontend.prompts import _grabcut, _to_uint8
+
+    cam, r, truth = reference
+    x0, y0, x1, y1 = _box_of(truth)
+    init = np.full(truth.shape, cv2.GC_BGD, np.uint8)
+    init[max(y0, 0):y1, max(x0, 0):x1] = cv2.GC_PR_FGD
+    np.save(tmp_path / "img.npy", _to_uint8(r.rgb))
+    np.save(tmp_path / "init.npy", init)
+    code = ("import sys, numpy as np, cv2; d = sys.argv[1]; img = np.load(d + '/img.npy'); "
+            "lab = np.load(d + '/init.npy'); cv2.grabCut(img, lab, None, np.zeros((1, 65)), np.zeros((1, 65)), "
+            "5, cv2.GC_INIT_WITH_MASK); np.save(d + '/out.npy', np.isin(lab, (1, 3)))")
+    subprocess.run([sys.executable, "-c", code, str(tmp_path)], check=True, timeout=120)
+    # the same image and labels through our GrabCut, after other GrabCuts have advanced the RNG
+    for _ in range(2):
+        ours = _grabcut(r.rgb, init, 5)
+    np.testing.assert_array_equal(ours, np.load(tmp_path / "out.npy"))

@@ -63,8 +63,12 @@ def _grabcut(image: np.ndarray, init: np.ndarray, iterations: int) -> np.ndarray
     return np.isin(labels, (cv2.GC_FGD, cv2.GC_PR_FGD))
 
 
-#: Seed of OpenCV's random generator for GrabCut (see :func:`_run_seeded`).
-GRABCUT_SEED = 12345
+#: Seed of OpenCV's random generator for GrabCut (see :func:`_run_seeded`): -1
+#: puts ``cv::RNG`` in its default state (``RNG((uint64)-1)``, the state of
+#: every new thread), so each GrabCut gives exactly what the first GrabCut of
+#: a fresh process always gave, e.g. a one-prompt ``seed2gs extract`` run
+#: before runs were made repeatable.
+GRABCUT_SEED = -1
 
 
 def _run_seeded(fn):
@@ -78,6 +82,11 @@ def _run_seeded(fn):
     thread's generator; calling it in a short-lived thread of our own makes
     every GrabCut identical for identical input *and* leaves the caller's
     OpenCV RNG (and any user code relying on it) untouched.
+
+    Repeatable is not robust: the k-means++ start still decides the result.
+    On the sphere scene of the tests a point prompt's IoU with the truth
+    ranges from 0.09 to 0.93 over 30 seeds (median 0.905, a third at 0.746,
+    the value of the default state); a box prompt's from 0.92 to 0.98.
     """
     import threading
 
