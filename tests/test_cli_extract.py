@@ -209,7 +209,10 @@ def test_progress_bars_only_on_a_terminal(files, capsys, tmp_path, monkeypatch):
 
     import sys
 
+    from seed2gs_inverse.pipeline.extract import _Progress
+
     monkeypatch.setattr(sys.stderr, "isatty", lambda: True, raising=False)
+    monkeypatch.setattr(_Progress, "MININTERVAL", 0.0)  # redraw on every update: the loss shows however fast
     assert _run(args + ["-o", tmp_path / "tty"]) == 0
     err = capsys.readouterr().err
     assert "solve (weighted_bce)" in err and "loss" in err and "VAAS views" in err

@@ -216,7 +216,10 @@ def test_cli_solve_and_compare_show_progress_only_on_a_terminal(run_cli, scene_f
     assert run_cli(*cmp_args) == 0
     err = capsys.readouterr().err
     assert "\r" not in err and "loss" not in err  # stderr is not a terminal here: no bars
+    from seed2gs_inverse.pipeline.extract import _Progress
+
     monkeypatch.setattr(sys.stderr, "isatty", lambda: True, raising=False)
+    monkeypatch.setattr(_Progress, "MININTERVAL", 0.0)  # redraw on every update: the loss shows however fast
     assert run_cli(*solve_args, "-o", tmp_path / "b.npy") == 0
     assert "least_squares" in (err := capsys.readouterr().err) and "loss" in err and "it" in err
     assert run_cli(*cmp_args) == 0

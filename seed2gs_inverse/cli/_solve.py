@@ -147,7 +147,10 @@ class _CompareBar:
         if self.enabled:
             from tqdm import tqdm
 
-            self._bar = tqdm(total=self.n, desc="compare", unit="method", leave=False, file=sys.stderr)
+            from ..pipeline.extract import _Progress
+
+            self._bar = tqdm(total=self.n, desc="compare", unit="method", leave=False, file=sys.stderr,
+                             mininterval=_Progress.MININTERVAL)
         return self
 
     @property

@@ -306,6 +306,9 @@ class _Progress:
     when disabled, so the solver skips its reports).
     """
 
+    #: Seconds between redraws (tqdm's ``mininterval``).
+    MININTERVAL = 0.1
+
     def __init__(self, desc: str, enabled: bool, total: int | None = None, unit: str = "it"):
         self.desc, self.enabled, self.total, self.unit = desc, bool(enabled), total, unit
         self._bar = None
@@ -314,7 +317,8 @@ class _Progress:
         if self.enabled:
             from tqdm import tqdm
 
-            self._bar = tqdm(total=self.total, desc=self.desc, unit=self.unit, leave=False, file=sys.stderr)
+            self._bar = tqdm(total=self.total, desc=self.desc, unit=self.unit, leave=False, file=sys.stderr,
+                             mininterval=self.MININTERVAL)
         return self
 
     def update(self, n: int = 1) -> None:
