@@ -197,7 +197,10 @@ def report_figure(extraction, n_strip: int = 8):
         op = ex.operators[int(i)]
         vcam = op.camera if getattr(op, "camera", None) is not None else ex.views[int(i)]
         win = _orbit_window(vcam, ex.lift.center, ex.lift.radius)
-        img = _window(_overlay(op.rendering.rgb, ex.masks[int(i)]), *win)
+        rgb = op.rendering.rgb
+        if rgb.shape == ex.reference.rgb.shape and np.array_equal(vcam.world_to_camera, cam.world_to_camera):
+            rgb = ex.reference.rgb  # the reference view's operator is composited only around the seed
+        img = _window(_overlay(rgb, ex.masks[int(i)]), *win)
         r, c = divmod(j, per_row)
         ax = fig.add_subplot(gs[1 + r, 3 * c:3 * c + 3])
         ax.imshow(np.clip(_square(img), 0, 1))
