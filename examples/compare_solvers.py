@@ -45,8 +45,8 @@ def parse_args(argv=None):
     p.add_argument("--insert", help="with --scene: object scene file to place into it (the truth)")
     p.add_argument("--at", type=float, nargs=3, metavar=("X", "Y", "Z"),
                    help="with --insert: world point the object stands on (default: the scene's median)")
-    p.add_argument("--up", type=float, nargs=3, default=(0.0, -1.0, 0.0), metavar=("X", "Y", "Z"),
-                   help="world up of --scene and of --insert's own coordinates (default 0 -1 0, COLMAP-like)")
+    p.add_argument("--up", default="0,-1,0", metavar="X,Y,Z",
+                   help="world up of --scene and of --insert's own coordinates (default 0,-1,0, COLMAP-like)")
     p.add_argument("--height", type=float, default=0.5, help="with --insert: object height, world units")
     p.add_argument("--views", type=int, default=16, help="orbit cameras (default 16; every 4th is held out)")
     p.add_argument("--size", type=int, nargs=2, default=(128, 96), metavar=("W", "H"),
@@ -55,9 +55,15 @@ def parse_args(argv=None):
     p.add_argument("--switch", type=float, default=0.25,
                    help="fraction of views whose mask switches to another object (default 0.25)")
     p.add_argument("--methods", help="comma-separated solvers (default: all of sgi.available_methods())")
-    p.add_argument("-o", "--output", help="directory for the operators (default: a temporary one)")
+    p.add_argument("-o", "--output", help="directory for the operators (default: a temporary one, removed at exit)")
     p.add_argument("--plot", help="write the comparison bar chart here (PNG)")
     args = p.parse_args(argv)
+    try:
+        args.up = [float(v) for v in args.up.split(",")]
+    except ValueError:
+        args.up = []
+    if len(args.up) != 3 or not np.all(np.isfinite(args.up)) or not np.any(args.up):
+        p.error("--up must be a non-zero direction X,Y,Z, e.g. 0,-1,0")
     if args.scene and not args.insert:
         p.error("--scene needs --insert OBJECT (the object to find; its Gaussians are the truth)")
     return args
@@ -92,7 +98,7 @@ def real_setup(args):
     """Composite: ``--insert`` placed upright on ``--at``; the decoy is a copy beside it."""
     bg, obj = sgi.read_scene(args.scene), sgi.read_scene(args.insert)
     anchor = np.median(bg.means, axis=0) if args.at is None else np.asarray(args.at, float)
-    up = np.asarray(args.up, float) / np.linalg.norm(args.up)
+    up = np.asarray(args.up, float) / np.linalg.norm(args.up)  # parse_args made it a non-zero 3-vector
     pose = synthetic.pose_on_point(obj, anchor, up, object_up=up, height=args.height, quantile=0.01)
     side = np.cross(up, [1.0, 0, 0] if abs(up[0]) < 0.9 else [0, 1.0, 0])
     side /= np.linalg.norm(side)
@@ -120,7 +126,9 @@ def main(argv=None) -> int:
     # 2. Save and reload. Loading validates everything and never unpickles;
     # mmap=True maps the arrays instead of reading them, and scene= checks
     # the operators belong to this scene (fingerprint).
-    out = args.output or tempfile.mkdtemp(prefix="seed2gs_ops_")
+    # Without -o, a temporary directory removed at exit: an example leaves nothing behind.
+    tmp = tempfile.TemporaryDirectory(prefix="seed2gs_ops_")
+    out = args.output or tmp.name
     stack.save(out, overwrite=True)
     stack = sgi.OperatorStack.load(out, mmap=True, scene=scene)
     print(f"saved and reloaded the stack from {out}")
@@ -146,6 +154,7 @@ def main(argv=None) -> int:
     if args.plot:
         cmp.plot(args.plot)
         print(f"wrote {args.plot}")
+    tmp.cleanup()
     return 0
 
 

@@ -30,6 +30,7 @@ import time
 import numpy as np
 
 import seed2gs_inverse as sgi
+from seed2gs_inverse.pipeline import ExtractSettings
 
 
 def parse_args(argv=None):
@@ -44,9 +45,10 @@ def parse_args(argv=None):
     p.add_argument("--object", default="box", help="synthetic mode: which object to extract (default box)")
     p.add_argument("--size", type=int, nargs=2, default=(192, 144), metavar=("W", "H"),
                    help="synthetic mode: reference image size (default 192 144)")
-    p.add_argument("--views", type=int, default=12, help="views per VAAS clip (default 12; the paper uses 24)")
+    views = ExtractSettings().n_views  # the default of extract(), seed2gs extract and seed2gs demo
+    p.add_argument("--views", type=int, default=views, help=f"views per VAAS clip (default {views}, the paper's)")
     p.add_argument("-o", "--output", help="directory for object.ply / remainder.ply / q.npy "
-                                          "(default: a new temporary directory)")
+                                          "(default: a temporary directory, removed at exit)")
     p.add_argument("--screenshot", help="also write a pyvista PNG of the membership q")
     args = p.parse_args(argv)
     if args.scene and not args.camera:
@@ -108,12 +110,16 @@ def main(argv=None) -> int:
         print("3D vs truth: " + ", ".join(f"{k} {v:.3f}" for k, v in s.items()
                                           if isinstance(v, float)))
 
-    out = args.output or tempfile.mkdtemp(prefix="seed2gs_extract_")
-    os.makedirs(out, exist_ok=True)
-    sgi.write_scene(os.path.join(out, "object.ply"), ex.object_scene())
-    sgi.write_scene(os.path.join(out, "remainder.ply"), ex.remainder_scene())
-    np.save(os.path.join(out, "q.npy"), ex.q)
-    print(f"wrote object.ply, remainder.ply and q.npy to {out}")
+    # Without -o the files go to a temporary directory that is removed at
+    # exit: an example leaves nothing behind unless asked to.
+    with tempfile.TemporaryDirectory(prefix="seed2gs_extract_") as tmp:
+        out = args.output or tmp
+        os.makedirs(out, exist_ok=True)
+        sgi.write_scene(os.path.join(out, "object.ply"), ex.object_scene())
+        sgi.write_scene(os.path.join(out, "remainder.ply"), ex.remainder_scene())
+        np.save(os.path.join(out, "q.npy"), ex.q)
+        print(f"wrote object.ply, remainder.ply and q.npy to {out}"
+              + ("" if args.output else " (temporary, removed at exit; pass -o DIR to keep them)"))
 
     if args.screenshot:
         from seed2gs_inverse import viz

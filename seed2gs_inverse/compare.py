@@ -132,7 +132,8 @@ class Comparison:
 
 
 def compare(operators, masks, truth, methods=None, holdout_every: int | None = 4, holdout=None, init=None,
-            options=None, threshold: float | None = None, render_threshold: float = 0.5) -> Comparison:
+            options=None, threshold: float | None = None, render_threshold: float = 0.5,
+            progress=None) -> Comparison:
     """Fit several solvers on the same views and score them against ground truth.
 
     Parameters
@@ -155,6 +156,11 @@ def compare(operators, masks, truth, methods=None, holdout_every: int | None = 4
         Selection threshold; default each result's own (0.5, or voting's bias threshold).
     render_threshold : float, default 0.5
         Opacity above which a rendered pixel of the selection counts as object.
+    progress : callable, optional
+        ``progress(method, k, n, step)`` while fitting: ``step`` is the
+        solver's :class:`~seed2gs_inverse.solvers.SolveProgress` during the
+        solve of the ``k``-th of ``n`` methods (0-based), and None once that
+        method is fitted and scored.
 
     Returns
     -------
@@ -196,11 +202,14 @@ def compare(operators, masks, truth, methods=None, holdout_every: int | None = 4
     tf = t.astype(np.float32)
     truth_masks = [stack[i].image(tf) > 0.5 for i in eval_idx]
     visibility = stack.column_sums()  # how much each Gaussian is seen over all views
+    if progress is not None and not callable(progress):
+        raise ValidationError(f"progress must be a callable or None, got {type(progress).__name__}")
     rows, per_view, results = [], {}, {}
-    for m in methods:
+    for j, m in enumerate(methods):
+        step = None if progress is None else (lambda p, m=m, j=j: progress(m, j, len(methods), p))
         tracemalloc.start()
         try:
-            res = solve(fit_stack, fit_masks, method=m, init=init, **options.get(m, {}))
+            res = solve(fit_stack, fit_masks, method=m, init=init, progress=step, **options.get(m, {}))
             _, peak = tracemalloc.get_traced_memory()
         finally:
             tracemalloc.stop()
@@ -220,4 +229,6 @@ def compare(operators, masks, truth, methods=None, holdout_every: int | None = 4
                      "peak_mb": peak / 2**20})
         per_view[m] = {"views": [int(i) for i in eval_idx], "iou": ious, "biou": bious}
         results[m] = res
+        if progress is not None:
+            progress(m, j, len(methods), None)
     return Comparison(rows=rows, per_view=per_view, holdout=[int(i) for i in held], results=results)

@@ -110,9 +110,9 @@ def test_extract_bad_input_leaves_nothing(files, capsys, tmp_path):
            capsys, "threshold", out)
     # options the settings object rejects fail before any work, naming the option
     _fails(["extract", scene, "--camera", cams, "--mask", d / "mask.png", "--orbit-scale", 5, "-o", out],
-           capsys, "orbit_scale must be <= 4", out)
+           capsys, "--orbit-scale must be <= 4", out)
     _fails(["extract", scene, "--camera", cams, "--mask", d / "mask.png", "--views", 1, "-o", out],
-           capsys, "--views must be >= 2", out)
+           capsys, "--views must be in 2..360", out)
     _fails(["extract", scene, "--camera", cams, "--box", 1, 1, 50, 50, "--negative", 3, 3, "-o", out],
            capsys, "--point", out)
     # A mask on empty space (the sky) does not touch the scene.
@@ -136,3 +136,85 @@ def test_demo_prints_scores(capsys):
     assert miou > 0.9
     assert _run(["demo", "--summary"]) == 0
     assert "Gaussians" in capsys.readouterr().out
+
+
+def test_from_report_repeats_the_run(files, capsys, tmp_path):
+    """report.json alone reproduces a run: --from-report gives the same q (issue 12 item 14)."""
+    import seed2gs_inverse
+    from seed2gs_inverse.operators import scene_fingerprint
+
+    d = files["dir"]
+    first, again = tmp_path / "first", tmp_path / "again"
+    box = [float(v) for v in files["box"]]
+    assert _run(["extract", d / "scene.ply", "--camera", f"{d / 'cameras.json'}:0", "--box", *box,
+                 "--views", 4, "--up", "camera", "--option", "max_iter=12", "-o", first]) == 0
+    out = capsys.readouterr().out
+    rep = json.loads((first / "report.json").read_text())
+    run = rep["run"]
+    # everything needed to repeat the run is recorded
+    assert run["toolkit"] == f"seed2gs-inverse {seed2gs_inverse.__version__}"
+    assert run["scene"]["path"] == str((d / "scene.ply").resolve())
+    assert run["scene"]["fingerprint"] == scene_fingerprint(files["syn"].scene)
+    assert run["camera"]["spec"] == f"{d / 'cameras.json'}:0"
+    from seed2gs_inverse.io import read_camera
+
+    assert run["camera"]["camera"] == json.loads(json.dumps(read_camera(f"{d / 'cameras.json'}:0").to_dict()))
+    assert run["prompt"]["kind"] == "box" and run["prompt"]["box"] == box
+    assert rep["settings"]["n_views"] == 4 and rep["settings"]["up"] == "camera"
+    assert rep["settings"]["solver_options"] == {"max_iter": 12}
+    assert np.allclose(run["axis"], files["cam"].up)  # --up camera: the orbit axis is the image up
+    assert run["seeds"]["grabcut_opencv_rng"] == -1
+    # the seed's size is reported on the command line and in the report
+    seed = rep["seed"]
+    assert f"seed: {seed['seed_pixels']:,} px = {seed['share_of_object_box']:.0%} of the object's box" in out
+    # repeat it
+    assert _run(["extract", "--from-report", first / "report.json", "-o", again]) == 0
+    q1, q2 = np.load(first / "q.npy"), np.load(again / "q.npy")
+    assert np.array_equal(q1, q2) and (q1 > 0.5).any()
+    rep2 = json.loads((again / "report.json").read_text())
+    assert rep2["settings"] == rep["settings"] and rep2["run"]["prompt"] == run["prompt"]
+    capsys.readouterr()
+    # a different scene under the recorded name is refused (geometry fingerprint)
+    other = tmp_path / "other.ply"
+    write_scene(other, files["syn"].scene.subset(np.arange(len(files["syn"].scene)) % 2 == 0))
+    assert _run(["extract", other, "--from-report", first / "report.json", "-o", tmp_path / "x"]) == 2
+    assert "not the recorded scene" in capsys.readouterr().err
+
+
+def test_from_report_with_a_mask_prompt(files, capsys, tmp_path):
+    d = files["dir"]
+    mask = tmp_path / "seed.png"
+    mask.write_bytes((d / "mask.png").read_bytes())
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert _run(["extract", d / "scene.ply", "--camera", d / "cameras.json", "--mask", mask, "--views", 3,
+                 "--method", "voting", "-o", a]) == 0
+    assert _run(["extract", "--from-report", a / "report.json", "-o", b]) == 0
+    assert np.array_equal(np.load(a / "q.npy"), np.load(b / "q.npy"))
+    # the recorded mask must be the same file
+    img = cv2.imread(str(mask), cv2.IMREAD_GRAYSCALE)
+    img[0, 0] = 255 - img[0, 0]
+    cv2.imwrite(str(mask), img)
+    capsys.readouterr()
+    assert _run(["extract", "--from-report", a / "report.json", "-o", tmp_path / "c"]) == 2
+    assert "changed since the recorded run" in capsys.readouterr().err
+
+
+def test_progress_bars_only_on_a_terminal(files, capsys, tmp_path, monkeypatch):
+    """A log file (stderr not a terminal) gets no progress bars; a terminal gets a solve bar with the loss."""
+    d = files["dir"]
+    args = ["extract", d / "scene.ply", "--camera", d / "cameras.json", "--mask", d / "mask.png", "--views", 3]
+    assert _run(args + ["-o", tmp_path / "log"]) == 0
+    err = capsys.readouterr().err
+    assert "\r" not in err and "it/s" not in err and "loss" not in err
+
+    import sys
+
+    from seed2gs_inverse.pipeline.extract import _Progress
+
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True, raising=False)
+    monkeypatch.setattr(_Progress, "MININTERVAL", 0.0)  # redraw on every update: the loss shows however fast
+    assert _run(args + ["-o", tmp_path / "tty"]) == 0
+    err = capsys.readouterr().err
+    assert "solve (weighted_bce)" in err and "loss" in err and "VAAS views" in err
+    assert _run(args + ["-o", tmp_path / "quiet", "--no-progress"]) == 0
+    assert "loss" not in capsys.readouterr().err

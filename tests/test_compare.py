@@ -181,3 +181,47 @@ def test_cli_errors_are_one_line_and_leave_nothing(run_cli, scene_files, tmp_pat
     write_scene(other, make_scene(1, n_per_object=60).scene)
     assert run_cli("operators", "info", ops, "--scene", other) == 2
     assert "scene" in capsys.readouterr().err
+
+
+def test_compare_progress_reports_each_method(blob):
+    stack, labels, masks = blob
+    calls = []
+    res = compare(stack, masks, labels, methods=["voting", "least_squares"], holdout_every=4,
+                  progress=lambda m, k, n, step: calls.append((m, k, n, step)))
+    done = [(m, k, n) for m, k, n, step in calls if step is None]
+    assert done == [("voting", 0, 2), ("least_squares", 1, 2)]  # one "done" per method, in order
+    steps = [step for m, k, n, step in calls if m == "least_squares" and step is not None]
+    assert len(steps) == res.results["least_squares"].iterations  # every solver iteration reported
+    assert not [c for c in calls if c[0] == "voting" and c[3] is not None]  # a closed form reports none
+    with pytest.raises(ValidationError, match="progress must be a callable"):
+        compare(stack, masks, labels, methods=["voting"], progress=1)
+
+
+def test_cli_solve_and_compare_show_progress_only_on_a_terminal(run_cli, scene_files, tmp_path, capsys,
+                                                                  monkeypatch):
+    import sys
+
+    d, s = scene_files
+    ops, masks = tmp_path / "ops", tmp_path / "masks"
+    assert run_cli("operators", "build", d / "scene.ply", "--cameras", d / "cameras.json", "-o", ops) == 0
+    from seed2gs_inverse.operators import OperatorStack
+
+    masks.mkdir()
+    for k, v in enumerate(OperatorStack.load(ops)):
+        np.save(masks / f"view_{k:03d}.npy", (v.matvec(s.object_mask(1).astype(np.float32)) > 0.5)
+                .astype(np.float32).reshape(v.image_shape))
+    solve_args = ["solve", ops, masks, "--method", "least_squares"]
+    cmp_args = ["compare", ops, masks, "--truth", d / "truth.npy", "--methods", "voting,least_squares"]
+    assert run_cli(*solve_args, "-o", tmp_path / "a.npy") == 0
+    assert run_cli(*cmp_args) == 0
+    err = capsys.readouterr().err
+    assert "\r" not in err and "loss" not in err  # stderr is not a terminal here: no bars
+    from seed2gs_inverse.pipeline.extract import _Progress
+
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True, raising=False)
+    monkeypatch.setattr(_Progress, "MININTERVAL", 0.0)  # redraw on every update: the loss shows however fast
+    assert run_cli(*solve_args, "-o", tmp_path / "b.npy") == 0
+    assert "least_squares" in (err := capsys.readouterr().err) and "loss" in err and "it" in err
+    assert run_cli(*cmp_args) == 0
+    err = capsys.readouterr().err
+    assert "compare" in err and "method" in err

@@ -39,7 +39,9 @@ def test_defaults_are_those_of_the_old_extract():
 
 @pytest.mark.parametrize("name,value,match", [
     ("method", "newton", "unknown solver method 'newton'"),
-    ("n_views", 1, "n_views must be >= 2"),
+    ("n_views", 1, r"n_views must be in 2\.\.360"),
+    ("n_views", 10 ** 7, r"n_views must be in 2\.\.360, got 10000000"),  # was a hang (issue 12 item 7)
+    ("n_views", float("nan"), "n_views must be an integer"),
     ("n_views", 2.5, "n_views must be an integer"),
     ("n_views", True, "n_views must be an integer"),
     ("a_max_deg", -1.0, "a_max_deg must be >= 0"),
@@ -51,9 +53,11 @@ def test_defaults_are_those_of_the_old_extract():
     ("orbit_scale", 0.0, "orbit_scale must be > 0"),
     ("orbit_scale", 5.0, "orbit_scale must be <= 4"),
     ("orbit_scale", "half", "orbit_scale must be a number"),
-    ("max_view_pixels", 10, "max_view_pixels must be >= 64"),
+    ("max_view_pixels", 10, r"max_view_pixels must be in 64\.\.16,777,216"),
+    ("max_view_pixels", 10 ** 12, r"max_view_pixels must be in 64\.\.16,777,216"),
     ("max_view_pixels", 1e5, "max_view_pixels must be an integer or None"),
-    ("max_reference_pixels", 0, "max_reference_pixels must be >= 64"),
+    ("max_reference_pixels", 0, "max_reference_pixels must be in 64..67,108,864"),
+    ("max_reference_pixels", 2 ** 40, "max_reference_pixels must be in 64..67,108,864"),
     ("roi_margin", 0.0, "roi_margin must be > 0"),
     ("zoom_margin", float("nan"), "zoom_margin must be finite"),
     ("up", "sideways", "up must be one of"),
@@ -65,9 +69,17 @@ def test_defaults_are_those_of_the_old_extract():
     ("min_evidence", float("nan"), "min_evidence must be finite"),
     ("min_evidence", -0.1, "min_evidence must be >= 0"),
     ("threshold", float("inf"), "threshold must be finite"),
+    ("threshold", float("nan"), "threshold must be finite"),  # selected nothing (issue 12 item 6)
+    ("threshold", 2.0, r"threshold must be in \[0, 1\)"),
+    ("threshold", 1.0, r"threshold must be in \[0, 1\)"),
+    ("threshold", -0.5, "threshold must be >= 0"),
     ("lift_options", {"eps": 1.0}, "seed_lift has no option"),
+    ("lift_options", {"eps_rell": 0.1}, r"seed_lift has no option\(s\) \['eps_rell'\]; its options are"),
+    ("lift_options", {"k_neighbors": 10 ** 7}, r"k_neighbors must be in 1\.\.256"),
     ("lift_options", [1], "lift_options must be a dict"),
     ("solver_options", {"max_iterations": 3}, "has no option"),
+    ("solver_options", {"max_iter": 10 ** 9}, r"max_iter must be in 1\.\.100,000"),
+    ("solver_options", {"max_iter": 0}, r"max_iter must be in 1\.\.100,000"),
     ("mode", "fancy", "mode must be one of"),
     ("progress", "yes", "progress must be True, False or None"),
 ])
@@ -126,8 +138,17 @@ def test_extract_rejects_unknown_keywords_before_any_work(tiny):
     syn, cam = tiny
     with pytest.raises(ValidationError, match=r"\['n_view'\].*valid names: .*n_views"):
         extract(syn.scene, cam, np.ones((24, 32), bool), n_view=3)
-    with pytest.raises(ValidationError, match="n_views must be >= 2"):
+    with pytest.raises(ValidationError, match=r"n_views must be in 2\.\.360"):
         extract(syn.scene, cam, np.ones((24, 32), bool), n_views=1)
+    # issue 12 items 4, 6, 7: each was a TypeError/ValueError, a silent empty selection or a hang
+    for kw, match in [({"n_views": float("nan")}, "n_views must be an integer"),
+                      ({"n_views": 10 ** 7}, r"n_views must be in 2\.\.360"),
+                      ({"threshold": float("nan")}, "threshold must be finite"),
+                      ({"threshold": 2.0}, r"threshold must be in \[0, 1\)"),
+                      ({"lift_options": {"k_neighbours": 3}}, r"seed_lift has no option\(s\) \['k_neighbours'\]"),
+                      ({"solver_options": {"max_iter": 10 ** 9}}, r"max_iter must be in 1\.\.100,000")]:
+        with pytest.raises(ValidationError, match=match):
+            extract(syn.scene, cam, np.ones((24, 32), bool), **kw)
     with pytest.raises(ValidationError, match="settings must be an ExtractSettings"):
         extract(syn.scene, cam, np.ones((24, 32), bool), settings={"n_views": 3})
     with pytest.raises(ValidationError, match="unknown solver method 'nope'"):

@@ -548,3 +548,42 @@ def test_methods_return_a_method_result(blob):
         assert isinstance(out, MethodResult) and out.q.shape == (stack.n_gaussians,)
         assert isinstance(out.info, dict) and isinstance(out.history, list)
     assert get_method("voting")(problem, bias=0.2).threshold > 0.5
+
+
+def test_solve_rejects_bad_requests_with_validation_errors(rng):
+    """Issue 12 item 4: each of these raised TypeError, RuntimeError or a numpy ValueError."""
+    W = sp.random(12, 5, density=0.5, format="csr", dtype=np.float32, random_state=0)
+    m = np.ones((3, 4))
+    with pytest.raises(ValidationError, match=r"method must be a method name \(str\), got \['voting'\]"):
+        solve([W], [m], method=["voting"])
+    empty = sp.csr_matrix((12, 0), dtype=np.float32)
+    for init in (None, np.zeros(0)):
+        with pytest.raises(ValidationError, match="view 0: the operator has no columns"):
+            solve([empty], [m], init=init)
+    bad = W.copy()
+    bad.data[3] = np.nan
+    for method in available_methods():
+        with pytest.raises(ValidationError, match="view 1: the operator holds non-finite weights"):
+            solve([W, bad], [m, m], method=method)
+    with pytest.raises(ValidationError, match=r"max_iter must be in 1\.\.100,000, got 1000000000000"):
+        solve([W], [m], method="least_squares", max_iter=10 ** 12)
+    with pytest.raises(ValidationError, match="progress must be a callable"):
+        solve([W], [m], progress=True)
+
+
+@pytest.mark.parametrize("method,options", [("weighted_bce", {"optimizer": "scipy"}),
+                                            ("weighted_bce", {"optimizer": "lbfgs"}),
+                                            ("least_squares", {}),
+                                            ("beta_bernoulli", {"order": "eig"})])
+def test_progress_reports_every_iteration(blob, method, options):
+    stack, _, masks = blob
+    seen = []
+    res = solve(stack, masks, method=method, progress=seen.append, **options)
+    assert len(seen) == res.iterations > 0
+    assert [p.iteration for p in seen] == list(range(1, res.iterations + 1))
+    assert all(p.total is not None and p.iteration <= p.total for p in seen)
+    assert all(p.loss is not None and np.isfinite(p.loss) for p in seen)
+    if method == "least_squares":  # the reported loss is the method's own objective
+        assert [p.loss for p in seen] == [h["objective"] for h in res.history]
+    # without a callback nothing changes
+    np.testing.assert_array_equal(solve(stack, masks, method=method, **options).q, res.q)

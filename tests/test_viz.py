@@ -233,3 +233,30 @@ def test_check_membership_is_public_and_names_the_source():
         check_membership(np.array([0.0, 1.5, np.nan]), 3, "q.npy")
     with pytest.raises(ValidationError, match="dtype"):
         check_membership(np.array(["a", "b", "c"]), 3)
+
+
+def test_cli_view_camera_grammar(offscreen, fake_reader, tmp_path, monkeypatch, capsys):
+    """``--camera FILE:NAME`` as everywhere; the old ``--camera FILE --view NAME`` still works, with a note."""
+    from seed2gs_inverse import Camera, cli
+    from seed2gs_inverse.io import write_cameras
+
+    monkeypatch.setattr(cli, "_COMMAND_MODULES", ("_view",))
+    cams = [Camera.look_at(np.array([0.0, -3.0, 0.0]), np.zeros(3), np.array([0.0, 0.0, 1.0]), 50, 40, 30,
+                           name=n) for n in ("a", "b")]
+    write_cameras(tmp_path / "cams.json", cams)
+    new, old = tmp_path / "new.png", tmp_path / "old.png"
+    assert cli.main(["view", "s.ply", "--camera", f"{tmp_path / 'cams.json'}:b", "--screenshot", str(new)]) == 0
+    assert "deprecated" not in capsys.readouterr().err
+    assert cli.main(["view", "s.ply", "--camera", str(tmp_path / "cams.json"), "--view", "b",
+                     "--screenshot", str(old)]) == 0
+    assert "'--camera FILE --view b' is deprecated; write --camera FILE:b" in capsys.readouterr().err
+    from PIL import Image
+
+    assert Image.open(new).size == Image.open(old).size == (40, 30)
+    # existing output: refused without --force, replaced with it
+    assert cli.main(["view", "s.ply", "--screenshot", str(new)]) == 2
+    assert "exists; use --force" in capsys.readouterr().err
+    assert cli.main(["view", "s.ply", "--screenshot", str(new), "--force", "--up", "0,0,1"]) == 0
+    # the old three-number --up still works, with a note
+    assert cli.main(["view", "s.ply", "--screenshot", str(new), "--force", "--up", "0", "0", "1"]) == 0
+    assert "'--up X Y Z' is deprecated; write --up 0,0,1" in capsys.readouterr().err

@@ -22,10 +22,21 @@ __all__ = ["main", "build_parser"]
 _COMMAND_MODULES = ("_extract", "_demo", "_scene", "_render", "_operators", "_solve", "_view", "_models")
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line usage errors: ``seed2gs extract: error: ...`` (exit status 2).
+
+    The full usage is one ``--help`` away; a wall of usage text before the
+    one line that matters hides it (and differs from our other errors).
+    """
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .. import __version__
 
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="seed2gs",
         description="Extract one object from a frozen 3D Gaussian Splatting scene.")
     parser.add_argument("--version", action="version", version=f"seed2gs-inverse {__version__}")
@@ -34,7 +45,17 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
     for name in _COMMAND_MODULES:
         importlib.import_module(f"{__name__}.{name}").register(sub)
+    _tag_leaves(parser)
     return parser
+
+
+def _tag_leaves(parser) -> None:
+    """Give every command's parser a default ``_parser`` = itself (for its own usage errors)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for child in action.choices.values():
+                child.set_defaults(_parser=child)
+                _tag_leaves(child)
 
 
 def main(argv=None) -> int:
@@ -43,7 +64,12 @@ def main(argv=None) -> int:
     # setting wins.
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args, extra = parser.parse_known_args(argv)
+        if extra:  # reported by the command's own parser: "seed2gs extract: error: ..."
+            getattr(args, "_parser", parser).error(f"unrecognized arguments: {' '.join(extra)}")
+    except SystemExit as exc:  # --help, --version, usage errors: their status, no traceback
+        return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:

@@ -6,6 +6,9 @@ import time
 
 import numpy as np
 
+from ..errors import ValidationError
+from ._common import DEFAULT_VIEWS, add_method_arguments, check_output
+
 __all__ = ["register", "run_demo"]
 
 
@@ -17,13 +20,15 @@ def register(subparsers) -> None:
                     "against the truth on held-out views that the pipeline never rendered.")
     p.add_argument("--seed", type=int, default=0, help="scene seed (default 0)")
     p.add_argument("--object", default="box", help="object name or label to extract (default box)")
-    p.add_argument("--views", type=int, default=12, help="views per VAAS clip (default 12)")
+    p.add_argument("--views", type=int, default=DEFAULT_VIEWS,
+                   help=f"views per VAAS clip, 2..360 (default {DEFAULT_VIEWS}, as seed2gs extract)")
     p.add_argument("--size", type=int, nargs=2, default=(192, 144), metavar=("W", "H"),
                    help="reference image size (default 192 144)")
-    p.add_argument("--method", default="weighted_bce", help="solver (default weighted_bce)")
+    add_method_arguments(p, options=False)
     p.add_argument("--summary", action="store_true", help="only print the scene summary")
     p.add_argument("-o", "--output", default=None, metavar="OUTDIR",
                    help="also write the extraction outputs (as seed2gs extract) here")
+    p.add_argument("--force", action="store_true", help="replace OUTDIR if it exists")
     p.set_defaults(func=run)
 
 
@@ -52,7 +57,7 @@ def held_out_cameras(center, frame, dist, width, height):
     return cams
 
 
-def run_demo(seed=0, obj="box", views=12, size=(192, 144), method="weighted_bce"):
+def run_demo(seed=0, obj="box", views=DEFAULT_VIEWS, size=(192, 144), method="weighted_bce"):
     """Extract ``obj`` from the procedural scene; returns (extraction, scores dict)."""
     from ..metrics import boundary_iou, iou, membership_scores
     from ..pipeline import ExtractSettings, extract
@@ -62,12 +67,12 @@ def run_demo(seed=0, obj="box", views=12, size=(192, 144), method="weighted_bce"
     syn = make_scene(seed=seed)
     label = syn._check_label(obj if not str(obj).isdigit() else int(obj))
     if label == 0:
-        raise ValueError("label 0 is the ground; pick an object")
+        raise ValidationError("--object: label 0 is the ground; pick an object")
     truth = syn.labels == label
     cam = syn.reference_camera(int(size[0]), int(size[1]))
     seed_mask = (build_operator(syn.scene, cam).W @ truth.astype(np.float32)).reshape(cam.image_shape) > 0.5
     if not seed_mask.any():
-        raise ValueError(f"object {syn.names[label]!r} is not visible in the reference view")
+        raise ValidationError(f"--object: {syn.names[label]!r} is not visible in the reference view")
     settings = ExtractSettings(method=method, n_views=views, progress=False)
     ex = extract(syn.scene, cam, seed_mask, settings=settings)
     ious, bious = [], []
@@ -86,6 +91,8 @@ def run_demo(seed=0, obj="box", views=12, size=(192, 144), method="weighted_bce"
 def run(args) -> int:
     from ..synthetic import make_scene
 
+    if args.output and not args.summary:
+        check_output(args.output, "-o", directory=True, force=args.force)  # before the work
     if args.summary:
         print("\n".join(_summary(make_scene(seed=args.seed))))
         return 0
@@ -105,6 +112,6 @@ def run(args) -> int:
     if args.output:
         from ._extract import write_outputs
 
-        write_outputs(ex, args.output)
+        write_outputs(ex, args.output, force=args.force)
         print(f"wrote {args.output}/")
     return 0

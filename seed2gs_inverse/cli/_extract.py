@@ -1,7 +1,15 @@
-"""``seed2gs extract``: one object out of a splat file, from one camera and a prompt."""
+"""``seed2gs extract``: one object out of a splat file, from one camera and a prompt.
+
+``report.json`` records everything needed to repeat a run (its ``run``
+section: toolkit version, scene path, file hash and fingerprint, the camera
+as given and in full, the prompt, the models file, the format and the
+seeds; ``settings`` holds every option), and ``seed2gs extract
+--from-report report.json -o OUT`` repeats it.
+"""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import sys
@@ -10,42 +18,63 @@ from pathlib import Path
 import numpy as np
 
 from .._atomic import atomic_path
-from ..errors import ValidationError
+from ..errors import FormatError, ValidationError
+from ._common import DEFAULT_VIEWS, add_method_arguments, check_output, parse_options, progress_enabled
 
-__all__ = ["register", "write_outputs", "settings_from_args"]
+__all__ = ["register", "write_outputs", "settings_from_args", "seed_summary_line"]
+
+#: Options that set ExtractSettings (None on the command line = not given).
+_SETTING_FLAGS = {"method": "--method", "views": "--views", "orbit_scale": "--orbit-scale",
+                  "threshold": "--threshold", "up": "--up", "option": "--option"}
+_PROMPT_FLAGS = {"mask": "--mask", "box": "--box", "point": "--point", "prompt": "--prompt",
+                 "negative": "--negative", "camera": "--camera"}
 
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "extract", help="extract one object from a 3DGS scene (Algorithm 1)",
         description="Extract the object a prompt points at in the view of one camera. Writes "
-                    "object.ply, remainder.ply, q.npy, report.json and report.png into OUTDIR.")
-    p.add_argument("scene", help="scene file (.ply, .splat, .spz, .compressed.ply)")
-    p.add_argument("--camera", required=True, metavar="FILE[:NAME|INDEX]",
+                    "object.ply, remainder.ply, q.npy, report.json and report.png into OUTDIR. "
+                    "report.json records the whole run; --from-report repeats it.")
+    p.add_argument("scene", nargs="?", metavar="SCENE",
+                   help="scene file (.ply, .splat, .spz, .compressed.ply); with --from-report, "
+                        "optional: the scene to use instead of the recorded path (same content)")
+    p.add_argument("--camera", metavar="FILE[:NAME|INDEX]",
                    help="reference camera: cameras.json / COLMAP / transforms.json, with :NAME or :INDEX")
-    g = p.add_mutually_exclusive_group(required=True)
+    g = p.add_mutually_exclusive_group()
     g.add_argument("--mask", metavar="PNG", help="seed mask image at the camera's resolution (non-zero = object)")
     g.add_argument("--box", nargs=4, type=float, metavar=("X0", "Y0", "X1", "Y1"),
                    help="box around the object in pixels (GrabCut turns it into the seed)")
     g.add_argument("--point", nargs=2, type=float, action="append", metavar=("X", "Y"),
                    help="click on the object (repeatable); see --negative")
     g.add_argument("--prompt", metavar="TEXT", help="text prompt (needs --models)")
-    p.add_argument("--negative", nargs=2, type=float, action="append", metavar=("X", "Y"), default=[],
+    g.add_argument("--from-report", metavar="REPORT.json",
+                   help="repeat the run recorded in a report.json (scene, camera, prompt, every setting)")
+    p.add_argument("--negative", nargs=2, type=float, action="append", metavar=("X", "Y"), default=None,
                    help="click on what is NOT the object (with --point; repeatable)")
     p.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="output directory (created)")
     p.add_argument("--force", action="store_true", help="replace OUTDIR if it exists")
     p.add_argument("--models", metavar="FILE", default=None,
                    help="models configuration for text prompts / SAM2 tracking (else $SEED2GS_MODELS)")
-    p.add_argument("--method", default="weighted_bce", help="solver (default weighted_bce)")
-    p.add_argument("--views", type=int, default=24, help="views per VAAS clip (default 24)")
-    p.add_argument("--orbit-scale", type=float, default=0.5,
-                   help="orbit view resolution relative to the camera (default 0.5)")
-    p.add_argument("--threshold", type=float, default=None, help="q threshold (default: the solver's, 0.5)")
-    p.add_argument("--format", choices=("ply", "splat"), default="ply", help="object/remainder format")
-    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    add_method_arguments(p, default="weighted_bce")
+    p.set_defaults(method=None)  # None: not given (the default applies; --from-report may not override)
+    p.add_argument("--views", type=int, default=None,
+                   help=f"views per VAAS clip, 2..360 (default {DEFAULT_VIEWS})")
+    p.add_argument("--orbit-scale", type=float, default=None,
+                   help="orbit view resolution relative to the camera, in (0, 4] (default 0.5)")
+    p.add_argument("--threshold", type=float, default=None,
+                   help="q threshold in [0, 1) (default: the solver's, 0.5)")
+    p.add_argument("--up", default=None, metavar="level|camera|X,Y,Z",
+                   help="orbit axis: 'level' (default: the camera's up without its pitch), "
+                        "'camera' (the image up) or a world direction X,Y,Z (--up=-1,0,0 when it starts "
+                        "with a minus)")
+    p.add_argument("--format", choices=("ply", "splat"), default=None, help="object/remainder format (default ply)")
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress bars (they are shown only when stderr is a terminal)")
     p.set_defaults(func=run)
 
 
+# -- prompts ---------------------------------------------------------------------------------
 def _prompt_from_args(args):
     from ..frontend.prompts import TEXT_NEEDS_GROUNDER, BoxPrompt, MaskPrompt, PointPrompt, TextPrompt
 
@@ -53,13 +82,16 @@ def _prompt_from_args(args):
         raise ValidationError("--negative clicks need at least one --point")
     if args.mask is not None:
         if not os.path.isfile(args.mask):
-            raise FileNotFoundError(2, "No such file", args.mask)
+            raise ValidationError(f"--mask {args.mask}: no such file")
         return MaskPrompt(args.mask)
     if args.box is not None:
         return BoxPrompt(args.box)
     if args.point is not None:
-        pts = list(args.point) + list(args.negative)
-        return PointPrompt(pts, [1] * len(args.point) + [0] * len(args.negative))
+        neg = list(args.negative or [])
+        return PointPrompt(list(args.point) + neg, [1] * len(args.point) + [0] * len(neg))
+    if args.prompt is None:
+        raise ValidationError("give a prompt: --mask PNG, --box X0 Y0 X1 Y1, --point X Y or --prompt TEXT "
+                              "(or --from-report REPORT.json)")
     if not args.prompt.strip():
         raise ValidationError("--prompt is empty")
     if args.models is None and not os.environ.get("SEED2GS_MODELS"):
@@ -67,36 +99,98 @@ def _prompt_from_args(args):
     return TextPrompt(args.prompt)
 
 
-def _models(args):
+def _sha256(path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _prompt_record(prompt) -> dict:
+    """JSON description of a prompt from which :func:`_prompt_from_record` rebuilds it."""
+    from ..frontend.prompts import BoxPrompt, MaskPrompt, PointPrompt
+
+    if isinstance(prompt, MaskPrompt):
+        path = os.path.abspath(os.fspath(prompt.mask))
+        return {"kind": "mask", "path": path, "sha256": _sha256(path)}
+    if isinstance(prompt, BoxPrompt):
+        return {"kind": "box", "box": [float(v) for v in prompt.box], "iterations": prompt.iterations,
+                "alpha_min": prompt.alpha_min}
+    if isinstance(prompt, PointPrompt):
+        return {"kind": "point", "points": np.asarray(prompt.points, float).tolist(),
+                "labels": [int(v) for v in prompt.labels], "color_tol": prompt.color_tol,
+                "depth_tol": prompt.depth_tol, "radius": prompt.radius, "iterations": prompt.iterations,
+                "alpha_min": prompt.alpha_min}
+    return {"kind": "text", "text": prompt.text}
+
+
+def _prompt_from_record(rec: dict, where: str):
+    from ..frontend.prompts import BoxPrompt, MaskPrompt, PointPrompt, TextPrompt
+
+    kind = rec.get("kind") if isinstance(rec, dict) else None
+    try:
+        if kind == "mask":
+            path = rec["path"]
+            if not os.path.isfile(path):
+                raise ValidationError(f"{where}: the recorded mask {path} no longer exists")
+            if rec.get("sha256") and _sha256(path) != rec["sha256"]:
+                raise ValidationError(f"{where}: the mask {path} changed since the recorded run (sha256 differs)")
+            return MaskPrompt(path)
+        if kind == "box":
+            return BoxPrompt(rec["box"], int(rec.get("iterations", 5)), float(rec.get("alpha_min", 0.05)))
+        if kind == "point":
+            return PointPrompt(rec["points"], rec["labels"], float(rec["color_tol"]), float(rec["depth_tol"]),
+                               int(rec["radius"]), int(rec["iterations"]), float(rec["alpha_min"]))
+        if kind == "text":
+            return TextPrompt(str(rec["text"]))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise FormatError(f"{where}: run.prompt is incomplete ({type(exc).__name__}: {exc})") from None
+    raise FormatError(f"{where}: run.prompt has an unknown kind {kind!r}")
+
+
+def _models(path):
     try:
         from ..frontend.config import resolve_models
     except ImportError:  # pragma: no cover - the ONNX front end is optional
-        if args.models is not None:
+        if path is not None:
             raise ValidationError("--models needs the ONNX front end (seed2gs_inverse.frontend.config)")
         return None
-    return resolve_models(args.models)
+    return resolve_models(path)
 
 
-def write_outputs(extraction, outdir, fmt: str = "ply", force: bool = False, figure: bool = True) -> Path:
+# -- outputs ---------------------------------------------------------------------------------
+def seed_summary_line(summary: dict) -> str:
+    """``seed: 412 px = 38% of the object's box (28x39 px); covers 45% of the object's silhouette``."""
+    s = summary
+    if not s.get("object_pixels"):
+        return f"seed: {s['seed_pixels']:,} px (the object is not visible in the reference view)"
+    w, h = s["object_box_size"]
+    return (f"seed: {s['seed_pixels']:,} px = {s['share_of_object_box']:.0%} of the object's box ({w}x{h} px); "
+            f"covers {s['share_of_object']:.0%} of the object's silhouette")
+
+
+def write_outputs(extraction, outdir, fmt: str = "ply", force: bool = False, figure: bool = True,
+                  run_info: dict | None = None) -> Path:
     """Write object/remainder scenes, q.npy, report.json (and report.png) into ``outdir``.
 
     Everything goes to a temporary directory next to ``outdir`` that is
-    renamed at the end, so a failure leaves no partial output.
+    renamed at the end, so a failure leaves no partial output. ``run_info``
+    becomes the report's ``run`` section (what ``--from-report`` reads).
     """
     from ..io import write_scene
+    from ..pipeline.report import seed_summary
 
-    out = Path(outdir)
-    if out.exists() and not force:
-        raise ValidationError(f"output directory {out} exists; use --force to replace it")
-    parent = out.resolve().parent
-    if not parent.is_dir():
-        raise ValidationError(f"cannot create {out}: parent directory {parent} does not exist")
+    out = check_output(outdir, "-o", directory=True, force=force)
     with atomic_path(out, directory=True) as tmp:
         write_scene(tmp / f"object.{fmt}", extraction.object_scene())
         write_scene(tmp / f"remainder.{fmt}", extraction.remainder_scene())
         np.save(tmp / "q.npy", np.asarray(extraction.q, np.float32), allow_pickle=False)
         report = extraction.report()
+        report["seed"] = seed_summary(extraction)
         report["outputs"] = {"object": f"object.{fmt}", "remainder": f"remainder.{fmt}", "q": "q.npy"}
+        if run_info is not None:
+            report["run"] = run_info
         with open(tmp / "report.json", "w") as fh:
             json.dump(report, fh, indent=2)
         if figure:
@@ -106,54 +200,161 @@ def write_outputs(extraction, outdir, fmt: str = "ply", force: bool = False, fig
     return out
 
 
+# -- settings --------------------------------------------------------------------------------
+def _up(text):
+    if text is None or text in ("level", "camera"):
+        return text
+    from ._common import parse_vector
+
+    try:
+        return tuple(parse_vector("--up", text).tolist())
+    except ValidationError as exc:
+        if "expected three numbers" not in str(exc):
+            raise
+        raise ValidationError(f"--up {text!r}: expected 'level', 'camera' or three numbers X,Y,Z "
+                              f"(e.g. 0,-1,0)") from None
+
+
 def settings_from_args(args):
     """The :class:`~seed2gs_inverse.pipeline.ExtractSettings` of the command line (validated)."""
     from ..pipeline import ExtractSettings
 
-    if args.views < 2:
-        raise ValidationError(f"--views must be >= 2, got {args.views}")
-    if args.threshold is not None and not 0.0 <= args.threshold < 1.0:
-        raise ValidationError(f"--threshold must be in [0, 1), got {args.threshold}")
-    if not args.orbit_scale > 0:
-        raise ValidationError(f"--orbit-scale must be positive, got {args.orbit_scale}")
-    from ..solvers import available_methods
+    method = args.method or "weighted_bce"
+    given = {"method": method, "n_views": args.views, "orbit_scale": args.orbit_scale,
+             "threshold": args.threshold, "up": _up(args.up),
+             "solver_options": parse_options(args.option, method) if args.option else None}
+    flags = {"n_views": "--views", "orbit_scale": "--orbit-scale", "threshold": "--threshold", "up": "--up",
+             "method": "--method", "solver_options": "--option"}
+    kw = {k: v for k, v in given.items() if v is not None}
+    kw["progress"] = progress_enabled(args.no_progress)
+    try:
+        return ExtractSettings(**kw)
+    except ValidationError as exc:
+        # name the command-line flag, not the Python option
+        msg = str(exc)
+        for name, flag in flags.items():
+            if msg.startswith(name + " ") or msg.startswith(name + ":"):
+                msg = flag + msg[len(name):]
+                break
+        raise ValidationError(msg) from None
 
-    if args.method not in available_methods():
-        raise ValidationError(f"unknown --method {args.method!r}; available: {', '.join(available_methods())}")
-    return ExtractSettings(method=args.method, n_views=args.views, orbit_scale=args.orbit_scale,
-                           threshold=args.threshold, progress=False if args.no_progress else None)
+
+def _read_report(path) -> dict:
+    p = Path(path)
+    if not p.is_file():
+        raise ValidationError(f"--from-report {path}: no such file")
+    try:
+        rep = json.loads(p.read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+        raise FormatError(f"--from-report {path}: not a JSON report ({type(exc).__name__})") from None
+    run = rep.get("run") if isinstance(rep, dict) else None
+    if not isinstance(run, dict) or not isinstance(rep.get("settings"), dict):
+        raise FormatError(f"--from-report {path}: no 'run' and 'settings' sections; only report.json files "
+                          f"written by seed2gs extract can be repeated")
+    return rep
+
+
+def _from_report(args):
+    """(scene path, camera, camera spec, prompt, settings, models path, format) of a recorded run."""
+    from ..camera import Camera
+    from ..pipeline import ExtractSettings
+
+    given = [flag for name, flag in {**_SETTING_FLAGS, **_PROMPT_FLAGS}.items()
+             if getattr(args, name, None) not in (None, [], False)]
+    if given:
+        raise ValidationError(f"--from-report repeats a recorded run; it cannot be combined with {', '.join(given)}")
+    rep = _read_report(args.from_report)
+    where = f"--from-report {args.from_report}"
+    run = rep["run"]
+    try:
+        scene_path = args.scene or run["scene"]["path"]
+        camera = Camera.from_dict(run["camera"]["camera"])
+        spec = run["camera"].get("spec")
+    except (KeyError, TypeError) as exc:
+        raise FormatError(f"{where}: run.scene/run.camera incomplete ({exc})") from None
+    prompt = _prompt_from_record(run.get("prompt"), where)
+    settings = ExtractSettings.from_dict({**rep["settings"], "progress": progress_enabled(args.no_progress)})
+    fmt = args.format or run.get("format", "ply")
+    return scene_path, camera, spec, prompt, settings, args.models or run.get("models"), fmt, run
 
 
 def run(args) -> int:
+    from .. import __version__
+    from ..frontend.prompts import GRABCUT_SEED
     from ..io import read_camera, read_scene
+    from ..operators import scene_fingerprint
     from ..pipeline import extract
 
-    # Validate everything cheap before the expensive work.
-    out = Path(args.output)
-    if out.exists() and not args.force:
-        raise ValidationError(f"output directory {out} exists; use --force to replace it")
-    if not out.resolve().parent.is_dir():
-        raise ValidationError(f"cannot create {out}: parent directory {out.resolve().parent} does not exist")
-    settings = settings_from_args(args)
-    if not os.path.isfile(args.scene):
-        raise FileNotFoundError(2, "No such file", args.scene)
-    prompt = _prompt_from_args(args)
-    camera = read_camera(args.camera)
-    models = _models(args)
+    # Everything cheap first: outputs, settings, inputs; the expensive work last.
+    out = check_output(args.output, "-o", directory=True, force=args.force)
+    recorded = None
+    if args.from_report is not None:
+        scene_path, camera, spec, prompt, settings, models_path, fmt, recorded = _from_report(args)
+        if not os.path.isfile(scene_path):
+            raise ValidationError(f"scene {scene_path}: no such file (give the scene's new path as SCENE)")
+    else:
+        if args.scene is None:
+            raise ValidationError("give the SCENE file (or --from-report REPORT.json)")
+        if args.camera is None:
+            raise ValidationError("give the reference camera: --camera FILE[:NAME|INDEX]")
+        settings = settings_from_args(args)
+        scene_path, spec, fmt, models_path = args.scene, args.camera, args.format or "ply", args.models
+        if not os.path.isfile(scene_path):
+            raise ValidationError(f"scene {scene_path}: no such file")
+        prompt = _prompt_from_args(args)
+        camera = read_camera(args.camera)
+    models = _models(models_path)
     grounder = models.grounder() if models is not None else None
     tracker = models.tracker() if models is not None else None
-    if grounder is None and args.prompt is not None:
+    from ..frontend.prompts import TextPrompt
+
+    if grounder is None and isinstance(prompt, TextPrompt):
         from ..frontend.prompts import TEXT_NEEDS_GROUNDER
 
         raise ValidationError(TEXT_NEEDS_GROUNDER)
-    scene = read_scene(args.scene)
+    scene_sha = _sha256(scene_path)
+    scene = read_scene(scene_path)
+    fingerprint = scene_fingerprint(scene)
+    if recorded is not None:
+        want = recorded.get("scene", {})
+        if want.get("fingerprint") not in (None, fingerprint):
+            raise ValidationError(f"scene {scene_path}: not the recorded scene (fingerprint {fingerprint}, "
+                                  f"recorded {want.get('fingerprint')})")
+        if want.get("sha256") not in (None, scene_sha):
+            print(f"seed2gs extract: warning: {scene_path} differs from the recorded file (same geometry, "
+                  f"other bytes: colours or format); q may differ", file=sys.stderr)
     ex = extract(scene, camera, prompt, grounder=grounder, tracker=tracker, settings=settings)
-    write_outputs(ex, out, args.format, force=args.force)
+    run_info = {
+        "toolkit": f"seed2gs-inverse {__version__}",
+        "command": "extract",
+        "scene": {"path": os.path.abspath(scene_path), "sha256": scene_sha, "fingerprint": fingerprint,
+                  "n_gaussians": len(scene)},
+        "camera": {"spec": spec, "camera": camera.to_dict()},
+        "prompt": _prompt_record(prompt),
+        "models": None if models_path is None else os.path.abspath(models_path),
+        "format": fmt,
+        "axis": ex.resolved.get("up"),
+        "seeds": {"grabcut_opencv_rng": GRABCUT_SEED},
+        "numba_threads": _numba_threads(),
+    }
+    write_outputs(ex, out, fmt, force=args.force, run_info=run_info)
+    from ..pipeline.report import seed_summary
+
     s = ex.seconds
-    print(f"extracted {int(ex.selected.sum())} of {len(scene)} Gaussians -> {out}/object.{args.format} "
+    print(f"extracted {int(ex.selected.sum())} of {len(scene)} Gaussians -> {out}/object.{fmt} "
           f"({len(ex.views)} views, {ex.total_seconds:.1f} s: "
           + ", ".join(f"{k} {v:.2f}" for k, v in s.items()) + ")")
+    print(seed_summary_line(seed_summary(ex)))
     if models is None:  # with models, SAM2 would have tracked even a mask/box/point seed
         print("note: no models configured; the seed was tracked by the model-free tracker",
               file=sys.stderr)
     return 0
+
+
+def _numba_threads():
+    try:
+        import numba
+
+        return int(numba.get_num_threads())
+    except Exception:  # pragma: no cover - numba is a dependency; report what we can
+        return None

@@ -31,12 +31,13 @@ def register(subparsers) -> None:
                    help="drop weights below this (default 0: keep all)")
     b.add_argument("--force", "--overwrite", dest="overwrite", action="store_true",
                    help="replace an existing operator directory")
-    b.add_argument("--no-progress", action="store_true", help="no progress bar")
+    b.add_argument("--no-progress", action="store_true",
+                   help="no progress bar (shown only when stderr is a terminal)")
     b.set_defaults(func=build)
 
     i = sub.add_parser("info", help="describe an operator directory",
                        description="Validate an operator directory and print its views.")
-    i.add_argument("directory", metavar="DIR")
+    i.add_argument("directory", metavar="DIR", help="operator directory (seed2gs operators build)")
     i.add_argument("--scene", metavar="SCENE", help="also check that the operators belong to this scene")
     i.set_defaults(func=info)
 
@@ -49,14 +50,17 @@ def build(args) -> int:
 
     if not (np.isfinite(args.scale) and args.scale > 0):
         raise ValidationError(f"--scale must be positive, got {args.scale}")
-    OperatorStack.check_target(args.output, args.overwrite)  # fail before rendering anything
+    from ._common import check_output, progress_enabled
+
+    check_output(args.output, "-o", directory=True, force=args.overwrite)  # fail before rendering anything
+    OperatorStack.check_target(args.output, args.overwrite)
     scene = read_scene(args.scene)
     cameras = read_cameras(args.cameras)
     if not cameras:
         raise ValidationError(f"{args.cameras}: no cameras")
     views = []
     items = cameras
-    if not args.no_progress:
+    if progress_enabled(args.no_progress):
         from tqdm import tqdm
 
         items = tqdm(cameras, desc="operators", unit="view", file=sys.stderr, leave=False)

@@ -10,6 +10,7 @@ import numpy as np
 
 from .._atomic import write_files
 from ..errors import ValidationError
+from ._common import check_output, parse_vector
 
 __all__ = ["register"]
 
@@ -33,7 +34,7 @@ def register(subparsers) -> None:
                      help="camera position and the point it looks at, each 'x,y,z'")
     p.add_argument("--up", default="0,-1,0", metavar="X,Y,Z",
                    help="with --look-at: world direction shown upwards (default 0,-1,0, the "
-                        "usual up of COLMAP-trained scenes)")
+                        "usual up of COLMAP-trained scenes; --up=-1,0,0 when it starts with a minus)")
     p.add_argument("--fov", type=float, default=60.0, metavar="DEG",
                    help="with --look-at: vertical field of view in degrees (default 60)")
     p.add_argument("--size", default="960x540", metavar="WxH",
@@ -50,6 +51,7 @@ def register(subparsers) -> None:
                    help="colour image, .png or .npy (float32 H x W x 3)")
     p.add_argument("--depth", metavar="FILE", help="also write the expected depth (.png or .npy)")
     p.add_argument("--alpha", metavar="FILE", help="also write the alpha (.png or .npy)")
+    p.add_argument("--force", action="store_true", help="replace output files that exist")
     p.set_defaults(func=run)
 
 
@@ -61,6 +63,7 @@ def _triple(option, text):
     if len(vals) != 3 or not np.all(np.isfinite(vals)):
         raise ValidationError(f"{option} {text!r}: expected three numbers 'x,y,z'")
     return np.array(vals)
+
 
 
 def _size(text):
@@ -83,7 +86,7 @@ def _camera(args):
     else:
         w, h = _size(args.size)
         eye, target = (_triple("--look-at", v) for v in args.look_at)
-        cam = Camera.look_at(eye, target, _triple("--up", args.up), args.fov, w, h, name="look-at")
+        cam = Camera.look_at(eye, target, parse_vector("--up", args.up), args.fov, w, h, name="look-at")
     if args.near is not None:
         cam = Camera(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, cam.world_to_camera,
                      cam.name, args.near)
@@ -92,15 +95,13 @@ def _camera(args):
     return cam
 
 
-def _check_output(option, path):
+def _check_output(option, path, force=False):
     if path is None:
         return None
     p = Path(path)
     if p.suffix.lower() not in _EXTS:
         raise ValidationError(f"{option} {path}: the file name must end in .png or .npy")
-    if not (p.parent if str(p.parent) else Path(".")).is_dir():
-        raise ValidationError(f"{option} {path}: the directory {p.parent} does not exist")
-    return p
+    return check_output(p, option, force=force)
 
 
 def _encode(path, array, kind):
@@ -131,9 +132,9 @@ def run(args) -> int:
     from ..io import read_scene
     from ..raster import render
 
-    out = _check_output("-o", args.output)
-    depth_path = _check_output("--depth", args.depth)
-    alpha_path = _check_output("--alpha", args.alpha)
+    out = _check_output("-o", args.output, args.force)
+    depth_path = _check_output("--depth", args.depth, args.force)
+    alpha_path = _check_output("--alpha", args.alpha, args.force)
     paths = [p for p in (out, depth_path, alpha_path) if p is not None]
     if len({p.resolve() for p in paths}) != len(paths):
         raise ValidationError("-o, --depth and --alpha must name different files")

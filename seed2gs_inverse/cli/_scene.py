@@ -35,6 +35,7 @@ def register(subparsers) -> None:
     p.add_argument("output", metavar="OUT", help="output scene file (.ply or .splat)")
     p.add_argument("--drop-nonfinite", action="store_true",
                    help="drop Gaussians with non-finite values instead of failing")
+    p.add_argument("--force", action="store_true", help="replace OUT if it exists")
     p.set_defaults(func=convert)
 
 
@@ -98,12 +99,12 @@ def info(args) -> int:
 
 
 def convert(args) -> int:
-    from .._atomic import check_output_parent
     from ..io import read_scene, write_scene
     from ..io.formats import output_format
+    from ._common import check_output
 
     fmt = output_format(args.output)  # fail before reading a large input
-    check_output_parent(args.output, "OUT")
+    check_output(args.output, "OUT", force=args.force)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         scene = read_scene(args.input, drop_nonfinite=args.drop_nonfinite)

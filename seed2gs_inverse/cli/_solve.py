@@ -10,13 +10,13 @@ the operator directory's view count and each mask must have its view's size.
 from __future__ import annotations
 
 import io
-import json
 import sys
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import FormatError, ValidationError
+from ._common import add_method_arguments, check_output, parse_options, progress_enabled
 
 __all__ = ["register", "solve_command", "compare_command"]
 
@@ -28,11 +28,12 @@ def register(subparsers) -> None:
                     "and save q (N,) float32 as .npy.")
     p.add_argument("operators", metavar="OPS_DIR", help="operator directory (seed2gs operators build)")
     p.add_argument("masks", metavar="MASKS_DIR", help="view_000.png|npy ... one mask per view")
-    p.add_argument("--method", default="weighted_bce", help="solver (default weighted_bce)")
+    add_method_arguments(p)
     p.add_argument("-o", "--output", required=True, metavar="Q.npy", help="where to write q")
+    p.add_argument("--force", action="store_true", help="replace Q.npy if it exists")
     p.add_argument("--init", metavar="FILE.npy", help="prior: bool support set, indices or float q")
-    p.add_argument("--option", action="append", default=[], metavar="NAME=VALUE",
-                   help="solver option (VALUE parsed as JSON, else a string); repeatable")
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress bar (shown only when stderr is a terminal)")
     p.set_defaults(func=solve_command)
 
     c = subparsers.add_parser(
@@ -40,12 +41,18 @@ def register(subparsers) -> None:
         description="Fit every solver on the same views (every k-th view held out), score held-out "
                     "2D mIoU/mBIoU and 3D precision/recall/IoU against --truth, print a table and "
                     "optionally write comparison.csv, comparison.json and comparison.png to -o DIR.")
-    c.add_argument("operators", metavar="OPS_DIR")
-    c.add_argument("masks", metavar="MASKS_DIR")
+    c.add_argument("operators", metavar="OPS_DIR", help="operator directory (seed2gs operators build)")
+    c.add_argument("masks", metavar="MASKS_DIR", help="view_000.png|npy ... one mask per view")
     c.add_argument("--truth", required=True, metavar="LABELS.npy", help="(N,) bool ground-truth membership")
-    c.add_argument("--methods", help="comma-separated methods (default: all)")
+    from ..solvers import available_methods
+
+    c.add_argument("--methods", metavar="M1,M2,...",
+                   help=f"comma-separated methods out of {', '.join(available_methods())} (default: all)")
     c.add_argument("--holdout-every", type=int, default=4, help="hold out every k-th view (0: none; default 4)")
-    c.add_argument("-o", "--output", metavar="DIR", help="directory for comparison.{csv,json,png}")
+    c.add_argument("-o", "--output", metavar="DIR", help="directory for comparison.{csv,json,png} (created)")
+    c.add_argument("--force", action="store_true", help="write into DIR even if it exists")
+    c.add_argument("--no-progress", action="store_true",
+                   help="no progress bar (shown only when stderr is a terminal)")
     c.set_defaults(func=compare_command)
 
 
@@ -54,19 +61,6 @@ def _load_npy(path: Path) -> np.ndarray:
         return np.load(path, allow_pickle=False)
     except (ValueError, OSError, EOFError) as exc:
         raise FormatError(f"{path}: not a readable .npy array ({exc})") from None
-
-
-def _parse_options(items) -> dict:
-    out = {}
-    for item in items:
-        name, sep, value = item.partition("=")
-        if not sep or not name.isidentifier():
-            raise ValidationError(f"--option must look like NAME=VALUE, got {item!r}")
-        try:
-            out[name] = json.loads(value)
-        except json.JSONDecodeError:
-            out[name] = value
-    return out
 
 
 def _npy_bytes(arr) -> bytes:
@@ -78,19 +72,21 @@ def _npy_bytes(arr) -> bytes:
 def solve_command(args) -> int:
     from ..io import read_masks
     from ..operators import OperatorStack
-    from ..solvers import get_method, solve
-    from .._atomic import check_output_parent, write_files
+    from ..solvers import solve
+    from .._atomic import write_files
+    from ._common import SolveBar
 
-    get_method(args.method)  # fail fast on a typo, before loading anything
-    out = check_output_parent(args.output, "-o")
-    if out.suffix.lower() != ".npy":
-        raise ValidationError(f"-o {out}: the output must be a .npy file")
+    options = parse_options(args.option, args.method)  # fail fast on a typo, before loading anything
+    if Path(args.output).suffix.lower() != ".npy":
+        raise ValidationError(f"-o {args.output}: the output must be a .npy file")
+    out = check_output(args.output, "-o", force=args.force)
     stack = OperatorStack.load(args.operators, mmap=True)
     masks = read_masks(args.masks, len(stack), stack.image_shapes)
     init = _load_npy(Path(args.init)) if args.init else None
     print(f"solving {len(stack)} views, {stack.n_gaussians:,} Gaussians with {args.method} ...",
           file=sys.stderr, flush=True)
-    result = solve(stack, masks, method=args.method, init=init, **_parse_options(args.option))
+    with SolveBar(args.method, progress_enabled(args.no_progress)) as bar:
+        result = solve(stack, masks, method=args.method, init=init, progress=bar.solve_callback, **options)
     write_files([(out, _npy_bytes(result.q))])
     sel = result.selected()
     print(f"{out}: method {result.method}, {int(sel.sum()):,} of {sel.size:,} Gaussians selected "
@@ -103,10 +99,17 @@ def compare_command(args) -> int:
     from ..compare import compare
     from ..io import read_masks
     from ..operators import OperatorStack
-    from .._atomic import check_output_parent, write_files
+    from .._atomic import write_files
+    from ..solvers import available_methods
 
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()] if args.methods else None
+    for m in methods or []:
+        if m not in available_methods():
+            raise ValidationError(f"--methods: unknown method {m!r}; available: {', '.join(available_methods())}")
+    if methods is not None and not methods:
+        raise ValidationError("--methods: give at least one method")
     if args.output:
-        check_output_parent(args.output, "-o")  # DIR itself is created at the end
+        check_output(args.output, "-o", directory=True, force=args.force)  # DIR itself is created at the end
     stack = OperatorStack.load(args.operators, mmap=True)
     masks = read_masks(args.masks, len(stack), stack.image_shapes)
     truth = _load_npy(Path(args.truth))
@@ -115,10 +118,11 @@ def compare_command(args) -> int:
             truth = truth.astype(bool)
         else:
             raise ValidationError(f"{args.truth}: truth labels must be bool (or 0/1 integers), got {truth.dtype}")
-    methods = [m.strip() for m in args.methods.split(",") if m.strip()] if args.methods else None
     print(f"comparing {', '.join(methods) if methods else 'every method'} on {len(stack)} views ...",
           file=sys.stderr, flush=True)
-    result = compare(stack, masks, truth, methods=methods, holdout_every=args.holdout_every)
+    with _CompareBar(progress_enabled(args.no_progress), len(methods or available_methods())) as bar:
+        result = compare(stack, masks, truth, methods=methods, holdout_every=args.holdout_every,
+                         progress=bar.callback)
     print(result.format())
     if args.output:
         d = Path(args.output)
@@ -130,3 +134,39 @@ def compare_command(args) -> int:
                     (d / "comparison.png", png.getvalue())])
         print(f"wrote {d / 'comparison.csv'}, {d / 'comparison.json'}, {d / 'comparison.png'}")
     return 0
+
+
+class _CompareBar:
+    """One tqdm bar over the methods of ``compare``, showing the current method's iteration and loss."""
+
+    def __init__(self, enabled: bool, n_methods: int):
+        self.enabled, self.n = bool(enabled), int(n_methods)
+        self._bar = None
+
+    def __enter__(self):
+        if self.enabled:
+            from tqdm import tqdm
+
+            from ..pipeline.extract import _Progress
+
+            self._bar = tqdm(total=self.n, desc="compare", unit="method", leave=False, file=sys.stderr,
+                             mininterval=_Progress.MININTERVAL)
+        return self
+
+    @property
+    def callback(self):
+        return self._update if self._bar is not None else None
+
+    def _update(self, method, k, n, step) -> None:
+        if step is None:
+            self._bar.update(1)
+            self._bar.set_postfix_str(f"{method} done", refresh=True)
+        else:
+            total = "" if step.total is None else f"/{step.total}"
+            loss = "" if step.loss is None else f", loss {step.loss:.5g}"
+            self._bar.set_postfix_str(f"{method} it {step.iteration}{total}{loss}", refresh=False)
+
+    def __exit__(self, *exc) -> None:
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None

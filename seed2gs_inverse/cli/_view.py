@@ -8,6 +8,7 @@ import numpy as np
 
 from .._atomic import atomic_path
 from ..errors import ValidationError
+from ._common import check_output, parse_vector
 
 __all__ = ["register"]
 
@@ -30,15 +31,17 @@ def register(subparsers) -> None:
     p.add_argument("--point-size", type=float, default=3.0, help="point size in pixels (default 3)")
     p.add_argument("--min-opacity", type=float, default=0.0, metavar="O",
                    help="hide Gaussians with opacity below O (default 0: show all)")
-    p.add_argument("--camera", metavar="CAMERAS", help="view from a camera of this file "
-                   "(3DGS cameras.json, COLMAP, nerfstudio transforms.json)")
+    p.add_argument("--camera", metavar="FILE[:NAME|INDEX]", help="view from this camera of a camera file "
+                   "(3DGS cameras.json, COLMAP, nerfstudio transforms.json); FILE alone: its first camera")
     p.add_argument("--view", default=None, metavar="NAME|INDEX",
-                   help="which camera of --camera (default: the first)")
-    p.add_argument("--up", nargs=3, type=float, default=None, metavar=("X", "Y", "Z"),
-                   help="without --camera: world direction shown upwards (COLMAP-like scenes: 0 -1 0)")
+                   help="deprecated: write --camera FILE:NAME")
+    p.add_argument("--up", nargs="+", default=None, metavar="X,Y,Z",
+                   help="without --camera: world direction shown upwards (COLMAP-like scenes: 0,-1,0; "
+                        "--up=-1,0,0 when it starts with a minus)")
     p.add_argument("--size", default=None, metavar="WxH",
                    help="window/screenshot size (default: the camera's, else 1024x768)")
     p.add_argument("--screenshot", metavar="OUT.png", help="write a PNG instead of opening a window")
+    p.add_argument("--force", action="store_true", help="replace OUT.png if it exists")
     p.set_defaults(func=run)
 
 
@@ -52,6 +55,22 @@ def _read_cameras(path):
     from ..io import read_cameras
 
     return read_cameras(path)
+
+
+def _camera(spec, view):
+    """The camera of ``--camera FILE[:NAME|INDEX]`` (FILE alone: the first), or of the old ``--view``."""
+    import os
+    import sys
+
+    if view is not None:
+        print(f"seed2gs view: note: '--camera FILE --view {view}' is deprecated; write --camera FILE:{view}",
+              file=sys.stderr)
+        return _pick_camera(_read_cameras(spec), view)
+    if os.path.exists(spec) or ":" not in spec:
+        return _pick_camera(_read_cameras(spec), None)
+    from ..io import read_camera
+
+    return read_camera(spec)
 
 
 def _load_membership(path, n: int) -> np.ndarray:
@@ -104,20 +123,17 @@ def run(args) -> int:
         raise ValidationError("no display to open a window on; pass --screenshot OUT.png")
     if args.screenshot is not None and Path(args.screenshot).suffix.lower() != ".png":
         raise ValidationError(f"--screenshot {args.screenshot}: the file name must end in .png")
+    out = None if args.screenshot is None else check_output(args.screenshot, "--screenshot", force=args.force)
     size = _parse_size(args.size)
+    up = None if args.up is None else parse_vector("--up", args.up[0] if len(args.up) == 1 else args.up).tolist()
+    camera = None if args.camera is None else _camera(args.camera, args.view)
     scene = _read_scene(args.scene)
     q = None if args.membership is None else _load_membership(args.membership, len(scene))
-    camera = None if args.camera is None else _pick_camera(_read_cameras(args.camera), args.view)
     kw = dict(mode=args.mode, threshold=args.threshold, camera=camera, max_glyphs=args.max_glyphs,
-              point_size=args.point_size, min_opacity=args.min_opacity, window_size=size, up=args.up)
-    if args.up is not None and not np.any(args.up):
-        raise ValidationError("--up must be a non-zero direction")
-    if args.screenshot is None:
+              point_size=args.point_size, min_opacity=args.min_opacity, window_size=size, up=up)
+    if out is None:
         membership_plot(scene, q, off_screen=False, **kw).show()
         return 0
-    out = Path(args.screenshot)
-    if not out.parent.is_dir():
-        raise ValidationError(f"--screenshot {out}: directory {out.parent} does not exist")
     with atomic_path(out) as tmp:  # a failure leaves nothing behind
         img = membership_plot(scene, q, screenshot=str(tmp), off_screen=True, **kw)
     shown = "all" if q is None or args.threshold is None else int(np.sum(q > args.threshold))

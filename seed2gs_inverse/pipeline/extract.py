@@ -251,22 +251,43 @@ class Renderer:
 
 
 class _Progress:
-    """A progress bar on stderr (tqdm) owned by a ``with`` block; a no-op when disabled."""
+    """A progress bar on stderr (tqdm) owned by a ``with`` block; a no-op when disabled.
 
-    def __init__(self, desc: str, enabled: bool, total: int | None = None):
-        self.desc, self.enabled, self.total = desc, bool(enabled), total
+    ``update(n)`` counts steps; :attr:`solve_callback` is a
+    :func:`~seed2gs_inverse.solvers.solve` ``progress`` hook showing the
+    iterations (against the method's maximum) and the current loss (None
+    when disabled, so the solver skips its reports).
+    """
+
+    #: Seconds between redraws (tqdm's ``mininterval``).
+    MININTERVAL = 0.1
+
+    def __init__(self, desc: str, enabled: bool, total: int | None = None, unit: str = "it"):
+        self.desc, self.enabled, self.total, self.unit = desc, bool(enabled), total, unit
         self._bar = None
 
     def __enter__(self) -> "_Progress":
         if self.enabled:
             from tqdm import tqdm
 
-            self._bar = tqdm(total=self.total, desc=self.desc, leave=False, file=sys.stderr)
+            self._bar = tqdm(total=self.total, desc=self.desc, unit=self.unit, leave=False, file=sys.stderr,
+                             mininterval=self.MININTERVAL)
         return self
 
     def update(self, n: int = 1) -> None:
         if self._bar is not None:
             self._bar.update(n)
+
+    @property
+    def solve_callback(self):
+        return self._solve_step if self._bar is not None else None
+
+    def _solve_step(self, p) -> None:
+        if p.total is not None and self._bar.total != p.total:
+            self._bar.total = p.total
+        self._bar.update(p.iteration - self._bar.n)
+        if p.loss is not None:
+            self._bar.set_postfix_str(f"loss {p.loss:.5g}", refresh=False)
 
     def __exit__(self, *exc) -> None:
         if self._bar is not None:
@@ -505,7 +526,7 @@ def stack_operators(labelled, scene: GaussianScene):
     return OperatorStack([f.operator for f, _ in labelled], fingerprint=scene_fingerprint(scene))
 
 
-def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings) -> Selection:
+def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, progress=None) -> Selection:
     """Stage 8: ``q`` from the solver initialised from G0, and ``selected = q > tau``.
 
     ``solve(stack, masks, method, init=G0, min_evidence=settings.min_evidence,
@@ -513,11 +534,12 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings) -> 
     pixels carry no evidence (an unregularised fit could drive their logits
     anywhere on a trace of weight), so the solver gives them the prior (G0
     membership). ``tau`` is ``settings.threshold`` or the solver's own.
+    ``progress``: the solver's per-iteration hook (``solve(..., progress=)``).
     """
     from ..solvers import solve
 
     result = solve(stack, masks, method=settings.method, init=lift.support, min_evidence=settings.min_evidence,
-                   **settings.solver_kwargs())
+                   progress=progress, **settings.solver_kwargs())
     q = np.asarray(result.q, dtype=np.float32)
     tau = result.threshold if settings.threshold is None else float(settings.threshold)
     return Selection(result, q, tau, q > tau)
@@ -600,15 +622,15 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
     with timer("lift"):
         lift = lift_seed(scene, ref, s.lift_options)
     before = renderer.operator_seconds
-    with timer("vaas"), _Progress("VAAS views", progress) as bar:
+    with timer("vaas"), _Progress("VAAS views", progress, unit="view") as bar:
         orbits = orbit_views(renderer, camera, ref, lift, s, bar)
     timer.move("vaas", "operators", renderer.operator_seconds - before)
     with timer("tracking"), _Progress("tracking", progress, total=len(orbits.clips())) as bar:
         labelled = track_clips(tracker, orbits, ref.seed, bar)
-    with timer("solve"):
+    with timer("solve"), _Progress(f"solve ({s.method})", progress) as bar:
         stack = stack_operators(labelled, scene)
         masks = [m for _, m in labelled]
-        sel = solve_selection(stack, masks, lift, s)
+        sel = solve_selection(stack, masks, lift, s, progress=bar.solve_callback)
     resolved = {"view_scale": float(orbits.view_scale), "reference_scale": float(ref.scale),
                 "up": orbits.up.tolist(), "threshold": float(sel.threshold),
                 "solver_options": {k: v for k, v in s.solver_kwargs().items()

@@ -20,7 +20,7 @@ import numpy as np
 from ..errors import ValidationError
 from .vaas import DEFAULTS as VAAS_DEFAULTS
 
-__all__ = ["ExtractSettings", "SOLVER_DEFAULTS", "MODES", "PROFILES"]
+__all__ = ["ExtractSettings", "SOLVER_DEFAULTS", "MODES", "PROFILES", "LIMITS"]
 
 #: Solver options extract() uses unless told otherwise: the weighted BCE
 #: selection settles within a few dozen L-BFGS-B iterations when started from
@@ -51,15 +51,22 @@ def _real(name, value, *, lo=None, hi=None, lo_open=False, optional=False) -> fl
     return v
 
 
-def _int(name, value, *, lo, optional=False) -> int | None:
+def _int(name, value, *, lo, hi, optional=False) -> int | None:
+    """``value`` as an int in ``lo..hi``, or a ValidationError naming ``name`` and the range."""
     if value is None and optional:
         return None
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
         kind = "an integer or None" if optional else "an integer"
-        raise ValidationError(f"{name} must be {kind}, got {value!r} ({type(value).__name__})")
-    if int(value) < lo:
-        raise ValidationError(f"{name} must be >= {lo}, got {value!r}")
+        raise ValidationError(f"{name} must be {kind} in {lo:,}..{hi:,}, got {value!r} ({type(value).__name__})")
+    if not lo <= int(value) <= hi:
+        raise ValidationError(f"{name} must be in {lo:,}..{hi:,}, got {value!r}")
     return int(value)
+
+
+#: Bounds of the count options: far beyond any useful value, but an absurd
+#: one (``n_views=10**7``) is refused up front instead of running for hours.
+LIMITS = {"n_views": (2, 360), "max_view_pixels": (64, 2 ** 24), "max_reference_pixels": (64, 2 ** 26),
+          "k_neighbors": (1, 256)}
 
 
 def _choice(name, value, choices) -> str:
@@ -117,7 +124,7 @@ class ExtractSettings:
     n_views, a_max_deg, gamma, skip_deg, profile, max_elevation_deg
         VAAS settings (:mod:`seed2gs_inverse.pipeline.vaas`): paper defaults
         24 views per clip and 5 degrees; A_max = 60 degrees and gamma = 1 are
-        our documented choices. Ranges: ``n_views >= 2``, ``a_max_deg >= 0``,
+        our documented choices. Ranges: ``n_views`` in 2..360, ``a_max_deg >= 0``,
         ``gamma > 0``, ``skip_deg >= 0``, ``profile`` ``"linear"`` or
         ``"sin"``, ``0 < max_elevation_deg < 90`` (default 85).
     orbit_scale : float
@@ -130,13 +137,13 @@ class ExtractSettings:
         the operators (non-zeros) dominate time and memory: on the
         firepit+unicorn benchmark 160k pixels per view cost 3x the time for
         the same accuracy (mIoU 0.900 vs 0.894 on pose 0). None: no cap;
-        else >= 64.
+        else in 64..2**24.
     max_reference_pixels : int or None
         The reference view (seed lift, frame 0 of both clips, first
         supervision view) keeps the camera's resolution up to this many
         pixels (1M), composited only in a box around the seed. Clip frames
         therefore differ in size between frame 0 and the rest. None: no
-        cap; else >= 64.
+        cap; else in 64..2**26.
     roi_margin : float or None
         Orbit views composite only the pixel box around the projected sphere
         of radius ``roi_margin * extent`` about ``o`` (default 2: the lift
@@ -178,16 +185,20 @@ class ExtractSettings:
         fit can drive such Gaussians to 1 on a trace of weight. Passed to
         :func:`~seed2gs_inverse.solvers.solve` as its ``min_evidence``.
     threshold : float or None
-        ``tau`` of Eq. 9 (finite); None: the solver's own (0.5).
+        ``tau`` of Eq. 9, in [0, 1); None: the solver's own (0.5).
     lift_options : mapping (read-only)
-        Keyword arguments of :func:`~seed2gs_inverse.pipeline.seed_lift.seed_lift`.
+        Keyword arguments of :func:`~seed2gs_inverse.pipeline.seed_lift.seed_lift`
+        (``k_neighbors`` in 1..256).
     solver_options : mapping (read-only)
         Keyword arguments of the solver method, on top of
-        :data:`SOLVER_DEFAULTS` (``max_iter=30`` for ``weighted_bce``).
+        :data:`SOLVER_DEFAULTS` (``max_iter=30`` for ``weighted_bce``); count
+        options within :data:`seed2gs_inverse.solvers.COUNT_LIMITS`.
     mode : {"classic", "antialiased"}
         Rasterization mode of every rendering.
     progress : bool or None
-        Progress bars on stderr; default: only when stderr is a terminal.
+        Progress bars on stderr (orbit views, tracking, and the solve's
+        iterations with its current loss); default None: only when stderr is
+        a terminal, so logs never fill with bars.
     """
 
     method: str = "weighted_bce"
@@ -214,14 +225,14 @@ class ExtractSettings:
     progress: bool | None = None
 
     def __post_init__(self):
-        from ..solvers import available_methods, check_options, get_method
+        from ..solvers import available_methods, check_method_options
         from .seed_lift import seed_lift
 
         set_ = object.__setattr__.__get__(self)
         methods = available_methods()
         if not isinstance(self.method, str) or self.method not in methods:
             raise ValidationError(f"unknown solver method {self.method!r}; available: {', '.join(methods)}")
-        n = _int("n_views", self.n_views, lo=2)
+        n = _int("n_views", self.n_views, lo=LIMITS["n_views"][0], hi=LIMITS["n_views"][1])
         set_("n_views", n)
         set_("a_max_deg", _real("a_max_deg", self.a_max_deg, lo=0.0))
         set_("gamma", _real("gamma", self.gamma, lo=0.0, lo_open=True))
@@ -232,9 +243,9 @@ class ExtractSettings:
             raise ValidationError(f"max_elevation_deg must be < 90, got {self.max_elevation_deg!r}")
         set_("max_elevation_deg", me)
         set_("orbit_scale", _real("orbit_scale", self.orbit_scale, lo=0.0, lo_open=True, hi=4.0))
-        set_("max_view_pixels", _int("max_view_pixels", self.max_view_pixels, lo=64, optional=True))
-        set_("max_reference_pixels", _int("max_reference_pixels", self.max_reference_pixels, lo=64,
-                                          optional=True))
+        for name in ("max_view_pixels", "max_reference_pixels"):
+            lo, hi = LIMITS[name]
+            set_(name, _int(name, getattr(self, name), lo=lo, hi=hi, optional=True))
         set_("roi_margin", _real("roi_margin", self.roi_margin, lo=0.0, lo_open=True, optional=True))
         set_("zoom_margin", _real("zoom_margin", self.zoom_margin, lo=0.0, lo_open=True, optional=True))
         set_("up", _up(self.up))
@@ -244,15 +255,21 @@ class ExtractSettings:
         set_("cull", bool(self.cull))
         set_("cull_far", _real("cull_far", self.cull_far, lo=0.0, lo_open=True, optional=True))
         set_("min_evidence", _real("min_evidence", self.min_evidence, lo=0.0))
-        set_("threshold", _real("threshold", self.threshold, optional=True))
+        # q lies in [0, 1]: tau outside [0, 1) (or NaN) would select nothing, silently.
+        set_("threshold", _real("threshold", self.threshold, lo=0.0, optional=True))
+        if self.threshold is not None and not self.threshold < 1.0:
+            raise ValidationError(f"threshold must be in [0, 1) (q > threshold is the object), got {self.threshold!r}")
         lift = _options("lift_options", self.lift_options)
         lift_known = [k for k, p in _keyword_only(seed_lift).items()]
         bad = sorted(set(lift) - set(lift_known))
         if bad:
             raise ValidationError(f"lift_options: seed_lift has no option(s) {bad}; its options are {lift_known}")
+        if "k_neighbors" in lift:
+            _int("lift_options k_neighbors", lift["k_neighbors"], lo=LIMITS["k_neighbors"][0],
+                 hi=LIMITS["k_neighbors"][1])
         set_("lift_options", lift)
         solver = _options("solver_options", self.solver_options)
-        check_options(self.method, get_method(self.method), dict(solver))
+        check_method_options(self.method, dict(solver))
         set_("solver_options", solver)
         set_("mode", _choice("mode", self.mode, MODES))
         if self.progress is not None and not isinstance(self.progress, (bool, np.bool_)):

@@ -23,19 +23,27 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import scipy.sparse as sp
 from threadpoolctl import threadpool_limits
 
 from ..errors import ValidationError
 from ._common import (MethodResult, Problem, SolveResult, available_methods, check_options, get_method,
                       method_options, prepare, register_method)
 from . import beta_bernoulli, least_squares, voting, weighted_bce  # noqa: F401  (importing registers them)
+from ._progress import SolveProgress, reporting
 
 __all__ = ["solve", "available_methods", "register_method", "get_method", "method_options", "SolveResult",
-           "MethodResult", "Problem", "prepare"]
+           "MethodResult", "Problem", "prepare", "SolveProgress", "COUNT_LIMITS", "check_method_options"]
+
+#: Upper bounds of the count options of every method (``max_iter`` etc.): far
+#: above any useful value, low enough that a typo (``max_iter=10**9``) is an
+#: error up front instead of a run that never ends.
+COUNT_LIMITS = {"max_iter": 100_000, "inner_iters": 100_000, "maxcor": 1_000, "power_iters": 10_000,
+                "budget": 1_000_000}
 
 
 def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidence: float = 0.0,
-          **options) -> SolveResult:
+          progress=None, **options) -> SolveResult:
     """Recover per-Gaussian foreground probabilities ``q`` from per-view masks.
 
     Parameters
@@ -59,6 +67,12 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
         and keeps the prior, ``q_i = q0_i`` (an unregularised fit can drive
         such Gaussians anywhere on a trace of weight). ``0`` only gives the
         unobserved Gaussians (``k_i = 0``) the prior.
+    progress : callable, optional
+        ``progress(SolveProgress(iteration, total, loss))`` after every
+        iteration of the iterative methods (L-BFGS iterations of
+        ``weighted_bce``, FISTA steps of ``least_squares``, views absorbed by
+        a sequential ``beta_bernoulli``); ``loss`` is the method's objective.
+        Closed forms report nothing.
     **options
         Method options; see each method's documentation.
 
@@ -73,18 +87,14 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
         Bad operators, masks, init, min_evidence or options (messages name
         the view).
     """
-    fn = get_method(method)
-    check_options(method, fn, options)
-    if isinstance(min_evidence, bool) or not isinstance(min_evidence, (int, float, np.integer, np.floating)) \
-            or not np.isfinite(min_evidence) or min_evidence < 0:
-        raise ValidationError(f"min_evidence must be a finite number >= 0, got {min_evidence!r}")
+    fn = _check_request(operators, method, min_evidence, progress, options)
     t0 = time.perf_counter()
     problem = prepare(operators, masks, init)
     # Solvers call BLAS on vectors of length N every iteration; a multi-threaded
     # OpenBLAS beside Numba's threads spends more on thread start-up than on
     # the work (measured: 51 ms vs 0.5 ms per L-BFGS-B iteration at N = 40k
     # on 2 cores).
-    with threadpool_limits(limits=1, user_api="blas"):
+    with threadpool_limits(limits=1, user_api="blas"), reporting(progress):
         out = fn(problem, **options)
     if not isinstance(out, MethodResult):
         raise RuntimeError(f"method '{method}' returned {type(out).__name__}, not a MethodResult")
@@ -104,3 +114,54 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
     return SolveResult(q=q, method=method, iterations=int(out.iterations), history=list(out.history),
                        view_weights=weights, unobserved=unobserved, seconds=time.perf_counter() - t0,
                        threshold=float(out.threshold), info=info)
+
+
+def check_method_options(method, options) -> object:
+    """The method ``method``, after checking its name and ``options`` (a dict); raises ValidationError.
+
+    The name must be a registered method, every option one the method takes
+    (the message lists them), and the count options (:data:`COUNT_LIMITS`)
+    within their bounds. Value checks beyond that are the method's own.
+    """
+    if not isinstance(method, str):
+        raise ValidationError(f"method must be a method name (str), got {method!r}; "
+                              f"available: {', '.join(available_methods())}")
+    fn = get_method(method)
+    check_options(method, fn, options)
+    for name, hi in COUNT_LIMITS.items():
+        v = options.get(name)
+        if isinstance(v, (int, np.integer)) and not isinstance(v, bool) and not 1 <= v <= hi:
+            raise ValidationError(f"method '{method}': {name} must be in 1..{hi:,}, got {v!r}")
+    return fn
+
+
+def _check_request(operators, method, min_evidence, progress, options):
+    """Validate what :func:`solve` can check before preparing the problem; returns the method.
+
+    Catches, with a ValidationError naming the argument or view: a method
+    name that is not a string, unknown options, count options outside
+    :data:`COUNT_LIMITS`, a bad ``min_evidence`` or ``progress``, operators
+    without columns (no Gaussians), and operators holding NaN/inf weights.
+    """
+    fn = check_method_options(method, options)
+    if isinstance(min_evidence, bool) or not isinstance(min_evidence, (int, float, np.integer, np.floating)) \
+            or not np.isfinite(min_evidence) or min_evidence < 0:
+        raise ValidationError(f"min_evidence must be a finite number >= 0, got {min_evidence!r}")
+    if progress is not None and not callable(progress):
+        raise ValidationError(f"progress must be a callable or None, got {type(progress).__name__}")
+    views = getattr(operators, "views", operators)
+    if isinstance(views, (list, tuple)):
+        for i, op in enumerate(views):
+            W = getattr(op, "W", op)
+            shape = getattr(W, "shape", None)
+            if shape is not None and len(shape) == 2 and shape[1] == 0:
+                raise ValidationError(f"view {i}: the operator has no columns (0 Gaussians); "
+                                      f"build the operators from a non-empty scene")
+            # Bare matrices only: loaded stacks are validated on load, and the
+            # rasterizer's weights are finite by construction.
+            data = getattr(op, "data", None)
+            if sp.issparse(op) and data is not None and data.size and not np.all(np.isfinite(data)):
+                raise ValidationError(f"view {i}: the operator holds non-finite weights (NaN or inf); "
+                                      f"rebuild it from the scene")
+    return fn
+

@@ -37,6 +37,7 @@ from scipy.special import betaln, digamma
 
 from ..errors import ValidationError
 from ._common import MethodResult, Problem, register_method
+from ._progress import report as report_progress
 from .voting import vote_counts
 
 __all__ = ["beta_bernoulli", "beta_entropy"]
@@ -133,6 +134,7 @@ def beta_bernoulli(problem: Problem, *, a0: float = 1.0, b0: float = 1.0, order:
         if gain is not None:
             rec["eig"] = gain
         history.append(rec)
+        report_progress(len(chosen), budget, entropy)
     weights = np.zeros(V)
     weights[chosen] = 1.0
     return MethodResult(q=a / (a + b), iterations=len(chosen), history=history, view_weights=weights,

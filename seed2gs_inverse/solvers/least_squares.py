@@ -31,6 +31,7 @@ from scipy.optimize import lsq_linear
 
 from ..errors import ValidationError
 from ._common import MethodResult, Problem, register_method
+from ._progress import report as report_progress
 
 __all__ = ["least_squares", "operator_norm_sq"]
 
@@ -115,6 +116,7 @@ def least_squares(problem: Problem, *, target: str = "alpha", algorithm: str = "
         z = x_new + np.float32((t - 1.0) / t_new) * (x_new - x)
         x, t = x_new, t_new
         history.append({"objective": 0.5 * float(np.dot(r, r)), "step": step})
+        report_progress(it, max_iter, history[-1]["objective"])
         if step < tol:
             break
     return MethodResult(q=x, iterations=it, history=history, info={"lipschitz": L})

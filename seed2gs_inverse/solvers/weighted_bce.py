@@ -88,6 +88,7 @@ from scipy.special import expit
 from ..errors import ValidationError
 from ._common import MethodResult, Problem, register_method
 from ._bce import PixelBCE, bce_pixels
+from ._progress import report as report_progress
 from .voting import voting
 
 __all__ = ["weighted_bce", "view_weights", "BCEObjective", "bce_pixels"]
@@ -192,7 +193,7 @@ class BCEObjective:
         return float(np.dot(w, bce)), q * (1.0 - q) * gq
 
 
-def _lbfgs(fun, x, max_iter: int, ftol: float, gtol: float, memory: deque) -> tuple:
+def _lbfgs(fun, x, max_iter: int, ftol: float, gtol: float, memory: deque, callback=None) -> tuple:
     """Unconstrained L-BFGS with an Armijo backtracking line search.
 
     ``fun(x) -> (f, g)``. Two-loop recursion over the pairs ``(s, y, 1/s.y)``
@@ -206,7 +207,8 @@ def _lbfgs(fun, x, max_iter: int, ftol: float, gtol: float, memory: deque) -> tu
     |f_{k+1}|, 1) <= ftol`` after a quasi-Newton step (a first steepest-descent
     step is too short to judge convergence by) or ``max |g| <= gtol``
     (status 0), after ``max_iter`` iterations (status 1), or when the line
-    search fails (status 2).
+    search fails (status 2). ``callback(f)``, if given, runs after every
+    iteration.
 
     Returns
     -------
@@ -249,6 +251,8 @@ def _lbfgs(fun, x, max_iter: int, ftol: float, gtol: float, memory: deque) -> tu
         if sy > 1e-10 * yy:
             memory.append((s, y, 1.0 / sy))
         f_old, x, f, g = f, xn, fn, gn
+        if callback is not None:
+            callback(f)
         if quasi_newton and f_old - f <= ftol * max(abs(f_old), abs(f), 1.0):
             return x, f, nit, 0, "relative reduction of the loss below ftol"
         if np.max(np.abs(g)) <= gtol:
@@ -376,6 +380,12 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
     # The curvature pairs carry over between outer steps: a reweighting changes the loss only
     # mildly, and a fresh memory would restart each step with a short steepest-descent step.
     memory = deque(maxlen=int(maxcor))
+    done = [0]
+
+    def step(loss):  # progress of solve(..., progress=...): one report per L-BFGS iteration
+        done[0] += 1
+        report_progress(done[0], max_iter, loss)
+
     for _ in range(max_iter):  # outer steps; each runs >= 1 iteration unless already optimal
         if total >= max_iter:
             break
@@ -387,9 +397,10 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
             return obj.loss_grad_logits(logits, omega, rows)
 
         if optimizer == "lbfgs":
-            x, f, nit, status, message = _lbfgs(fun, x, n_inner, ftol, gtol, memory)
+            x, f, nit, status, message = _lbfgs(fun, x, n_inner, ftol, gtol, memory, step)
         else:
             res = minimize(fun, x, jac=True, method="L-BFGS-B",
+                           callback=lambda intermediate_result: step(intermediate_result.fun),
                            options={"maxiter": n_inner, "maxcor": int(maxcor), "ftol": ftol, "gtol": gtol})
             x, f, nit, status, message = res.x, float(res.fun), int(res.nit), int(res.status), str(res.message)
         total += nit

@@ -1,0 +1,150 @@
+"""What every ``seed2gs`` command shares: output checks, ``--up``, ``--method``/``--option``, progress.
+
+One grammar for every command (issue 12 item 13):
+
+* ``--camera FILE[:NAME|INDEX]`` names one camera of a camera file;
+* ``--up X,Y,Z`` is a world direction;
+* a command that writes refuses to replace an existing output unless
+  ``--force`` is given, and checks its output paths before any work
+  (:func:`check_output`);
+* ``--method`` lists its choices and ``--option NAME=VALUE`` the options of
+  each method;
+* progress bars go to stderr only when it is a terminal (never into logs).
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ValidationError
+
+__all__ = ["check_output", "parse_vector", "add_method_arguments", "parse_options", "progress_enabled",
+           "SolveBar", "DEFAULT_VIEWS"]
+
+
+def _default_views() -> int:
+    from ..pipeline.vaas import DEFAULTS
+
+    return int(DEFAULTS["n_views"])
+
+
+#: Views per VAAS clip used by default by ``extract``, ``demo`` and the examples (the paper's 24).
+DEFAULT_VIEWS = _default_views()
+
+
+def check_output(path, option: str, *, directory: bool = False, force: bool = False) -> Path:
+    """``path`` as a Path once it is known that the command can write it; else a ValidationError.
+
+    Called before any expensive work, so that a typo fails at once and the
+    message names the user's path (never a temporary name):
+
+    * the parent directory must exist and be a directory (``-o afile/out``
+      says that ``afile`` is a file);
+    * a file can be created in it (``-o /proc/x`` fails here, not after
+      the whole pipeline), checked by creating and removing a probe file;
+    * an existing ``path`` is replaced only with ``force`` (the same rule for
+      every command), and only by the same kind (file or directory).
+    """
+    p = Path(os.fspath(path))
+    if not str(path):
+        raise ValidationError(f"{option}: the output path is empty")
+    parent = p.parent if str(p.parent) else Path(".")
+    if not parent.is_dir():
+        probe = parent
+        while not probe.exists() and probe != probe.parent:
+            probe = probe.parent
+        if probe.exists() and not probe.is_dir():
+            raise ValidationError(f"{option} {path}: {probe} is a file, not a directory")
+        raise ValidationError(f"{option} {path}: the directory {parent} does not exist (create it first)")
+    try:
+        fd, name = tempfile.mkstemp(prefix=".seed2gs-write-check.", dir=parent)
+    except OSError as exc:
+        reason = exc.strerror or errno.errorcode.get(exc.errno, type(exc).__name__)
+        raise ValidationError(f"{option} {path}: cannot write in {parent} ({reason})") from None
+    os.close(fd)
+    os.unlink(name)
+    if p.exists() or p.is_symlink():
+        if directory and not p.is_dir():
+            raise ValidationError(f"{option} {path} exists and is not a directory")
+        if not directory and p.is_dir():
+            raise ValidationError(f"{option} {path} is a directory; give a file name")
+        if not force:
+            raise ValidationError(f"{option} {path} exists; use --force to replace it")
+    return p
+
+
+def parse_vector(option: str, values) -> np.ndarray:
+    """A finite, non-zero 3-vector from ``X,Y,Z`` (or, deprecated, three separate numbers)."""
+    items = [values] if isinstance(values, str) else list(values)
+    text = ",".join(str(v) for v in items)
+    try:
+        vals = [float(v) for v in text.split(",") if v.strip() != ""]
+    except ValueError:
+        vals = []
+    if len(vals) != 3 or not np.all(np.isfinite(vals)):
+        raise ValidationError(f"{option} {' '.join(map(str, items))!r}: expected three numbers X,Y,Z, e.g. 0,-1,0")
+    if len(items) == 3:
+        print(f"seed2gs: note: '{option} X Y Z' is deprecated; write {option} {text}", file=sys.stderr)
+    v = np.array(vals)
+    if not np.any(v):
+        raise ValidationError(f"{option} {text}: must be a non-zero direction")
+    return v
+
+
+def _method_lines() -> str:
+    from ..solvers import available_methods, method_options
+
+    return "; ".join(f"{m}: {', '.join(method_options(m)) or '(none)'}" for m in available_methods())
+
+
+def add_method_arguments(parser, *, options: bool = True, default: str = "weighted_bce") -> None:
+    """``--method`` (with its choices) and, with ``options``, ``--option NAME=VALUE`` (listing each method's)."""
+    from ..solvers import available_methods
+
+    methods = available_methods()
+    parser.add_argument("--method", default=default, choices=methods, metavar="METHOD",
+                        help=f"solver: {', '.join(methods)} (default {default})")
+    if options:
+        parser.add_argument("--option", action="append", default=[], metavar="NAME=VALUE",
+                            help="solver option (VALUE read as JSON, else as a string); repeatable. "
+                                 "Options per method: " + _method_lines().replace("%", "%%"))
+
+
+def parse_options(items, method: str) -> dict:
+    """``--option NAME=VALUE`` items as a dict, checked against the method's options."""
+    from ..solvers import check_method_options
+
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or not name.isidentifier():
+            raise ValidationError(f"--option must look like NAME=VALUE, got {item!r}")
+        try:
+            out[name] = json.loads(value)
+        except json.JSONDecodeError:
+            out[name] = value
+    check_method_options(method, out)
+    return out
+
+
+def progress_enabled(no_progress: bool = False) -> bool:
+    """Progress bars only on a terminal: a redirected stderr (a log file) gets none."""
+    return not no_progress and bool(getattr(sys.stderr, "isatty", lambda: False)())
+
+
+def SolveBar(desc: str, enabled: bool):
+    """A progress bar for one solve: ``with SolveBar(...) as bar: solve(..., progress=bar.solve_callback)``.
+
+    Iterations against the method's maximum and the current loss, on stderr;
+    disabled, ``bar.solve_callback`` is None and the solver reports nothing.
+    """
+    from ..pipeline.extract import _Progress
+
+    return _Progress(desc, enabled)
