@@ -45,6 +45,9 @@ def _to_uint8(image: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray((np.clip(np.nan_to_num(img), 0, 1) * 255 + 0.5).astype(np.uint8)[..., ::-1])
 
 
+_GRABCUT_SEED = 20231111
+
+
 def _grabcut(image: np.ndarray, init: np.ndarray, iterations: int) -> np.ndarray:
     """GrabCut from a label image of cv2.GC_{BGD,FGD,PR_BGD,PR_FGD}; returns bool fg."""
     import cv2
@@ -58,6 +61,11 @@ def _grabcut(image: np.ndarray, init: np.ndarray, iterations: int) -> np.ndarray
         return np.isin(labels, (cv2.GC_FGD, cv2.GC_PR_FGD))
     bgd = np.zeros((1, 65), np.float64)
     fgd = np.zeros((1, 65), np.float64)
+    # GrabCut seeds its colour models by k-means from OpenCV's per-thread
+    # random generator, whose state carries over from earlier calls: without
+    # a fixed seed the same prompt gives a different seed mask (and q) on
+    # the second call in a process or a worker thread.
+    cv2.setRNGSeed(_GRABCUT_SEED)
     cv2.grabCut(_to_uint8(image), labels, None, bgd, fgd, int(iterations), cv2.GC_INIT_WITH_MASK)
     return np.isin(labels, (cv2.GC_FGD, cv2.GC_PR_FGD))
 
