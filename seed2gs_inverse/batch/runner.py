@@ -120,7 +120,11 @@ def batch_client(client=None, n_workers: int | None = None, n_jobs: int | None =
            "OMP_WAIT_POLICY": "PASSIVE"}
     # A dead worker fails its task at once (KilledWorker); extract_many then
     # retries it exactly once itself, the same way as on an external cluster.
+    # One task per worker thread at a time (saturation 1.0): a job queued
+    # behind a dying one is not counted as a victim, and jobs keep their
+    # scene-grouped order.
     with dask.config.set({"distributed.scheduler.allowed-failures": 0,
+                          "distributed.scheduler.worker-saturation": 1.0,
                           "distributed.worker.daemon": False}):
         cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
                                dashboard_address=":0" if _has_dashboard() else None,
