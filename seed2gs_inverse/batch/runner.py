@@ -45,7 +45,7 @@ from pathlib import Path
 
 from ..errors import ValidationError
 from .jobs import Job, read_jobs
-from .worker import JobResult, _clear_scene_cache, run_job
+from .worker import JobResult, clear_scene_cache, run_job
 
 __all__ = ["extract_many", "batch_client", "SUMMARY_COLUMNS"]
 
@@ -312,7 +312,7 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
                     for job in todo:
                         record(run_job(job, out))
                 finally:
-                    _clear_scene_cache()
+                    clear_scene_cache()
             elif todo:
                 meta["where"] = f"dask {c.scheduler.address} ({len(c.scheduler_info()['workers'])} workers)"
                 link = _dashboard(c)

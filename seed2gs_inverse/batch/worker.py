@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["JobResult", "run_job", "scene_cache_info", "SCENE_CACHE_SIZE"]
+__all__ = ["JobResult", "run_job", "scene_cache_info", "clear_scene_cache", "SCENE_CACHE_SIZE"]
 
 #: Scenes kept per worker process (least recently used dropped first).
 SCENE_CACHE_SIZE = 2
@@ -180,7 +180,8 @@ def scene_cache_info() -> dict:
         return {"reads": list(_reads), "cached": [k[0] for k in _scenes]}
 
 
-def _clear_scene_cache() -> None:
+def clear_scene_cache() -> None:
+    """Forget this process's scenes and read counts (after running jobs in a non-worker process)."""
     with _lock:
         _scenes.clear()
         _reads.clear()

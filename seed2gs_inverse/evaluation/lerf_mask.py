@@ -371,7 +371,12 @@ def evaluate_lerf_mask(data_dir, scenes_dir, output, *, oracle_seed: bool = True
                         [os.fspath(out / "masks" / sc.name / f / f"{q}.png") for q in qs])
                 tasks.append(((sc, f), args))
         if c is None:
-            scored = [score_frame(*a) for _, a in tasks]
+            from ..batch.worker import clear_scene_cache
+
+            try:
+                scored = [score_frame(*a) for _, a in tasks]
+            finally:
+                clear_scene_cache()  # this process is no worker: do not keep the scenes
         else:
             futs = [c.submit(score_frame, *a, pure=False) for _, a in tasks]
             scored = c.gather(futs)

@@ -45,7 +45,9 @@ def _to_uint8(image: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray((np.clip(np.nan_to_num(img), 0, 1) * 255 + 0.5).astype(np.uint8)[..., ::-1])
 
 
-_GRABCUT_SEED = 20231111
+# 0 selects OpenCV's own initial state (0xffffffff): every call behaves like
+# the first GrabCut call of a fresh thread, as the prompts were tuned.
+_GRABCUT_SEED = 0
 
 
 def _grabcut(image: np.ndarray, init: np.ndarray, iterations: int) -> np.ndarray:
