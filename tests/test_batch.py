@@ -246,8 +246,11 @@ box = [900, 900, 950, 950]
     assert main(args) == 1
     out, _ = capsys.readouterr()
     assert "1 done (1 by an earlier run)" in out
-    assert main(["batch", str(tmp_path / "jobs.toml"), "-o", str(tmp_path / "r2"), "--scheduler",
-                 "tcp://127.0.0.1:1", "--no-progress"]) == 2
+    import dask
+
+    with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):  # nobody listens on port 1
+        assert main(["batch", str(tmp_path / "jobs.toml"), "-o", str(tmp_path / "r2"), "--scheduler",
+                     "tcp://127.0.0.1:1", "--no-progress"]) == 2
     assert "cannot reach the Dask scheduler" in capsys.readouterr().err
     assert main(["batch", str(tmp_path / "nope.toml"), "-o", str(tmp_path / "r3")]) == 2
     assert "no such file" in capsys.readouterr().err

@@ -91,7 +91,7 @@ def batch_client(client=None, n_workers: int | None = None, n_jobs: int | None =
         if not client.startswith(("tcp://", "tls://", "ucx://", "inproc://", "ws://", "wss://")):
             raise ValidationError(f"scheduler address {client!r} must look like tcp://HOST:PORT")
         try:
-            c = Client(client, timeout="20s")
+            c = Client(client, timeout=dask.config.get("distributed.comm.timeouts.connect"))
         except OSError as exc:
             raise ValidationError(f"cannot reach the Dask scheduler at {client} ({exc}); "
                                   f"is 'dask scheduler' running there?") from None
