@@ -132,7 +132,7 @@ def batch_client(client=None, n_workers: int | None = None, n_jobs: int | None =
                           "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
                           "distributed.worker.daemon": False}):
         cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
-                               dashboard_address=":0" if _has_dashboard() else None,
+                               dashboard_address=":0",  # a free port: never "8787 is in use"
                                silence_logs=logging.ERROR, env=env)
         try:
             c = Client(cluster)
@@ -145,9 +145,16 @@ def batch_client(client=None, n_workers: int | None = None, n_jobs: int | None =
 
 
 def _dashboard(client) -> str | None:
+    """The dashboard's address, when one is being served.
+
+    The scheduler's HTTP server always runs (health, metrics); its dashboard
+    pages need bokeh, which for an embedded cluster is this environment's.
+    """
     try:
         info = client.scheduler_info()
         if "dashboard" not in info.get("services", {}):
+            return None
+        if getattr(client, "cluster", None) is not None and not _has_dashboard():
             return None
         return client.dashboard_link
     except Exception:  # noqa: BLE001 - only a courtesy line
