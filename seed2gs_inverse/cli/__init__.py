@@ -20,7 +20,8 @@ from ..errors import Seed2GSError
 __all__ = ["main", "build_parser"]
 
 # Command-group modules, in the order their commands appear in --help.
-_COMMAND_MODULES = ("_extract", "_demo", "_scene", "_render", "_operators", "_solve", "_view", "_models")
+_COMMAND_MODULES = ("_extract", "_batch", "_eval", "_demo", "_scene", "_render", "_operators", "_solve", "_view",
+                    "_models")
 
 
 class _Parser(argparse.ArgumentParser):
