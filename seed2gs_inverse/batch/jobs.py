@@ -56,6 +56,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import FormatError, ValidationError
+from ..io.tables import read_table
 
 __all__ = ["Job", "read_jobs", "jobs_from_table", "extract_option_names", "PROMPT_KEYS"]
 
@@ -408,26 +409,5 @@ def jobs_from_table(table: Mapping, base=".", source: str = "jobs") -> list[Job]
 def read_jobs(path) -> list[Job]:
     """Read a ``jobs.toml`` (or ``.json`` with the same layout) file; see the module docstring."""
     p = Path(path)
-    try:
-        raw = p.read_bytes()
-    except FileNotFoundError:
-        raise FileNotFoundError(2, "No such file", os.fspath(p)) from None
-    if p.suffix.lower() == ".json":
-        try:
-            table = json.loads(raw.decode("utf-8"))
-        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise FormatError(f"{p}: not valid JSON ({exc})") from None
-    else:
-        try:
-            import tomllib
-        except ModuleNotFoundError:  # Python 3.10
-            try:
-                import tomli as tomllib
-            except ModuleNotFoundError:
-                raise FormatError(f"{p}: reading TOML on Python 3.10 needs the 'tomli' package; "
-                                  "install it or write the jobs as JSON") from None
-        try:
-            table = tomllib.loads(raw.decode("utf-8"))
-        except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-            raise FormatError(f"{p}: not valid TOML ({exc})") from None
+    table = read_table(p, "jobs file")
     return jobs_from_table(table, base=p.resolve().parent, source=os.fspath(p))
