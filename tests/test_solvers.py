@@ -199,7 +199,7 @@ def _float64_problem(rng, n=30, views=3, binary=False):
     if binary:  # 0/1 masks take the solver's fast path
         masks = [np.where(np.isnan(m), np.nan, (m > 0.5).astype(np.float32)) for m in masks]
     p = prepare(mats, masks)
-    A = p.A.astype(np.float64)
+    A = p.matrix().astype(np.float64)
     return Problem(A=A, AT=A.T.tocsr(), y=p.y, known=p.known, offsets=p.offsets, image_shapes=p.image_shapes,
                    names=p.names, known_weight=p.known_weight, prior=p.prior)
 
