@@ -548,3 +548,31 @@ def test_methods_return_a_method_result(blob):
         assert isinstance(out, MethodResult) and out.q.shape == (stack.n_gaussians,)
         assert isinstance(out.info, dict) and isinstance(out.history, list)
     assert get_method("voting")(problem, bias=0.2).threshold > 0.5
+
+
+# -- issue 11: warm start from the vote, stop when the selection settles ------------------
+@pytest.mark.parametrize("optimizer", ["scipy", "lbfgs"])
+def test_weighted_bce_stops_when_the_selection_settles(blob, optimizer):
+    """start="vote" + stable_iters ends early, and the object is still recovered on held-out views."""
+    stack, labels, masks = blob
+    held = [3, 7, 11]
+    train = [i for i in range(12) if i not in held]
+    fit = stack.subset(train), [masks[i] for i in train]
+    support = labels & (np.arange(labels.size) % 3 == 0)  # a partial seed, as extract's G0
+    full = solve(*fit, method="weighted_bce", init=support, max_iter=60, optimizer=optimizer)
+    quick = solve(*fit, method="weighted_bce", init=support, max_iter=60, optimizer=optimizer,
+                  start="vote", stable_iters=3)
+    assert quick.iterations < full.iterations
+    assert any(h["selection_settled"] for h in quick.history)
+    assert _heldout_miou(stack, quick.selected(), labels, held) >= 0.99
+    # defaults keep the behaviour from before: the prior start when init is given, no stability rule
+    prior = solve(*fit, method="weighted_bce", init=support, max_iter=60, optimizer=optimizer, start="prior",
+                  stable_iters=0)
+    np.testing.assert_array_equal(prior.q, full.q)
+
+
+def test_weighted_bce_start_and_stability_options_are_validated(rng):
+    mats, masks = _random_problem(rng)
+    for bad in ({"start": "random"}, {"stable_iters": -1}, {"stable_iters": 1.5}, {"stable_tol": 1.0}):
+        with pytest.raises(ValidationError, match="weighted_bce"):
+            solve(mats, masks, method="weighted_bce", **bad)

@@ -182,7 +182,7 @@ class OperatorStack(LinearOperator):
         return _passes.forward(self._mats(), self.row_offsets(), self.n_gaussians, np.asarray(X))
 
     def _rmatmat(self, Y):
-        return _passes.adjoint(self._mats(), self.row_offsets(), self.n_gaussians, np.asarray(Y))
+        return _passes.adjoint(self._mats(), self.row_offsets(), self.n_gaussians, np.ascontiguousarray(Y))
 
     def _adjoint(self):
         return _Transposed(self)
