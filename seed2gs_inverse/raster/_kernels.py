@@ -706,8 +706,14 @@ def kernels_cached():
     source stamp or Numba version differs). ``None`` when Numba's cache
     internals cannot be read (then nothing is announced).
     """
+    cold = _cold_kernels()
+    return None if cold is None else not cold
+
+
+def _cold_kernels():
+    """Names of the entry kernels without a cached compiled version (None: unknown)."""
     try:
-        return all(bool(k._cache._cache_file._load_index()) for k in ENTRY_KERNELS)
+        return [k.py_func.__name__ for k in ENTRY_KERNELS if not k._cache._cache_file._load_index()]
     except Exception:  # noqa: BLE001 - private Numba API: any failure means "unknown"
         return None
 
@@ -715,8 +721,9 @@ def kernels_cached():
 def announce_compilation(stream=None) -> bool:
     """Before the first kernel call of the process: say so on stderr when the cache is cold.
 
-    Prints ``seed2gs: compiling the rasterizer kernels, once (cached for
-    later runs), about N s`` once per process. Returns whether it printed.
+    Prints ``seed2gs: compiling the rasterizer kernels (k of 6), once
+    (cached for later runs), up to about N s`` once per process. Returns
+    whether it printed.
     """
     global _announced
     if _announced:
@@ -726,6 +733,7 @@ def announce_compilation(stream=None) -> bool:
         return False
     import sys
 
-    print(f"seed2gs: compiling the rasterizer kernels, once (cached for later runs), about "
-          f"{COMPILE_SECONDS} s", file=stream or sys.stderr, flush=True)
+    n_cold = len(_cold_kernels() or ENTRY_KERNELS)
+    print(f"seed2gs: compiling the rasterizer kernels ({n_cold} of {len(ENTRY_KERNELS)}), once (cached for "
+          f"later runs), up to about {COMPILE_SECONDS} s", file=stream or sys.stderr, flush=True)
     return True
