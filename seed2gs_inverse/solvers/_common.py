@@ -16,7 +16,6 @@ import inspect
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.sparse as sp
 
 from ..errors import ValidationError
 
@@ -203,8 +202,8 @@ class Problem:
         Whether the caller passed ``init``.
     """
 
-    A: sp.csr_matrix
-    AT: sp.spmatrix
+    A: object  # OperatorStack (products view by view) or a scipy sparse matrix
+    AT: object
     y: np.ndarray
     known: np.ndarray
     offsets: np.ndarray
