@@ -219,12 +219,23 @@ BERT_VOCAB = ["[PAD]", "[UNK]", "[CLS]", "[SEP]", ".", "the", "red", "chair", "r
 
 
 def bert_tokenizer_json(path):
-    import json
-    data = {"version": "1.0", "normalizer": {"type": "BertNormalizer", "lowercase": True},
-            "model": {"type": "WordPiece", "unk_token": "[UNK]", "continuing_subword_prefix": "##",
-                      "max_input_chars_per_word": 100,
-                      "vocab": {t: i for i, t in enumerate(BERT_VOCAB)}}}
-    Path(path).write_text(json.dumps(data))
+    """A complete ``bert-base-uncased``-style tokenizer.json over BERT_VOCAB.
+
+    Built with the ``tokenizers`` library the way ``BertTokenizerFast``
+    saves it: BertNormalizer (lower-case, strip accents), BertPreTokenizer,
+    WordPiece with ``##`` and the ``[CLS] $A [SEP]`` template.
+    """
+    from tokenizers import Tokenizer, models, normalizers, pre_tokenizers, processors
+
+    tok = Tokenizer(models.WordPiece({t: i for i, t in enumerate(BERT_VOCAB)}, unk_token="[UNK]",
+                                     max_input_chars_per_word=100))
+    tok.normalizer = normalizers.BertNormalizer(clean_text=True, handle_chinese_chars=True,
+                                                strip_accents=None, lowercase=True)
+    tok.pre_tokenizer = pre_tokenizers.BertPreTokenizer()
+    tok.post_processor = processors.TemplateProcessing(
+        single="[CLS] $A [SEP]", pair="[CLS] $A [SEP] $B:1 [SEP]:1",
+        special_tokens=[("[CLS]", 2), ("[SEP]", 3)])
+    tok.save(str(path))
     return Path(path)
 
 
@@ -236,13 +247,27 @@ CLIP_MERGES = ["c h", "ch a", "cha i", "chai r</w>", "r e", "re d</w>", "a i", "
 
 
 def clip_tokenizer_json(path):
-    import json
-    vocab = {t: i for i, t in enumerate(CLIP_VOCAB[:-2])}
-    data = {"version": "1.0", "model": {"type": "BPE", "vocab": vocab, "merges": CLIP_MERGES,
-                                        "end_of_word_suffix": "</w>", "unk_token": "<|endoftext|>"},
-            "added_tokens": [{"id": len(CLIP_VOCAB) - 2, "content": "<|startoftext|>"},
-                             {"id": len(CLIP_VOCAB) - 1, "content": "<|endoftext|>"}]}
-    Path(path).write_text(json.dumps(data))
+    """A complete CLIP tokenizer.json over CLIP_VOCAB, as ``CLIPTokenizerFast`` saves it.
+
+    NFC + whitespace collapse + lower-case, CLIP's word split then
+    byte-level, BPE with the ``</w>`` end-of-word suffix, start/end tokens.
+    """
+    from tokenizers import AddedToken, Regex, Tokenizer, decoders, models, normalizers, pre_tokenizers
+
+    vocab = {t: i for i, t in enumerate(CLIP_VOCAB)}
+    merges = [tuple(m.split(" ")) for m in CLIP_MERGES]
+    tok = Tokenizer(models.BPE(vocab, merges, continuing_subword_prefix="", end_of_word_suffix="</w>",
+                               fuse_unk=False, unk_token="<|endoftext|>"))
+    tok.normalizer = normalizers.Sequence([normalizers.NFC(), normalizers.Replace(Regex(r"\s+"), " "),
+                                           normalizers.Lowercase()])
+    tok.pre_tokenizer = pre_tokenizers.Sequence([
+        pre_tokenizers.Split(Regex(r"""'s|'t|'re|'ve|'m|'ll|'d|[\p{L}]+|[\p{N}]|[^\s\p{L}\p{N}]+"""),
+                             behavior="removed", invert=True),
+        pre_tokenizers.ByteLevel(add_prefix_space=False)])
+    tok.decoder = decoders.ByteLevel()
+    tok.add_special_tokens([AddedToken("<|startoftext|>", special=True),
+                            AddedToken("<|endoftext|>", special=True)])
+    tok.save(str(path))
     return Path(path)
 
 

@@ -59,10 +59,17 @@ def test_tokenizer_bad_files(tmp_path, files):
         BertTokenizer.from_file(files["clip"])
     with pytest.raises(FormatError, match="expected a BPE"):
         ClipTokenizer.from_file(files["bert"])
+    data = json.loads(files["bert"].read_text())
+    del data["model"]["vocab"]["[CLS]"]
     nocls = tmp_path / "nocls.json"
-    nocls.write_text(json.dumps({"model": {"type": "WordPiece", "vocab": {"[UNK]": 0}}}))
+    nocls.write_text(json.dumps(data))
     with pytest.raises(FormatError, match=r"\[CLS\]"):
         BertTokenizer.from_file(nocls)
+    # a hand-trimmed file the tokenizers library rejects: named, with what to do
+    partial = tmp_path / "partial.json"
+    partial.write_text(json.dumps({"model": {"type": "WordPiece", "vocab": {"[UNK]": 0}}}))
+    with pytest.raises(FormatError, match="partial.json.*cannot read.*save_pretrained"):
+        BertTokenizer.from_file(partial)
 
 
 def test_subsentence_masks_match_the_original_export_example():
