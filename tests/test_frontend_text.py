@@ -132,8 +132,13 @@ def test_grounding_dino_signature_errors(files, tmp_path):
 
 
 def test_image_inputs_fed_to_the_detectors(files, rng, monkeypatch, tmp_path):
-    """Spy on the feeds: resize + normalisation against an independent computation."""
-    import cv2
+    """Spy on the feeds: resize + normalisation against Pillow, as the reference processors.
+
+    GroundingDINO (original code and transformers) and OWL-ViT's processor
+    resize the 8-bit image with Pillow (bilinear / bicubic, anti-aliased);
+    Pillow rounds each of its two passes with fixed-point taps: up to 2 grey levels apart.
+    """
+    from PIL import Image
 
     from seed2gs_inverse.frontend import _onnx
     from seed2gs_inverse.frontend.owlvit import OWLViT
@@ -145,17 +150,20 @@ def test_image_inputs_fed_to_the_detectors(files, rng, monkeypatch, tmp_path):
         seen.update(feeds)
         return real(self, feeds, outputs)
 
+    def pil(img, size_wh, how, mean, std):
+        u8 = Image.fromarray(np.round(img * 255).astype(np.uint8))
+        return (np.asarray(u8.resize(size_wh, how), np.float64) / 255 - mean) / std
+
     monkeypatch.setattr(_onnx.OnnxModel, "run", spy)
     img = rng.random((48, 64, 3)).astype(np.float32)
     GroundingDINO(files["gdino"], files["bert"]).detect(img, "chair")
-    ref = (cv2.resize(img, (1066, 800), interpolation=cv2.INTER_LINEAR) - [0.485, 0.456, 0.406]) \
-        / [0.229, 0.224, 0.225]
-    np.testing.assert_allclose(seen["img"][0].transpose(1, 2, 0), ref, rtol=1e-5, atol=1e-5)
+    ref = pil(img, (1066, 800), Image.BILINEAR, [0.485, 0.456, 0.406], [0.229, 0.224, 0.225])
+    np.testing.assert_allclose(seen["img"][0].transpose(1, 2, 0), ref, atol=2.01 / 255 / 0.224)
     seen.clear()
     clip = om.clip_tokenizer_json(tmp_path / "clip.json")
     OWLViT(om.owlvit(tmp_path / "owl.onnx"), clip).detect(img, "red chair")
-    ref = (cv2.resize(img, (32, 32), interpolation=cv2.INTER_LINEAR)
-           - [0.48145466, 0.4578275, 0.40821073]) / [0.26862954, 0.26130258, 0.27577711]
-    np.testing.assert_allclose(seen["pixel_values"][0].transpose(1, 2, 0), ref, rtol=1e-5, atol=1e-5)
+    ref = pil(img, (32, 32), Image.BICUBIC, [0.48145466, 0.4578275, 0.40821073],
+              [0.26862954, 0.26130258, 0.27577711])
+    np.testing.assert_allclose(seen["pixel_values"][0].transpose(1, 2, 0), ref, atol=2.01 / 255 / 0.26)
     assert seen["input_ids"].tolist() == [[26, 16, 14, 27] + [0] * 12]
     assert seen["attention_mask"].tolist() == [[1] * 4 + [0] * 12]
