@@ -227,8 +227,11 @@ def _clip_tokenizer(work: Path, pad_token: str) -> Path:
     d.mkdir(parents=True, exist_ok=True)
     (d / "vocab.json").write_text(json.dumps({t: i for i, t in enumerate(vocab)}))
     (d / "merges.txt").write_text("#version: 0.2\n" + "\n".join(" ".join(m) for m in merges) + "\n")
-    fast = CLIPTokenizerFast(vocab_file=str(d / "vocab.json"), merges_file=str(d / "merges.txt"),
+    fast = CLIPTokenizerFast(vocab={t: i for i, t in enumerate(vocab)}, merges=[tuple(m) for m in merges],
                              pad_token=pad_token)
+    # OpenAI CLIP's ids for a known phrase: the vocabulary is the real one
+    got = fast("a photo of a cat")["input_ids"]
+    assert got == [49406, 320, 1125, 539, 320, 2368, 49407], got
     fast.save_pretrained(str(d))
     return d / "tokenizer.json"
 
@@ -265,7 +268,10 @@ def tokenizers(work: Path) -> dict:
     from transformers import BertTokenizerFast
 
     vocab = _bert_vocab(work)
-    bert = BertTokenizerFast(vocab_file=str(vocab), do_lower_case=True)
+    words = vocab.read_text().splitlines()
+    bert = BertTokenizerFast(vocab={t: i for i, t in enumerate(words)}, do_lower_case=True)
+    got = bert("red box. what?")["input_ids"]
+    assert got[0] == 101 and got[-1] == 102 and 1012 in got and 1029 in got and 100 not in got, got
     bert.save_pretrained(str(vocab.parent))
     clip_owl = _clip_tokenizer(work, "!")
     from transformers import CLIPTokenizerFast

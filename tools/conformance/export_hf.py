@@ -50,6 +50,46 @@ class OwlViTOnnx(torch.nn.Module):
         return out.logits, out.pred_boxes, out.text_embeds, out.image_embeds
 
 
+def _phrase_masks(input_ids, special_tokens):
+    """transformers' ``generate_masks_with_special_tokens_and_transfer_map`` without isin/cummax.
+
+    The TorchScript ONNX exporter has no ``aten::isin`` (nor ``cummax``):
+    the same block-diagonal mask and position ids from pairwise
+    comparisons (O(L^2), L <= 256). Checked equal to the original before
+    every export.
+    """
+    batch_size, seq_len = input_ids.shape
+    idx = torch.arange(seq_len, device=input_ids.device)
+    special = (input_ids.unsqueeze(-1) == special_tokens.reshape(1, 1, -1)).any(-1)           # (B, N)
+    j, i = idx.view(1, 1, -1), idx.view(1, -1, 1)
+    before = special.unsqueeze(1) & (j < i)                                                   # (B, N, N)
+    prev_special = torch.where(before, j.expand_as(before), torch.full_like(before, -1, dtype=torch.long)).amax(-1)
+    after = special.unsqueeze(1) & (j >= i)
+    next_special = torch.where(after, j.expand_as(after),
+                               torch.full_like(after, seq_len, dtype=torch.long)).amin(-1)
+    valid_block = (next_special != 0) & (next_special != seq_len - 1) & (next_special != seq_len)
+    mask = (next_special.unsqueeze(2) == next_special.unsqueeze(1)) & valid_block.unsqueeze(1)
+    mask = torch.eye(seq_len, dtype=torch.bool, device=input_ids.device).unsqueeze(0) | mask
+    position_ids = idx.unsqueeze(0) - prev_special - 1
+    position_ids = torch.where(valid_block, position_ids, torch.zeros_like(position_ids)).clamp(min=0).long()
+    return mask, position_ids
+
+
+def _patch_grounding_dino():
+    import transformers.models.grounding_dino.modeling_grounding_dino as gd
+
+    original = gd.generate_masks_with_special_tokens_and_transfer_map
+    special = torch.tensor(gd.SPECIAL_TOKENS, dtype=torch.long)
+    g = torch.Generator().manual_seed(0)
+    for trial in range(20):
+        ids = torch.randint(0, 2000, (2, 3 + trial), generator=g)
+        ids[:, 0], ids[:, -1] = 101, 102
+        ids[ids % 5 == 0] = 1012
+        for a, b in zip(original(ids, special), _phrase_masks(ids, special)):
+            assert torch.equal(a, b), "export-friendly phrase masks differ from transformers'"
+    gd.generate_masks_with_special_tokens_and_transfer_map = _phrase_masks
+
+
 def export(kind: str, model_dir: str, outdir: Path, opset: int = 17) -> Path:
     from transformers import AutoProcessor
 
@@ -59,6 +99,7 @@ def export(kind: str, model_dir: str, outdir: Path, opset: int = 17) -> Path:
     if kind == "groundingdino":
         from transformers import GroundingDinoForObjectDetection
 
+        _patch_grounding_dino()
         model = GroundingDinoForObjectDetection.from_pretrained(model_dir).eval()
         x = proc(images=image, text="a cat. a remote control.", return_tensors="pt")
         names = ["pixel_values", "input_ids", "token_type_ids", "attention_mask", "pixel_mask"]
