@@ -437,3 +437,37 @@ def owlvit(path):
     return save(path, nodes, [vi("input_ids", I64, ["nq", 16]), vi("pixel_values", F32, [1, 3, 32, 32]),
                               vi("attention_mask", I64, ["nq", 16])],
                 [vi("logits", F32, [1, 2, "nq"]), vi("pred_boxes", F32, [1, 2, 4])], inits)
+
+
+# ---------------------------------------------------------------- SAM (v1), samexporter layout
+SAM_IOU = np.array([[0.99, 0.5, 0.9, 0.7]], np.float32)   # mask 0 (single-mask token) is excluded
+
+
+def sam_encoder(path):
+    """``input_image`` (H', W', 3) -> ``image_embeddings`` (1, 3, 4, 4) = the image mean everywhere."""
+    inits = [const("shape", np.array([1, 3, 4, 4], np.int64))]
+    nodes = [helper.make_node("ReduceMean", ["input_image"], ["m"], keepdims=1),
+             helper.make_node("Expand", ["m", "shape"], ["image_embeddings"])]
+    return save(path, nodes, [vi("input_image", F32, ["h", "w", 3])],
+                [vi("image_embeddings", F32, [1, 3, 4, 4])], inits)
+
+
+def sam_decoder(path):
+    """segment-anything's SamOnnxModel names; ``low_res_masks`` = [d, d - 4, d + 4, d - 4]
+    (box distance on the LOW grid of the S x S frame), ``masks`` all -1 (as a broken in-graph
+    post-processing would be: the host must use ``low_res_masks``)."""
+    n1, i1 = box_distance_nodes("point_coords")
+    n2, i2 = _multimask_nodes("d")
+    inits = i1 + i2 + [const("iou", SAM_IOU), const("minus1", np.array(-1.0, np.float32)),
+                       const("zero_f", np.array(0.0, np.float32))]
+    nodes = n1 + n2 + [
+        helper.make_node("Concat", ["low", "d_er"], ["low_res_masks"], axis=1),
+        helper.make_node("Identity", ["iou"], ["iou_predictions"]),
+        helper.make_node("Mul", ["low_res_masks", "zero_f"], ["z"]),
+        helper.make_node("Add", ["z", "minus1"], ["masks"])]
+    inputs = [vi("image_embeddings", F32, [1, 3, 4, 4]), vi("point_coords", F32, [1, "P", 2]),
+              vi("point_labels", F32, [1, "P"]), vi("mask_input", F32, [1, 1, LOW, LOW]),
+              vi("has_mask_input", F32, [1]), vi("orig_im_size", F32, [2])]
+    outputs = [vi("masks", F32, [1, 4, LOW, LOW]), vi("iou_predictions", F32, [1, 4]),
+               vi("low_res_masks", F32, [1, 4, LOW, LOW])]
+    return save(path, nodes, inputs, outputs, inits)

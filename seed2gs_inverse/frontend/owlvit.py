@@ -70,7 +70,7 @@ class OWLViT:
         out = self.model.run({"input_ids": ids[None], "attention_mask": mask[None],
                               "pixel_values": self.preprocess(img)})
         logits = np.asarray(out["logits"], np.float64)[0][:, 0]
-        prob = 1.0 / (1.0 + np.exp(-logits))
+        prob = 1.0 / (1.0 + np.exp(-np.clip(logits, -80.0, 80.0)))
         boxes = cxcywh_to_xyxy(np.asarray(out["pred_boxes"])[0], w, h)
         order = [i for i in np.argsort(-prob, kind="stable") if prob[i] > self.threshold]
         return [Detection(boxes[i], float(prob[i]), text) for i in order[:self.max_detections]]

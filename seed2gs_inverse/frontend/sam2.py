@@ -24,7 +24,10 @@ from the input names:
   padded -> ``image_embeddings``; decoder segment-anything's ``SamOnnxModel``
   ``image_embeddings, point_coords, point_labels, mask_input, has_mask_input,
   orig_im_size`` -> ``masks`` (L, M, H, W) logits at the original size,
-  ``iou_predictions`` [, ``low_res_masks``]. Pre-processing is SAM's
+  ``iou_predictions`` [, ``low_res_masks``]; when ``low_res_masks`` is
+  there the masks are up-sampled from it here, as ``SamPredictor`` does
+  (samexporter 0.5.0 with torch 2.10 traces the crop of its dummy image
+  size into the graph's own ``masks``). Pre-processing is SAM's
   ``ResizeLongestSide``: Pillow bilinear on the 8-bit image to
   ``round(S h / max(h, w))`` x ``round(S w / max(h, w))``, prompts scaled by
   the same factors; a box is two corners labelled 2, 3; points alone get
@@ -303,8 +306,17 @@ class SAM2ImagePredictor:
             feeds = {"image_embeddings": f["image_embeddings"], "point_coords": coords, "point_labels": labs,
                      "mask_input": np.zeros((1, 1, low, self.decoder.input_dim("mask_input", 3, low)), np.float32),
                      "has_mask_input": np.zeros(1, np.float32), "orig_im_size": np.array([h, w])}
-            out = self.decoder.run(feeds, ["masks", "iou_predictions"])
+            names = ["masks", "iou_predictions"] + (["low_res_masks"] if self.decoder.has_output("low_res_masks") else [])
+            out = self.decoder.run(feeds, names)
             ious = out["iou_predictions"]
+            if "low_res_masks" in out:
+                # SamPredictor's postprocess_masks on the host: the traced in-graph
+                # version keeps the crop of the export's dummy image size (1500 x 2250)
+                # under torch >= 2.x, so its `masks` are wrong for other aspect ratios
+                rh, rw = self.resized_shape((h, w))
+                s = self.input_size
+                out["masks"] = np.stack([[resize_map(resize_map(m, s)[:rh, :rw], (h, w)) for m in lab]
+                                         for lab in np.asarray(out["low_res_masks"], np.float32)])
         elif self.layout == "samexporter":
             low = self.decoder.input_dim("mask_input", 2, self.input_size[0] // 4)
             feeds = {"image_embed": f["image_embed"], "high_res_feats_0": f["high_res_feats_0"],

@@ -28,6 +28,10 @@ import numpy as np
 # onnxruntime and torch agrees to ~1e-5. Masks may flip on pixels whose
 # logit is within float noise of the threshold.
 TOL = {"logit_abs": 1e-3, "score_abs": 1e-3, "mask_frac": 1e-3, "box_px": 0.5}
+# Families docs/models.md marks as not verified, with the reason: their failure is
+# reported but does not fail the run. sam2_video: sam2-onnx-cpp exports from its own
+# SAM2 fork (not on PyPI); with Meta's sam2 the memory-attention export fails.
+UNSUPPORTED = {"sam2_video"}
 
 
 def _box_of(mask):
@@ -102,22 +106,63 @@ def sam_vitb(work, fam, files):
 
 
 def _detections(fam, dets, ref, max_n):
-    """Our detections against the reference's (boxes clipped to the image as ours are)."""
+    """Our detections against the reference's (boxes clipped to the image, as ours are).
+
+    Random weights give many tied scores (OWL-ViT saturates at 1.0), so
+    each of our boxes must equal *some* reference box of the same score.
+    """
     clip_h, clip_w = 240, 320
     rb = np.asarray(ref["boxes"], np.float64).reshape(-1, 4)
     rb[:, [0, 2]] = rb[:, [0, 2]].clip(0, clip_w)
     rb[:, [1, 3]] = rb[:, [1, 3]].clip(0, clip_h)
     rs = np.asarray(ref["scores"], np.float64).reshape(-1)
-    order = np.argsort(-rs, kind="stable")[:max_n]
-    fam.note(f"reference keeps {len(rs)} boxes, we keep {len(dets)} (max {max_n})")
-    fam.check("detections missing or extra vs reference (top-k)", abs(len(dets) - len(order)), 0)
-    n = min(len(dets), len(order))
-    if n:
-        ours = np.array([d.score for d in dets[:n]])
-        fam.check("max |score - ref| over matched boxes", float(np.abs(ours - rs[order[:n]]).max()),
-                  TOL["score_abs"])
-        ob = np.array([d.box for d in dets[:n]])
-        fam.check("max |box - ref| (pixels)", float(np.abs(ob - rb[order[:n]]).max()), TOL["box_px"])
+    fam.note(f"reference keeps {len(rs)} boxes, we keep {len(dets)} (at most {max_n}, best first)")
+    fam.check("number of boxes vs min(reference, max_detections)", abs(len(dets) - min(len(rs), max_n)), 0)
+    worst_s, worst_b = 0.0, 0.0
+    for d in dets:
+        cost = np.abs(rs - d.score) / TOL["score_abs"] + np.abs(rb - d.box).max(axis=1) / TOL["box_px"]
+        k = int(np.argmin(cost))
+        worst_s = max(worst_s, abs(rs[k] - d.score))
+        worst_b = max(worst_b, float(np.abs(rb[k] - d.box).max()))
+    if dets:
+        fam.check("max |score - matched reference score|", worst_s, TOL["score_abs"])
+        fam.check("max |box - matched reference box| (pixels)", worst_b, TOL["box_px"])
+    if len(dets) and len(rs):
+        top = np.sort(rs)[::-1][:len(dets)]
+        fam.check("max |our k-th score - reference k-th score|",
+                  float(np.abs(np.array([d.score for d in dets]) - top).max()), TOL["score_abs"])
+
+
+def _raw(fam, out_logits, out_boxes, ref):
+    """The graph's raw outputs on our tensors vs torch's on the processor's (same weights)."""
+    rl, ol = np.asarray(ref["logits"], np.float64), np.asarray(out_logits, np.float64).reshape(ref["logits"].shape)
+    fin = np.isfinite(rl)
+    fam.check("raw logits: max |ours - torch| / max |torch|",
+              float(np.abs(ol[fin] - rl[fin]).max() / max(np.abs(rl[fin]).max(), 1e-12)), 1e-3)
+    fam.check("raw boxes: max |ours - torch|", float(np.abs(np.asarray(out_boxes).reshape(ref["pred_boxes"].shape)
+                                                      - ref["pred_boxes"]).max()), 1e-3)
+
+
+def _detect_on_processor_pixels(fam, det, image, ref):
+    """Graph + text feeds + post-processing with the processor's own pixel tensor.
+
+    The pixel tensors are compared separately (Pillow's fixed-point taps
+    put ours within 2 grey levels); random-weight detectors are chaotic
+    (saturated sigmoids), so the rest is checked on identical pixels.
+    """
+    spy = {}
+    run, pre = det.model.run, det.preprocess
+    det.model.run = lambda feeds, outputs=None: spy.setdefault("out", run(feeds, outputs))
+    det.preprocess = lambda img: np.asarray(ref["pixel_values"], np.float32)[None]
+    try:
+        dets = det.detect(image, "box")
+    finally:
+        det.model.run, det.preprocess = run, pre
+    _raw(fam, spy["out"]["logits"][0], spy["out"]["pred_boxes"][0], ref)
+    _detections(fam, dets, ref, det.max_detections)
+    own = det.detect(image, "box")
+    fam.note(f"info: with our own pixels: {len(own)} boxes, best score "
+             f"{own[0].score if own else float('nan'):.4f} (reference best {np.max(ref['scores'], initial=0):.4f})")
 
 
 def groundingdino(work, fam, files):
@@ -135,8 +180,7 @@ def groundingdino(work, fam, files):
     if px.shape == ref["pixel_values"].shape:
         fam.check("max |pixel_values - processor's| (grey levels)",
                   float(np.abs(px - ref["pixel_values"]).max() * 255 * 0.229), 2.01)
-    dets = det.detect(clip[0], "box")
-    _detections(fam, dets, ref, det.max_detections)
+    _detect_on_processor_pixels(fam, det, clip[0], ref)
 
 
 def owlvit(work, fam, files):
@@ -146,12 +190,17 @@ def owlvit(work, fam, files):
     ref = np.load(work / "ref" / "owlvit.npz")
     det = OWLViT(m / files["model"], m / files["tokenizer"])
     clip = _clip(work)
-    ids, _ = det.tokenizer.encode("box", context_length=det.context)
-    fam.check("input_ids differing from the processor's", float(np.any(ids != ref["input_ids"].reshape(-1))), 0)
+    ids, mask = det.tokenizer.encode("box", context_length=det.context)
+    r = ref["input_ids"].reshape(-1)
+    # transformers 5 no longer pads OWL-ViT text to 16; ours pads (masked, after the end
+    # token, so the causal text encoder's pooled output is unchanged): compare the prefix
+    fam.note(f"ids {ids.tolist()} vs processor {r.tolist()}")
+    fam.check("input_ids differing from the processor's (unpadded prefix, mask)",
+              float(np.any(ids[:r.size] != r) or mask[:r.size].min() < 1 or mask[r.size:].max(initial=0) > 0), 0)
     px = det.preprocess(clip[0])[0]
     fam.check("max |pixel_values - processor's| (grey levels)",
               float(np.abs(px - ref["pixel_values"]).max() * 255 * 0.2613), 2.01)
-    _detections(fam, det.detect(clip[0], "box"), ref, det.max_detections)
+    _detect_on_processor_pixels(fam, det, clip[0], ref)
 
 
 def sam2_video(work, fam, files):
@@ -282,8 +331,10 @@ def main(work: Path) -> int:
                                             "exporter": exp["families"].get(n, {}).get("exporter"),
                                             "command": exp["families"].get(n, {}).get("command")}
                                         for n, f in results.items()}}, indent=2))
-    bad = [n for n, f in results.items() if not f.ok and n != "sam2_video"]
-    print("\nresult: " + ("all conform" if not bad else "not conforming: " + ", ".join(bad)))
+    bad = [n for n, f in results.items() if not f.ok and n not in UNSUPPORTED]
+    known = [n for n, f in results.items() if not f.ok and n in UNSUPPORTED]
+    print("\nresult: " + ("every supported family conforms" if not bad else "NOT CONFORMING: " + ", ".join(bad))
+          + (f"; marked unsupported in docs/models.md: {', '.join(known)}" if known else ""))
     return 1 if bad else 0
 
 

@@ -53,7 +53,8 @@ class OwlViTOnnx(torch.nn.Module):
 def _phrase_masks(input_ids, special_tokens):
     """transformers' ``generate_masks_with_special_tokens_and_transfer_map`` without isin/cummax.
 
-    The TorchScript ONNX exporter has no ``aten::isin`` (nor ``cummax``):
+    The TorchScript ONNX exporter has no ``aten::isin`` (nor ``cummax``), and a
+    boolean ``torch.eye`` exports to an EyeLike that onnxruntime cannot run:
     the same block-diagonal mask and position ids from pairwise
     comparisons (O(L^2), L <= 256). Checked equal to the original before
     every export.
@@ -69,7 +70,7 @@ def _phrase_masks(input_ids, special_tokens):
                                torch.full_like(after, seq_len, dtype=torch.long)).amin(-1)
     valid_block = (next_special != 0) & (next_special != seq_len - 1) & (next_special != seq_len)
     mask = (next_special.unsqueeze(2) == next_special.unsqueeze(1)) & valid_block.unsqueeze(1)
-    mask = torch.eye(seq_len, dtype=torch.bool, device=input_ids.device).unsqueeze(0) | mask
+    mask = (j == i) | mask          # the identity; torch.eye(bool) becomes EyeLike(bool), absent in onnxruntime
     position_ids = idx.unsqueeze(0) - prev_special - 1
     position_ids = torch.where(valid_block, position_ids, torch.zeros_like(position_ids)).clamp(min=0).long()
     return mask, position_ids
