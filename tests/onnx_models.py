@@ -290,8 +290,13 @@ def _token_hit_nodes(ids, token_ids, out, prefix="t"):
     return nodes, inits
 
 
-def grounding_dino(path, chair_id=7, table_id=12):
-    """Query 0 fires on the token 'chair', query 1 on 'table' (logits +-10)."""
+def grounding_dino(path, chair_id=7, table_id=12, layout="groundingdino"):
+    """Query 0 fires on the token 'chair', query 1 on 'table' (logits +-10).
+
+    ``layout="transformers"``: the names of a transformers export
+    (``pixel_values``, ``input_ids``, ``token_type_ids``, ``attention_mask``,
+    ``pixel_mask`` -> ``logits``, ``pred_boxes``).
+    """
     n, inits = _token_hit_nodes("input_ids", [chair_id, table_id], "hits")  # (2, L)
     inits += [const("ax0", np.array([0], np.int64)), const("s1", np.array([1], np.int64)),
               const("s2", np.array([2], np.int64)), const("n256", np.array([256], np.int64)),
@@ -303,13 +308,21 @@ def grounding_dino(path, chair_id=7, table_id=12):
           helper.make_node("Sub", ["n256", "L"], ["padlen"]),
           helper.make_node("Concat", ["pad0", "padlen"], ["pads"], axis=0),
           helper.make_node("Pad", ["hits3", "pads", "mten"], ["raw"], mode="constant"),
-          helper.make_node("ReduceMean", ["img"], ["imean"], keepdims=0),
-          helper.make_node("Cast", ["text_token_mask"], ["tmf"], to=F32),
+          helper.make_node("ReduceMean", ["img" if layout == "groundingdino" else "pixel_values"], ["imean"],
+                           keepdims=0),
+          helper.make_node("Cast", ["text_token_mask" if layout == "groundingdino" else "pixel_mask"], ["tmf"],
+                           to=F32),
           helper.make_node("ReduceSum", ["tmf"], ["tms"], keepdims=0),
           helper.make_node("Add", ["imean", "tms"], ["junk"]),
           helper.make_node("Mul", ["junk", "zero"], ["z"]),
           helper.make_node("Add", ["raw", "z"], ["logits"]),
-          helper.make_node("Add", ["boxc", "z"], ["boxes"])]
+          helper.make_node("Add", ["boxc", "z"], ["boxes" if layout == "groundingdino" else "pred_boxes"])]
+    if layout == "transformers":
+        return save(path, n,
+                    [vi("pixel_values", F32, [1, 3, "H", "W"]), vi("input_ids", I64, [1, "L"]),
+                     vi("token_type_ids", I64, [1, "L"]), vi("attention_mask", I64, [1, "L"]),
+                     vi("pixel_mask", I64, [1, "H", "W"])],
+                    [vi("logits", F32, [1, 2, 256]), vi("pred_boxes", F32, [1, 2, 4])], inits)
     return save(path, n,
                 [vi("img", F32, [1, 3, "H", "W"]), vi("input_ids", I64, [1, "L"]),
                  vi("attention_mask", BOOL, [1, "L"]), vi("position_ids", I64, [1, "L"]),

@@ -96,8 +96,12 @@ def test_caption_preprocessing():
         preprocess_caption("   ")
 
 
-def test_grounding_dino_detects_by_token(files, rng):
-    det = GroundingDINO(files["gdino"], files["bert"])
+@pytest.mark.parametrize("layout", ["groundingdino", "transformers"])
+def test_grounding_dino_detects_by_token(files, rng, layout):
+    model = files["gdino"] if layout == "groundingdino" else om.grounding_dino(
+        files["dir"] / "gdino_hf.onnx", layout="transformers")
+    det = GroundingDINO(model, files["bert"])
+    assert det.layout == layout
     img = rng.random((48, 64, 3)).astype(np.float32)
     out = det.detect(img, "Red chair")
     assert len(out) == 1 and out[0].label == "chair"      # only 'chair' is above text_threshold
@@ -109,11 +113,20 @@ def test_grounding_dino_detects_by_token(files, rng):
                                [(0.75 - 0.15) * 64, (0.5 - 0.3) * 48, (0.75 + 0.15) * 64, (0.5 + 0.3) * 48],
                                atol=1e-4)
     assert det.detect(img, "dog") == []
-    low = GroundingDINO(files["gdino"], files["bert"], text_threshold=0.0)
+    low = GroundingDINO(model, files["bert"], text_threshold=0.0)
     assert low.detect(img, "red chair")[0].label == "red chair"
     text = det.encode_text("red chair")
     assert text["input_ids"].tolist() == [[2, 6, 7, 4, 3]]
     assert text["position_ids"].tolist() == [[0, 0, 1, 2, 0]]
+
+
+def test_grounding_dino_score_is_the_best_caption_token(files, rng, tmp_path):
+    """As the original predict() and transformers: a query firing only on a separator
+    token ('.', id 4) still scores sigmoid(10), not only queries on phrase tokens."""
+    det = GroundingDINO(om.grounding_dino(tmp_path / "dot.onnx", chair_id=4), files["bert"])
+    out = det.detect(rng.random((48, 64, 3)).astype(np.float32), "table")
+    assert len(out) == 2
+    assert all(d.score == pytest.approx(1 / (1 + np.exp(-10)), rel=1e-6) for d in out)
 
 
 def test_grounding_dino_resize_rule(files):

@@ -134,13 +134,29 @@ def _detections(fam, dets, ref, max_n):
 
 
 def _raw(fam, out_logits, out_boxes, ref):
-    """The graph's raw outputs on our tensors vs torch's on the processor's (same weights)."""
-    rl, ol = np.asarray(ref["logits"], np.float64), np.asarray(out_logits, np.float64).reshape(ref["logits"].shape)
-    fin = np.isfinite(rl)
-    fam.check("raw logits: max |ours - torch| / max |torch|",
-              float(np.abs(ol[fin] - rl[fin]).max() / max(np.abs(rl[fin]).max(), 1e-12)), 1e-3)
-    fam.check("raw boxes: max |ours - torch|", float(np.abs(np.asarray(out_boxes).reshape(ref["pred_boxes"].shape)
-                                                      - ref["pred_boxes"]).max()), 1e-3)
+    """The graph's raw outputs on our tensors vs torch's on the processor's (same weights).
+
+    Matched as sets of queries: GroundingDINO picks its 900 queries by a
+    top-k over encoder proposals, and random weights give near-ties that
+    onnxruntime and torch break differently (a query or two swapped, its
+    neighbours nudged through the decoder's self-attention). A query
+    matches when some torch query has the same box (1e-3) and logits
+    (1e-3 of the largest |logit|); at least 98 % must.
+    """
+    rl = np.asarray(ref["logits"], np.float64)
+    ol = np.asarray(out_logits, np.float64).reshape(rl.shape)
+    fin = np.isfinite(rl[0])                       # text positions (the rest is -inf in torch)
+    rl, ol = rl[:, fin], ol[:, fin]
+    scale = max(np.abs(rl).max(), 1e-12)
+    rb = np.asarray(ref["pred_boxes"], np.float64)
+    ob = np.asarray(out_boxes, np.float64).reshape(rb.shape)
+    matched, same_order = 0, 0
+    for q in range(len(ob)):
+        ok = (np.abs(rb - ob[q]).max(axis=1) <= 1e-3) & (np.abs(rl - ol[q]).max(axis=1) <= 1e-3 * scale)
+        matched += bool(ok.any())
+        same_order += bool(ok[q])
+    fam.check("raw outputs: queries with no matching torch query (fraction)", 1.0 - matched / len(ob), 0.02)
+    fam.note(f"info: {same_order / len(ob):.1%} of the queries also in torch's order; largest |logit| {scale:.3g}")
 
 
 def _detect_on_processor_pixels(fam, det, image, ref):
@@ -178,8 +194,7 @@ def groundingdino(work, fam, files):
     px = det.preprocess(clip[0])[0]
     fam.note(f"pixel_values shape {px.shape} (reference {ref['pixel_values'].shape})")
     if px.shape == ref["pixel_values"].shape:
-        fam.check("max |pixel_values - processor's| (grey levels)",
-                  float(np.abs(px - ref["pixel_values"]).max() * 255 * 0.229), 2.01)
+        fam.check("max |pixel_values - processor's| (grey levels)", _grey(px, ref["pixel_values"], IMAGENET_STD), 2.01)
     _detect_on_processor_pixels(fam, det, clip[0], ref)
 
 
@@ -198,8 +213,7 @@ def owlvit(work, fam, files):
     fam.check("input_ids differing from the processor's (unpadded prefix, mask)",
               float(np.any(ids[:r.size] != r) or mask[:r.size].min() < 1 or mask[r.size:].max(initial=0) > 0), 0)
     px = det.preprocess(clip[0])[0]
-    fam.check("max |pixel_values - processor's| (grey levels)",
-              float(np.abs(px - ref["pixel_values"]).max() * 255 * 0.2613), 2.01)
+    fam.check("max |pixel_values - processor's| (grey levels)", _grey(px, ref["pixel_values"], CLIP_STD), 2.01)
     _detect_on_processor_pixels(fam, det, clip[0], ref)
 
 
@@ -223,6 +237,15 @@ def sam2_video(work, fam, files):
         fam.metrics[f"frame{i}_iou"] = float(iou)
     fam.check("frame 0 (the seed) pixels differing from the predictor's", float((masks[0] > 0.5) .astype(bool)
               .__ne__(ref[0] > 0).mean()), TOL["mask_frac"])
+
+
+IMAGENET_STD = (0.229, 0.224, 0.225)
+CLIP_STD = (0.26862954, 0.26130258, 0.27577711)
+
+
+def _grey(ours, ref, std):
+    """Largest difference of two normalised (3, H, W) tensors in 8-bit grey levels."""
+    return float((np.abs(np.asarray(ours, np.float64) - ref) * np.asarray(std)[:, None, None]).max() * 255)
 
 
 def _clip(work):
