@@ -31,7 +31,9 @@ TOL = {"logit_abs": 1e-3, "score_abs": 1e-3, "mask_frac": 1e-3, "box_px": 0.5}
 # Families docs/models.md marks as not verified, with the reason: their failure is
 # reported but does not fail the run. sam2_video: sam2-onnx-cpp exports from its own
 # SAM2 fork (not on PyPI); with Meta's sam2 the memory-attention export fails.
-UNSUPPORTED = {"sam2_video"}
+UNSUPPORTED = {"sam2_video": "sam2-onnx-cpp's exporter needs its author's SAM2 fork (pagarcia/sam2, "
+                             "branch feature/onnx-export), not on PyPI; docs/models.md marks the "
+                             "memory-bank layout as not verified"}
 
 
 def _box_of(mask):
@@ -306,7 +308,10 @@ def main(work: Path) -> int:
             fam.note("not exported (stage 2 skipped it)")
         elif not info.get("ok"):
             fam.ok = False
-            fam.note("EXPORT FAILED: " + info["error"].strip().splitlines()[-1][:400])
+            lines = [ln.strip() for ln in info["error"].splitlines() if "Error" in ln] or [info["error"].strip()]
+            fam.note("EXPORT FAILED: " + lines[-1][:400])
+            if name in UNSUPPORTED:
+                fam.note("known: " + UNSUPPORTED[name])
         else:
             try:
                 if name == "tokenizers":
