@@ -320,7 +320,10 @@ def test_selector_skips_boxes_without_area(img):
     """A detector's best box collapsed to a point (random-weight exports do this; a real one
     may clip a box to nothing at the image edge) must not fail the prompt: the next box
     of the source prompts the mask model instead."""
-    from seed2gs_inverse.frontend.grounding_dino import Detection
+    try:  # Detection moves to frontend/base.py (issue 9)
+        from seed2gs_inverse.frontend.base import Detection
+    except ImportError:
+        from seed2gs_inverse.frontend.grounding_dino import Detection
 
     class Boxes:
         source = "groundingdino"
