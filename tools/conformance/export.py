@@ -144,11 +144,16 @@ def sam2_video(work: Path) -> dict:
     out = work / "models" / "sam2_video"
     if out.exists():
         shutil.rmtree(out)
-    src = HERE / "third_party" / "sam2-onnx-cpp" / "export"
+    # The exporter is not on PyPI and is not copied into this repository: the
+    # user points SAM2_ONNX_CPP at their own checkout of sam2-onnx-cpp.
+    checkout = os.environ.get("SAM2_ONNX_CPP")
+    if not checkout or not (Path(checkout) / "export" / "onnx_export.py").is_file():
+        raise RuntimeError("sam2-onnx-cpp is not on PyPI: set SAM2_ONNX_CPP to a checkout of it "
+                           "(with export/onnx_export.py) to run this family")
     tree = work / "sam2-onnx-cpp"
     if tree.exists():
         shutil.rmtree(tree)
-    shutil.copytree(src, tree / "export")
+    shutil.copytree(Path(checkout) / "export", tree / "export")
     torch.manual_seed(SEED)
     model = build_sam2("configs/sam2.1/sam2.1_hiera_t.yaml", None, device="cpu")
     (tree / "checkpoints").mkdir()
@@ -171,7 +176,7 @@ def sam2_video(work: Path) -> dict:
         for idx, _, masks in pred.propagate_in_video(state):
             logits[idx] = masks[0, 0].float().numpy()
     np.savez(work / "ref" / "sam2_video.npz", logits=np.stack([logits[i] for i in range(len(clip))]))
-    return {"exporter": "sam2-onnx-cpp export/onnx_export.py (legacy set; vendored copy, Apache-2.0)",
+    return {"exporter": "sam2-onnx-cpp export/onnx_export.py (legacy set; the user's checkout in $SAM2_ONNX_CPP)",
             "command": "python export/onnx_export.py --model_size tiny --skip_specialized "
                        "(in a pagarcia/sam2-onnx-cpp checkout, checkpoints/sam2.1_hiera_tiny.pt)",
             "files": {k: f"sam2_video/{k}.onnx" for k in
