@@ -50,7 +50,6 @@ variable (:func:`resolve_models`), or :func:`load_models` from the API.
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -87,33 +86,12 @@ _REQUIRED = {"sam2": ("encoder", "decoder"), "sam": ("encoder", "decoder"),
 
 
 def _read(path: Path) -> dict:
+    from ..io.tables import read_table
+
     try:
-        raw = path.read_bytes()
+        return read_table(path, "models configuration")
     except FileNotFoundError:
         raise FormatError(f"{path}: models configuration file not found") from None
-    except OSError as exc:
-        raise FormatError(f"{path}: cannot read the models configuration ({exc.strerror})") from None
-    if path.suffix.lower() == ".json":
-        try:
-            data = json.loads(raw.decode("utf-8"))
-        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise FormatError(f"{path}: not valid JSON ({exc})") from None
-    else:
-        try:
-            import tomllib
-        except ModuleNotFoundError:  # Python 3.10
-            try:
-                import tomli as tomllib
-            except ModuleNotFoundError:
-                raise FormatError(f"{path}: reading TOML on Python 3.10 needs the 'tomli' package; "
-                                  "install it or write the configuration as JSON") from None
-        try:
-            data = tomllib.loads(raw.decode("utf-8"))
-        except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-            raise FormatError(f"{path}: not valid TOML ({exc})") from None
-    if not isinstance(data, dict):
-        raise FormatError(f"{path}: the configuration must be a table of sections")
-    return data
 
 
 def _sections(path: Path, data: dict) -> dict:
