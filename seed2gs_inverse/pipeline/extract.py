@@ -4,10 +4,12 @@ Each stage is a documented module-level function with explicit inputs and
 outputs, so it can be run, tested and timed on its own::
 
     render_reference   reference canvas I_r                       -> Rendering
-    seed_from_prompt   seed mask m* (prompt / grounder)            -> (seed, prompt_info)
+    seed_from_prompt   seed mask m* (prompt / grounder; a point
+                       prompt grows to the whole object in 3D)     -> (seed, prompt_info)
     reference_view     W(c_r) around the seed, at the lift size    -> ReferenceView
     lift_seed          seed lift (G0, o, extent)                   -> SeedLift
-    orbit_views        VAAS: flat orbit + visibility-adaptive
+    orbit_views        orbit axis (orbit_axis: support plane, ...)
+                       then VAAS: flat orbit + visibility-adaptive
                        ascending spiral, each frame with its W(c)  -> OrbitViews
     track_clips        the tracker propagates m* over both clips   -> list of (ClipFrame, mask)
     stack_operators    the supervision views' operators            -> OperatorStack
@@ -36,7 +38,8 @@ from .vaas import ClipFrame, VAASPlan, estimate_up, run_vaas
 
 __all__ = ["Extraction", "extract", "Renderer", "ExtractSettings", "EXTRACT_DEFAULTS", "SOLVER_DEFAULTS", "STAGES",
            "ReferenceView", "OrbitViews", "Selection", "render_reference", "seed_from_prompt",
-           "reference_view", "lift_seed", "orbit_views", "track_clips", "stack_operators", "solve_selection"]
+           "reference_view", "lift_seed", "orbit_axis", "orbit_views", "track_clips", "stack_operators",
+           "solve_selection"]
 
 #: Defaults of :func:`extract` beyond the VAAS ones (those of :class:`ExtractSettings`).
 EXTRACT_DEFAULTS = {k: getattr(ExtractSettings, k) for k in (
@@ -88,9 +91,14 @@ class Extraction:
     resolved : dict
         JSON-ready facts extract derived from the settings and the inputs:
         ``view_scale``, ``reference_scale``, ``up`` (the orbit axis used),
+        ``up_method`` and ``up_confidence`` (how it was chosen, see ``up``),
         ``threshold`` (tau used), ``solver_options`` (with the defaults),
         ``tracker``, ``grounder`` (class names) and ``n_weak_evidence``
         (Gaussians reset to the prior by ``min_evidence``).
+    up : dict
+        The orbit axis (:func:`orbit_axis`): ``axis``, ``method`` (how it
+        was chosen), ``confidence`` in [0, 1] (None when the user chose it)
+        and ``details``.
     """
 
     scene: GaussianScene
@@ -111,6 +119,7 @@ class Extraction:
     seconds: dict
     settings: ExtractSettings | None = None
     resolved: dict = field(default_factory=dict)
+    up: dict = field(default_factory=dict)
 
     @property
     def total_seconds(self) -> float:
@@ -145,6 +154,7 @@ class Extraction:
             "total_seconds": self.total_seconds,
             "settings": None if self.settings is None else self.settings.to_dict(),
             "resolved": self.resolved,
+            "up": self.up,
         }
 
 
@@ -352,6 +362,8 @@ class OrbitViews:
         Orbit view resolution relative to the camera.
     up : (3,) float64
         The orbit axis used.
+    up_info : dict
+        :func:`orbit_axis`'s report: ``axis``, ``method``, ``confidence``, ``details``.
     """
 
     plan: VAASPlan
@@ -359,6 +371,7 @@ class OrbitViews:
     spiral: list
     view_scale: float
     up: np.ndarray
+    up_info: dict = field(default_factory=dict)
 
     def clips(self) -> list:
         """``[("flat", frames), ("spiral", frames)]`` (no spiral entry when it was skipped)."""
@@ -393,17 +406,35 @@ def render_reference(renderer: Renderer, camera: Camera):
     return ref
 
 
-def seed_from_prompt(prompt, reference, grounder=None):
+def seed_from_prompt(prompt, reference, grounder=None, *, point_mode: str = "region", scene=None,
+                     camera: Camera | None = None, mode: str = "classic"):
     """Stage 2: the seed mask ``m*`` (H, W) bool of ``prompt`` on the reference canvas, and the prompt info.
 
     See :func:`~seed2gs_inverse.frontend.prompts.seed_mask_from_prompt`; text
-    prompts need ``grounder``. Raises ValidationError when the seed covers
-    only empty space (rendered alpha <= 0.05).
+    prompts need ``grounder``. With ``point_mode="object"`` a
+    :class:`~seed2gs_inverse.frontend.prompts.PointPrompt` returns the whole
+    clicked object instead of its colour region: the region is lifted,
+    grown in 3D down to the support plane and projected back
+    (:func:`~seed2gs_inverse.pipeline.point_object.point_object_mask`, which
+    needs the ``scene``, the reference ``camera`` and the rasterization
+    ``mode``); ``prompt_info`` then carries its growth facts. Raises
+    ValidationError when the seed covers only empty space (rendered alpha
+    <= 0.05).
     """
-    from ..frontend.prompts import seed_mask_from_prompt
+    from ..frontend.prompts import PointPrompt, seed_mask_from_prompt
 
-    seed, info = seed_mask_from_prompt(prompt, reference.rgb, depth=reference.depth, alpha=reference.alpha,
-                                       grounder=grounder)
+    if point_mode == "object" and isinstance(prompt, PointPrompt):
+        from .point_object import point_object_mask
+
+        if scene is None or camera is None:
+            raise ValidationError("seed_from_prompt: point_mode='object' needs the scene and the reference camera")
+        po = point_object_mask(scene, camera, prompt.points, prompt.labels, rendering=reference, mode=mode)
+        seed, info = po.mask, po.info
+    elif point_mode not in ("object", "region"):
+        raise ValidationError(f"point_mode must be 'object' or 'region', got {point_mode!r}")
+    else:
+        seed, info = seed_mask_from_prompt(prompt, reference.rgb, depth=reference.depth, alpha=reference.alpha,
+                                           grounder=grounder)
     if not (seed & (reference.alpha > 0.05)).any():
         raise ValidationError("the seed mask covers only empty space in the reference view: "
                               "it does not touch the scene")
@@ -435,13 +466,38 @@ def lift_seed(scene: GaussianScene, ref: ReferenceView, lift_options=None) -> Se
     return seed_lift(scene, ref.camera, ref.seed, op.rendering.depth, op.W, **dict(lift_options or {}))
 
 
-def _orbit_axis(up, scene: GaussianScene, base: Camera, ref_operator) -> np.ndarray:
-    """The orbit axis of the ``up`` setting: levelled image-up, the image-up itself, or the given vector."""
+def orbit_axis(up, scene: GaussianScene, base: Camera, ref: ReferenceView, lift: SeedLift,
+               up_cameras=None) -> dict:
+    """The VAAS axis of the ``up`` setting, as a report dict ``{axis, method, confidence, details}``.
+
+    ``"auto"``: :func:`~seed2gs_inverse.pipeline.up_axis.estimate_up_axis`
+    (support plane under the lift's G0, scene plane, the no-roll prior of
+    ``base`` and the capture cameras ``up_cameras``); a weak estimate warns,
+    naming ``--up``. ``"level"``: the image-up of ``base`` with its pitch
+    removed, weighted by the reference view's operator
+    (:func:`~seed2gs_inverse.pipeline.vaas.estimate_up`); ``"camera"``: the
+    image-up itself; a vector: that vector, normalised. ``confidence`` is
+    None unless estimated.
+    """
+    import warnings
+
+    if isinstance(up, str) and up == "auto":
+        from .up_axis import estimate_up_axis
+
+        if up_cameras is not None and not all(isinstance(c, Camera) for c in up_cameras):
+            raise ValidationError("up_cameras must be a sequence of Camera")
+        est = estimate_up_axis(scene, base, support=lift.support, center=lift.center, radius=lift.radius,
+                               cameras=up_cameras)
+        if est.weak:
+            warnings.warn(est.warning(), stacklevel=4)
+        return est.summary()
     if isinstance(up, str) and up == "level":
-        return estimate_up(scene, base, weights=np.asarray(ref_operator.W.sum(axis=0)).ravel())
+        axis = estimate_up(scene, base, weights=np.asarray(ref.operator.W.sum(axis=0)).ravel())
+        return {"axis": np.asarray(axis, float).tolist(), "method": "level", "confidence": None, "details": {}}
     if isinstance(up, str) and up == "camera":
-        return base.up
-    return np.asarray(up, dtype=np.float64)
+        return {"axis": base.up.tolist(), "method": "camera", "confidence": None, "details": {}}
+    axis = np.asarray(up, dtype=np.float64)  # validated by ExtractSettings
+    return {"axis": (axis / np.linalg.norm(axis)).tolist(), "method": "user", "confidence": None, "details": {}}
 
 
 def _clip_frame(op, clip: str, index: int) -> ClipFrame:
@@ -450,8 +506,10 @@ def _clip_frame(op, clip: str, index: int) -> ClipFrame:
 
 
 def orbit_views(renderer: Renderer, camera: Camera, ref: ReferenceView, lift: SeedLift,
-                settings: ExtractSettings, progress: _Progress | None = None) -> OrbitViews:
-    """Stage 5: VAAS (flat orbit, visibility, ascending spiral); each view rendered with its operator.
+                settings: ExtractSettings, progress: _Progress | None = None, up_cameras=None) -> OrbitViews:
+    """Stage 5: the orbit axis (:func:`orbit_axis`), then VAAS (flat orbit, visibility, ascending spiral).
+
+    Each view is rendered with its operator.
 
     The orbit views have the camera's geometry at ``view_scale`` (``orbit_scale``
     capped at ``max_view_pixels``), zoomed to ``zoom_margin * extent`` about
@@ -464,7 +522,8 @@ def orbit_views(renderer: Renderer, camera: Camera, ref: ReferenceView, lift: Se
     scene = renderer.scene
     view_scale = _view_scale(camera, s.orbit_scale, s.max_view_pixels)
     base = camera.scaled(view_scale)  # the orbits' base camera (geometry + view resolution)
-    up = _orbit_axis(s.up, scene, base, ref.operator)
+    up_info = orbit_axis(s.up, scene, base, ref, lift, up_cameras)
+    up = np.asarray(up_info["axis"], dtype=np.float64)
 
     def view(cam: Camera, clip: str, k: int) -> ClipFrame:
         if cam is base:
@@ -483,7 +542,7 @@ def orbit_views(renderer: Renderer, camera: Camera, ref: ReferenceView, lift: Se
         scene.means[lift.support], sigma, base, lift.center, view, n_views=s.n_views, a_max_deg=s.a_max_deg,
         gamma=s.gamma, skip_deg=s.skip_deg, profile=s.profile, max_elevation_deg=s.max_elevation_deg,
         fit_radius=None if s.zoom_margin is None else s.zoom_margin * lift.radius, up=up)
-    return OrbitViews(plan, flat, spiral, view_scale, np.asarray(up, dtype=np.float64))
+    return OrbitViews(plan, flat, spiral, view_scale, up, up_info)
 
 
 def track_clips(tracker, orbits: OrbitViews, seed: np.ndarray, progress: _Progress | None = None) -> list:
@@ -569,7 +628,7 @@ def _check_tracker(tracker):
 
 
 def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker=None,
-            settings: ExtractSettings | None = None, **overrides) -> Extraction:
+            settings: ExtractSettings | None = None, *, up_cameras=None, **overrides) -> Extraction:
     """Extract one object from a frozen 3DGS scene (Algorithm 1).
 
     Parameters
@@ -590,6 +649,10 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
     settings : ExtractSettings, optional
         Every option (:class:`~seed2gs_inverse.pipeline.settings.ExtractSettings`,
         where each is documented); default ``ExtractSettings()``.
+    up_cameras : sequence of Camera, optional
+        Capture cameras of the scene (e.g. its training cameras): with
+        ``up="auto"`` they constrain the orbit axis (no-roll cameras are
+        level). Run-time data like ``grounder``, not a setting.
     **overrides
         Options replacing those of ``settings`` by name, e.g.
         ``extract(scene, cam, prompt, method="voting", n_views=12)``. An
@@ -616,14 +679,15 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
     with timer("render"):
         reference = render_reference(renderer, camera)
     with timer("grounding"):
-        seed, prompt_info = seed_from_prompt(prompt, reference, grounder)
+        seed, prompt_info = seed_from_prompt(prompt, reference, grounder, point_mode=s.point_mode, scene=scene,
+                                             camera=camera, mode=s.mode)
     with timer("operators"):
         ref = reference_view(renderer, camera, seed, s.max_reference_pixels)
     with timer("lift"):
         lift = lift_seed(scene, ref, s.lift_options)
     before = renderer.operator_seconds
     with timer("vaas"), _Progress("VAAS views", progress, unit="view") as bar:
-        orbits = orbit_views(renderer, camera, ref, lift, s, bar)
+        orbits = orbit_views(renderer, camera, ref, lift, s, bar, up_cameras=up_cameras)
     timer.move("vaas", "operators", renderer.operator_seconds - before)
     with timer("tracking"), _Progress("tracking", progress, total=len(orbits.clips())) as bar:
         labelled = track_clips(tracker, orbits, ref.seed, bar)
@@ -632,11 +696,12 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
         masks = [m for _, m in labelled]
         sel = solve_selection(stack, masks, lift, s, progress=bar.solve_callback)
     resolved = {"view_scale": float(orbits.view_scale), "reference_scale": float(ref.scale),
-                "up": orbits.up.tolist(), "threshold": float(sel.threshold),
+                "up": orbits.up.tolist(), "up_method": orbits.up_info.get("method"),
+                "up_confidence": orbits.up_info.get("confidence"), "threshold": float(sel.threshold),
                 "solver_options": {k: v for k, v in s.solver_kwargs().items()
                                    if isinstance(v, (int, float, str, bool))},
                 "n_weak_evidence": sel.n_weak_evidence, "tracker": type(tracker).__name__,
                 "grounder": None if grounder is None else type(grounder).__name__}
     return Extraction(scene, sel.q, sel.selected, sel.threshold, seed, prompt_info, camera, reference, lift,
                       orbits.plan, [f.camera for f, _ in labelled], [f.clip for f, _ in labelled], masks, stack,
-                      sel.result, timer.seconds, s, resolved)
+                      sel.result, timer.seconds, s, resolved, orbits.up_info)

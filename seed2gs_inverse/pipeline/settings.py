@@ -20,7 +20,7 @@ import numpy as np
 from ..errors import ValidationError
 from .vaas import DEFAULTS as VAAS_DEFAULTS
 
-__all__ = ["ExtractSettings", "SOLVER_DEFAULTS", "MODES", "PROFILES", "LIMITS"]
+__all__ = ["ExtractSettings", "SOLVER_DEFAULTS", "MODES", "PROFILES", "LIMITS", "UP_CHOICES", "POINT_MODES"]
 
 #: Solver options extract() uses unless told otherwise: the weighted BCE
 #: selection settles within a few dozen L-BFGS-B iterations when started from
@@ -87,15 +87,21 @@ def _options(name, value) -> Mapping:
     return MappingProxyType(dict(value))
 
 
+#: The named orbit axes (``up`` may also be a world vector).
+UP_CHOICES = ("auto", "level", "camera")
+#: What a point prompt seeds: the whole object grown in 3D, or the click's colour region.
+POINT_MODES = ("object", "region")
+
+
 def _up(value):
     if isinstance(value, str):
-        return _choice("up", value, ("level", "camera"))
+        return _choice("up", value, UP_CHOICES)
     try:
         u = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
         u = None
     if u is None or u.shape != (3,) or not np.all(np.isfinite(u)) or np.linalg.norm(u) == 0:
-        raise ValidationError(f"up must be 'level', 'camera' or a non-zero finite 3-vector, got {value!r}")
+        raise ValidationError(f"up must be 'auto', 'level', 'camera' or a non-zero finite 3-vector, got {value!r}")
     return tuple(float(x) for x in u)
 
 
@@ -154,11 +160,18 @@ class ExtractSettings:
         that the sphere of radius ``zoom_margin * extent`` about ``o`` fits
         the image (default 2, for the same reason as ``roi_margin``). None
         keeps the reference's field of view.
-    up : "level", "camera" or (3,) tuple of float
-        Orbit axis. ``"level"`` (default): the reference camera's image-up
-        with its pitch removed (:func:`~seed2gs_inverse.pipeline.vaas.estimate_up`);
-        ``"camera"``: the image-up itself (literal reading of the paper; the
-        flat orbit then tilts by the camera's pitch); or a world vector.
+    up : "auto", "level", "camera" or (3,) tuple of float
+        Orbit axis. ``"auto"`` (default): world up from the support plane
+        under the object, the scene's dominant plane, the reference's
+        no-roll prior and the capture cameras passed to extract as
+        ``up_cameras`` (:func:`~seed2gs_inverse.pipeline.up_axis.estimate_up_axis`);
+        the axis, the method that chose it and its confidence are in
+        ``report()["up"]``, and a weak estimate warns (naming ``--up``).
+        ``"level"`` (the default before issue 10): the reference camera's
+        image-up with its pitch removed
+        (:func:`~seed2gs_inverse.pipeline.vaas.estimate_up`); ``"camera"``:
+        the image-up itself (literal reading of the paper; the flat orbit
+        then tilts by the camera's pitch); or a world vector.
     min_weight : float
         Orbit operators drop compositing weights below this
         (:func:`~seed2gs_inverse.raster.build_operator`): fewer
@@ -199,6 +212,12 @@ class ExtractSettings:
         Progress bars on stderr (orbit views, tracking, and the solve's
         iterations with its current loss); default None: only when stderr is
         a terminal, so logs never fill with bars.
+    point_mode : {"object", "region"}
+        Point prompts: ``"object"`` (default) grows the clicked region to
+        the whole object in 3D, stopping at the support plane
+        (:func:`~seed2gs_inverse.pipeline.point_object.point_object_mask`);
+        ``"region"``: the colour-and-depth region of the click alone (the
+        behaviour before issue 10). Other prompts ignore it.
     """
 
     method: str = "weighted_bce"
@@ -213,7 +232,7 @@ class ExtractSettings:
     max_reference_pixels: int | None = 1_000_000
     roi_margin: float | None = 2.0
     zoom_margin: float | None = 2.0
-    up: Any = "level"
+    up: Any = "auto"
     min_weight: float = 0.0
     cull: bool = True
     cull_far: float | None = 4.0
@@ -223,6 +242,7 @@ class ExtractSettings:
     solver_options: Mapping = field(default_factory=dict)
     mode: str = "classic"
     progress: bool | None = None
+    point_mode: str = "object"
 
     def __post_init__(self):
         from ..solvers import available_methods, check_method_options
@@ -275,6 +295,7 @@ class ExtractSettings:
         if self.progress is not None and not isinstance(self.progress, (bool, np.bool_)):
             raise ValidationError(f"progress must be True, False or None, got {self.progress!r}")
         set_("progress", None if self.progress is None else bool(self.progress))
+        set_("point_mode", _choice("point_mode", self.point_mode, POINT_MODES))
 
     # -- derived -------------------------------------------------------------
     def solver_kwargs(self) -> dict:
