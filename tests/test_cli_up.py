@@ -1,4 +1,4 @@
-"""`seed2gs extract --up / --cameras / --point-mode` (issue 10)."""
+"""`seed2gs extract --up / --cameras / --point-mode / --smoothness / --completion` (issue 10)."""
 
 import json
 
@@ -91,3 +91,14 @@ def test_point_mode_reaches_the_settings(files, capsys):
         assert rep["settings"]["point_mode"] == mode
         assert (rep["prompt"].get("mode") == "object") == (mode == "object")
     assert cli.main([str(a) for a in args + ["--point-mode", "blob", "-o", d / "pm_bad"]]) == 2
+
+
+def test_smoothness_and_completion_reach_the_settings(files, capsys):
+    d, _ = files
+    assert _extract(d, d / "sm", "--smoothness", 0.5, "--completion", "tracked", "--up", "level") == 0, \
+        capsys.readouterr().err
+    rep = json.loads((d / "sm" / "report.json").read_text())
+    assert rep["settings"]["smoothness"] == 0.5 and rep["settings"]["completion"] == "tracked"
+    assert rep["resolved"]["smoothness"] == 0.5
+    assert _extract(d, d / "sm_bad", "--smoothness", -1) == 2
+    assert "--smoothness must be >= 0" in capsys.readouterr().err and not (d / "sm_bad").exists()

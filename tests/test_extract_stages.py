@@ -70,10 +70,13 @@ def staged(syn, setup):
     bar = Counter()
     orbits = ex_mod.orbit_views(r, cam, ref, lift, s, bar)
     labelled = ex_mod.track_clips(GeometricTracker(), orbits, ref.seed)
+    graph = ex_mod.evidence_graph(syn.scene, lift, s, ex_mod.MODEL_FREE_SMOOTHNESS)  # smoothness=None resolved
+    masks = ex_mod.complete_masks(graph, labelled, lift, ref, s.completion)
     stack = ex_mod.stack_operators(labelled, syn.scene)
-    sel = ex_mod.solve_selection(stack, [m for _, m in labelled], lift, s)
+    sel = ex_mod.solve_selection(stack, masks, lift, s, graph=graph, smoothness=ex_mod.MODEL_FREE_SMOOTHNESS)
     return SimpleNamespace(settings=s, ref_img=ref_img, seed=seed2, info=info, ref=ref, lift=lift, bar=bar,
-                           orbits=orbits, labelled=labelled, stack=stack, sel=sel, renderer=r)
+                           orbits=orbits, labelled=labelled, stack=stack, sel=sel, renderer=r, graph=graph,
+                           masks=masks)
 
 
 def test_render_reference_is_the_full_rendering(syn, setup, staged):
@@ -240,16 +243,21 @@ def test_stack_operators(syn, staged):
     assert all(v is f.operator for v, (f, _) in zip(st, staged.labelled))
 
 
+def _evidence(syn, labelled):
+    """e = sum_c W(c)^T k(c), with dense operators (independent of the sparse products)."""
+    evidence = np.zeros(len(syn.scene))
+    for (f, m) in labelled:
+        W = f.operator.W.toarray().astype(np.float64)
+        evidence += W.T @ (~np.isnan(m)).ravel()
+    return evidence
+
+
 def test_solve_selection_equals_the_old_evidence_reset(syn, staged):
     """q: the solver's q with Gaussians of evidence e = sum_c W(c)^T k(c) < 0.05 reset to G0 (the old loop)."""
     masks = [m for _, m in staged.labelled]
-    sel = staged.sel
+    sel = ex_mod.solve_selection(staged.stack, masks, staged.lift, staged.settings)  # smoothness 0: off
     raw = solve(staged.stack, masks, method="weighted_bce", init=staged.lift.support, max_iter=30)
-    evidence = np.zeros(len(syn.scene))
-    for (f, m) in staged.labelled:
-        W = f.operator.W.toarray().astype(np.float64)  # dense, independent of the sparse products
-        evidence += W.T @ (~np.isnan(m)).ravel()
-    weak = evidence < 0.05
+    weak = _evidence(syn, staged.labelled) < 0.05
     assert 0 < weak.sum() < len(weak)
     want = np.asarray(raw.q, np.float32).copy()
     want[weak] = staged.lift.support[weak]
@@ -258,6 +266,35 @@ def test_solve_selection_equals_the_old_evidence_reset(syn, staged):
     assert sel.threshold == 0.5 and np.array_equal(sel.selected, sel.q > 0.5)
     t = ex_mod.solve_selection(staged.stack, masks, staged.lift, staged.settings.replace(threshold=0.3))
     assert t.threshold == 0.3 and np.array_equal(t.selected, t.q > 0.3)
+
+
+def test_solve_selection_with_the_graph_regulariser(syn, staged):
+    """smoothness > 0: q solves (E + lambda L + eps I) q = E q_hat + eps p (dense, from the formula).
+
+    E = diag(e) with e the evidence (0 below min_evidence), q_hat the solver's
+    q, p = G0, L = D - G on the graph around the object, eps = 1e-6.
+    """
+    assert staged.graph is not None and staged.graph.nnz > 0
+    assert staged.masks is not None and len(staged.masks) == len(staged.labelled)
+    raw = solve(staged.stack, staged.masks, method="weighted_bce", init=staged.lift.support, max_iter=30)
+    e = _evidence(syn, staged.labelled)
+    e[e < 0.05] = 0.0
+    p = staged.lift.support.astype(np.float64)
+    G = staged.graph.tocsr()
+    nodes = np.flatnonzero(np.asarray(G.sum(axis=1)).ravel() > 0)  # the graph's nodes; the rest decouple
+    Gd = G[nodes][:, nodes].toarray()
+    L = np.diag(Gd.sum(axis=1)) - Gd
+    qh = np.asarray(raw.q, np.float64)
+    eps, lam = 1e-6, ex_mod.MODEL_FREE_SMOOTHNESS
+    want = (e * qh + eps * p) / (e + eps)
+    want[nodes] = np.linalg.solve(np.diag(e[nodes] + eps) + lam * L, e[nodes] * qh[nodes] + eps * p[nodes])
+    want = np.clip(want, 0.0, 1.0)
+    np.testing.assert_allclose(staged.sel.q, want, atol=2e-4)
+    # unseen Gaussians on the graph are decided by their neighbours, not reset to G0
+    free = nodes[e[nodes] == 0]
+    assert free.size and np.abs(staged.sel.q[free] - p[free]).max() > 0.1
+    with pytest.raises(ValidationError, match="smoothness > 0 needs graph"):
+        ex_mod.solve_selection(staged.stack, staged.masks, staged.lift, staged.settings, smoothness=1.0)
 
 
 def test_solve_min_evidence_option_validation(staged):
@@ -287,10 +324,11 @@ def test_q_unchanged_from_before_issue_9(syn, name, label, kw):
     cam = syn.reference_camera(96, 72)
     truth = syn.labels == label
     seed = (build_operator(syn.scene, cam).W @ truth.astype(np.float32)).reshape(cam.image_shape) > 0.5
-    # Pinned to the options of before issue 10 (up="level"; issue 10 made
-    # "auto" the default), so that this still proves the issue-9 refactor
+    # Pinned to the options of before issue 10 (up="level", no graph
+    # regulariser; issue 10 made "auto" and smoothness 1 with the model-free
+    # tracker the defaults), so that this still proves the issue-9 refactor
     # left q unchanged.
-    ex = extract(syn.scene, cam, seed, n_views=6, progress=False, up="level", **kw)
+    ex = extract(syn.scene, cam, seed, n_views=6, progress=False, up="level", smoothness=0.0, **kw)
     q0 = ref[f"q_{name}"]
     # Bit-identical on the machine that made the file; other BLAS builds may
     # differ in the last bits of an L-BFGS-B solve, never in the selection.

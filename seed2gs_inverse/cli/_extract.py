@@ -25,7 +25,8 @@ __all__ = ["register", "write_outputs", "settings_from_args", "seed_summary_line
 
 #: Options that set ExtractSettings (None on the command line = not given).
 _SETTING_FLAGS = {"method": "--method", "views": "--views", "orbit_scale": "--orbit-scale",
-                  "threshold": "--threshold", "up": "--up", "option": "--option", "point_mode": "--point-mode"}
+                  "threshold": "--threshold", "up": "--up", "option": "--option", "point_mode": "--point-mode",
+                  "smoothness": "--smoothness", "completion": "--completion"}
 _PROMPT_FLAGS = {"mask": "--mask", "box": "--box", "point": "--point", "prompt": "--prompt",
                  "negative": "--negative", "camera": "--camera", "cameras": "--cameras"}
 
@@ -75,6 +76,12 @@ def register(subparsers) -> None:
     p.add_argument("--point-mode", choices=("object", "region"), default=None,
                    help="--point: grow the click to the whole object in 3D (object, the default) or keep "
                         "its colour region (region)")
+    p.add_argument("--smoothness", type=float, default=None, metavar="LAMBDA",
+                   help="graph-Laplacian regulariser of the solve: Gaussians no labelled view saw take their "
+                        "neighbours' membership (0: off; default 1 with the model-free tracker, 0 with SAM2)")
+    p.add_argument("--completion", choices=("reference", "tracked"), default=None,
+                   help="fill the orbit masks' unknown pixels by 3D label completion before the solve, "
+                        "seeded by the reference's labels or by every tracked label (default: off)")
     p.add_argument("--format", choices=("ply", "splat"), default=None, help="object/remainder format (default ply)")
     p.add_argument("--no-progress", action="store_true",
                    help="no progress bars (they are shown only when stderr is a terminal)")
@@ -229,9 +236,11 @@ def settings_from_args(args):
     method = args.method or "weighted_bce"
     given = {"method": method, "n_views": args.views, "orbit_scale": args.orbit_scale,
              "threshold": args.threshold, "up": _up(args.up), "point_mode": args.point_mode,
+             "smoothness": args.smoothness, "completion": args.completion,
              "solver_options": parse_options(args.option, method) if args.option else None}
     flags = {"n_views": "--views", "orbit_scale": "--orbit-scale", "threshold": "--threshold", "up": "--up",
-             "method": "--method", "solver_options": "--option", "point_mode": "--point-mode"}
+             "method": "--method", "solver_options": "--option", "point_mode": "--point-mode",
+             "smoothness": "--smoothness", "completion": "--completion"}
     kw = {k: v for k, v in given.items() if v is not None}
     kw["progress"] = progress_enabled(args.no_progress)
     try:

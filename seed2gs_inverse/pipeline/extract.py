@@ -12,8 +12,13 @@ outputs, so it can be run, tested and timed on its own::
                        then VAAS: flat orbit + visibility-adaptive
                        ascending spiral, each frame with its W(c)  -> OrbitViews
     track_clips        the tracker propagates m* over both clips   -> list of (ClipFrame, mask)
+    evidence_graph     Gaussian kNN graph around the object (when
+                       smoothness > 0 or completion is on)         -> sparse (N, N) or None
+    complete_masks     3D label completion of the unknown pixels
+                       (completion="reference" / "tracked")        -> list of masks
     stack_operators    the supervision views' operators            -> OperatorStack
-    solve_selection    solver (initialised from G0) + threshold    -> Selection
+    solve_selection    solver (initialised from G0, graph-Laplacian
+                       regulariser when smoothness > 0) + threshold -> Selection
 
 All options live in one frozen :class:`~seed2gs_inverse.pipeline.settings.ExtractSettings`.
 Every intermediate is returned in an :class:`Extraction` so users can see
@@ -33,18 +38,18 @@ from ..camera import Camera
 from ..errors import ValidationError
 from ..scene import GaussianScene
 from .seed_lift import SeedLift, seed_lift
-from .settings import SOLVER_DEFAULTS, ExtractSettings
+from .settings import MODEL_FREE_SMOOTHNESS, SOLVER_DEFAULTS, ExtractSettings
 from .vaas import ClipFrame, VAASPlan, estimate_up, run_vaas
 
 __all__ = ["Extraction", "extract", "Renderer", "ExtractSettings", "EXTRACT_DEFAULTS", "SOLVER_DEFAULTS", "STAGES",
-           "ReferenceView", "OrbitViews", "Selection", "render_reference", "seed_from_prompt",
-           "reference_view", "lift_seed", "orbit_axis", "orbit_views", "track_clips", "stack_operators",
-           "solve_selection"]
+           "MODEL_FREE_SMOOTHNESS", "ReferenceView", "OrbitViews", "Selection", "render_reference",
+           "seed_from_prompt", "reference_view", "lift_seed", "orbit_axis", "orbit_views", "track_clips",
+           "evidence_graph", "complete_masks", "stack_operators", "solve_selection"]
 
 #: Defaults of :func:`extract` beyond the VAAS ones (those of :class:`ExtractSettings`).
 EXTRACT_DEFAULTS = {k: getattr(ExtractSettings, k) for k in (
     "orbit_scale", "max_view_pixels", "max_reference_pixels", "roi_margin", "zoom_margin", "min_weight",
-    "cull_far", "min_evidence", "threshold")}
+    "cull_far", "min_evidence", "threshold", "smoothness", "completion")}
 
 STAGES = ("render", "grounding", "lift", "vaas", "tracking", "operators", "solve")
 
@@ -93,8 +98,10 @@ class Extraction:
         ``view_scale``, ``reference_scale``, ``up`` (the orbit axis used),
         ``up_method`` and ``up_confidence`` (how it was chosen, see ``up``),
         ``threshold`` (tau used), ``solver_options`` (with the defaults),
-        ``tracker``, ``grounder`` (class names) and ``n_weak_evidence``
-        (Gaussians reset to the prior by ``min_evidence``).
+        ``tracker``, ``grounder`` (class names), ``n_weak_evidence``
+        (Gaussians without real evidence: reset to the prior by
+        ``min_evidence``, or decided by the regulariser) and ``smoothness``
+        (the regulariser's lambda used, after ``None`` was resolved).
     up : dict
         The orbit axis (:func:`orbit_axis`): ``axis``, ``method`` (how it
         was chosen), ``confidence`` in [0, 1] (None when the user chose it)
@@ -380,7 +387,7 @@ class OrbitViews:
 
 @dataclass
 class Selection:
-    """The solve: ``result`` (its ``q`` already carries the ``min_evidence`` reset), tau and ``q > tau``."""
+    """The solve: ``result`` (its ``q`` already carries the ``min_evidence`` reset or the regulariser), tau and ``q > tau``."""
 
     result: object
     q: np.ndarray
@@ -578,6 +585,58 @@ def track_clips(tracker, orbits: OrbitViews, seed: np.ndarray, progress: _Progre
     return labelled
 
 
+def evidence_graph(scene: GaussianScene, lift: SeedLift, settings: ExtractSettings, smoothness: float):
+    """Stage 6b: the Gaussian affinity graph around the object, or None when nothing needs it.
+
+    :func:`~seed2gs_inverse.pipeline.completion.object_graph` about the
+    lift's centre (``region`` lift radii, :data:`~.completion.GRAPH_DEFAULTS`
+    updated by ``settings.graph_options``), built when the regulariser is on
+    (``smoothness > 0``, resolved) or ``settings.completion`` is set.
+    """
+    if not (smoothness > 0 or settings.completion):
+        return None
+    from .completion import GRAPH_DEFAULTS, object_graph
+
+    return object_graph(scene, lift.center, lift.radius, **{**GRAPH_DEFAULTS, **settings.graph_options})
+
+
+def complete_masks(graph, labelled, lift: SeedLift, ref: ReferenceView, completion: str | None,
+                   filler=None) -> list:
+    """Stage 6c: the supervision masks, their unknown pixels filled by 3D label completion.
+
+    ``completion=None``: the tracker's masks as they are. ``"reference"``:
+    random-walker labels on ``graph`` seeded by the reference's labels alone
+    (:func:`~.completion.complete_membership` from G0, the reference
+    operator's column sums and the lift's membership); ``"tracked"``: seeded
+    by every pixel the tracker decided (:func:`~.completion.tracked_membership`,
+    prior G0). Either is rendered into each view and decides the unknown
+    pixels it is sure of (:func:`~.completion.fill_unknown`). ``filler``
+    (a :class:`~seed2gs_inverse.frontend.model_free.GeometricTracker`, with
+    ``"tracked"``) then decides what is still unknown with its 2D fill
+    (:meth:`~seed2gs_inverse.frontend.model_free.GeometricTracker.fill_labels`).
+    Returns float32 masks, one per ``(frame, mask)`` of ``labelled``.
+    """
+    masks = [m for _, m in labelled]
+    if not completion:
+        return masks
+    from .completion import complete_membership, fill_unknown, tracked_membership
+
+    ops = [f.operator for f, _ in labelled]
+    if completion == "reference":
+        q_c = complete_membership(graph, lift.support, np.asarray(ref.operator.W.sum(axis=0)).ravel(),
+                                  lift.membership)
+    elif completion == "tracked":
+        q_c = tracked_membership(graph, ops, masks, prior=lift.support.astype(np.float64))
+    else:
+        raise ValidationError(f"completion must be None, 'reference' or 'tracked', got {completion!r}")
+    masks = fill_unknown(ops, masks, q_c)
+    if filler is not None:
+        masks = [m if not np.isnan(m).any() else
+                 filler.fill_labels(op.rendering.rgb, op.rendering.depth, m).astype(np.float32)
+                 for op, m in zip(ops, masks)]
+    return masks
+
+
 def stack_operators(labelled, scene: GaussianScene):
     """Stage 7: the ``OperatorStack`` of the supervision views (``frame.operator`` of each pair)."""
     from ..operators import OperatorStack, scene_fingerprint
@@ -585,20 +644,24 @@ def stack_operators(labelled, scene: GaussianScene):
     return OperatorStack([f.operator for f, _ in labelled], fingerprint=scene_fingerprint(scene))
 
 
-def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, progress=None) -> Selection:
+def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, progress=None, *, graph=None,
+                    smoothness: float = 0.0) -> Selection:
     """Stage 8: ``q`` from the solver initialised from G0, and ``selected = q > tau``.
 
     ``solve(stack, masks, method, init=G0, min_evidence=settings.min_evidence,
-    **settings.solver_kwargs())``: Gaussians seen (almost) only on unknown
-    pixels carry no evidence (an unregularised fit could drive their logits
-    anywhere on a trace of weight), so the solver gives them the prior (G0
-    membership). ``tau`` is ``settings.threshold`` or the solver's own.
-    ``progress``: the solver's per-iteration hook (``solve(..., progress=)``).
+    smoothness=smoothness, graph=graph, **settings.solver_kwargs())``:
+    Gaussians seen (almost) only on unknown pixels carry no evidence (an
+    unregularised fit could drive their logits anywhere on a trace of
+    weight), so the solver gives them the prior (G0 membership), or, with
+    ``smoothness > 0`` (the resolved setting; :func:`evidence_graph`'s
+    ``graph``), the harmonic extension of their neighbours on the graph.
+    ``tau`` is ``settings.threshold`` or the solver's own. ``progress``: the
+    solver's per-iteration hook (``solve(..., progress=)``).
     """
     from ..solvers import solve
 
     result = solve(stack, masks, method=settings.method, init=lift.support, min_evidence=settings.min_evidence,
-                   progress=progress, **settings.solver_kwargs())
+                   progress=progress, smoothness=smoothness, graph=graph, **settings.solver_kwargs())
     q = np.asarray(result.q, dtype=np.float32)
     tau = result.threshold if settings.threshold is None else float(settings.threshold)
     return Selection(result, q, tau, q > tau)
@@ -617,14 +680,29 @@ def _settings(settings, overrides: dict) -> ExtractSettings:
     return settings.replace(**overrides) if overrides else settings
 
 
-def _check_tracker(tracker):
+def _trackers(tracker, settings: ExtractSettings):
+    """(tracker, 2D filler or None, resolved smoothness) for the given tracker and settings.
+
+    ``smoothness=None`` resolves to :data:`MODEL_FREE_SMOOTHNESS` with the
+    model-free tracker, 0 with any other. ``completion="tracked"`` with the
+    default tracker replaces its 2D fill of revealed pixels (which decides
+    them from image neighbours and is the main source of wrong labels on an
+    object's far side) by the 3D completion; the 2D fill (``filler``) then
+    only decides what the completion leaves open.
+    """
     from ..frontend.model_free import GeometricTracker
 
+    smoothness = settings.smoothness
+    if smoothness is None:
+        smoothness = MODEL_FREE_SMOOTHNESS if tracker is None or isinstance(tracker, GeometricTracker) else 0.0
+    filler = None
+    if tracker is None and settings.completion == "tracked":
+        tracker, filler = GeometricTracker(fill=False), GeometricTracker()
     tracker = GeometricTracker() if tracker is None else tracker
     if not callable(getattr(tracker, "track", None)):
         raise ValidationError(f"tracker must have a track(frames, seed_mask, references=()) method, "
                               f"got {type(tracker).__name__}")
-    return tracker
+    return tracker, filler, float(smoothness)
 
 
 def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker=None,
@@ -672,7 +750,7 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
         raise ValidationError("the scene has no Gaussians")
     if not isinstance(camera, Camera):
         raise ValidationError(f"camera must be a Camera, got {type(camera).__name__}")
-    tracker = _check_tracker(tracker)
+    tracker, filler, smoothness = _trackers(tracker, s)
     progress = bool(getattr(sys.stderr, "isatty", lambda: False)()) if s.progress is None else s.progress
     timer = _StageTimer()
     renderer = Renderer(scene, s.mode)
@@ -691,16 +769,19 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
     timer.move("vaas", "operators", renderer.operator_seconds - before)
     with timer("tracking"), _Progress("tracking", progress, total=len(orbits.clips())) as bar:
         labelled = track_clips(tracker, orbits, ref.seed, bar)
+        # model-free evidence for surfaces no labelled view saw (pipeline/completion.py)
+        graph = evidence_graph(scene, lift, s, smoothness)
+        masks = complete_masks(graph, labelled, lift, ref, s.completion, filler)
     with timer("solve"), _Progress(f"solve ({s.method})", progress) as bar:
         stack = stack_operators(labelled, scene)
-        masks = [m for _, m in labelled]
-        sel = solve_selection(stack, masks, lift, s, progress=bar.solve_callback)
+        sel = solve_selection(stack, masks, lift, s, progress=bar.solve_callback, graph=graph,
+                              smoothness=smoothness)
     resolved = {"view_scale": float(orbits.view_scale), "reference_scale": float(ref.scale),
                 "up": orbits.up.tolist(), "up_method": orbits.up_info.get("method"),
                 "up_confidence": orbits.up_info.get("confidence"), "threshold": float(sel.threshold),
                 "solver_options": {k: v for k, v in s.solver_kwargs().items()
                                    if isinstance(v, (int, float, str, bool))},
-                "n_weak_evidence": sel.n_weak_evidence, "tracker": type(tracker).__name__,
+                "n_weak_evidence": sel.n_weak_evidence, "smoothness": smoothness, "tracker": type(tracker).__name__,
                 "grounder": None if grounder is None else type(grounder).__name__}
     return Extraction(scene, sel.q, sel.selected, sel.threshold, seed, prompt_info, camera, reference, lift,
                       orbits.plan, [f.camera for f, _ in labelled], [f.clip for f, _ in labelled], masks, stack,
