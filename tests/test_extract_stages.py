@@ -304,6 +304,17 @@ def test_solve_min_evidence_option_validation(staged):
             solve(staged.stack, masks, method="voting", min_evidence=bad)
     r = solve(staged.stack, masks, method="voting")
     assert r.info["n_weak_evidence"] == 0  # default 0: off
+    for bad in (-1.0, float("inf"), "1", True):
+        with pytest.raises(ValidationError, match="smoothness must be a finite number"):
+            solve(staged.stack, masks, method="voting", smoothness=bad)
+    with pytest.raises(ValidationError, match="smoothness > 0 needs graph"):
+        solve(staged.stack, masks, method="voting", smoothness=1.0)
+    import scipy.sparse as sp
+
+    with pytest.raises(ValidationError, match="build it from the same scene"):
+        solve(staged.stack, masks, method="voting", smoothness=1.0, graph=sp.eye(3, format="csr"))
+    r = solve(staged.stack, masks, method="voting", smoothness=0.5, graph=staged.graph)
+    assert r.info["smoothness"] == 0.5
 
 
 def test_extract_runs_the_stages(syn, setup, staged):
