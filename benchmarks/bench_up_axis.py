@@ -33,7 +33,10 @@ from pathlib import Path
 
 import numpy as np
 
-DATA = Path(os.environ.get("SEED2GS_DATA", Path(__file__).resolve().parents[1].parent / "shared" / "data"))
+_ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(_ROOT))  # this checkout's package, not whichever one is installed
+
+DATA = Path(os.environ.get("SEED2GS_DATA", _ROOT.parent / "shared" / "data"))
 
 #: Procedural cases: (seed, object, reference azimuth, reference pitch in degrees).
 PROCEDURAL = [(3, "table", 30.0, 30.0), (4, "plush", 200.0, 15.0), (5, "vase", 120.0, 50.0),
