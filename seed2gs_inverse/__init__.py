@@ -43,6 +43,7 @@ _LAZY = {
     **dict.fromkeys(["extract", "Extraction", "ExtractSettings", "seed_lift"], "pipeline"),
     **dict.fromkeys(["remove", "move", "duplicate", "recolour"], "edit"),
     **dict.fromkeys(["make_scene", "compose", "masks_from_labels", "perturb_masks"], "synthetic"),
+    **dict.fromkeys(["extract_many", "Job", "JobResult", "read_jobs"], "batch"),
 }
 
 __all__ = ["Camera", "GaussianScene", "Seed2GSError", "FormatError", "ValidationError",

@@ -195,9 +195,6 @@ def compare(operators, masks, truth, methods=None, holdout_every: int | None = 4
         raise ValidationError("every view is held out; keep at least one view for fitting")
     fit_stack = stack.subset(train)
     fit_masks = [masks[i] for i in train]
-    # Stack once outside the timed/traced solves, so no method pays for it.
-    fit_stack.stacked()
-    fit_stack.stacked_transpose()
     eval_idx = held if held.size else train
     tf = t.astype(np.float32)
     truth_masks = [stack[i].image(tf) > 0.5 for i in eval_idx]

@@ -34,3 +34,12 @@ def shared_data() -> Path:
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(12345)
+
+
+@pytest.fixture(scope="session")
+def dask_client():
+    """One embedded 2-worker Dask cluster shared by every batch test (a start costs seconds)."""
+    from seed2gs_inverse.batch import batch_client
+
+    with batch_client(None, n_workers=2) as client:
+        yield client

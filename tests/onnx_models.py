@@ -219,12 +219,23 @@ BERT_VOCAB = ["[PAD]", "[UNK]", "[CLS]", "[SEP]", ".", "the", "red", "chair", "r
 
 
 def bert_tokenizer_json(path):
-    import json
-    data = {"version": "1.0", "normalizer": {"type": "BertNormalizer", "lowercase": True},
-            "model": {"type": "WordPiece", "unk_token": "[UNK]", "continuing_subword_prefix": "##",
-                      "max_input_chars_per_word": 100,
-                      "vocab": {t: i for i, t in enumerate(BERT_VOCAB)}}}
-    Path(path).write_text(json.dumps(data))
+    """A complete ``bert-base-uncased``-style tokenizer.json over BERT_VOCAB.
+
+    Built with the ``tokenizers`` library the way ``BertTokenizerFast``
+    saves it: BertNormalizer (lower-case, strip accents), BertPreTokenizer,
+    WordPiece with ``##`` and the ``[CLS] $A [SEP]`` template.
+    """
+    from tokenizers import Tokenizer, models, normalizers, pre_tokenizers, processors
+
+    tok = Tokenizer(models.WordPiece({t: i for i, t in enumerate(BERT_VOCAB)}, unk_token="[UNK]",
+                                     max_input_chars_per_word=100))
+    tok.normalizer = normalizers.BertNormalizer(clean_text=True, handle_chinese_chars=True,
+                                                strip_accents=None, lowercase=True)
+    tok.pre_tokenizer = pre_tokenizers.BertPreTokenizer()
+    tok.post_processor = processors.TemplateProcessing(
+        single="[CLS] $A [SEP]", pair="[CLS] $A [SEP] $B:1 [SEP]:1",
+        special_tokens=[("[CLS]", 2), ("[SEP]", 3)])
+    tok.save(str(path))
     return Path(path)
 
 
@@ -236,13 +247,27 @@ CLIP_MERGES = ["c h", "ch a", "cha i", "chai r</w>", "r e", "re d</w>", "a i", "
 
 
 def clip_tokenizer_json(path):
-    import json
-    vocab = {t: i for i, t in enumerate(CLIP_VOCAB[:-2])}
-    data = {"version": "1.0", "model": {"type": "BPE", "vocab": vocab, "merges": CLIP_MERGES,
-                                        "end_of_word_suffix": "</w>", "unk_token": "<|endoftext|>"},
-            "added_tokens": [{"id": len(CLIP_VOCAB) - 2, "content": "<|startoftext|>"},
-                             {"id": len(CLIP_VOCAB) - 1, "content": "<|endoftext|>"}]}
-    Path(path).write_text(json.dumps(data))
+    """A complete CLIP tokenizer.json over CLIP_VOCAB, as ``CLIPTokenizerFast`` saves it.
+
+    NFC + whitespace collapse + lower-case, CLIP's word split then
+    byte-level, BPE with the ``</w>`` end-of-word suffix, start/end tokens.
+    """
+    from tokenizers import AddedToken, Regex, Tokenizer, decoders, models, normalizers, pre_tokenizers
+
+    vocab = {t: i for i, t in enumerate(CLIP_VOCAB)}
+    merges = [tuple(m.split(" ")) for m in CLIP_MERGES]
+    tok = Tokenizer(models.BPE(vocab, merges, continuing_subword_prefix="", end_of_word_suffix="</w>",
+                               fuse_unk=False, unk_token="<|endoftext|>"))
+    tok.normalizer = normalizers.Sequence([normalizers.NFC(), normalizers.Replace(Regex(r"\s+"), " "),
+                                           normalizers.Lowercase()])
+    tok.pre_tokenizer = pre_tokenizers.Sequence([
+        pre_tokenizers.Split(Regex(r"""'s|'t|'re|'ve|'m|'ll|'d|[\p{L}]+|[\p{N}]|[^\s\p{L}\p{N}]+"""),
+                             behavior="removed", invert=True),
+        pre_tokenizers.ByteLevel(add_prefix_space=False)])
+    tok.decoder = decoders.ByteLevel()
+    tok.add_special_tokens([AddedToken("<|startoftext|>", special=True),
+                            AddedToken("<|endoftext|>", special=True)])
+    tok.save(str(path))
     return Path(path)
 
 
@@ -265,8 +290,13 @@ def _token_hit_nodes(ids, token_ids, out, prefix="t"):
     return nodes, inits
 
 
-def grounding_dino(path, chair_id=7, table_id=12):
-    """Query 0 fires on the token 'chair', query 1 on 'table' (logits +-10)."""
+def grounding_dino(path, chair_id=7, table_id=12, layout="groundingdino"):
+    """Query 0 fires on the token 'chair', query 1 on 'table' (logits +-10).
+
+    ``layout="transformers"``: the names of a transformers export
+    (``pixel_values``, ``input_ids``, ``token_type_ids``, ``attention_mask``,
+    ``pixel_mask`` -> ``logits``, ``pred_boxes``).
+    """
     n, inits = _token_hit_nodes("input_ids", [chair_id, table_id], "hits")  # (2, L)
     inits += [const("ax0", np.array([0], np.int64)), const("s1", np.array([1], np.int64)),
               const("s2", np.array([2], np.int64)), const("n256", np.array([256], np.int64)),
@@ -278,13 +308,21 @@ def grounding_dino(path, chair_id=7, table_id=12):
           helper.make_node("Sub", ["n256", "L"], ["padlen"]),
           helper.make_node("Concat", ["pad0", "padlen"], ["pads"], axis=0),
           helper.make_node("Pad", ["hits3", "pads", "mten"], ["raw"], mode="constant"),
-          helper.make_node("ReduceMean", ["img"], ["imean"], keepdims=0),
-          helper.make_node("Cast", ["text_token_mask"], ["tmf"], to=F32),
+          helper.make_node("ReduceMean", ["img" if layout == "groundingdino" else "pixel_values"], ["imean"],
+                           keepdims=0),
+          helper.make_node("Cast", ["text_token_mask" if layout == "groundingdino" else "pixel_mask"], ["tmf"],
+                           to=F32),
           helper.make_node("ReduceSum", ["tmf"], ["tms"], keepdims=0),
           helper.make_node("Add", ["imean", "tms"], ["junk"]),
           helper.make_node("Mul", ["junk", "zero"], ["z"]),
           helper.make_node("Add", ["raw", "z"], ["logits"]),
-          helper.make_node("Add", ["boxc", "z"], ["boxes"])]
+          helper.make_node("Add", ["boxc", "z"], ["boxes" if layout == "groundingdino" else "pred_boxes"])]
+    if layout == "transformers":
+        return save(path, n,
+                    [vi("pixel_values", F32, [1, 3, "H", "W"]), vi("input_ids", I64, [1, "L"]),
+                     vi("token_type_ids", I64, [1, "L"]), vi("attention_mask", I64, [1, "L"]),
+                     vi("pixel_mask", I64, [1, "H", "W"])],
+                    [vi("logits", F32, [1, 2, 256]), vi("pred_boxes", F32, [1, 2, 4])], inits)
     return save(path, n,
                 [vi("img", F32, [1, 3, "H", "W"]), vi("input_ids", I64, [1, "L"]),
                  vi("attention_mask", BOOL, [1, "L"]), vi("position_ids", I64, [1, "L"]),
@@ -412,3 +450,37 @@ def owlvit(path):
     return save(path, nodes, [vi("input_ids", I64, ["nq", 16]), vi("pixel_values", F32, [1, 3, 32, 32]),
                               vi("attention_mask", I64, ["nq", 16])],
                 [vi("logits", F32, [1, 2, "nq"]), vi("pred_boxes", F32, [1, 2, 4])], inits)
+
+
+# ---------------------------------------------------------------- SAM (v1), samexporter layout
+SAM_IOU = np.array([[0.99, 0.5, 0.9, 0.7]], np.float32)   # mask 0 (single-mask token) is excluded
+
+
+def sam_encoder(path):
+    """``input_image`` (H', W', 3) -> ``image_embeddings`` (1, 3, 4, 4) = the image mean everywhere."""
+    inits = [const("shape", np.array([1, 3, 4, 4], np.int64))]
+    nodes = [helper.make_node("ReduceMean", ["input_image"], ["m"], keepdims=1),
+             helper.make_node("Expand", ["m", "shape"], ["image_embeddings"])]
+    return save(path, nodes, [vi("input_image", F32, ["h", "w", 3])],
+                [vi("image_embeddings", F32, [1, 3, 4, 4])], inits)
+
+
+def sam_decoder(path):
+    """segment-anything's SamOnnxModel names; ``low_res_masks`` = [d, d - 4, d + 4, d - 4]
+    (box distance on the LOW grid of the S x S frame), ``masks`` all -1 (as a broken in-graph
+    post-processing would be: the host must use ``low_res_masks``)."""
+    n1, i1 = box_distance_nodes("point_coords")
+    n2, i2 = _multimask_nodes("d")
+    inits = i1 + i2 + [const("iou", SAM_IOU), const("minus1", np.array(-1.0, np.float32)),
+                       const("zero_f", np.array(0.0, np.float32))]
+    nodes = n1 + n2 + [
+        helper.make_node("Concat", ["low", "d_er"], ["low_res_masks"], axis=1),
+        helper.make_node("Identity", ["iou"], ["iou_predictions"]),
+        helper.make_node("Mul", ["low_res_masks", "zero_f"], ["z"]),
+        helper.make_node("Add", ["z", "minus1"], ["masks"])]
+    inputs = [vi("image_embeddings", F32, [1, 3, 4, 4]), vi("point_coords", F32, [1, "P", 2]),
+              vi("point_labels", F32, [1, "P"]), vi("mask_input", F32, [1, 1, LOW, LOW]),
+              vi("has_mask_input", F32, [1]), vi("orig_im_size", F32, [2])]
+    outputs = [vi("masks", F32, [1, 4, LOW, LOW]), vi("iou_predictions", F32, [1, 4]),
+               vi("low_res_masks", F32, [1, 4, LOW, LOW])]
+    return save(path, nodes, inputs, outputs, inits)

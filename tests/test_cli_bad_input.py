@@ -240,3 +240,19 @@ def test_force_replaces_for_every_writing_command(files, tmp_path, capsys):
     for name in ("out.ply", "out.png", "q.npy"):
         assert (d / name).read_bytes() != b"old"
     assert (d / "cmp" / "comparison.csv").is_file() and (d / "ops2" / "manifest.json").is_file()
+
+
+def test_warnings_print_as_one_line_in_the_commands_voice(tmp_path, capsys, monkeypatch):
+    """A warning raised while a command runs is one 'seed2gs CMD: warning: ...' line (no file:line)."""
+    import warnings
+
+    from seed2gs_inverse.cli import _scene
+
+    def warn_and_succeed(args):
+        warnings.warn("something to know", UserWarning)
+        return 0
+
+    monkeypatch.setattr(_scene, "info", warn_and_succeed)
+    assert cli.main(["info", str(tmp_path / "any.ply")]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["seed2gs info: warning: something to know"]

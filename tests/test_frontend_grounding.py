@@ -314,3 +314,36 @@ def test_models_cli_check_and_ground(d, tmp_path, capsys, monkeypatch):
     args = parser.parse_args(["models", str(p), "--image", str(tmp_path / "no.png"), "--prompt", "x"])
     with pytest.raises(FormatError, match="no.png"):
         args.func(args)
+
+
+def test_selector_skips_boxes_without_area(img):
+    """A detector's best box collapsed to a point (random-weight exports do this; a real one
+    may clip a box to nothing at the image edge) must not fail the prompt: the next box
+    of the source prompts the mask model instead."""
+    try:  # Detection moves to frontend/base.py (issue 9)
+        from seed2gs_inverse.frontend.base import Detection
+    except ImportError:
+        from seed2gs_inverse.frontend.grounding_dino import Detection
+
+    class Boxes:
+        source = "groundingdino"
+
+        def detect(self, image, prompt):
+            return [Detection(np.zeros(4), 0.99, "x"), Detection(np.array([70.0, 5, 90, 20]), 0.9, "x"),
+                    Detection(np.array([10.0, 8, 30, 40]), 0.8, "x")]
+
+    class Masks:
+        def __init__(self):
+            self.boxes = []
+
+        def segment_box(self, image, box):
+            self.boxes.append(list(box))
+            m = np.zeros(image.shape[:2], bool)
+            m[int(box[1]):int(box[3]), int(box[0]):int(box[2])] = True
+            return m, 0.5
+
+    masks = Masks()
+    got = QDSAM3Selector(masks, [Boxes()]).ground(img, "chair")
+    # the all-zero box is dropped, the box right of the 64-px-wide image has no area inside it
+    assert masks.boxes == [[10.0, 8.0, 30.0, 40.0]]
+    assert len(got) == 1 and got[0].info["cue_box"] == [10.0, 8.0, 30.0, 40.0]

@@ -236,3 +236,50 @@ def test_truncated_file_and_runtime_failure_are_format_errors(models, tmp_path):
         att.run(feeds)
     feeds["memory_pos_embed"] = np.zeros((32, 1, 1), np.float32)
     assert att.run(feeds)["fused_feat"].shape == (1, 3, 4, 4)
+
+
+def test_sam_v1_samexporter_layout(tmp_path, rng, monkeypatch):
+    """SAM (v1): longest-side resize, box corners, padding point, best of masks 1..3,
+    masks up-sampled from low_res_masks (S x S, crop, original size) on the host."""
+    from seed2gs_inverse.frontend import _onnx
+
+    pred = SAM2ImagePredictor(om.sam_encoder(tmp_path / "enc.onnx"), om.sam_decoder(tmp_path / "dec.onnx"))
+    assert pred.layout == "sam-samexporter" and pred.input_size == (1024, 1024)
+    pred.input_size = (om.S, om.S)      # the tiny graph's frame is S = 64 (no fixed size in the file)
+    assert pred.resized_shape((H, W)) == (48, 64)
+    img = image(rng)
+    seen = {}
+    real = _onnx.OnnxModel.run
+
+    def spy(self, feeds, outputs=None):
+        seen[self.role] = feeds
+        return real(self, feeds, outputs)
+
+    monkeypatch.setattr(_onnx.OnnxModel, "run", spy)
+    box = [16.0, 9.0, 52.0, 39.0]
+    out = pred.predict(img, box=box)
+    enc = seen["sam2.encoder"]["input_image"]
+    assert enc.shape == (48, 64, 3) and enc.max() <= 255.0 and np.allclose(enc, np.round(enc))
+    # 0..255 8-bit values of the (already S-sized) image: no resize happened here
+    np.testing.assert_array_equal(enc, np.round(img * 255.0))
+    dec = seen["sam2.decoder"]
+    np.testing.assert_array_equal(dec["point_labels"], [[2, 3]])
+    np.testing.assert_array_equal(dec["orig_im_size"], [H, W])
+    assert out.index == 2 and out.score == pytest.approx(0.9)        # 0.99 of mask 0 is ignored
+    # brute force: pixel centre -> S-frame coordinates (scale S / max(H, W) = 1 here); mask 2 = dilated box
+    x = (np.arange(W) + 0.5) * 64 / W
+    y = (np.arange(H) + 0.5) * 48 / H
+    X, Y = np.meshgrid(x, y)
+    d = np.minimum.reduce([X - box[0], box[2] - X, Y - box[1], box[3] - Y]) + om.ERODE
+    far = np.abs(d) > 1.5
+    assert far.sum() > 0.7 * d.size
+    np.testing.assert_array_equal(out.mask[far], d[far] > 0)
+    # points alone get SAM's padding point (0, 0) with label -1
+    pred.predict(points=[[30.0, 20.0]])
+    np.testing.assert_array_equal(seen["sam2.decoder"]["point_labels"], [[1, -1]])
+    np.testing.assert_array_equal(seen["sam2.decoder"]["point_coords"][0, 1], [0.0, 0.0])
+
+
+def test_sam_v1_and_sam2_files_are_not_mixed(tmp_path, models):
+    with pytest.raises(ValidationError, match="matching pair"):
+        SAM2ImagePredictor(om.sam_encoder(tmp_path / "enc.onnx"), models["dec_se"])

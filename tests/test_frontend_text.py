@@ -59,10 +59,17 @@ def test_tokenizer_bad_files(tmp_path, files):
         BertTokenizer.from_file(files["clip"])
     with pytest.raises(FormatError, match="expected a BPE"):
         ClipTokenizer.from_file(files["bert"])
+    data = json.loads(files["bert"].read_text())
+    del data["model"]["vocab"]["[CLS]"]
     nocls = tmp_path / "nocls.json"
-    nocls.write_text(json.dumps({"model": {"type": "WordPiece", "vocab": {"[UNK]": 0}}}))
+    nocls.write_text(json.dumps(data))
     with pytest.raises(FormatError, match=r"\[CLS\]"):
         BertTokenizer.from_file(nocls)
+    # a hand-trimmed file the tokenizers library rejects: named, with what to do
+    partial = tmp_path / "partial.json"
+    partial.write_text(json.dumps({"model": {"type": "WordPiece", "vocab": {"[UNK]": 0}}}))
+    with pytest.raises(FormatError, match="partial.json.*cannot read.*save_pretrained"):
+        BertTokenizer.from_file(partial)
 
 
 def test_subsentence_masks_match_the_original_export_example():
@@ -89,8 +96,12 @@ def test_caption_preprocessing():
         preprocess_caption("   ")
 
 
-def test_grounding_dino_detects_by_token(files, rng):
-    det = GroundingDINO(files["gdino"], files["bert"])
+@pytest.mark.parametrize("layout", ["groundingdino", "transformers"])
+def test_grounding_dino_detects_by_token(files, rng, layout):
+    model = files["gdino"] if layout == "groundingdino" else om.grounding_dino(
+        files["dir"] / "gdino_hf.onnx", layout="transformers")
+    det = GroundingDINO(model, files["bert"])
+    assert det.layout == layout
     img = rng.random((48, 64, 3)).astype(np.float32)
     out = det.detect(img, "Red chair")
     assert len(out) == 1 and out[0].label == "chair"      # only 'chair' is above text_threshold
@@ -102,11 +113,20 @@ def test_grounding_dino_detects_by_token(files, rng):
                                [(0.75 - 0.15) * 64, (0.5 - 0.3) * 48, (0.75 + 0.15) * 64, (0.5 + 0.3) * 48],
                                atol=1e-4)
     assert det.detect(img, "dog") == []
-    low = GroundingDINO(files["gdino"], files["bert"], text_threshold=0.0)
+    low = GroundingDINO(model, files["bert"], text_threshold=0.0)
     assert low.detect(img, "red chair")[0].label == "red chair"
     text = det.encode_text("red chair")
     assert text["input_ids"].tolist() == [[2, 6, 7, 4, 3]]
     assert text["position_ids"].tolist() == [[0, 0, 1, 2, 0]]
+
+
+def test_grounding_dino_score_is_the_best_caption_token(files, rng, tmp_path):
+    """As the original predict() and transformers: a query firing only on a separator
+    token ('.', id 4) still scores sigmoid(10), not only queries on phrase tokens."""
+    det = GroundingDINO(om.grounding_dino(tmp_path / "dot.onnx", chair_id=4), files["bert"])
+    out = det.detect(rng.random((48, 64, 3)).astype(np.float32), "table")
+    assert len(out) == 2
+    assert all(d.score == pytest.approx(1 / (1 + np.exp(-10)), rel=1e-6) for d in out)
 
 
 def test_grounding_dino_resize_rule(files):
@@ -125,8 +145,13 @@ def test_grounding_dino_signature_errors(files, tmp_path):
 
 
 def test_image_inputs_fed_to_the_detectors(files, rng, monkeypatch, tmp_path):
-    """Spy on the feeds: resize + normalisation against an independent computation."""
-    import cv2
+    """Spy on the feeds: resize + normalisation against Pillow, as the reference processors.
+
+    GroundingDINO (original code and transformers) and OWL-ViT's processor
+    resize the 8-bit image with Pillow (bilinear / bicubic, anti-aliased);
+    Pillow rounds each of its two passes with fixed-point taps: up to 2 grey levels apart.
+    """
+    from PIL import Image
 
     from seed2gs_inverse.frontend import _onnx
     from seed2gs_inverse.frontend.owlvit import OWLViT
@@ -138,17 +163,20 @@ def test_image_inputs_fed_to_the_detectors(files, rng, monkeypatch, tmp_path):
         seen.update(feeds)
         return real(self, feeds, outputs)
 
+    def pil(img, size_wh, how, mean, std):
+        u8 = Image.fromarray(np.round(img * 255).astype(np.uint8))
+        return (np.asarray(u8.resize(size_wh, how), np.float64) / 255 - mean) / std
+
     monkeypatch.setattr(_onnx.OnnxModel, "run", spy)
     img = rng.random((48, 64, 3)).astype(np.float32)
     GroundingDINO(files["gdino"], files["bert"]).detect(img, "chair")
-    ref = (cv2.resize(img, (1066, 800), interpolation=cv2.INTER_LINEAR) - [0.485, 0.456, 0.406]) \
-        / [0.229, 0.224, 0.225]
-    np.testing.assert_allclose(seen["img"][0].transpose(1, 2, 0), ref, rtol=1e-5, atol=1e-5)
+    ref = pil(img, (1066, 800), Image.BILINEAR, [0.485, 0.456, 0.406], [0.229, 0.224, 0.225])
+    np.testing.assert_allclose(seen["img"][0].transpose(1, 2, 0), ref, atol=2.01 / 255 / 0.224)
     seen.clear()
     clip = om.clip_tokenizer_json(tmp_path / "clip.json")
     OWLViT(om.owlvit(tmp_path / "owl.onnx"), clip).detect(img, "red chair")
-    ref = (cv2.resize(img, (32, 32), interpolation=cv2.INTER_LINEAR)
-           - [0.48145466, 0.4578275, 0.40821073]) / [0.26862954, 0.26130258, 0.27577711]
-    np.testing.assert_allclose(seen["pixel_values"][0].transpose(1, 2, 0), ref, rtol=1e-5, atol=1e-5)
+    ref = pil(img, (32, 32), Image.BICUBIC, [0.48145466, 0.4578275, 0.40821073],
+              [0.26862954, 0.26130258, 0.27577711])
+    np.testing.assert_allclose(seen["pixel_values"][0].transpose(1, 2, 0), ref, atol=2.01 / 255 / 0.26)
     assert seen["input_ids"].tolist() == [[26, 16, 14, 27] + [0] * 12]
     assert seen["attention_mask"].tolist() == [[1] * 4 + [0] * 12]

@@ -330,3 +330,59 @@ def test_load_of_non_directory(tmp_path):
     (tmp_path / "file").write_text("x")
     with pytest.raises(FormatError, match="not a directory"):
         OperatorStack.load(tmp_path / "file")
+
+
+# -- the stack's passes, view by view -------------------------------------------
+def _built_stack():
+    from render_reference import random_scene
+
+    from seed2gs_inverse.raster import build_operator
+
+    cams = [Camera.look_at([0.2 + 0.3 * k, -0.6, -4.0], [0, 0, 0], [0, -1, 0], 48, 24 + 4 * k, 20, name=f"c{k}")
+            for k in range(3)]
+    scene = random_scene(5, n=120, cam=cams[0])
+    return OperatorStack([build_operator(scene, c) for c in cams])
+
+
+@pytest.mark.parametrize("direct", [True, False])
+def test_stack_passes_bit_identical_to_the_stacked_matrix(rng, monkeypatch, direct):
+    """Products run view by view (no stacked copy) yet equal the stacked matrix's passes bit for bit.
+
+    ``direct=False`` forces the public per-view fallback (used when scipy lacks its private kernels):
+    the forward pass stays bit-identical (row by row), the adjoint sums per view (close, not equal).
+    """
+    from seed2gs_inverse.operators import _passes
+
+    if not direct:
+        monkeypatch.setattr(_passes, "_KERNELS", False)
+    stack = _built_stack()
+    q = rng.random(stack.n_gaussians).astype(np.float32)
+    r = rng.random(stack.shape[0]).astype(np.float32)
+    fwd, adj = stack.matvec(q), stack.rmatvec(r)
+    assert stack._stacked is None  # nothing was stacked
+    A = stack.stacked()
+    assert fwd.dtype == adj.dtype == np.float32
+    np.testing.assert_array_equal(fwd, A @ q)
+    if direct:
+        np.testing.assert_array_equal(adj, stack.stacked_transpose() @ r)
+        np.testing.assert_array_equal(stack.T @ r, stack.stacked_transpose() @ r)
+    np.testing.assert_allclose(adj, A.T.astype(np.float64) @ r.astype(np.float64), rtol=1e-5)
+    # float64 vectors accumulate in float64, as scipy does for the stacked matrix
+    np.testing.assert_array_equal(stack.matvec(q.astype(np.float64)), A @ q.astype(np.float64))
+    np.testing.assert_allclose(stack.rmatvec(r.astype(np.float64)), A.T @ r.astype(np.float64), rtol=1e-12)
+    # blocks of vectors
+    Q = rng.random((stack.n_gaussians, 2)).astype(np.float32)
+    R = rng.random((stack.shape[0], 3)).astype(np.float32)
+    np.testing.assert_allclose(stack @ Q, A.toarray().astype(np.float64) @ Q, rtol=1e-5)
+    np.testing.assert_allclose(stack.T @ R, A.toarray().T.astype(np.float64) @ R, rtol=1e-5)
+    np.testing.assert_array_equal(stack.row_sums(), np.asarray(A.sum(axis=1)).ravel())
+
+
+def test_solve_makes_no_stacked_copy(rng):
+    from seed2gs_inverse.solvers import available_methods, solve
+
+    stack = _built_stack()
+    masks = [rng.random(v.image_shape) > 0.5 for v in stack]
+    for m in available_methods():
+        solve(stack, masks, method=m)
+    assert stack._stacked is None and stack._stacked_T is None

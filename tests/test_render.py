@@ -242,3 +242,36 @@ def test_bin_tiles_equals_sequential_lists(n):
     assert start[0] == 0 and start[-1] == gauss.size
     for t, lst in enumerate(lists):
         np.testing.assert_array_equal(gauss[start[t]:start[t + 1]], lst)
+
+
+def test_compilation_is_announced_once(monkeypatch, capsys):
+    """A cold kernel cache is said once per process on stderr; a warm or unknown one says nothing."""
+    from seed2gs_inverse.raster import _kernels
+
+    monkeypatch.setattr(_kernels, "_announced", False)
+    monkeypatch.setattr(_kernels, "kernels_cached", lambda: False)
+    assert _kernels.announce_compilation() is True
+    assert _kernels.announce_compilation() is False  # once per process
+    err = capsys.readouterr().err
+    assert err.count("compiling the rasterizer kernels") == 1 and f"about {_kernels.COMPILE_SECONDS} s" in err
+    for state in (True, None):
+        monkeypatch.setattr(_kernels, "_announced", False)
+        monkeypatch.setattr(_kernels, "kernels_cached", lambda s=state: s)
+        assert _kernels.announce_compilation() is False
+    assert capsys.readouterr().err == ""
+
+
+def test_cold_cache_detected_without_compiling(tmp_path):
+    """An empty Numba cache directory reads as cold (index files only; nothing is compiled)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path),
+               PYTHONPATH=str(Path(__file__).resolve().parents[1]) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    code = "from seed2gs_inverse.raster import _kernels; print(_kernels.kernels_cached())"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "False"
+    assert not any(tmp_path.rglob("*.nbc"))  # reading the cache state compiled nothing

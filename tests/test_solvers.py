@@ -199,7 +199,7 @@ def _float64_problem(rng, n=30, views=3, binary=False):
     if binary:  # 0/1 masks take the solver's fast path
         masks = [np.where(np.isnan(m), np.nan, (m > 0.5).astype(np.float32)) for m in masks]
     p = prepare(mats, masks)
-    A = p.A.astype(np.float64)
+    A = p.matrix().astype(np.float64)
     return Problem(A=A, AT=A.T.tocsr(), y=p.y, known=p.known, offsets=p.offsets, image_shapes=p.image_shapes,
                    names=p.names, known_weight=p.known_weight, prior=p.prior)
 
@@ -587,3 +587,31 @@ def test_progress_reports_every_iteration(blob, method, options):
         assert [p.loss for p in seen] == [h["objective"] for h in res.history]
     # without a callback nothing changes
     np.testing.assert_array_equal(solve(stack, masks, method=method, **options).q, res.q)
+
+
+# -- issue 11: warm start from the vote, stop when the selection settles ------------------
+@pytest.mark.parametrize("optimizer", ["scipy", "lbfgs"])
+def test_weighted_bce_stops_when_the_selection_settles(blob, optimizer):
+    """start="vote" + stable_iters ends early, and the object is still recovered on held-out views."""
+    stack, labels, masks = blob
+    held = [3, 7, 11]
+    train = [i for i in range(12) if i not in held]
+    fit = stack.subset(train), [masks[i] for i in train]
+    support = labels & (np.arange(labels.size) % 3 == 0)  # a partial seed, as extract's G0
+    full = solve(*fit, method="weighted_bce", init=support, max_iter=60, optimizer=optimizer)
+    quick = solve(*fit, method="weighted_bce", init=support, max_iter=60, optimizer=optimizer,
+                  start="vote", stable_iters=3)
+    assert quick.iterations < full.iterations
+    assert any(h["selection_settled"] for h in quick.history)
+    assert _heldout_miou(stack, quick.selected(), labels, held) >= 0.99
+    # defaults keep the behaviour from before: the prior start when init is given, no stability rule
+    prior = solve(*fit, method="weighted_bce", init=support, max_iter=60, optimizer=optimizer, start="prior",
+                  stable_iters=0)
+    np.testing.assert_array_equal(prior.q, full.q)
+
+
+def test_weighted_bce_start_and_stability_options_are_validated(rng):
+    mats, masks = _random_problem(rng)
+    for bad in ({"start": "random"}, {"stable_iters": -1}, {"stable_iters": 1.5}, {"stable_tol": 1.0}):
+        with pytest.raises(ValidationError, match="weighted_bce"):
+            solve(mats, masks, method="weighted_bce", **bad)

@@ -13,13 +13,15 @@ import argparse
 import importlib
 import os
 import sys
+import warnings
 
 from ..errors import Seed2GSError
 
 __all__ = ["main", "build_parser"]
 
 # Command-group modules, in the order their commands appear in --help.
-_COMMAND_MODULES = ("_extract", "_demo", "_scene", "_render", "_operators", "_solve", "_view", "_models")
+_COMMAND_MODULES = ("_extract", "_batch", "_eval", "_demo", "_scene", "_render", "_operators", "_solve", "_view",
+                    "_models")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -70,8 +72,17 @@ def main(argv=None) -> int:
             getattr(args, "_parser", parser).error(f"unrecognized arguments: {' '.join(extra)}")
     except SystemExit as exc:  # --help, --version, usage errors: their status, no traceback
         return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
+    sub = getattr(args, f"{args.command}_command", None)  # e.g. "operators build"
+    where = f"{args.command} {sub}" if isinstance(sub, str) else args.command
+
+    def show_warning(message, category, filename, lineno, file=None, line=None):
+        # One line in the command's voice, not Python's "file:line: UserWarning" form.
+        print(f"seed2gs {where}: warning: {message}", file=sys.stderr)
+
     try:
-        return int(args.func(args) or 0)
+        with warnings.catch_warnings():
+            warnings.showwarning = show_warning
+            return int(args.func(args) or 0)
     except KeyboardInterrupt:
         print("seed2gs: interrupted", file=sys.stderr)
         return 130
@@ -81,8 +92,6 @@ def main(argv=None) -> int:
         msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         if isinstance(exc, FileNotFoundError) and exc.filename:
             msg = f"no such file: {exc.filename}"
-        sub = getattr(args, f"{args.command}_command", None)  # e.g. "operators build"
-        where = f"{args.command} {sub}" if isinstance(sub, str) else args.command
         print(f"seed2gs {where}: error: {msg}", file=sys.stderr)
         return 2
 

@@ -38,7 +38,7 @@ def run(args) -> int:
     if ms is None:
         raise ValidationError(f"no models configuration: give FILE or set {ENV_VAR}")
     print(f"models: {ms.path}")
-    for name in ("sam2", "sam2_video", "groundingdino", "sam3", "owlvit", "external"):
+    for name in ("sam2", "sam", "sam2_video", "groundingdino", "sam3", "owlvit", "external"):
         obj = getattr(ms, name)
         if obj is not None:
             print(f"{name}:")

@@ -10,6 +10,10 @@ a :class:`~seed2gs_inverse.errors.FormatError` naming the file.
     encoder = "sam2.1_hiera_tiny.encoder.onnx"
     decoder = "sam2.1_hiera_tiny.decoder.onnx"
 
+    [sam]                       # segment-anything (v1) pair, samexporter layout
+    encoder = "sam_vit_b.encoder.onnx"
+    decoder = "sam_vit_b.decoder.onnx"
+
     [sam2_video]                # tracker (replaces the model-free one)
     image_encoder = "tiny/image_encoder.onnx"
     image_decoder = "tiny/image_decoder.onnx"
@@ -46,7 +50,6 @@ variable (:func:`resolve_models`), or :func:`load_models` from the API.
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -63,6 +66,7 @@ NO_MODELS_NOTICE = ("no ONNX models configured (--models FILE or $SEED2GS_MODELS
 # section -> {key: kind}; kind "path" keys are resolved against the file's folder
 _SCHEMA = {
     "sam2": {"encoder": "path", "decoder": "path", "mask_threshold": float},
+    "sam": {"encoder": "path", "decoder": "path", "mask_threshold": float},
     "sam2_video": {"image_encoder": "path", "image_decoder": "path", "memory_attention": "path",
                    "memory_encoder": "path", "num_maskmem": int, "mask_threshold": float},
     "groundingdino": {"model": "path", "tokenizer": "path", "box_threshold": float,
@@ -75,40 +79,19 @@ _SCHEMA = {
                  "source_prior": dict, "compatibility": dict},
     "onnxruntime": {"providers": list},
 }
-_REQUIRED = {"sam2": ("encoder", "decoder"),
+_REQUIRED = {"sam2": ("encoder", "decoder"), "sam": ("encoder", "decoder"),
              "sam2_video": ("image_encoder", "image_decoder", "memory_attention", "memory_encoder"),
              "groundingdino": ("model", "tokenizer"), "sam3": ("image_encoder", "decoder"),
              "owlvit": ("model", "tokenizer"), "external": ("boxes",)}
 
 
 def _read(path: Path) -> dict:
+    from ..io.tables import read_table
+
     try:
-        raw = path.read_bytes()
+        return read_table(path, "models configuration")
     except FileNotFoundError:
         raise FormatError(f"{path}: models configuration file not found") from None
-    except OSError as exc:
-        raise FormatError(f"{path}: cannot read the models configuration ({exc.strerror})") from None
-    if path.suffix.lower() == ".json":
-        try:
-            data = json.loads(raw.decode("utf-8"))
-        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise FormatError(f"{path}: not valid JSON ({exc})") from None
-    else:
-        try:
-            import tomllib
-        except ModuleNotFoundError:  # Python 3.10
-            try:
-                import tomli as tomllib
-            except ModuleNotFoundError:
-                raise FormatError(f"{path}: reading TOML on Python 3.10 needs the 'tomli' package; "
-                                  "install it or write the configuration as JSON") from None
-        try:
-            data = tomllib.loads(raw.decode("utf-8"))
-        except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-            raise FormatError(f"{path}: not valid TOML ({exc})") from None
-    if not isinstance(data, dict):
-        raise FormatError(f"{path}: the configuration must be a table of sections")
-    return data
 
 
 def _sections(path: Path, data: dict) -> dict:
@@ -153,6 +136,7 @@ class ModelSet:
     """
 
     sam2: Any = None
+    sam: Any = None
     sam2_video: Any = None
     groundingdino: Any = None
     sam3: Any = None
@@ -162,13 +146,11 @@ class ModelSet:
     path: Path | None = None
 
     def mask_model(self):
-        """SAM3 when configured (the paper's single mask generator), else SAM2."""
+        """SAM3 when configured (the paper's single mask generator), else SAM2, else SAM."""
         choice = self.selector_options.get("mask_model")
-        if choice == "sam2":
-            return self.sam2
-        if choice == "sam3":
-            return self.sam3
-        return self.sam3 if self.sam3 is not None else self.sam2
+        if choice in ("sam2", "sam3", "sam"):
+            return getattr(self, choice)
+        return next((m for m in (self.sam3, self.sam2, self.sam) if m is not None), None)
 
     def grounder(self, external: Callable | str | Path | None = None):
         """QD-SAM3 selector over the configured sources, or None when there are none.
@@ -188,7 +170,7 @@ class ModelSet:
             return None
         mask_model = self.mask_model()
         if mask_model is None:
-            raise ValidationError("models: box sources need a mask model; configure [sam3] or [sam2]")
+            raise ValidationError("models: box sources need a mask model; configure [sam3], [sam2] or [sam]")
         opts = {k: v for k, v in self.selector_options.items() if k != "mask_model"}
         return QDSAM3Selector(mask_model, detectors, text, **opts)
 
@@ -199,7 +181,7 @@ class ModelSet:
     def describe(self) -> str:
         """One line per configured role, for reports and ``--verbose`` output."""
         lines = []
-        for name in ("sam2", "sam2_video", "groundingdino", "sam3", "owlvit", "external"):
+        for name in ("sam2", "sam", "sam2_video", "groundingdino", "sam3", "owlvit", "external"):
             obj = getattr(self, name)
             if obj is None:
                 continue
@@ -234,6 +216,8 @@ def load_models(path) -> ModelSet:
     ms = ModelSet(path=path, selector_options=dict(cfg.get("selector", {})))
     if "sam2" in cfg:
         ms.sam2 = SAM2ImagePredictor(providers=prov, **cfg["sam2"])
+    if "sam" in cfg:  # segment-anything (v1): same predictor, its layout is detected from the files
+        ms.sam = SAM2ImagePredictor(providers=prov, **cfg["sam"])
     if "sam2_video" in cfg:
         ms.sam2_video = SAM2VideoTracker(providers=prov, **cfg["sam2_video"])
     if "groundingdino" in cfg:
@@ -246,8 +230,8 @@ def load_models(path) -> ModelSet:
         e = cfg["external"]
         ms.external = ExternalBoxes(e["boxes"], e.get("name", "vlm"), e.get("coords", "pixels"))
     choice = ms.selector_options.get("mask_model")
-    if choice not in (None, "sam2", "sam3"):
-        raise FormatError(f"{path}: [selector] mask_model must be 'sam3' or 'sam2', got {choice!r}")
+    if choice not in (None, "sam2", "sam3", "sam"):
+        raise FormatError(f"{path}: [selector] mask_model must be 'sam3', 'sam2' or 'sam', got {choice!r}")
     if choice is not None and getattr(ms, choice) is None:
         raise FormatError(f"{path}: [selector] mask_model = {choice!r} but [{choice}] is not configured")
     try:

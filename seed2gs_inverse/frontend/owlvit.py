@@ -5,14 +5,19 @@ with id 0), ``pixel_values`` (1, 3, S, S) float32 (S = 768 for
 ``owlvit-base-patch32``), ``attention_mask`` (Nq, L) int64 -> ``logits``
 (1, P, Nq) per-patch class logits and ``pred_boxes`` (1, P, 4) normalised
 (cx, cy, w, h); other outputs (``text_embeds``, ``image_embeds``) are
-ignored. Pre-processing: bilinear resize to S x S, CLIP mean/std.
+ignored. Pre-processing as ``OwlViTImageProcessor``: Pillow bicubic resize of
+the 8-bit image to S x S (aspect ratio not kept), CLIP mean/std; text
+padded with the tokenizer's pad token (``"!"``, id 0, for the OWL-ViT
+checkpoints) to L. Post-processing as ``post_process_object_detection``:
+score = sigmoid of the best query logit, boxes scaled to the image (and
+clipped to it here).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ._imaging import CLIP_MEAN, CLIP_STD, as_rgb, cxcywh_to_xyxy, resize_normalize
+from ._imaging import CLIP_MEAN, CLIP_STD, as_rgb, cxcywh_to_xyxy, normalize, resample
 from ._onnx import Layout, OnnxModel, Port
 from .base import Detection
 from .tokenizer import ClipTokenizer
@@ -50,6 +55,10 @@ class OWLViT:
         self.input_size = (s, self.model.input_dim("pixel_values", 3, s))
         self.context = self.model.input_dim("input_ids", 1, 16)
 
+    def preprocess(self, image) -> np.ndarray:
+        """(1, 3, S, S) float32: Pillow-bicubic 8-bit resize, CLIP normalisation."""
+        return normalize(resample(as_rgb(image), self.input_size, "bicubic", eight_bit=True), CLIP_MEAN, CLIP_STD)
+
     def detect(self, image, prompt: str) -> list[Detection]:
         """Boxes for the text query ``prompt``, best first."""
         text = str(prompt).strip()
@@ -59,9 +68,9 @@ class OWLViT:
         h, w = img.shape[:2]
         ids, mask = self.tokenizer.encode(text, context_length=self.context)
         out = self.model.run({"input_ids": ids[None], "attention_mask": mask[None],
-                              "pixel_values": resize_normalize(img, self.input_size, CLIP_MEAN, CLIP_STD)})
+                              "pixel_values": self.preprocess(img)})
         logits = np.asarray(out["logits"], np.float64)[0][:, 0]
-        prob = 1.0 / (1.0 + np.exp(-logits))
+        prob = 1.0 / (1.0 + np.exp(-np.clip(logits, -80.0, 80.0)))
         boxes = cxcywh_to_xyxy(np.asarray(out["pred_boxes"])[0], w, h)
         order = [i for i in np.argsort(-prob, kind="stable") if prob[i] > self.threshold]
         return [Detection(boxes[i], float(prob[i]), text) for i in order[:self.max_detections]]

@@ -17,8 +17,27 @@ from the input names:
   original_image_size (2,) int32`` -> ``masks`` (L, M, H, W) (bool or
   logits), ``iou_predictions`` (L, M) [, ``low_res_masks``].
 
-Pre-processing is SAM2's: the RGB image is resized (bilinear, aspect ratio
-*not* kept, no padding) to the encoder's S x S input (S read from the file,
+- ``sam-samexporter``, SAM (v1, segment-anything) through samexporter's
+  ``export_encoder`` / ``export_decoder``: encoder ``input_image`` (H', W', 3)
+  float32 0..255 resized so the longer side is S (``--use-preprocess``:
+  normalisation and padding inside the graph) or (1, 3, S, S) normalised and
+  padded -> ``image_embeddings``; decoder segment-anything's ``SamOnnxModel``
+  ``image_embeddings, point_coords, point_labels, mask_input, has_mask_input,
+  orig_im_size`` -> ``masks`` (L, M, H, W) logits at the original size,
+  ``iou_predictions`` [, ``low_res_masks``]; when ``low_res_masks`` is
+  there the masks are up-sampled from it here, as ``SamPredictor`` does
+  (samexporter 0.5.0 with torch 2.10 traces the crop of its dummy image
+  size into the graph's own ``masks``). Pre-processing is SAM's
+  ``ResizeLongestSide``: Pillow bilinear on the 8-bit image to
+  ``round(S h / max(h, w))`` x ``round(S w / max(h, w))``, prompts scaled by
+  the same factors; a box is two corners labelled 2, 3; points alone get
+  SAM's padding point (0, 0) labelled -1. With M = 4 (no
+  ``--return-single-mask``) the best of masks 1..3 is taken, as
+  ``SamPredictor(multimask_output=True)``.
+
+Pre-processing of the SAM2 layouts is SAM2's: the RGB image is resized (bilinear, aspect ratio
+*not* kept, no padding; anti-aliased when shrinking, as torchvision's
+tensor ``Resize``) to the encoder's S x S input (S read from the file,
 1024 for the released models) and normalised with the ImageNet mean/std.
 Prompt pixel coordinates scale by (S / W, S / H); a box is the two corner
 points with labels 2 and 3. Mask logits are upsampled (bilinear) to the
@@ -48,7 +67,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..errors import ValidationError
-from ._imaging import IMAGENET_MEAN, IMAGENET_STD, as_box, as_rgb, resize_map, resize_normalize
+from ._imaging import IMAGENET_MEAN, IMAGENET_STD, as_box, as_rgb, normalize, resample, resize_map
 from ._onnx import Layout, OnnxModel, Port
 
 __all__ = ["SAM2ImagePredictor", "SAM2VideoTracker", "MaskPrediction",
@@ -65,6 +84,7 @@ SAM2_ENCODER_LAYOUTS = (
     Layout("onnxruntime", (Port("image", _F, 4, (None, 3, None, None)),),
            (Port("image_features_0", _F, 4), Port("image_features_1", _F, 4),
             Port("image_embeddings", _F, 4))),
+    Layout("sam-samexporter", (Port("input_image", _F, None),), (Port("image_embeddings", _F, 4),)),
 )
 
 _SAMEXP_DEC_IN = (Port("image_embed", _F, 4), Port("high_res_feats_0", _F, 4),
@@ -83,6 +103,11 @@ SAM2_DECODER_LAYOUTS = (
             Port("has_input_masks", _F, 1), Port("original_image_size", _SIZE, 1, (2,))),
            (Port("masks", ("bool", "float32"), 4), Port("iou_predictions", _F, 2),
             Port("low_res_masks", _F, 4, optional=True))),
+    Layout("sam-samexporter",
+           (Port("image_embeddings", _F, 4), Port("point_coords", _F, 3, (None, None, 2)),
+            Port("point_labels", _LABEL, 2), Port("mask_input", _F, 4), Port("has_mask_input", _F, 1),
+            Port("orig_im_size", _SIZE, 1, (2,))),
+           (Port("masks", _F, 4), Port("iou_predictions", _F, 2), Port("low_res_masks", _F, 4, optional=True))),
 )
 
 SAM2_VIDEO_LAYOUTS = {
@@ -192,8 +217,17 @@ class SAM2ImagePredictor:
             raise ValidationError(
                 f"sam2: encoder {self.encoder.path} has the {self.layout} layout but decoder "
                 f"{self.decoder.path} has the {self.decoder.layout.name} layout; use a matching pair")
-        s = self.encoder.input_dim("image", 2, 1024)
-        self.input_size = (s, self.encoder.input_dim("image", 3, s))
+        if self.layout == "sam-samexporter":
+            shape = self.encoder.session.get_inputs()[0].shape or []
+            if len(shape) not in (3, 4):
+                raise ValidationError(f"{self.encoder.path}: input_image must be (H, W, 3) or (1, 3, S, S), "
+                                      f"found rank {len(shape)}")
+            self._in_graph_preprocess = len(shape) == 3
+            s = 1024 if self._in_graph_preprocess else self.encoder.input_dim("input_image", 2, 1024)
+            self.input_size = (s, s)
+        else:
+            s = self.encoder.input_dim("image", 2, 1024)
+            self.input_size = (s, self.encoder.input_dim("image", 3, s))
         self.mask_threshold = float(mask_threshold)
         self._key = None
         self._features: dict[str, np.ndarray] = {}
@@ -204,9 +238,32 @@ class SAM2ImagePredictor:
         """Encoder outputs of the current image (name -> array)."""
         return dict(self._features)
 
+    def resized_shape(self, shape_hw) -> tuple[int, int]:
+        """(h', w') the image is resized to: S x S (SAM2), longer side S (SAM)."""
+        if self.layout != "sam-samexporter":
+            return self.input_size
+        h, w = shape_hw
+        scale = self.input_size[0] / max(h, w)
+        return int(h * scale + 0.5), int(w * scale + 0.5)
+
     def preprocess(self, image) -> np.ndarray:
-        """(1, 3, S, S) float32: bilinear resize to S x S, ImageNet normalisation."""
-        return resize_normalize(as_rgb(image), self.input_size, IMAGENET_MEAN, IMAGENET_STD)
+        """The encoder's input tensor.
+
+        SAM2: (1, 3, S, S) float32, bilinear resize to S x S, ImageNet
+        normalisation. SAM: the 8-bit Pillow-bilinear resize of the longer
+        side to S, as 0..255 floats (H', W', 3) when the graph normalises and
+        pads, else normalised and zero-padded to (1, 3, S, S).
+        """
+        img = as_rgb(image)
+        if self.layout != "sam-samexporter":
+            return normalize(resample(img, self.input_size), IMAGENET_MEAN, IMAGENET_STD)
+        small = resample(img, self.resized_shape(img.shape[:2]), "bilinear", eight_bit=True)
+        if self._in_graph_preprocess:
+            return np.round(small * 255.0).astype(np.float32)
+        out = np.zeros((1, 3) + tuple(self.input_size), np.float32)
+        norm = normalize(small, IMAGENET_MEAN, IMAGENET_STD)
+        out[:, :, :norm.shape[2], :norm.shape[3]] = norm
+        return out
 
     def set_image(self, image) -> None:
         """Encode ``image`` (H, W, 3) RGB once; later prompts reuse the features."""
@@ -214,7 +271,8 @@ class SAM2ImagePredictor:
         key = _fingerprint(img)
         if key == self._key:
             return
-        self._features = self.encoder.run({"image": self.preprocess(img)})
+        name = "input_image" if self.layout == "sam-samexporter" else "image"
+        self._features = self.encoder.run({name: self.preprocess(img)})
         self._shape = img.shape[:2]
         self._key = key
 
@@ -238,9 +296,28 @@ class SAM2ImagePredictor:
         if self._shape is None:
             raise ValidationError("image: call set_image(image) or pass image= before predicting")
         h, w = self._shape
-        coords, labs = _prompt_arrays(self._shape, self.input_size, box, points, labels)
+        coords, labs = _prompt_arrays(self._shape, self.resized_shape(self._shape), box, points, labels)
         f = self._features
-        if self.layout == "samexporter":
+        if self.layout == "sam-samexporter":
+            if box is None:  # SAM's prompt encoder pads point-only prompts with a "not a point"
+                coords = np.concatenate([coords, np.zeros((1, 1, 2), np.float32)], axis=1)
+                labs = np.concatenate([labs, -np.ones((1, 1), np.float32)], axis=1)
+            low = self.decoder.input_dim("mask_input", 2, self.input_size[0] // 4)
+            feeds = {"image_embeddings": f["image_embeddings"], "point_coords": coords, "point_labels": labs,
+                     "mask_input": np.zeros((1, 1, low, self.decoder.input_dim("mask_input", 3, low)), np.float32),
+                     "has_mask_input": np.zeros(1, np.float32), "orig_im_size": np.array([h, w])}
+            names = ["masks", "iou_predictions"] + (["low_res_masks"] if self.decoder.has_output("low_res_masks") else [])
+            out = self.decoder.run(feeds, names)
+            ious = out["iou_predictions"]
+            if "low_res_masks" in out:
+                # SamPredictor's postprocess_masks on the host: the traced in-graph
+                # version keeps the crop of the export's dummy image size (1500 x 2250)
+                # under torch >= 2.x, so its `masks` are wrong for other aspect ratios
+                rh, rw = self.resized_shape((h, w))
+                s = self.input_size
+                out["masks"] = np.stack([[resize_map(resize_map(m, s)[:rh, :rw], (h, w)) for m in lab]
+                                         for lab in np.asarray(out["low_res_masks"], np.float32)])
+        elif self.layout == "samexporter":
             low = self.decoder.input_dim("mask_input", 2, self.input_size[0] // 4)
             feeds = {"image_embed": f["image_embed"], "high_res_feats_0": f["high_res_feats_0"],
                      "high_res_feats_1": f["high_res_feats_1"], "point_coords": coords,
@@ -264,7 +341,9 @@ class SAM2ImagePredictor:
         ious = np.asarray(ious, dtype=np.float32).reshape(-1)
         if masks.shape[0] != ious.size:
             raise ValidationError(f"{self.decoder.path}: {masks.shape[0]} masks but {ious.size} scores")
-        idx = int(np.argmax(ious)) if multimask else 0
+        # SAM's 4-mask output: mask 0 is the single-mask token, 1..3 the multimask ones
+        first = 1 if (self.layout == "sam-samexporter" and ious.size == 4 and multimask) else 0
+        idx = first + int(np.argmax(ious[first:])) if multimask else 0
         chosen = masks[idx]
         if chosen.dtype == np.bool_:
             logits = np.where(chosen, 1.0, -1.0).astype(np.float32)
@@ -375,7 +454,7 @@ class SAM2VideoTracker:
         self.bank_history: list[list[int]] = []
 
     def _encode(self, rgb):
-        return self.encoder.run({"input": resize_normalize(rgb, self.input_size, IMAGENET_MEAN, IMAGENET_STD)})
+        return self.encoder.run({"input": normalize(resample(rgb, self.input_size), IMAGENET_MEAN, IMAGENET_STD)})
 
     def _memory(self, mask_for_mem, pix_feat):
         out = self.memory_encoder.run({"mask_for_mem": mask_for_mem, "pix_feat": pix_feat})

@@ -82,6 +82,15 @@ def query_type(prompt: str) -> str:
     return "noun" if len(content) == 1 else "attribute"
 
 
+def _has_area(box, shape_hw) -> bool:
+    """True when the (x0, y0, x1, y1) box keeps a positive area once clipped to the image."""
+    b = np.asarray(box, dtype=np.float64).reshape(-1)
+    if b.size != 4 or not np.all(np.isfinite(b)):
+        return False
+    h, w = shape_hw
+    return min(b[2], w) > max(b[0], 0) and min(b[3], h) > max(b[1], 0)
+
+
 class QDSAM3Selector:
     """Query-dependent multi-source seed selector (implements ``Grounder``).
 
@@ -173,7 +182,11 @@ class QDSAM3Selector:
         for det in self.detectors:
             if self.sources is not None and det.source not in self.sources:
                 continue
-            for d in det.detect(img, prompt)[:self.per_source]:
+            # a detector may return boxes with no area inside the image (clipped at an
+            # edge, or a collapsed regression); they cannot prompt a mask model, so the
+            # source's next box takes their place instead of failing the whole prompt
+            usable = [d for d in det.detect(img, prompt) if _has_area(d.box, img.shape[:2])]
+            for d in usable[:self.per_source]:
                 mask, mscore = self.mask_model.segment_box(img, d.box)
                 if not np.any(mask):
                     continue

@@ -15,7 +15,7 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator
 
 from ..errors import ValidationError
-from . import store
+from . import _passes, store
 from .view import ViewOperator, _Transposed, view_label
 
 __all__ = ["OperatorStack", "as_stack"]
@@ -58,6 +58,7 @@ class OperatorStack(LinearOperator):
         self._stacked = None
         self._stacked_T = None
         self._column_sums = None
+        self._offsets = None
 
     # -- container protocol ---------------------------------------------------
     def __len__(self) -> int:
@@ -92,7 +93,14 @@ class OperatorStack(LinearOperator):
 
     def row_offsets(self) -> np.ndarray:
         """(V+1,) int64: view ``c`` occupies rows ``offsets[c]:offsets[c+1]`` of the stack."""
-        return np.concatenate([[0], np.cumsum([v.n_pixels for v in self.views])]).astype(np.int64)
+        if self._offsets is None:
+            self._offsets = np.concatenate([[0], np.cumsum([v.n_pixels for v in self.views])]).astype(np.int64)
+            self._offsets.setflags(write=False)
+        return self._offsets
+
+    def row_sums(self) -> np.ndarray:
+        """(sum of pixels,) float32 ``W 1`` of every view, concatenated: the rendered alpha of each row."""
+        return np.concatenate([np.asarray(v.W.sum(axis=1), dtype=np.float32).ravel() for v in self.views])
 
     def observed(self) -> np.ndarray:
         """Bool (N,): Gaussians with a nonzero weight in any view."""
@@ -118,7 +126,13 @@ class OperatorStack(LinearOperator):
 
     # -- linear algebra ------------------------------------------------------
     def stacked(self) -> sp.csr_matrix:
-        """All views as one CSR matrix (sum of pixels, N), float32; cached."""
+        """All views as one CSR matrix (sum of pixels, N), float32: a copy of every weight; cached.
+
+        The stack's own products (``@``, ``matvec``, ``rmatvec``, which the
+        solvers use) never build it: they run view by view over the views'
+        matrices, with bit-identical results. Call this only where one
+        scipy matrix is needed (it costs a second copy of every weight).
+        """
         if self._stacked is None:
             self._stacked = sp.vstack([v.W for v in self.views], format="csr", dtype=np.float32)
         return self._stacked
@@ -153,17 +167,22 @@ class OperatorStack(LinearOperator):
                                   f"got {y.shape}")
         return super().rmatvec(y)
 
+    # View by view over the views' own matrices (no stacked copy; bit-identical to the stacked
+    # passes, see ._passes).
+    def _mats(self):
+        return [v.W for v in self.views]
+
     def _matvec(self, x):
-        return np.asarray(self.stacked() @ np.ravel(x))
+        return _passes.forward(self._mats(), self.row_offsets(), self.n_gaussians, np.ascontiguousarray(np.ravel(x)))
 
     def _rmatvec(self, y):
-        return np.asarray(self.stacked_transpose() @ np.ravel(y))
+        return _passes.adjoint(self._mats(), self.row_offsets(), self.n_gaussians, np.ascontiguousarray(np.ravel(y)))
 
     def _matmat(self, X):
-        return np.asarray(self.stacked() @ X)
+        return _passes.forward(self._mats(), self.row_offsets(), self.n_gaussians, np.asarray(X))
 
     def _rmatmat(self, Y):
-        return np.asarray(self.stacked_transpose() @ Y)
+        return _passes.adjoint(self._mats(), self.row_offsets(), self.n_gaussians, np.ascontiguousarray(Y))
 
     def _adjoint(self):
         return _Transposed(self)

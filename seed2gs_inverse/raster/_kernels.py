@@ -685,3 +685,55 @@ def _cone_cull(means, rot, trans, axis, tan_a, cos_a, near, sigma3, far, keep):
         ta = x * axis[0] + y * axis[1] + z * axis[2]
         perp = math.sqrt(max(x * x + y * y + z * z - ta * ta, 0.0))
         keep[i] = (z > near - s) and (perp <= ta * tan_a + s / cos_a + 1e-6) and (ta - s <= far)
+
+
+# -- compilation, said once ----------------------------------------------------
+# Every kernel above is compiled on first use and cached on disk (``cache=True``: the
+# ``__pycache__`` next to this file, or Numba's user-wide cache directory when that is not
+# writable, or ``$NUMBA_CACHE_DIR``), so a user compiles them once per installation.
+#: The kernels called from Python; the others are compiled (and cached) inside them.
+ENTRY_KERNELS = (activate, project, bin_tiles, composite, scatter, cone_cull)
+#: Seconds a cold compilation of all of them takes on the 2-core benchmark machine when it is
+#: quiet (19 s measured for issue 11; 185 s at load 17). Said, not measured, at run time.
+COMPILE_SECONDS = 20
+_announced = False
+
+
+def kernels_cached():
+    """Whether every entry kernel has a compiled version in Numba's on-disk cache.
+
+    Cheap: reads each kernel's small index file (Numba drops an index whose
+    source stamp or Numba version differs). ``None`` when Numba's cache
+    internals cannot be read (then nothing is announced).
+    """
+    cold = _cold_kernels()
+    return None if cold is None else not cold
+
+
+def _cold_kernels():
+    """Names of the entry kernels without a cached compiled version (None: unknown)."""
+    try:
+        return [k.py_func.__name__ for k in ENTRY_KERNELS if not k._cache._cache_file._load_index()]
+    except Exception:  # noqa: BLE001 - private Numba API: any failure means "unknown"
+        return None
+
+
+def announce_compilation(stream=None) -> bool:
+    """Before the first kernel call of the process: say so on stderr when the cache is cold.
+
+    Prints ``seed2gs: compiling the rasterizer kernels (k of 6), once
+    (cached for later runs), up to about N s`` once per process. Returns
+    whether it printed.
+    """
+    global _announced
+    if _announced:
+        return False
+    _announced = True
+    if kernels_cached() is not False:
+        return False
+    import sys
+
+    n_cold = len(_cold_kernels() or ENTRY_KERNELS)
+    print(f"seed2gs: compiling the rasterizer kernels ({n_cold} of {len(ENTRY_KERNELS)}), once (cached for "
+          f"later runs), up to about {COMPILE_SECONDS} s", file=stream or sys.stderr, flush=True)
+    return True

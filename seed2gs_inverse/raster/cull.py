@@ -81,6 +81,7 @@ def cone_cull(scene, camera: Camera, roi=None, far: float | None = None) -> np.n
     tan_a = np.sqrt(max(1.0 - cos_a ** 2, 0.0)) / cos_a
     # One parallel pass over the scene (this runs for every orbit view of extract).
     keep = np.empty(len(scene), bool)
+    _kernels.announce_compilation()
     _kernels.cone_cull(scene.means, camera_params(camera), axis, tan_a, cos_a, np.ascontiguousarray(s3),
                        np.inf if far is None else float(far), keep)
     return np.flatnonzero(keep).astype(np.int64, copy=False)

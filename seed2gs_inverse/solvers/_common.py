@@ -4,8 +4,9 @@ Solvers see only operators and masks (never the rasterizer, never Numba).
 ``prepare`` turns anything :func:`~seed2gs_inverse.operators.as_stack`
 accepts (an :class:`~seed2gs_inverse.operators.OperatorStack`, or a list of
 views / sparse matrices) and one mask per view into a :class:`Problem`: the
-views stacked into one CSR matrix ``A`` (rows = all pixels of all views) and
-its transpose, the flattened masks and which pixels are known. A method
+stack as the operator ``A`` (rows = all pixels of all views; its products run
+view by view, so no stacked copy of the weights is made) and its transpose,
+the flattened masks and which pixels are known. A method
 returns a :class:`MethodResult`.
 """
 
@@ -15,7 +16,6 @@ import inspect
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.sparse as sp
 
 from ..errors import ValidationError
 
@@ -175,10 +175,13 @@ class Problem:
 
     Attributes
     ----------
-    A : csr_matrix (P, N) float32
-        All views' operators stacked vertically (P = total pixels).
-    AT : sparse matrix (N, P) float32
-        ``A.T`` (a CSC view of ``A``, no copy) for the adjoint products.
+    A : OperatorStack or sparse matrix, (P, N) float32
+        All views' operators stacked vertically (P = total pixels), used
+        only through ``A @ x``, ``A.shape`` and ``A.dtype``. :func:`prepare`
+        gives the :class:`~seed2gs_inverse.operators.OperatorStack` itself,
+        whose products run view by view without copying the weights.
+    AT : (N, P) operator
+        ``A.T`` for the adjoint products (``A.T`` of the stack: no copy).
     y : (P,) float32
         Masks, flattened view after view; 0 at unknown pixels.
     known : (P,) bool
@@ -199,8 +202,8 @@ class Problem:
         Whether the caller passed ``init``.
     """
 
-    A: sp.csr_matrix
-    AT: sp.spmatrix
+    A: object  # OperatorStack (products view by view) or a scipy sparse matrix
+    AT: object
     y: np.ndarray
     known: np.ndarray
     offsets: np.ndarray
@@ -227,8 +230,25 @@ class Problem:
     def alpha(self) -> np.ndarray:
         """(P,) float32 rendered opacity ``A 1`` (row sums), computed once."""
         if self._alpha is None:
-            self._alpha = np.asarray(self.A.sum(axis=1), dtype=np.float32).ravel()
+            if hasattr(self.A, "row_sums"):
+                self._alpha = self.A.row_sums()
+            else:
+                self._alpha = np.asarray(self.A.sum(axis=1), dtype=np.float32).ravel()
         return self._alpha
+
+    def matrix(self):
+        """``A`` as one scipy sparse matrix (for a stack: ``stacked()``, a copy of every weight).
+
+        Only for algorithms that need a matrix (``least_squares``'s
+        ``lsq_linear``); products go through ``A @ x`` without it.
+        """
+        return self.A.stacked() if hasattr(self.A, "stacked") else self.A
+
+    def view_matrix(self, c: int):
+        """View ``c``'s rows of ``A`` as a sparse matrix (its ``W``: no copy for a stack)."""
+        if hasattr(self.A, "views"):
+            return self.A.views[c].W
+        return self.A[self.view_rows(c)]
 
     def view_of_rows(self) -> np.ndarray:
         """(P,) int: view index of each row."""
@@ -347,7 +367,7 @@ def prepare(operators, masks, init=None) -> Problem:
         raise ValidationError(f"every mask is entirely NaN (views 0..{len(ys) - 1} carry no known pixel); "
                               "nothing to fit")
     y = np.where(known, y, np.float32(0)).astype(np.float32)
-    A, AT = stack.stacked(), stack.stacked_transpose()
+    A, AT = stack, stack.T  # products view by view: no stacked copy of the weights
     offsets = stack.row_offsets()
     if known.all():
         # every pixel known: the known weight is the stack's (cached) column sums

@@ -53,7 +53,7 @@ def beta_entropy(a, b) -> np.ndarray:
 def _view_evidence(problem: Problem, c: int) -> tuple:
     """Columns seen by view ``c`` on known pixels and their (success, total) evidence, float64."""
     rows = problem.view_rows(c)
-    Wc = problem.A[rows]
+    Wc = problem.view_matrix(c)
     # float64 right-hand sides make scipy accumulate in float64 (evidence is computed once per view)
     k = problem.known[rows].astype(np.float64)
     total = np.asarray(Wc.T @ k)

@@ -85,7 +85,7 @@ def least_squares(problem: Problem, *, target: str = "alpha", algorithm: str = "
     obs = problem.observed
     if algorithm == "lsq_linear":
         idx = np.flatnonzero(obs)
-        sub = A[np.flatnonzero(rows)][:, idx].astype(np.float64)
+        sub = problem.matrix()[np.flatnonzero(rows)][:, idx].astype(np.float64)
         res = lsq_linear(sub, rhs[rows].astype(np.float64), bounds=(0.0, 1.0), method="trf",
                          tol=tol, max_iter=max_iter, lsmr_tol="auto")
         q = np.zeros(problem.n_gaussians)

@@ -178,6 +178,21 @@ class BCEObjective:
         bce, g = self._forward(q, w)
         return float(np.dot(w, bce)), np.asarray(self.AT @ g, dtype=np.float64).ravel()
 
+    def loss_grad_rows(self, x: np.ndarray, rows: np.ndarray, q_full: np.ndarray, omega: np.ndarray) -> tuple:
+        """``(L, dL/dx)`` for the logits ``x`` of the Gaussians ``rows`` only.
+
+        ``q_full`` (N,) holds ``q`` of every Gaussian; its entries at ``rows``
+        are overwritten with ``sigmoid(x)`` (the same values
+        :meth:`loss_grad_logits` computes from full logits, without the
+        sigmoid of the Gaussians that do not move).
+        """
+        qr = expit(x)
+        q_full[rows] = qr
+        w = self._pixel_weights(omega)
+        bce, g = self._forward(q_full, w)
+        gq = (self.AT @ g)[rows]
+        return float(np.dot(w, bce)), qr * (1.0 - qr) * gq
+
     def loss_grad_logits(self, logits: np.ndarray, omega: np.ndarray, rows=None) -> tuple:
         """``(L, dL/dl)`` for full logits (N,): ``dL/dl = q (1-q) dL/dq``.
 
@@ -203,12 +218,12 @@ def _lbfgs(fun, x, max_iter: int, ftol: float, gtol: float, memory: deque, callb
     Steps start at 1 (at ``1 / ||g||`` without memory) and shrink by
     safeguarded quadratic interpolation until
     ``f(x + t d) <= f + 1e-4 t g.d``; pairs with ``s.y <= 1e-10 y.y`` are not
-    stored. Stops like scipy's L-BFGS-B: ``(f_k - f_{k+1}) / max(|f_k|,
+    stored. ``callback(x, f)`` after every iteration may raise
+    ``StopIteration`` to end the run (status 0). Stops like scipy's L-BFGS-B: ``(f_k - f_{k+1}) / max(|f_k|,
     |f_{k+1}|, 1) <= ftol`` after a quasi-Newton step (a first steepest-descent
     step is too short to judge convergence by) or ``max |g| <= gtol``
     (status 0), after ``max_iter`` iterations (status 1), or when the line
-    search fails (status 2). ``callback(f)``, if given, runs after every
-    iteration.
+    search fails (status 2).
 
     Returns
     -------
@@ -252,7 +267,10 @@ def _lbfgs(fun, x, max_iter: int, ftol: float, gtol: float, memory: deque, callb
             memory.append((s, y, 1.0 / sy))
         f_old, x, f, g = f, xn, fn, gn
         if callback is not None:
-            callback(f)
+            try:
+                callback(x, f)
+            except StopIteration:
+                return x, f, nit, 0, "stopped by the callback"
         if quasi_newton and f_old - f <= ftol * max(abs(f_old), abs(f), 1.0):
             return x, f, nit, 0, "relative reduction of the loss below ftol"
         if np.max(np.abs(g)) <= gtol:
@@ -273,8 +291,8 @@ def _logit(p):
 def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, momentum: float = 0.5,
                  reweight: bool = True, normalize: bool = False, alpha_min: float = 1e-3, eps: float = 1e-4,
                  max_iter: int = 200, inner_iters: int = 20, weight_tol: float = 1e-3, ftol: float = 1e-10,
-                 gtol: float = 1e-9, init_clip: float = 0.1, maxcor: int = 5, start: str = "vote",
-                 optimizer: str = "scipy") -> MethodResult:
+                 gtol: float = 1e-9, init_clip: float = 0.1, maxcor: int = 5, start: str = "auto",
+                 optimizer: str = "scipy", stable_iters: int = 0, stable_tol: float = 1e-4) -> MethodResult:
     """Seed2GS reliability-weighted BCE; see the module docstring.
 
     Parameters
@@ -310,10 +328,33 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
         The starting ``q`` is the prior clipped to ``[init_clip, 1 - init_clip]``.
     maxcor : int, default 5
         L-BFGS memory (pairs kept); the update costs O(maxcor N).
-    start : {"vote", "half"}, default "vote"
-        Starting point when no ``init`` is given.
+    start : {"auto", "vote", "prior", "half"}, default "auto"
+        Starting point: ``"vote"`` the closed-form vote ``A1 / (A0 + A1)``
+        for every Gaussian with known weight and the prior (``init``, default
+        0) for the others, also when ``init`` is given; ``"prior"`` the prior
+        alone; ``"half"`` 0.5 where no ``init`` is given (the prior
+        otherwise); ``"auto"`` the prior when ``init`` is given, else the vote.
     optimizer : {"scipy", "lbfgs"}, default "scipy"
         scipy's L-BFGS-B or the faster built-in L-BFGS (module docstring).
+    stable_iters : int, default 0 (off)
+        An inner run also ends when the selection ``q > 1/2`` of the
+        optimised Gaussians has changed for at most ``stable_tol`` of them
+        in each of the last ``stable_iters`` iterations, and the solve ends
+        when a whole inner run (each under view weights from the q before
+        it) left the selection so unchanged. 0 disables the rule (only the loss tolerances and
+        ``max_iter`` stop). On the firepit + unicorn benchmark (pose 0,
+        ``init`` = G0, ``max_iter=30``) ``start="vote", stable_iters=3``
+        stopped after 3 iterations and 4 evaluations instead of 30 and 34
+        (3D IoU 0.7475 instead of 0.7439) with a selection close to the vote's. On the
+        procedural scene of ``bench_solvers --synthetic`` (24 views of 120 px,
+        every 4th held out) it kept the held-out mIoU under six mask models
+        (clean 1.000, dilate 0.872 vs 0.866, drift 0.947 vs 0.946, drop 1.000,
+        identity switches 0.996 vs 0.996 with 3D IoU 0.849 vs 0.845, salt
+        0.988) in fewer iterations, but lost on eroded masks (0.648 vs 0.677),
+        so it is not the default.
+    stable_tol : float, default 1e-4
+        Fraction of the optimised Gaussians allowed to flip per iteration
+        while the selection counts as unchanged, in [0, 1).
 
     Returns
     -------
@@ -339,8 +380,12 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
     for name, v in (("max_iter", max_iter), ("inner_iters", inner_iters), ("maxcor", maxcor)):
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
             raise ValidationError(f"weighted_bce: {name} must be a positive integer, got {v!r}")
-    if start not in ("vote", "half"):
-        raise ValidationError(f"weighted_bce: start must be 'vote' or 'half', got {start!r}")
+    if start not in ("auto", "vote", "prior", "half"):
+        raise ValidationError(f"weighted_bce: start must be 'auto', 'vote', 'prior' or 'half', got {start!r}")
+    if isinstance(stable_iters, bool) or not isinstance(stable_iters, (int, np.integer)) or stable_iters < 0:
+        raise ValidationError(f"weighted_bce: stable_iters must be a non-negative integer, got {stable_iters!r}")
+    if not 0.0 <= stable_tol < 1.0:
+        raise ValidationError(f"weighted_bce: stable_tol must lie in [0, 1), got {stable_tol}")
     if optimizer not in ("scipy", "lbfgs"):
         raise ValidationError(f"weighted_bce: optimizer must be 'scipy' or 'lbfgs', got {optimizer!r}")
     obj = BCEObjective(problem, normalize=normalize, alpha_min=alpha_min, eps=eps)
@@ -354,20 +399,42 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
                             observed=obj.evidence,
                             info={"function_evaluations": 0, "message": "no usable pixel (every known pixel has "
                                      f"alpha < alpha_min = {alpha_min:g})", "outer_steps": 0})
-    if problem.init_given:
-        q0 = problem.prior
-    elif start == "vote":
-        q0 = voting(problem).q
-    else:
+    if start == "vote" or (start == "auto" and not problem.init_given):
+        # The vote is the closed-form answer of the same evidence: most Gaussians start on the
+        # side they end on, so the selection settles in a few iterations instead of dozens.
+        q0 = np.where(problem.observed, voting(problem).q, problem.prior)
+    elif start == "half" and not problem.init_given:
         q0 = np.full(problem.n_gaussians, 0.5)
+    else:
+        q0 = problem.prior
     logits = _logit(np.clip(q0, init_clip, 1.0 - init_clip))
     # Only the logits of Gaussians with evidence move; the loss does not depend on the others.
     x = logits[rows].copy()
     nfev = [0]
+    # q of every Gaussian, updated only at ``rows`` (the others' q never changes).
+    q_full = expit(logits)
 
     def q_of(xo):
         logits[rows] = xo
-        return expit(logits)
+        q_full[rows] = expit(xo)
+        return q_full.copy()
+
+    n_flip = max(int(stable_tol * rows.size), 0)
+
+    class _Stable:
+        """Callback: StopIteration once the selection (logit > 0) held still for ``stable_iters`` iterations."""
+
+        def __init__(self, x0):
+            self.sel, self.calm, self.fired = x0 > 0, 0, False
+
+        def __call__(self, xk):
+            sel = np.asarray(xk) > 0
+            flips = int(np.count_nonzero(sel != self.sel))
+            self.sel = sel
+            self.calm = self.calm + 1 if flips <= n_flip else 0
+            if stable_iters and self.calm >= stable_iters:
+                self.fired = True
+                raise StopIteration
 
     def weights_of(D):
         omega = np.zeros(V)
@@ -392,25 +459,38 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
         n_inner = min(inner_iters, max_iter - total)
 
         def fun(xo, omega=omega):
-            logits[rows] = xo
             nfev[0] += 1
-            return obj.loss_grad_logits(logits, omega, rows)
+            return obj.loss_grad_rows(xo, rows, q_full, omega)
+
+        sel_before = x > 0
+        stable = _Stable(x)
+
+        def after_iteration(xk, fk, stable=stable):
+            step(fk)  # progress first: the iteration happened even if the selection has settled
+            stable(xk)
 
         if optimizer == "lbfgs":
-            x, f, nit, status, message = _lbfgs(fun, x, n_inner, ftol, gtol, memory, step)
+            x, f, nit, status, message = _lbfgs(fun, x, n_inner, ftol, gtol, memory, callback=after_iteration)
         else:
-            res = minimize(fun, x, jac=True, method="L-BFGS-B",
-                           callback=lambda intermediate_result: step(intermediate_result.fun),
+            def callback(intermediate_result):
+                after_iteration(intermediate_result.x, intermediate_result.fun)
+
+            res = minimize(fun, x, jac=True, method="L-BFGS-B", callback=callback,
                            options={"maxiter": n_inner, "maxcor": int(maxcor), "ftol": ftol, "gtol": gtol})
             x, f, nit, status, message = res.x, float(res.fun), int(res.nit), int(res.status), str(res.message)
+        if stable.fired:
+            status, message = 0, f"selection unchanged for {stable_iters} iterations"
         total += nit
         D = momentum * D + (1.0 - momentum) * obj.residuals(q_of(x))
         new_omega = weights_of(D)
         change = float(np.max(np.abs(new_omega - omega)))
+        # Settled: a whole inner run left the selection as it was (the first run's view weights
+        # already come from the start's residuals).
+        settled = stable.fired and int(np.count_nonzero((x > 0) != sel_before)) <= n_flip
         history.append({"loss": float(f), "iterations": nit, "weights": new_omega.tolist(),
-                        "residuals": D.tolist(), "weight_change": change})
+                        "residuals": D.tolist(), "weight_change": change, "selection_settled": settled})
         omega = new_omega
-        if (status == 0 or nit == 0) and change < weight_tol:
+        if (status == 0 or nit == 0) and (change < weight_tol or settled):
             break
     return MethodResult(q=q_of(x), iterations=total, view_weights=omega, history=history,
                         observed=obj.evidence,

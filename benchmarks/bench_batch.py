@@ -1,0 +1,184 @@
+"""Batch extraction throughput: sequential vs a 1-worker and a 2-worker Dask cluster (issue 13).
+
+8 jobs over 2 scenes: 4 box prompts on the real firepit scene
+(``firepit_562k_sh0.ply``, ``overview`` camera: fire pit, table, two chairs)
+and 4 prompts (mask, box, point, box) on a procedural scene written to a
+temporary folder, run three ways in the same process:
+
+1. sequentially in this process (``extract_many(jobs, "sequential")``, no Dask),
+2. on an embedded ``LocalCluster`` with 1 worker,
+3. on an embedded ``LocalCluster`` with 2 workers.
+
+Before each timed run one tiny job warms the workers (imports, Numba's
+cached kernels); cluster start and warm-up are printed apart. Printed per
+mode: wall time, jobs per minute, speed-up over sequential, Dask's overhead
+per job (wall time x workers minus the time the tasks themselves took, per
+job: scheduling, transfers, result handling; with 2 workers it also holds
+the time one worker waits for the other's last job), scene reads per
+worker and peak memory per worker, and whether every job's q equals the
+sequential one bit for bit. The machine load (1-minute load average) is
+printed before and after each run: on a shared machine the ratios move with it.
+
+Usage: ``python benchmarks/bench_batch.py [--views 12] [--n-per-object 3000]``
+(needs ``../shared/data`` or ``$SEED2GS_DATA``; exits 0 with a message when
+absent). ``NUMBA_NUM_THREADS`` should be unset (or the core count) so that the
+sequential run may use every core too.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import sys
+import tempfile
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+DATA = Path(os.environ.get("SEED2GS_DATA", Path(__file__).resolve().parents[1].parent / "shared" / "data"))
+
+# Boxes (x0, y0, x1, y1) in the 960x540 overview camera of firepit_cameras.json.
+FIREPIT_BOXES = {"fire-pit": (415, 250, 535, 338), "table": (535, 278, 645, 368),
+                 "chair-front": (470, 355, 578, 450), "chair-right": (660, 330, 840, 440)}
+
+
+def _load() -> str:
+    return "load average " + "/".join(f"{v:.1f}" for v in os.getloadavg()) + " (1/5/15 min)"
+
+
+def make_jobs(tmp: Path, views: int, n_per_object: int):
+    import cv2
+
+    import seed2gs_inverse as sgi
+    from seed2gs_inverse.batch import Job
+    from seed2gs_inverse.io import write_cameras, write_scene
+    from seed2gs_inverse.synthetic import make_scene, render_label_masks
+
+    s = make_scene(seed=0, n_per_object=n_per_object)
+    write_scene(tmp / "procedural.ply", s.scene)
+    cam = s.reference_camera(640, 480)
+    write_cameras(tmp / "procedural_cams.json", [cam])
+    sphere = render_label_masks(s.scene, [cam], s.object_mask("sphere"))[0] > 0.5
+    cv2.imwrite(str(tmp / "sphere.png"), sphere.astype(np.uint8) * 255)
+
+    def box_of(label):
+        m = render_label_masks(s.scene, [cam], s.object_mask(label))[0] > 0.5
+        ys, xs = np.nonzero(m)
+        return [int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1], (float(np.median(xs)),
+                                                                                       float(np.median(ys)))
+
+    opts = {"n_views": views}
+    fp, fc = DATA / "firepit_562k_sh0.ply", f"{DATA / 'firepit_cameras.json'}:overview"
+    jobs = [Job(f"firepit-{k}", fp, fc, sgi.BoxPrompt(b), opts, figure=False) for k, b in FIREPIT_BOXES.items()]
+    pc = str(tmp / "procedural_cams.json")
+    box_box, _ = box_of("box")
+    can_box, _ = box_of("can 1")
+    _, cup_click = box_of("cup")
+    jobs += [Job("proc-sphere-mask", tmp / "procedural.ply", pc, sgi.MaskPrompt(str(tmp / "sphere.png")), opts,
+                 figure=False),
+             Job("proc-box-box", tmp / "procedural.ply", pc, sgi.BoxPrompt(box_box), opts, figure=False),
+             Job("proc-cup-point", tmp / "procedural.ply", pc, sgi.PointPrompt([cup_click]), opts, figure=False),
+             Job("proc-can-box", tmp / "procedural.ply", pc, sgi.BoxPrompt(can_box), opts, figure=False)]
+    # The warm-up job has its own tiny scene, so the timed run's scene reads are all counted.
+    w = make_scene(seed=1, n_per_object=40)
+    write_scene(tmp / "warm.ply", w.scene)
+    wcam = w.reference_camera(96, 72)
+    warm = Job("warm-up", tmp / "warm.ply", wcam,
+               sgi.MaskPrompt(render_label_masks(w.scene, [wcam], w.object_mask("sphere"))[0] > 0.5),
+               {"n_views": 2}, figure=False)
+    return jobs, warm, len(s.scene)
+
+
+def run_mode(label, jobs, warm, out: Path, n_workers):
+    from seed2gs_inverse.batch import batch_client, extract_many
+
+    print(f"\n== {label}  [{_load()}]", flush=True)
+    t0 = time.perf_counter()
+    with batch_client("sequential" if n_workers is None else None, n_workers=n_workers) as c:
+        t_start = time.perf_counter() - t0
+        where = "sequential" if c is None else c
+        t0 = time.perf_counter()
+        w = extract_many([warm], where, progress=False)
+        t_warm = time.perf_counter() - t0
+        assert w[0].ok, w[0].error
+        if c is not None:
+            threads = c.run(lambda: os.environ.get("NUMBA_NUM_THREADS"))
+            print(f"cluster start {t_start:.1f} s, warm-up {t_warm:.1f} s; NUMBA_NUM_THREADS per worker: "
+                  f"{sorted(threads.values())}")
+        else:
+            import numba
+
+            print(f"warm-up {t_warm:.1f} s; numba threads {numba.get_num_threads()}")
+        t0 = time.perf_counter()
+        res = extract_many(jobs, where, output=out, resume=False, progress=False)
+        wall = time.perf_counter() - t0
+    failed = [r for r in res if not r.ok]
+    for r in failed:
+        print(f"  FAILED {r.name}: {r.error}")
+    busy = sum(r.total_seconds for r in res)
+    n_w = 1 if n_workers is None else n_workers
+    per_worker = defaultdict(lambda: {"jobs": 0, "reads": [], "peak": 0.0})
+    for r in res:
+        pw = per_worker[r.worker]
+        pw["jobs"] += 1
+        if not r.scene_cached and r.n_gaussians is not None:
+            pw["reads"].append(Path(r.scene).stem)
+        pw["peak"] = max(pw["peak"], r.peak_rss_mb)
+    what = "overhead" if n_w == 1 else "overhead + idle workers"
+    print(f"wall {wall:.1f} s for {len(jobs)} jobs = {60 * len(jobs) / wall:.2f} jobs/min; task time "
+          f"{busy:.1f} s; {what} per job {(wall * n_w - busy) / len(jobs):.2f} s "
+          f"(wall x {n_w} worker(s) - task time)  [{_load()}]")
+    for wk, pw in sorted(per_worker.items()):
+        print(f"  worker {wk}: {pw['jobs']} jobs, scene reads {len(pw['reads'])} ({', '.join(pw['reads'])}), "
+              f"peak memory {pw['peak']:.0f} MiB")
+    for r in res:
+        print(f"    {r.name:<18} {r.total_seconds:6.1f} s  read {r.seconds.get('read', 0):5.2f}  "
+              f"operators {r.seconds.get('operators', 0):5.1f}  solve {r.seconds.get('solve', 0):5.1f}  "
+              f"{r.n_selected} selected  on {r.worker}")
+    return {"wall": wall, "busy": busy, "results": res, "n_workers": n_w}
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--views", type=int, default=12, help="views per VAAS clip (default 12)")
+    p.add_argument("--n-per-object", type=int, default=3000, help="procedural scene size (default 3000)")
+    p.add_argument("--modes", default="seq,1,2", help="which runs: seq, 1, 2 (default all)")
+    args = p.parse_args(argv)
+    if not (DATA / "firepit_562k_sh0.ply").is_file():
+        print(f"bench_batch: real scenes not found in {DATA}; set SEED2GS_DATA. Skipped.")
+        return 0
+    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs; "
+          f"NUMBA_NUM_THREADS={os.environ.get('NUMBA_NUM_THREADS', 'unset')}; {_load()}")
+    with tempfile.TemporaryDirectory(prefix="bench_batch_") as tmpdir:
+        tmp = Path(tmpdir)
+        jobs, warm, n_proc = make_jobs(tmp, args.views, args.n_per_object)
+        print(f"8 jobs: 4 on firepit (561,997 Gaussians, 960x540 overview), 4 on a procedural scene "
+              f"({n_proc} Gaussians, 640x480); {args.views} views per clip")
+        modes = [m.strip() for m in args.modes.split(",")]
+        runs = {}
+        for m in modes:
+            label = {"seq": "sequential (this process, no Dask)", "1": "LocalCluster, 1 worker",
+                     "2": "LocalCluster, 2 workers"}[m]
+            runs[m] = run_mode(label, jobs, warm, tmp / f"out_{m}", None if m == "seq" else int(m))
+        print("\n== summary")
+        base = runs.get("seq")
+        for m, r in runs.items():
+            line = f"{m:>4}: {60 * len(jobs) / r['wall']:.2f} jobs/min"
+            if base is not None and m != "seq":
+                line += f", speed-up over sequential x{base['wall'] / r['wall']:.2f}"
+                same = all(np.array_equal(a.load_q(), b.load_q()) for a, b in zip(base["results"], r["results"])
+                           if a.ok and b.ok)
+                line += f", q identical to sequential: {'yes' if same else 'NO'}"
+            if m != "seq":
+                what = "Dask overhead" if r["n_workers"] == 1 else "Dask overhead + idle workers"
+                line += f", {what} {(r['wall'] * r['n_workers'] - r['busy']) / len(jobs):.2f} s/job"
+            print(line)
+        print(f"[{_load()}]")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

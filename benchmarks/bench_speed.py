@@ -1,0 +1,287 @@
+"""Speed of one extraction next to same-run baselines (issue 11).
+
+Scene: the firepit (562k Gaussians) with the unicorn composited at pose 0 of
+``bench_extract.py`` (the seed is the truth rendered into the overview
+camera, 960x540). Each repeat runs ``extract()`` once and measures, in the
+same run and on the same machine state:
+
+* the baselines: one 960x540 render of the overview camera, and one sparse
+  pass ``A q`` and one transposed pass ``A^T r`` over the extraction's own
+  operator stack (what every solver iteration costs at least);
+* per-stage seconds of the extraction and the ratio extraction / render;
+* the solve: weighted_bce ms per iteration and per function evaluation
+  against two passes, its iteration and evaluation counts; voting (prepare
+  included) against one transposed pass;
+* the peak resident memory of the extraction (``VmHWM`` reset before it
+  through ``/proc/self/clear_refs`` where Linux allows, else the process
+  peak from ``getrusage``);
+* held-out accuracy (five object-centric views the pipeline never rendered:
+  2D mIoU / mBIoU, and 3D IoU of the membership), so a speed change that
+  costs accuracy shows;
+* the load average at the start and at the end.
+
+Medians over ``--repeat`` runs are printed last. ``--competing-load`` starts
+two busy-loop processes for the duration (the "operators stage under load"
+check of issue 11); they are stopped by their process ids at the end.
+
+:func:`same_run_baselines` is the baseline measurement on its own, for other
+benchmarks (``bench_extract``).
+
+Usage::
+
+    python benchmarks/bench_speed.py [--repeat 3] [--views 24] [--competing-load]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+DATA = Path(os.environ.get("SEED2GS_DATA", REPO.parent / "shared" / "data"))
+
+# bench_extract.py's pose 0: overview pixel on the patio floor, unicorn yaw (deg), height.
+POSE0 = ((400, 470), 20.0, 0.8)
+
+
+def _load() -> float:
+    try:
+        return float(os.getloadavg()[0])
+    except (AttributeError, OSError):
+        return float("nan")
+
+
+def _median_time(fn, repeat: int) -> float:
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
+def same_run_baselines(scene, camera, stack=None, repeat: int = 3) -> dict:
+    """Baselines to print next to an extraction's timings, measured now.
+
+    Parameters
+    ----------
+    scene : GaussianScene or FrozenScene
+    camera : Camera
+        The render baseline's camera (960x540 in the benchmarks).
+    stack : OperatorStack, optional
+        The extraction's own operators: adds one forward pass ``A q`` and one
+        transposed pass ``A^T r`` (random float32 vectors), through the
+        stack's own ``matvec`` / ``rmatvec`` (the path the solvers use).
+    repeat : int
+        Each figure is the median of ``repeat`` runs (after one warm-up).
+
+    Returns
+    -------
+    dict
+        ``render_s``, ``load``; with ``stack`` also ``forward_s``,
+        ``adjoint_s``, ``two_passes_s``, ``nnz``.
+    """
+    from seed2gs_inverse.raster import render
+
+    render(scene, camera)  # warm-up (kernel compilation when the cache is cold)
+    out = {"render_s": _median_time(lambda: render(scene, camera), repeat), "load": _load()}
+    if stack is not None:
+        rng = np.random.default_rng(0)
+        q = rng.random(stack.shape[1]).astype(np.float32)
+        r = rng.random(stack.shape[0]).astype(np.float32)
+        stack.matvec(q)
+        stack.rmatvec(r)
+        out["forward_s"] = _median_time(lambda: stack.matvec(q), max(repeat, 5))
+        out["adjoint_s"] = _median_time(lambda: stack.rmatvec(r), max(repeat, 5))
+        out["two_passes_s"] = out["forward_s"] + out["adjoint_s"]
+        out["nnz"] = int(stack.nnz)
+    return out
+
+
+def _reset_peak() -> bool:
+    """Reset the kernel's peak-RSS counter (VmHWM) of this process; False where not allowed."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        return True
+    except OSError:
+        return False
+
+
+def _peak_rss_gb(reset_ok: bool) -> float:
+    if reset_ok:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 2 ** 20
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2 ** 20
+
+
+def _held_out(center, up, forward, dist, w=480, h=270):
+    from seed2gs_inverse import Camera
+
+    e1 = forward - (forward @ up) * up
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(up, e1)
+    cams = []
+    for az, el in [(160, 25), (200, 45), (250, 35), (110, 55), (20, 30)]:
+        a, e = np.radians(az), np.radians(el)
+        d = np.cos(e) * (np.cos(a) * e1 + np.sin(a) * e2) + np.sin(e) * up
+        cams.append(Camera.look_at(center + dist * d, center, up, 50, w, h))
+    return cams
+
+
+def _busy_load(n: int) -> list:
+    code = "while True:\n    pass\n"
+    return [subprocess.Popen([sys.executable, "-c", code]) for _ in range(n)]
+
+
+def _problem(views_arg):
+    from seed2gs_inverse.io import read_camera, read_scene
+    from seed2gs_inverse.raster import build_operator, render
+    from seed2gs_inverse.pipeline.vaas import estimate_up
+    from seed2gs_inverse.synthetic import compose, pose_on_point
+
+    firepit = read_scene(DATA / "firepit_562k_sh0.ply")
+    unicorn = read_scene(DATA / "unicorn_49k_sh3.ply")
+    cam = read_camera(DATA / "firepit_cameras.json:overview")
+    t0 = time.perf_counter()
+    base = render(firepit, cam)
+    first = time.perf_counter() - t0
+    up = estimate_up(firepit, cam)
+    (px, py), yaw, height = POSE0
+    ray = np.array([(px + 0.5 - cam.cx) / cam.fx, (py + 0.5 - cam.cy) / cam.fy, 1.0])
+    anchor = cam.rotation.T @ (ray * float(base.depth[py, px]) - cam.translation)
+    pose = pose_on_point(unicorn, anchor, up, object_up=(0.0, -1.0, 0.0), height=height, yaw_deg=yaw,
+                         quantile=0.01)
+    scene, labels = compose(firepit, [(unicorn, pose)], remove_overlap=True)
+    truth = labels == 1
+    uv, _ = cam.project(scene.means[truth])
+    x0, y0 = np.floor(np.nanmin(uv, 0)).astype(int) - 4
+    x1, y1 = np.ceil(np.nanmax(uv, 0)).astype(int) + 4
+    roi = (max(x0, 0), max(y0, 0), min(x1, cam.width), min(y1, cam.height))
+    op = build_operator(scene, cam, roi=roi)
+    seed = (op.W @ truth.astype(np.float32)).reshape(cam.image_shape) > 0.5
+    return scene, truth, cam, seed, up, first
+
+
+def _accuracy(scene, truth, up, cam, selected):
+    from seed2gs_inverse.metrics import boundary_iou, iou, membership_scores
+    from seed2gs_inverse.raster import build_operator
+
+    centre = scene.means[truth].astype(np.float64).mean(0)
+    size = np.linalg.norm(scene.means[truth] - centre, axis=1).max()
+    ious, bious = [], []
+    for hc in _held_out(centre, up, cam.forward, 4.0 * size):
+        hop = build_operator(scene, hc)
+        t = (hop.W @ truth.astype(np.float32)).reshape(hop.image_shape) > 0.5
+        if t.sum() < 20:
+            continue
+        pm = (hop.W @ selected.astype(np.float32)).reshape(hop.image_shape) > 0.5
+        ious.append(iou(pm, t))
+        bious.append(boundary_iou(pm, t))
+    return float(np.mean(ious)), float(np.mean(bious)), float(membership_scores(selected, truth)["iou"])
+
+
+def run_once(scene, truth, cam, seed, up, views: int, method: str, accuracy: bool) -> dict:
+    """One extraction with its baselines, solver ratios, peak memory and (optionally) accuracy."""
+    from seed2gs_inverse.pipeline import extract
+    from seed2gs_inverse.solvers import solve
+
+    load0 = _load()
+    reset_ok = _reset_peak()
+    t0 = time.perf_counter()
+    ex = extract(scene, cam, seed, n_views=views, method=method, progress=False)
+    wall = time.perf_counter() - t0
+    peak = _peak_rss_gb(reset_ok)
+    stack, masks = ex.operators, ex.masks
+    base = same_run_baselines(scene, cam, stack)
+    two, adj = base["two_passes_s"], base["adjoint_s"]
+    res = ex.result
+    it = max(int(res.iterations), 1)
+    nfev = int(res.info.get("function_evaluations", it))
+    t0 = time.perf_counter()
+    vote = solve(stack, masks, method="voting")
+    t_vote = time.perf_counter() - t0
+    row = {"wall_s": wall, "stages": dict(ex.seconds), "render_s": base["render_s"], "two_passes_s": two,
+           "forward_s": base["forward_s"], "adjoint_s": adj, "nnz": base["nnz"], "n_views": len(stack),
+           "iterations": int(res.iterations), "nfev": nfev, "solve_s": float(res.seconds),
+           "ms_per_iter": 1e3 * res.seconds / it, "ms_per_feval": 1e3 * res.seconds / max(nfev, 1),
+           "iter_over_two": res.seconds / it / two, "voting_s": t_vote, "voting_over_adj": t_vote / adj,
+           "peak_rss_gb": peak, "peak_is_extraction_only": reset_ok, "load_start": load0,
+           "selected": int(ex.selected.sum()), "vote_selected": int(vote.selected().sum())}
+    if accuracy:
+        row["miou"], row["mbiou"], row["iou3d"] = _accuracy(scene, truth, up, cam, ex.selected)
+    row["load_end"] = _load()
+    return row
+
+
+def _print_row(k, r):
+    st = r["stages"]
+    acc = (f" | held-out mIoU {r['miou']:.3f} mBIoU {r['mbiou']:.3f} 3D IoU {r['iou3d']:.3f}"
+           if "miou" in r else "")
+    print(f"run {k}: extraction {r['wall_s']:.2f} s = {r['wall_s'] / r['render_s']:.1f} renders "
+          f"(render {r['render_s']:.3f} s) | " + ", ".join(f"{a} {b:.2f}" for a, b in st.items()))
+    print(f"  stack {r['n_views']} views, nnz {r['nnz'] / 1e6:.1f} M: A q {1e3 * r['forward_s']:.1f} ms, "
+          f"A^T r {1e3 * r['adjoint_s']:.1f} ms | weighted_bce {r['iterations']} it, {r['nfev']} evals, "
+          f"{r['solve_s']:.2f} s, {r['ms_per_iter']:.1f} ms/it = {r['iter_over_two']:.2f} x two passes "
+          f"({r['ms_per_feval']:.1f} ms/eval) | voting {1e3 * r['voting_s']:.1f} ms = "
+          f"{r['voting_over_adj']:.2f} x one A^T pass")
+    print(f"  peak RSS {'of the extraction' if r['peak_is_extraction_only'] else 'of the process'} "
+          f"{r['peak_rss_gb']:.2f} GB | selected {r['selected']}{acc} | load {r['load_start']:.1f} -> "
+          f"{r['load_end']:.1f}")
+    sys.stdout.flush()
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--repeat", type=int, default=3)
+    p.add_argument("--views", type=int, default=24)
+    p.add_argument("--method", default="weighted_bce")
+    p.add_argument("--no-accuracy", action="store_true", help="skip the held-out scores")
+    p.add_argument("--competing-load", action="store_true", help="run two busy-loop processes meanwhile")
+    args = p.parse_args(argv)
+    if not (DATA / "firepit_562k_sh0.ply").is_file():
+        print(f"bench_speed: real scenes not found in {DATA}; set SEED2GS_DATA. Skipped.")
+        return 0
+    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
+          f"NUMBA_NUM_THREADS={os.environ.get('NUMBA_NUM_THREADS', 'default')}, load average {_load():.1f}")
+    busy = _busy_load(2) if args.competing_load else []
+    try:
+        scene, truth, cam, seed, up, first = _problem(args.views)
+        print(f"first render of the process (includes kernel compilation when the cache is cold): {first:.2f} s; "
+              f"{'with' if busy else 'without'} a competing 2-process busy loop")
+        rows = []
+        for k in range(args.repeat):
+            rows.append(run_once(scene, truth, cam, seed, up, args.views, args.method, not args.no_accuracy))
+            _print_row(k, rows[-1])
+    finally:
+        for b in busy:
+            b.kill()
+            b.wait()
+    med = {k: float(np.median([r[k] for r in rows])) for k in rows[0] if isinstance(rows[0][k], (int, float))}
+    stages = {k: float(np.median([r["stages"][k] for r in rows])) for k in rows[0]["stages"]}
+    print(f"\nmedian of {len(rows)}: extraction {med['wall_s']:.2f} s = {med['wall_s'] / med['render_s']:.1f} x "
+          f"one 960x540 render ({med['render_s']:.3f} s) [aim <= 20x]; per stage: "
+          + ", ".join(f"{a} {b:.2f}" for a, b in stages.items()))
+    print(f"  weighted_bce {med['ms_per_iter']:.1f} ms/it = {med['iter_over_two']:.2f} x two passes "
+          f"({1e3 * med['two_passes_s']:.1f} ms) [aim <= 1.5], {med['iterations']:.0f} it, {med['nfev']:.0f} evals; "
+          f"voting {med['voting_over_adj']:.2f} x one A^T pass [aim <= 1.2]; peak RSS {med['peak_rss_gb']:.2f} GB "
+          f"[aim <= 2]" + (f"; held-out mIoU {med['miou']:.3f} mBIoU {med['mbiou']:.3f} 3D IoU {med['iou3d']:.3f}"
+                           if "miou" in med else ""))
+    print(f"  load average {rows[0]['load_start']:.1f} at the start, {rows[-1]['load_end']:.1f} at the end "
+          f"(2 cores; other work on the machine inflates wall times, the ratios less)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

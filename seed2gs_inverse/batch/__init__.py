@@ -1,0 +1,19 @@
+"""Many extractions at once: jobs files and the Dask batch runner.
+
+::
+
+    import seed2gs_inverse as sgi
+    jobs = sgi.read_jobs("jobs.toml")
+    results = sgi.extract_many(jobs, output="results/")        # embedded LocalCluster
+    results = sgi.extract_many(jobs, "tcp://head:8786", output="results/")  # a cluster
+
+See :mod:`.jobs` for the jobs file and :mod:`.runner` for where jobs run,
+failures, retries and resume.
+"""
+
+from .jobs import Job, extract_option_names, jobs_from_table, read_jobs
+from .runner import SUMMARY_COLUMNS, batch_client, extract_many
+from .worker import JobResult, run_job
+
+__all__ = ["Job", "JobResult", "read_jobs", "jobs_from_table", "extract_option_names", "extract_many",
+           "batch_client", "run_job", "SUMMARY_COLUMNS"]

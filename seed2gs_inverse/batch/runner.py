@@ -1,0 +1,372 @@
+"""``extract_many``: run a batch of extraction jobs on Dask (``dask.distributed``).
+
+Where the jobs run (``client``):
+
+``None``
+    an embedded :class:`distributed.LocalCluster` sized to this machine:
+    one worker process per core (at most one per job), one task thread per
+    worker, and ``NUMBA_NUM_THREADS`` = cores / workers in each worker so
+    that the rasterizer's parallel loops do not oversubscribe the cores
+    (BLAS is held to one thread inside ``solve()``; a ``NUMBA_NUM_THREADS``
+    set in this environment caps the per-worker value). ``n_workers``
+    overrides the count.
+``"tcp://HOST:PORT"`` or a :class:`distributed.Client`
+    an existing cluster (``dask scheduler`` / ``dask worker``). The workers
+    must see the scene, camera and output paths (a shared file system).
+``"sequential"``
+    one job after the other in this process, without Dask (debugging,
+    and the baseline of ``benchmarks/bench_batch.py``).
+
+Jobs are submitted grouped by scene, and each worker process keeps the
+scenes it read (:mod:`.worker`), so a scene is read once per worker, not
+once per job. With an output directory every job writes its folder
+atomically (as ``seed2gs extract -o`` does) and the runner keeps
+``summary.csv`` / ``summary.json`` up to date after every job (each
+rewritten atomically), so an interrupted batch leaves a consistent record.
+
+Failures: a job that raises is recorded as ``failed`` with its message and
+the batch goes on; a job whose worker process dies (killed, out of memory)
+is submitted once more, and recorded as failed if that worker dies too.
+Resume: a job whose folder exists and whose summary line says ``done`` for
+the same job description (:meth:`Job.fingerprint`) is skipped.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import logging
+import os
+import sys
+import time
+from contextlib import contextmanager
+from pathlib import Path
+
+from ..errors import ValidationError
+from .jobs import Job, read_jobs
+from .worker import JobResult, clear_scene_cache, run_job
+
+__all__ = ["extract_many", "batch_client", "SUMMARY_COLUMNS"]
+
+#: Columns of ``summary.csv`` (per-stage seconds follow as ``seconds_<stage>``).
+SUMMARY_COLUMNS = ("name", "status", "n_gaussians", "n_selected", "n_views", "total_seconds", "worker",
+                   "attempts", "scene_cached", "peak_rss_mb", "scene", "prompt", "outdir", "error")
+_STAGES = ("read", "camera", "render", "grounding", "lift", "vaas", "tracking", "operators", "solve", "write")
+
+
+def _cores() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def _has_dashboard() -> bool:
+    try:
+        import bokeh  # noqa: F401 - the dashboard needs it
+    except ImportError:
+        return False
+    return True
+
+
+@contextmanager
+def batch_client(client=None, n_workers: int | None = None, n_jobs: int | None = None):
+    """Yield a :class:`distributed.Client` for a batch (see the module docstring).
+
+    ``client`` None starts an embedded ``LocalCluster`` (closed on exit) of
+    ``n_workers`` processes (default: one per core, at most ``n_jobs``); a
+    scheduler address connects to it (the connection is closed on exit); a
+    ``Client`` is used as is. ``"sequential"`` yields None.
+    """
+    if isinstance(client, str) and client == "sequential":
+        yield None
+        return
+    try:
+        import dask
+        from distributed import Client, LocalCluster
+    except ImportError:  # pragma: no cover - a declared dependency
+        raise ValidationError("batch extraction needs dask.distributed: pip install 'dask[distributed]'") from None
+    if isinstance(client, Client):
+        yield client
+        return
+    if isinstance(client, str):
+        if not client.startswith(("tcp://", "tls://", "ucx://", "inproc://", "ws://", "wss://")):
+            raise ValidationError(f"scheduler address {client!r} must look like tcp://HOST:PORT")
+        try:
+            c = Client(client, timeout=dask.config.get("distributed.comm.timeouts.connect"))
+        except OSError as exc:
+            raise ValidationError(f"cannot reach the Dask scheduler at {client} ({exc}); "
+                                  f"is 'dask scheduler' running there?") from None
+        try:
+            yield c
+        finally:
+            c.close()
+        return
+    if client is not None:
+        raise ValidationError(f"client must be None, 'sequential', a scheduler address or a "
+                              f"distributed.Client, got {type(client).__name__}")
+    cores = _cores()
+    if n_workers is None:
+        n_workers = max(1, min(cores, n_jobs or cores))
+    n_workers = int(n_workers)
+    if n_workers < 1:
+        raise ValidationError(f"n_workers must be >= 1, got {n_workers}")
+    threads = max(1, cores // n_workers)
+    user_cap = os.environ.get("NUMBA_NUM_THREADS", "").strip()
+    if user_cap.isdigit() and int(user_cap) >= 1:
+        threads = min(threads, int(user_cap))
+    env = {"NUMBA_NUM_THREADS": str(threads), "OMP_NUM_THREADS": str(threads),
+           "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+           # Numba's OpenMP threads must not spin between parallel regions
+           # on cores that other workers need.
+           "OMP_WAIT_POLICY": "PASSIVE"}
+    # A dead worker fails its task at once (KilledWorker); extract_many then
+    # retries it exactly once itself, the same way as on an external cluster.
+    # One task per worker thread at a time (saturation 1.0): a job queued
+    # behind a dying one is not counted as a victim, and jobs keep their
+    # scene-grouped order.
+    # Dask's MALLOC_TRIM_THRESHOLD_ for worker processes also freezes glibc's
+    # mmap threshold at 128 KiB, so every large numpy temporary of the solver
+    # is mapped and zeroed afresh: the solve stage ran 1.5x slower in a
+    # worker than in this process. The workers keep glibc's defaults.
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0,
+                          "distributed.scheduler.worker-saturation": 1.0,
+                          "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+                          "distributed.worker.daemon": False}):
+        cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
+                               dashboard_address=":0",  # a free port: never "8787 is in use"
+                               silence_logs=logging.ERROR, env=env)
+        try:
+            c = Client(cluster)
+            try:
+                yield c
+            finally:
+                c.close()
+        finally:
+            cluster.close()
+
+
+def _dashboard(client) -> str | None:
+    """The dashboard's address, when one is being served.
+
+    The scheduler's HTTP server always runs (health, metrics); its dashboard
+    pages need bokeh, which for an embedded cluster is this environment's.
+    """
+    try:
+        info = client.scheduler_info()
+        if "dashboard" not in info.get("services", {}):
+            return None
+        if getattr(client, "cluster", None) is not None and not _has_dashboard():
+            return None
+        return client.dashboard_link
+    except Exception:  # noqa: BLE001 - only a courtesy line
+        return None
+
+
+def _as_jobs(jobs) -> list[Job]:
+    if isinstance(jobs, (str, os.PathLike)):
+        return read_jobs(jobs)
+    out = list(jobs)
+    if not out:
+        raise ValidationError("extract_many: no jobs given")
+    for i, j in enumerate(out):
+        if not isinstance(j, Job):
+            raise ValidationError(f"extract_many: jobs[{i}] is a {type(j).__name__}, not a Job")
+    names = [j.name for j in out]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise ValidationError(f"extract_many: job names must be unique (folder names); repeated: {dup}")
+    return out
+
+
+# ---------------------------------------------------------------------------
+# summary files
+# ---------------------------------------------------------------------------
+def _read_summary(output: Path) -> dict:
+    """Previous summary entries by job name ({} when none or unreadable)."""
+    p = output / "summary.json"
+    if not p.is_file():
+        return {}
+    try:
+        doc = json.loads(p.read_text("utf-8"))
+        return {d["name"]: d for d in doc.get("jobs", []) if isinstance(d, dict) and "name" in d}
+    except (ValueError, KeyError, AttributeError, TypeError):
+        return {}  # a damaged summary only costs re-running the jobs
+
+
+def _write_summary(output: Path, results: list, meta: dict) -> None:
+    from .._atomic import write_files
+
+    rows = [r.to_dict() for r in results]
+    doc = {"meta": meta, "counts": _counts(results), "jobs": rows}
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow([*SUMMARY_COLUMNS, *(f"seconds_{s}" for s in _STAGES)])
+    for d in rows:
+        cells = []
+        for col in SUMMARY_COLUMNS:
+            v = d.get(col)
+            cells.append(json.dumps(v, sort_keys=True) if isinstance(v, dict) else ("" if v is None else v))
+        cells += [f"{d['seconds'][s]:.3f}" if s in d["seconds"] else "" for s in _STAGES]
+        w.writerow(cells)
+    write_files([(output / "summary.json", json.dumps(doc, indent=1).encode("utf-8")),
+                 (output / "summary.csv", buf.getvalue().encode("utf-8"))])
+
+
+def _counts(results) -> dict:
+    return {"jobs": len(results), "done": sum(r.status == "done" for r in results),
+            "failed": sum(r.status == "failed" for r in results),
+            "resumed": sum(bool(r.resumed) for r in results)}
+
+
+# ---------------------------------------------------------------------------
+# the runner
+# ---------------------------------------------------------------------------
+def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None, resume: bool = True,
+                 progress: bool | None = None, retries: int = 1, log=None) -> list[JobResult]:
+    """Run many extractions, on a Dask cluster or in this process.
+
+    Parameters
+    ----------
+    jobs : sequence of Job, or path of a jobs file
+        See :mod:`seed2gs_inverse.batch.jobs` (``read_jobs``).
+    client : None, "sequential", str or distributed.Client
+        Where to run (module docstring): None starts an embedded
+        ``LocalCluster`` sized to the machine.
+    output : path, optional
+        Results directory (created if its parent exists): one folder per
+        job plus ``summary.csv`` / ``summary.json``. None writes nothing and
+        keeps each job's ``q`` in its result.
+    n_workers : int, optional
+        Worker processes of the embedded cluster.
+    resume : bool
+        Skip jobs already done in ``output`` (same description); False runs
+        every job again, replacing its folder.
+    progress : bool, optional
+        One overall progress bar on stderr; default: only when stderr is a
+        terminal.
+    retries : int
+        Extra attempts for a job whose worker process died (default 1).
+    log : callable, optional
+        ``log(str)`` for the dashboard address and similar notes (default:
+        print to stderr when ``progress``).
+
+    Returns
+    -------
+    list of JobResult
+        In the order of ``jobs``. Failed jobs carry their error; no job
+        error raises.
+    """
+    jobs = _as_jobs(jobs)
+    if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
+        raise ValidationError(f"retries must be a whole number >= 0, got {retries!r}")
+    if progress is None:
+        progress = bool(getattr(sys.stderr, "isatty", lambda: False)())
+    if log is None:
+        def log(msg):
+            if progress:
+                print(msg, file=sys.stderr)
+
+    out = None
+    previous = {}
+    if output is not None:
+        out = Path(output)
+        if out.exists() and not out.is_dir():
+            raise ValidationError(f"output {out} exists and is not a directory")
+        if not out.resolve().parent.is_dir():
+            raise ValidationError(f"cannot create {out}: parent directory {out.resolve().parent} does not exist")
+        out.mkdir(exist_ok=True)
+        out = out.resolve()  # workers may run elsewhere: give them an absolute path
+        previous = _read_summary(out) if resume else {}
+
+    results: dict = {}
+    todo = []
+    for job in jobs:
+        prev = previous.get(job.name)
+        if (prev is not None and prev.get("status") == "done" and prev.get("fingerprint") == job.fingerprint()
+                and (out / job.name / "report.json").is_file()):
+            r = JobResult.from_dict(prev)
+            r.resumed = True
+            results[job.name] = r
+        else:
+            todo.append(job)
+    # Grouped by scene, first-seen order: each worker then meets each scene once.
+    order = {}
+    for job in todo:
+        order.setdefault(job.scene, len(order))
+    todo.sort(key=lambda j: order[j.scene])
+
+    meta = {"n_jobs": len(jobs), "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "where": None}
+
+    def record(res: JobResult):
+        results[res.name] = res
+        if bar is not None:
+            bar.update(1)
+            n_failed = sum(r.status == "failed" for r in results.values())
+            if n_failed:
+                bar.set_postfix(failed=n_failed)
+        if out is not None:
+            _write_summary(out, [results[j.name] for j in jobs if j.name in results], meta)
+
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(jobs), initial=len(results), desc="jobs", unit="job", file=sys.stderr)
+    try:
+        with batch_client(client, n_workers=n_workers, n_jobs=len(todo)) as c:
+            if c is None:
+                meta["where"] = "sequential"
+                try:
+                    for job in todo:
+                        record(run_job(job, out))
+                finally:
+                    clear_scene_cache()
+            elif todo:
+                meta["where"] = f"dask {c.scheduler.address} ({len(c.scheduler_info()['workers'])} workers)"
+                link = _dashboard(c)
+                if link:
+                    log(f"Dask dashboard: {link}")
+                _run_on_dask(c, todo, out, retries, record)
+    finally:
+        if bar is not None:
+            bar.close()
+    if out is not None and not todo:
+        _write_summary(out, [results[j.name] for j in jobs], meta)
+    return [results[j.name] for j in jobs]
+
+
+def _run_on_dask(client, todo, out, retries, record) -> None:
+    """Submit every job, collect results as they finish, resubmit jobs of dead workers."""
+    import uuid
+
+    from distributed import as_completed
+
+    def submit(job, attempt):
+        key = f"seed2gs-extract-{job.name}-{attempt}-{uuid.uuid4().hex[:8]}"
+        return client.submit(run_job, job, None if out is None else str(out), attempt, key=key,
+                             pure=False, retries=0)
+
+    futures = {}
+    for job in todo:
+        futures[submit(job, 1)] = (job, 1)
+    ac = as_completed(list(futures))
+    for fut in ac:
+        job, attempt = futures.pop(fut)
+        if fut.status == "finished":
+            res = fut.result()
+        else:
+            # run_job catches every job error, so this is the infrastructure:
+            # the worker process died under the task (KilledWorker) or the
+            # connection to it was lost.
+            exc = fut.exception()
+            if attempt <= retries:
+                new = submit(job, attempt + 1)
+                futures[new] = (job, attempt + 1)
+                ac.add(new)
+                continue
+            res = JobResult(name=job.name, status="failed", scene=job.scene, fingerprint=job.fingerprint(),
+                            camera=job.to_dict()["camera"], prompt=job.to_dict()["prompt"],
+                            attempts=attempt, worker="?",
+                            error=f"{type(exc).__name__}: the worker died running this job "
+                                  f"{attempt} time(s) ({str(exc).strip().splitlines()[0] if str(exc).strip() else ''})")
+        fut.release()
+        record(res)

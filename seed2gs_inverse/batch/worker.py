@@ -1,0 +1,270 @@
+"""What runs on a worker: one job, with the scene read once per worker process.
+
+:func:`run_job` is the task the batch runner submits, one per job. It never
+raises for a bad job: a missing scene file, an unreadable camera or a prompt
+outside the image comes back as a ``failed`` :class:`JobResult` with the
+message, so one bad job never stops a batch. Only the death of the worker
+process itself reaches the runner (which then retries the job once).
+
+Scenes are kept in a small per-process cache keyed by the file's path, size
+and modification time, so every job on the same scene that lands on the
+same worker reuses the arrays instead of reading the file again (the runner
+submits jobs grouped by scene, so each worker meets each scene once).
+"""
+
+from __future__ import annotations
+
+import os
+import resource
+import sys
+import threading
+import time
+import traceback
+from collections import OrderedDict
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["JobResult", "run_job", "scene_cache_info", "clear_scene_cache", "SCENE_CACHE_SIZE"]
+
+#: Scenes kept per worker process (least recently used dropped first).
+SCENE_CACHE_SIZE = 2
+
+_lock = threading.Lock()
+_scenes: "OrderedDict[tuple, object]" = OrderedDict()
+_reads: list = []          # (path, seconds) of every read by this process
+_models: dict = {}
+
+
+@dataclass
+class JobResult:
+    """Outcome of one job.
+
+    Attributes
+    ----------
+    name : str
+    status : {"done", "failed"}
+    error : str or None
+        ``"ErrorType: message"`` of a failed job.
+    scene, camera : str
+        What the job named (the camera as its spec).
+    prompt : dict
+        The prompt's kind and values.
+    n_gaussians, n_selected, n_views : int or None
+        Scene size, selected Gaussians, supervision views (None when failed early).
+    seconds : dict
+        Wall time per stage: ``read`` (scene file; 0 when it came from this
+        worker's cache), ``camera``, extract's ``render, grounding, lift, vaas,
+        tracking, operators, solve``, and ``write`` (the job folder).
+    total_seconds : float
+        Wall time of the whole task on the worker.
+    worker : str
+        The worker's address (``"local"`` when run in this process).
+    scene_cached : bool
+        The scene came from the worker's cache (no file read).
+    attempts : int
+        1, or 2 when the job was retried after its worker died.
+    peak_rss_mb : float
+        Peak resident memory of the worker process so far (MiB).
+    outdir : str or None
+        The job's folder (None without an output directory).
+    fingerprint : str
+        :meth:`Job.fingerprint`, for resume.
+    q : (N,) float32 or None
+        Foreground probabilities, kept only when no output directory was
+        given (else read them with :meth:`load_q`).
+    resumed : bool
+        Done by an earlier run and skipped by this one.
+    """
+
+    name: str
+    status: str
+    error: str | None = None
+    scene: str = ""
+    camera: object = None
+    prompt: dict = field(default_factory=dict)
+    n_gaussians: int | None = None
+    n_selected: int | None = None
+    n_views: int | None = None
+    seconds: dict = field(default_factory=dict)
+    total_seconds: float = 0.0
+    worker: str = "local"
+    scene_cached: bool = False
+    attempts: int = 1
+    peak_rss_mb: float = 0.0
+    outdir: str | None = None
+    fingerprint: str = ""
+    q: np.ndarray | None = None
+    resumed: bool = False
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "done"
+
+    def load_q(self) -> np.ndarray:
+        """``q`` of a done job: kept in memory, else ``q.npy`` of its folder."""
+        if self.q is not None:
+            return self.q
+        if self.outdir is None or self.status != "done":
+            from ..errors import ValidationError
+
+            raise ValidationError(f"job {self.name!r} has no q ({self.status}"
+                                  f"{': ' + self.error if self.error else ''})")
+        return np.load(Path(self.outdir) / "q.npy", allow_pickle=False)
+
+    def to_dict(self) -> dict:
+        """JSON-ready record (everything but ``q``): one line of ``summary.json``."""
+        d = asdict(self)
+        d.pop("q")
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "JobResult":
+        known = set(cls.__dataclass_fields__) - {"q"}
+        return cls(**{k: v for k, v in d.items() if k in known})
+
+
+def _worker_name() -> str:
+    try:
+        from distributed import get_worker
+
+        return get_worker().address
+    except (ImportError, ValueError):
+        return "local"
+
+
+def _limit_threads() -> None:
+    """Numba threads of this task: the cores divided among the worker's task threads.
+
+    An embedded cluster already sets NUMBA_NUM_THREADS per worker process; on
+    an external worker with several threads each task would otherwise start
+    a parallel region on every core. ``numba.set_num_threads`` is per thread.
+    (BLAS is limited to one thread inside ``solve()``.)
+    """
+    try:
+        from distributed import get_worker
+
+        nthreads = max(1, int(get_worker().state.nthreads))
+    except (ImportError, ValueError, AttributeError):
+        return
+    import numba
+
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    numba.set_num_threads(max(1, min(numba.config.NUMBA_NUM_THREADS, cores // nthreads)))
+
+
+def _scene(path: str):
+    """(scene, seconds spent reading, came from cache) for ``path``; read at most once per process."""
+    from ..io import read_scene
+
+    st = os.stat(path)  # FileNotFoundError names the file
+    key = (os.path.realpath(path), st.st_size, st.st_mtime_ns)
+    with _lock:  # one reader per file at a time; the others wait and reuse it
+        if key in _scenes:
+            _scenes.move_to_end(key)
+            return _scenes[key], 0.0, True
+        t0 = time.perf_counter()
+        scene = read_scene(path)
+        dt = time.perf_counter() - t0
+        _reads.append((key[0], dt))
+        _scenes[key] = scene
+        while len(_scenes) > SCENE_CACHE_SIZE:
+            _scenes.popitem(last=False)
+        return scene, dt, False
+
+
+def scene_cache_info() -> dict:
+    """This process's scene reads: ``{"reads": [(path, seconds), ...], "cached": [paths]}``."""
+    with _lock:
+        return {"reads": list(_reads), "cached": [k[0] for k in _scenes]}
+
+
+def clear_scene_cache() -> None:
+    """Forget this process's scenes and read counts (after running jobs in a non-worker process)."""
+    with _lock:
+        _scenes.clear()
+        _reads.clear()
+
+
+def _job_models(path):
+    """(grounder, tracker) of a models file, opened once per process; (None, None) without."""
+    if path is None:
+        return None, None
+    with _lock:
+        if path not in _models:
+            from ..frontend.config import load_models
+
+            models = load_models(path)
+            _models[path] = (models.grounder(), models.tracker())
+        return _models[path]
+
+
+def _error_text(exc: BaseException) -> str:
+    msg = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+    if isinstance(exc, FileNotFoundError) and exc.filename:
+        msg = f"no such file: {exc.filename}"
+    return f"{type(exc).__name__}: {msg}" if msg else type(exc).__name__
+
+
+def run_job(job, output=None, attempt: int = 1) -> JobResult:
+    """Run one job here (on a worker, or in this process) and write its folder.
+
+    Parameters
+    ----------
+    job : Job
+    output : path, optional
+        Results directory; the job's folder ``output/<name>`` is written
+        atomically by :func:`~seed2gs_inverse.cli._extract.write_outputs`
+        (replacing an older one). None: nothing is written and ``q`` is
+        returned in the result.
+    attempt : int
+        Which attempt this is (recorded).
+
+    Returns
+    -------
+    JobResult
+        ``failed`` with the error for any exception the job raises.
+    """
+    from ..pipeline import extract
+
+    t_start = time.perf_counter()
+    res = JobResult(name=job.name, status="failed", scene=job.scene, fingerprint=job.fingerprint(),
+                    camera=job.to_dict()["camera"], prompt=job.to_dict()["prompt"],
+                    worker=_worker_name(), attempts=int(attempt))
+    seconds = {"read": 0.0, "camera": 0.0}
+    try:
+        _limit_threads()
+        t0 = time.perf_counter()
+        camera = job.read_camera()  # cheap checks first
+        seconds["camera"] = time.perf_counter() - t0
+        grounder, tracker = _job_models(job.models)
+        scene, seconds["read"], res.scene_cached = _scene(job.scene)
+        res.n_gaussians = int(len(scene))
+        ex = extract(scene, camera, job.prompt, grounder=grounder, tracker=tracker, **job.extract_kwargs())
+        seconds.update({k: float(v) for k, v in ex.seconds.items()})
+        res.n_selected = int(np.count_nonzero(ex.selected))
+        res.n_views = int(len(ex.views))
+        t0 = time.perf_counter()
+        if output is not None:
+            from ..cli._extract import write_outputs
+
+            outdir = Path(output) / job.name
+            write_outputs(ex, outdir, job.format, force=True, figure=job.figure)
+            if job.figure:
+                import matplotlib.pyplot as plt
+
+                plt.close("all")  # a long-lived worker must not keep every figure
+            res.outdir = os.fspath(outdir)
+        else:
+            res.q = np.asarray(ex.q, dtype=np.float32)
+        seconds["write"] = time.perf_counter() - t0
+        res.status = "done"
+    except Exception as exc:  # noqa: BLE001 - every job error is recorded, none stops the batch
+        res.error = _error_text(exc)
+        if os.environ.get("SEED2GS_BATCH_TRACEBACK"):
+            traceback.print_exc(file=sys.stderr)
+    res.seconds = seconds
+    res.total_seconds = time.perf_counter() - t_start
+    res.peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    return res

@@ -1,0 +1,65 @@
+"""``seed2gs eval``: benchmark protocols in one command (``eval lerf-mask``)."""
+
+from __future__ import annotations
+
+import sys
+
+from ._batch import add_cluster_arguments, client_from_args
+
+__all__ = ["register"]
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("eval", help="evaluate on a benchmark (LERF-Mask)",
+                              description="Score extraction on a benchmark dataset.")
+    sub = p.add_subparsers(dest="eval_command", metavar="BENCHMARK")
+    sub.required = True
+    q = sub.add_parser(
+        "lerf-mask", help="LERF-Mask: mIoU / mBIoU per query and scene (Gaussian Grouping protocol)",
+        description="Extract every query of a LERF-Mask style dataset (DATA_DIR/<scene>/test_mask/"
+                    "<frame>/<query>.png with the scene's COLMAP model or cameras.json) from the "
+                    "trained scenes in SCENE_DIR (<scene>.ply or the 3DGS trainer's output folder), "
+                    "render it into every test view and write per-query and per-scene tables (CSV, "
+                    "JSON) and a PNG grid into OUTDIR. Runs on the batch runner (Dask).")
+    q.add_argument("data", metavar="DATA_DIR", help="dataset root (one folder per scene)")
+    q.add_argument("--scenes", required=True, metavar="SCENE_DIR", help="trained 3DGS scenes")
+    q.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="report directory (created)")
+    seed = q.add_mutually_exclusive_group(required=True)
+    seed.add_argument("--oracle-seed", action="store_true",
+                      help="seed each query with its ground-truth mask in the first test frame")
+    seed.add_argument("--models", metavar="FILE", help="models configuration: seed from the query text")
+    q.add_argument("--only", nargs="+", metavar="SCENE", default=None, help="evaluate only these scenes")
+    q.add_argument("--views", type=int, default=None, help="views per VAAS clip (default: extract's, 24)")
+    q.add_argument("--method", default=None, help="solver (default: extract's, weighted_bce)")
+    add_cluster_arguments(q)
+    q.add_argument("--no-resume", action="store_true", help="extract every query again")
+    q.add_argument("--no-progress", action="store_true", help="no progress bar")
+    q.set_defaults(func=run_lerf_mask)
+
+
+def run_lerf_mask(args) -> int:
+    from ..errors import ValidationError
+    from ..evaluation import evaluate_lerf_mask
+
+    client = client_from_args(args)
+    options = {}
+    if args.views is not None:
+        if args.views < 2:
+            raise ValidationError(f"--views must be >= 2, got {args.views}")
+        options["n_views"] = args.views
+    if args.method is not None:
+        options["method"] = args.method
+    report = evaluate_lerf_mask(args.data, args.scenes, args.output, oracle_seed=args.oracle_seed,
+                                models=args.models, options=options, scenes=args.only, client=client,
+                                n_workers=args.workers, resume=not args.no_resume,
+                                progress=False if args.no_progress else None,
+                                log=lambda msg: print(msg, file=sys.stderr))
+    print(f"{'scene':<20} {'mIoU':>7} {'mBIoU':>7}  queries")
+    for s in report["scenes"]:
+        print(f"{s['scene']:<20} {100 * s['miou']:7.1f} {100 * s['mbiou']:7.1f}  {s['n_queries']}"
+              + (f" ({s['n_failed']} failed)" if s["n_failed"] else ""))
+    o = report["overall"]
+    print(f"{'overall':<20} {100 * o['miou']:7.1f} {100 * o['mbiou']:7.1f}  -> {args.output}/per_query.csv")
+    for name, err in report["failed"].items():
+        print(f"  failed {name}: {err}", file=sys.stderr)
+    return 1 if report["failed"] else 0

@@ -1,0 +1,499 @@
+"""LERF-Mask evaluation (Gaussian Grouping protocol) in one call.
+
+Dataset layout (as distributed by Gaussian Grouping)::
+
+    DATA_DIR/<scene>/test_mask/<frame>/<query>.png   ground truth, non-zero = object
+    DATA_DIR/<scene>/sparse/0/...                     COLMAP model (or cameras.json)
+    DATA_DIR/<scene>/images_train/                    optional: the training images
+
+and one trained 3DGS scene per scene, supplied by the user, found in
+``SCENE_DIR`` as ``<scene>.ply``, ``<scene>/point_cloud.ply`` or the 3DGS
+trainer's ``<scene>/point_cloud/iteration_<N>/point_cloud.ply`` (highest N).
+Cameras come from ``DATA_DIR/<scene>`` (COLMAP model or ``cameras.json``), else
+from ``SCENE_DIR/<scene>/cameras.json``.
+
+A ``<frame>`` folder is matched to a camera by name (with or without the
+image extension); an integer name ``k`` is the k-th *test* camera of the
+3DGS split (cameras sorted by image name; the test cameras are those not in
+``images_train`` when that folder exists, else every 8th camera, LLFF hold-out).
+Each frame's camera is rescaled to the size of its ground-truth masks.
+
+Protocol: every query is extracted once, from the first test frame that has
+its mask, seeded by that ground-truth mask (``oracle_seed``, the paper's
+"fixed GT-oracle seed") or by the query text with a grounding model. The
+object is then rendered into every test view with the *full* scene, so
+occlusions count: the predicted mask is ``W(c) s > 0.5`` with ``s`` the 0/1
+selection (the share of each pixel's colour that the object contributes).
+Ground truth is read as Gaussian Grouping's evaluator does (grey level after
+``PIL convert("L")`` above 128), IoU and boundary IoU come from
+:mod:`seed2gs_inverse.metrics`, and the means follow
+:func:`~seed2gs_inverse.metrics.protocol_mean` (views -> query -> scene ->
+overall). ``miou_heldout`` additionally leaves out the seed frame.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..camera import Camera
+from ..errors import FormatError, ValidationError
+
+__all__ = ["LerfScene", "read_lerf_mask", "read_gt_mask", "lerf_jobs", "evaluate_lerf_mask", "score_frame"]
+
+_LLFF_HOLD = 8
+_IMAGE_EXT = (".png", ".jpg", ".jpeg", ".JPG", ".JPEG", ".PNG")
+
+
+@dataclass
+class LerfScene:
+    """One scene of the dataset: its frames, queries, cameras and scene file.
+
+    Attributes
+    ----------
+    name : str
+    scene_file : Path
+    frames : list of str
+        Test frame folder names, in natural order (``2`` before ``10``).
+    queries : list of str
+        Every query (mask file stem) of any frame, sorted.
+    cameras : dict frame -> Camera
+        At the resolution of the frame's ground-truth masks.
+    gt : dict (frame, query) -> Path
+    """
+
+    name: str
+    scene_file: Path
+    frames: list
+    queries: list
+    cameras: dict
+    gt: dict = field(default_factory=dict)
+
+    def seed_frame(self, query: str) -> str:
+        """The first frame that has a ground-truth mask of ``query``."""
+        for f in self.frames:
+            if (f, query) in self.gt:
+                return f
+        raise ValidationError(f"scene {self.name}: no frame has a mask of {query!r}")
+
+
+def _natural(name: str):
+    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", name)]
+
+
+def read_gt_mask(path) -> np.ndarray:
+    """(H, W) bool ground truth: grey level (PIL ``convert("L")``) > 128, as the LERF-Mask evaluator reads it."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as im:
+            return np.asarray(im.convert("L")) > 128
+    except FileNotFoundError:
+        raise FileNotFoundError(2, "No such file", os.fspath(path)) from None
+    except (UnidentifiedImageError, OSError) as exc:
+        raise FormatError(f"{path}: not a readable mask image ({exc})") from None
+
+
+def _scene_file(scenes_dir: Path, name: str) -> Path:
+    cands = [scenes_dir / f"{name}.ply", scenes_dir / name / "point_cloud.ply"]
+    its = sorted((scenes_dir / name / "point_cloud").glob("iteration_*/point_cloud.ply"),
+                 key=lambda p: _natural(p.parent.name))
+    cands += its[::-1]
+    for c in cands:
+        if c.is_file():
+            return c
+    raise ValidationError(f"no trained scene for {name!r} in {scenes_dir}: expected {name}.ply, "
+                          f"{name}/point_cloud.ply or {name}/point_cloud/iteration_<N>/point_cloud.ply")
+
+
+def _cameras(data_scene: Path, scenes_dir: Path, name: str) -> list:
+    from ..io import read_cameras
+
+    for src in (data_scene / "cameras.json", data_scene / "transforms.json"):
+        if src.is_file():
+            return read_cameras(src)
+    for sub in (data_scene / "sparse" / "0", data_scene / "sparse", data_scene):
+        if any((sub / f"cameras{e}").is_file() for e in (".bin", ".txt")):
+            return read_cameras(sub)
+    if (scenes_dir / name / "cameras.json").is_file():
+        return read_cameras(scenes_dir / name / "cameras.json")
+    raise ValidationError(f"{data_scene}: no cameras (a COLMAP model in sparse/0, cameras.json, or "
+                          f"{scenes_dir / name / 'cameras.json'})")
+
+
+def _stem(name: str) -> str:
+    base = os.path.basename(name)
+    for e in _IMAGE_EXT:
+        if base.endswith(e):
+            return base[: -len(e)]
+    return base
+
+
+def _frame_camera(frame: str, cams: list, test: list, where: str) -> Camera:
+    for c in cams:
+        if c.name in (frame,) or _stem(c.name or "") == frame:
+            return c
+    if frame.isdigit():
+        k = int(frame)
+        if k < len(test):
+            return test[k]
+        raise ValidationError(f"{where}: frame {frame!r} is test camera {k}, but the split has only "
+                              f"{len(test)} test cameras")
+    raise ValidationError(f"{where}: frame {frame!r} matches no camera name (and is not a test-camera index)")
+
+
+def _at_size(cam: Camera, shape, where: str) -> Camera:
+    h, w = shape
+    sx, sy = w / cam.width, h / cam.height
+    if abs(sx / sy - 1) > 0.02:
+        raise ValidationError(f"{where}: mask size {w}x{h} does not have the aspect of the camera "
+                              f"({cam.width}x{cam.height})")
+    return Camera(w, h, cam.fx * sx, cam.fy * sy, cam.cx * sx, cam.cy * sy, cam.world_to_camera,
+                  name=cam.name, near=cam.near)
+
+
+def read_lerf_mask(data_dir, scenes_dir, scenes=None) -> list:
+    """The scenes of a LERF-Mask style dataset (layout in the module docstring).
+
+    Parameters
+    ----------
+    data_dir : path
+        Holds one folder per scene with ``test_mask/``.
+    scenes_dir : path
+        Holds the trained scenes.
+    scenes : list of str, optional
+        Only these scenes (default: every folder with ``test_mask``).
+    """
+    data_dir, scenes_dir = Path(data_dir), Path(scenes_dir)
+    for d, what in ((data_dir, "DATA_DIR"), (scenes_dir, "--scenes")):
+        if not d.is_dir():
+            raise ValidationError(f"{what} {d} is not a directory")
+    names = sorted(p.name for p in data_dir.iterdir() if (p / "test_mask").is_dir())
+    if scenes is not None:
+        missing = sorted(set(scenes) - set(names))
+        if missing:
+            raise ValidationError(f"{data_dir}: no scene(s) {missing} with a test_mask folder; found {names}")
+        names = [n for n in names if n in set(scenes)]
+    if not names:
+        raise ValidationError(f"{data_dir}: no <scene>/test_mask/<frame>/<query>.png found")
+    out = []
+    for name in names:
+        root = data_dir / name
+        frames = sorted((p.name for p in (root / "test_mask").iterdir() if p.is_dir()), key=_natural)
+        if not frames:
+            raise ValidationError(f"{root / 'test_mask'}: no frame folders")
+        cams = sorted(_cameras(root, scenes_dir, name), key=lambda c: c.name or "")
+        train = root / "images_train"
+        if train.is_dir():
+            train_names = {_stem(p.name) for p in train.iterdir()}
+            test = [c for c in cams if _stem(c.name or "") not in train_names]
+        else:
+            test = [c for i, c in enumerate(cams) if i % _LLFF_HOLD == 0]
+        gt, cameras, queries = {}, {}, set()
+        for f in frames:
+            files = sorted(p for p in (root / "test_mask" / f).iterdir()
+                           if p.is_file() and p.suffix.lower() in (".png", ".jpg", ".jpeg"))
+            if not files:
+                continue
+            where = f"{root / 'test_mask' / f}"
+            shapes = {}
+            for p in files:
+                q = p.stem
+                gt[(f, q)] = p
+                queries.add(q)
+                from PIL import Image
+
+                with Image.open(p) as im:
+                    shapes[p.name] = (im.height, im.width)
+            if len(set(shapes.values())) != 1:
+                raise ValidationError(f"{where}: masks of one frame differ in size: {shapes}")
+            cameras[f] = _at_size(_frame_camera(f, cams, test, where), next(iter(shapes.values())), where)
+        frames = [f for f in frames if f in cameras]
+        out.append(LerfScene(name, _scene_file(scenes_dir, name), frames, sorted(queries), cameras, gt))
+    return out
+
+
+def _slug(text: str) -> str:
+    s = re.sub(r"[^A-Za-z0-9._-]+", "_", text).strip("._-")
+    return s or "query"
+
+
+def lerf_jobs(scenes, oracle_seed: bool = True, models=None, options=None) -> list:
+    """One batch :class:`~seed2gs_inverse.batch.Job` per (scene, query).
+
+    The reference camera is the query's seed frame (:meth:`LerfScene.seed_frame`);
+    the prompt its ground-truth mask (``oracle_seed``) or the query text
+    (needs ``models``). Job names are ``<scene>--<query>`` made folder-safe.
+    """
+    from ..batch import Job
+    from ..frontend.prompts import MaskPrompt, TextPrompt
+
+    if not oracle_seed and models is None:
+        raise ValidationError("text queries need a grounding model: give models (--models FILE), "
+                              "or use the oracle seed (--oracle-seed)")
+    jobs, names = [], set()
+    for sc in scenes:
+        for q in sc.queries:
+            f = sc.seed_frame(q)
+            name = f"{_slug(sc.name)}--{_slug(q)}"
+            k = 2
+            while name in names:  # two queries that differ only in punctuation
+                name, k = f"{_slug(sc.name)}--{_slug(q)}-{k}", k + 1
+            names.add(name)
+            prompt = MaskPrompt(read_gt_mask(sc.gt[(f, q)])) if oracle_seed else TextPrompt(q)
+            jobs.append(Job(name=name, scene=os.fspath(sc.scene_file.resolve()), camera=sc.cameras[f],
+                            prompt=prompt, options=dict(options or {}),
+                            models=None if oracle_seed else os.fspath(models), figure=False))
+    return jobs
+
+
+def score_frame(scene_file, camera: Camera, queries: list, outdirs: list, gt_paths: list, pred_paths=None):
+    """Predicted masks and scores of every query in one test view (a batch task).
+
+    Builds the view's operator ``W(c)`` once over the full scene (read once
+    per worker) and renders each query's selection ``s`` (``q > tau`` from
+    the job folder) as ``W(c) s > 0.5``. Writes the predicted masks to
+    ``pred_paths`` (PNG, 0/255) when given.
+
+    Returns
+    -------
+    list of dict
+        ``{query, iou, biou, pred (H, W) bool}`` (iou/biou None without ground truth).
+    """
+    from .. import build_operator
+    from .._atomic import atomic_path
+    from ..batch.worker import _scene
+    from ..metrics import boundary_iou, iou
+
+    scene, _, _ = _scene(os.fspath(scene_file))
+    W = build_operator(scene, camera).W
+    out = []
+    for k, (query, outdir, gt_path) in enumerate(zip(queries, outdirs, gt_paths)):
+        outdir = Path(outdir)
+        q = np.load(outdir / "q.npy", allow_pickle=False)
+        with open(outdir / "report.json") as fh:
+            tau = float(json.load(fh)["threshold"])
+        if q.shape != (len(scene),):
+            raise ValidationError(f"{outdir / 'q.npy'} has {q.shape[0]} entries, the scene {len(scene)}")
+        sel = (q > tau).astype(np.float32)
+        pred = (np.asarray(W @ sel) > 0.5).reshape(camera.image_shape)
+        rec = {"query": query, "iou": None, "biou": None, "pred": pred}
+        if gt_path is not None:
+            gt = read_gt_mask(gt_path)
+            rec["iou"], rec["biou"] = float(iou(pred, gt)), float(boundary_iou(pred, gt))
+        if pred_paths is not None:
+            import cv2
+
+            p = Path(pred_paths[k])
+            p.parent.mkdir(parents=True, exist_ok=True)
+            with atomic_path(p) as tmp:
+                if not cv2.imwrite(os.fspath(tmp), pred.astype(np.uint8) * 255):
+                    raise FormatError(f"{p}: could not write the PNG")
+        out.append(rec)
+    return out
+
+
+# ---------------------------------------------------------------------------
+# the whole evaluation
+# ---------------------------------------------------------------------------
+def evaluate_lerf_mask(data_dir, scenes_dir, output, *, oracle_seed: bool = True, models=None,
+                       options=None, scenes=None, client=None, n_workers=None, resume: bool = True,
+                       progress: bool | None = None, log=None) -> dict:
+    """Extract every query, score every test view, write the report.
+
+    Parameters
+    ----------
+    data_dir, scenes_dir : path
+        See :func:`read_lerf_mask`.
+    output : path
+        Report directory (created; its parent must exist): ``per_query.csv``,
+        ``per_scene.csv``, ``report.json``, ``grid.png``, the predicted
+        masks in the dataset's layout (``masks/<scene>/<frame>/<query>.png``,
+        readable by Gaussian Grouping's own evaluator) and the batch job
+        folders with their summary (``jobs/``, so a re-run resumes).
+    oracle_seed : bool
+        Seed each query with its ground-truth mask in its first frame;
+        False uses the query text with ``models``.
+    models : path, optional
+        Models configuration for text queries.
+    options : dict, optional
+        ``extract()`` options for every query.
+    scenes : list of str, optional
+        Only these scenes.
+    client, n_workers, resume, progress, log
+        As :func:`~seed2gs_inverse.batch.extract_many`; the scoring runs on
+        the same cluster, one task per test view.
+
+    Returns
+    -------
+    dict
+        The content of ``report.json``: ``overall`` (miou, mbiou),
+        ``scenes`` (per scene), ``queries`` (per query, with per-frame
+        scores) and ``failed`` jobs.
+    """
+    from .._atomic import write_files
+    from ..batch import batch_client, extract_many
+    from ..metrics import protocol_mean
+
+    out = Path(output)
+    if not out.resolve().parent.is_dir():
+        raise ValidationError(f"cannot create {out}: parent directory {out.resolve().parent} does not exist")
+    dataset = read_lerf_mask(data_dir, scenes_dir, scenes)
+    jobs = lerf_jobs(dataset, oracle_seed=oracle_seed, models=models, options=options)
+    out.mkdir(exist_ok=True)
+    out = out.resolve()
+    job_of = {}
+    it = iter(jobs)
+    for sc in dataset:
+        for q in sc.queries:
+            job_of[(sc.name, q)] = next(it)
+    n_tasks = sum(len(sc.frames) for sc in dataset)
+    with batch_client(client, n_workers=n_workers, n_jobs=max(len(jobs), n_tasks)) as c:
+        results = extract_many(jobs, "sequential" if c is None else c, output=out / "jobs", resume=resume,
+                               progress=progress, log=log)
+        by_name = {r.name: r for r in results}
+        tasks = []  # (scene, frame, queries) per test view
+        for sc in dataset:
+            for f in sc.frames:
+                qs = [q for q in sc.queries if by_name[job_of[(sc.name, q)].name].ok]
+                if not qs:
+                    continue
+                args = (os.fspath(sc.scene_file.resolve()), sc.cameras[f], qs,
+                        [by_name[job_of[(sc.name, q)].name].outdir for q in qs],
+                        [sc.gt.get((f, q)) for q in qs],
+                        [os.fspath(out / "masks" / sc.name / f / f"{q}.png") for q in qs])
+                tasks.append(((sc, f), args))
+        if c is None:
+            from ..batch.worker import clear_scene_cache
+
+            try:
+                scored = [score_frame(*a) for _, a in tasks]
+            finally:
+                clear_scene_cache()  # this process is no worker: do not keep the scenes
+        else:
+            futs = [c.submit(score_frame, *a, pure=False) for _, a in tasks]
+            scored = c.gather(futs)
+    per_frame = {}  # (scene, query) -> {frame: (iou, biou)}
+    preds = {}
+    for ((sc, f), _), recs in zip(tasks, scored):
+        for r in recs:
+            preds[(sc.name, f, r["query"])] = r["pred"]
+            if r["iou"] is not None:
+                per_frame.setdefault((sc.name, r["query"]), {})[f] = (r["iou"], r["biou"])
+    failed = {r.name: r.error for r in results if not r.ok}
+    report = _tables(dataset, job_of, by_name, per_frame, protocol_mean)
+    report["failed"] = failed
+    report["protocol"] = {"seed": "ground-truth mask of the first test frame" if oracle_seed else "text",
+                          "prediction": "W(c) s > 0.5 over the full scene (occlusion-aware)",
+                          "gt": "grey > 128", "boundary_dilation_ratio": 0.02,
+                          "options": dict(options or {})}
+    files = [(out / "report.json", json.dumps(report, indent=1).encode("utf-8")),
+             (out / "per_query.csv", _csv(report["queries"], ["scene", "query", "miou", "mbiou",
+                                                              "miou_heldout", "n_frames", "seed_frame",
+                                                              "n_selected", "status", "error"])),
+             (out / "per_scene.csv", _csv(report["scenes"], ["scene", "miou", "mbiou", "n_queries",
+                                                             "n_failed"]))]
+    png = _grid(dataset, preds, per_frame)
+    if png is not None:
+        files.append((out / "grid.png", png))
+    write_files(files)
+    return report
+
+
+def _tables(dataset, job_of, by_name, per_frame, protocol_mean) -> dict:
+    queries, iou_in, biou_in = [], {}, {}
+    for sc in dataset:
+        for q in sc.queries:
+            r = by_name[job_of[(sc.name, q)].name]
+            frames = per_frame.get((sc.name, q), {})
+            seed = sc.seed_frame(q)
+            row = {"scene": sc.name, "query": q, "job": r.name, "status": r.status, "error": r.error,
+                   "seed_frame": seed, "n_selected": r.n_selected, "n_frames": len(frames),
+                   "frames": {f: {"iou": v[0], "biou": v[1]} for f, v in frames.items()}}
+            if r.ok and frames:
+                row["miou"] = float(np.mean([v[0] for v in frames.values()]))
+                row["mbiou"] = float(np.mean([v[1] for v in frames.values()]))
+                held = [v[0] for f, v in frames.items() if f != seed]
+                row["miou_heldout"] = float(np.mean(held)) if held else None
+            else:
+                # A failed query scores 0 on each of its frames, as an empty
+                # prediction would, so failures cannot raise the mean.
+                n = sum((f, q) in sc.gt for f in sc.frames)
+                row["miou"] = row["mbiou"] = 0.0
+                row["miou_heldout"] = None
+                frames = {f: (0.0, 0.0) for f in sc.frames if (f, q) in sc.gt}
+                row["n_frames"] = n
+            iou_in.setdefault(sc.name, {})[q] = [v[0] for v in frames.values()]
+            biou_in.setdefault(sc.name, {})[q] = [v[1] for v in frames.values()]
+            queries.append(row)
+    miou, miou_scene, _ = protocol_mean(iou_in)
+    mbiou, mbiou_scene, _ = protocol_mean(biou_in)
+    scenes = [{"scene": sc.name, "miou": miou_scene[sc.name], "mbiou": mbiou_scene[sc.name],
+               "n_queries": len(sc.queries),
+               "n_failed": sum(not by_name[job_of[(sc.name, q)].name].ok for q in sc.queries)}
+              for sc in dataset]
+    return {"overall": {"miou": miou, "mbiou": mbiou}, "scenes": scenes, "queries": queries}
+
+
+def _csv(rows, cols) -> bytes:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(cols)
+    for r in rows:
+        w.writerow([("" if r.get(c) is None else (f"{r[c]:.6f}" if isinstance(r[c], float) else r[c]))
+                    for c in cols])
+    return buf.getvalue().encode("utf-8")
+
+
+def _grid(dataset, preds, per_frame):
+    """PNG bytes: one row per query, one column per test frame; truth vs prediction.
+
+    Each cell overlays the two masks: green = both, red = predicted only,
+    blue = missed (truth only); the title gives the frame's IoU.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    rows = [(sc, q) for sc in dataset for q in sc.queries]
+    n_cols = max((len(sc.frames) for sc in dataset), default=0)
+    if not rows or not n_cols:
+        return None
+    fig, axes = plt.subplots(len(rows), n_cols, figsize=(2.4 * n_cols, 2.0 * len(rows)), squeeze=False)
+    for i, (sc, q) in enumerate(rows):
+        for j in range(n_cols):
+            ax = axes[i, j]
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if j >= len(sc.frames):
+                ax.axis("off")
+                continue
+            f = sc.frames[j]
+            pred = preds.get((sc.name, f, q))
+            gt = read_gt_mask(sc.gt[(f, q)]) if (f, q) in sc.gt else None
+            shape = (pred if pred is not None else gt).shape if (pred is not None or gt is not None) else (8, 8)
+            img = np.full((*shape, 3), 0.12, np.float32)
+            p = pred if pred is not None else np.zeros(shape, bool)
+            g = gt if gt is not None else np.zeros(shape, bool)
+            img[p & g] = (0.2, 0.8, 0.2)
+            img[p & ~g] = (0.9, 0.2, 0.2)
+            img[~p & g] = (0.2, 0.4, 0.9)
+            ax.imshow(img, interpolation="nearest")
+            s = per_frame.get((sc.name, q), {}).get(f)
+            ax.set_title(f"{f}: " + ("no truth" if s is None else f"IoU {s[0]:.2f}"), fontsize=7)
+            if j == 0:
+                ax.set_ylabel(f"{sc.name}\n{q}", fontsize=7)
+    fig.suptitle("green: both, red: predicted only, blue: missed", fontsize=8)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=80)
+    plt.close(fig)
+    return buf.getvalue()

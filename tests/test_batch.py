@@ -1,0 +1,280 @@
+"""Batch extraction on Dask: same q as extract(), failures, resume, dead workers, the CLI.
+
+Every Dask test shares one embedded 2-worker cluster (``dask_client`` in
+conftest.py) and tiny procedural scenes.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import seed2gs_inverse as sgi
+from seed2gs_inverse.batch import Job, extract_many, jobs_from_table, read_jobs
+from seed2gs_inverse.errors import FormatError, ValidationError
+from seed2gs_inverse.io import read_camera, read_scene, write_cameras, write_scene
+from seed2gs_inverse.synthetic import make_scene, render_label_masks
+
+from _batch_helpers import KillWorkerMask
+
+OPTS = {"n_views": 4}
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    """Two procedural scenes on disk, a camera file and the sphere's mask, box and centre per scene."""
+    import cv2
+
+    d = tmp_path_factory.mktemp("batch_scenes")
+    out = {"dir": d}
+    for name, seed in (("a", 1), ("b", 2)):
+        s = make_scene(seed=seed, n_per_object=40)
+        write_scene(d / f"{name}.ply", s.scene)
+        cam = s.reference_camera(96, 72)
+        write_cameras(d / f"{name}_cams.json", [cam])
+        m = render_label_masks(s.scene, [cam], s.object_mask("sphere"))[0] > 0.5
+        cv2.imwrite(str(d / f"{name}_sphere.png"), m.astype(np.uint8) * 255)
+        ys, xs = np.nonzero(m)
+        out[name] = {"mask": m, "box": [int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1],
+                     "click": [float(np.median(xs)), float(np.median(ys))], "camera": cam}
+    return out
+
+
+def _jobs(t):
+    d = t["dir"]
+    return [
+        Job("a-mask", d / "a.ply", f"{d}/a_cams.json:reference", sgi.MaskPrompt(str(d / "a_sphere.png")), OPTS),
+        Job("b-box", d / "b.ply", f"{d}/b_cams.json", sgi.BoxPrompt(t["b"]["box"]), OPTS),
+        Job("a-box", d / "a.ply", f"{d}/a_cams.json", sgi.BoxPrompt(t["a"]["box"]),
+            {**OPTS, "method": "voting"}),
+        Job("b-mask", d / "b.ply", t["b"]["camera"], sgi.MaskPrompt(t["b"]["mask"]), OPTS),
+    ]
+
+
+def _sequential_q(job):
+    """q of the plain, in-process extract() the job describes."""
+    cam = job.camera if isinstance(job.camera, sgi.Camera) else read_camera(job.camera)
+    return sgi.extract(read_scene(job.scene), cam, job.prompt, progress=False, **job.options).q
+
+
+def test_extract_many_matches_sequential_extract_bit_for_bit(tiny, dask_client, tmp_path):
+    jobs = _jobs(tiny)
+    results = extract_many(jobs, dask_client, output=tmp_path / "res", progress=False)
+    assert [r.name for r in results] == [j.name for j in jobs]
+    assert all(r.status == "done" for r in results), [r.error for r in results]
+    for job, r in zip(jobs, results):
+        q = np.load(tmp_path / "res" / job.name / "q.npy")
+        assert np.array_equal(q, r.load_q())
+        ref = _sequential_q(job)
+        assert q.dtype == ref.dtype and np.array_equal(q, ref), job.name
+        for f in ("object.ply", "remainder.ply", "report.json", "report.png"):
+            assert (tmp_path / "res" / job.name / f).is_file()
+        assert r.n_selected == int((q > json.loads((tmp_path / "res" / job.name / "report.json")
+                                                   .read_text())["threshold"]).sum())
+    # Each worker read each scene at most once; every job ran on a Dask worker.
+    reads = [(r.worker, r.scene) for r in results if not r.scene_cached]
+    assert len(reads) == len(set(reads))
+    assert all(r.worker.startswith("tcp://") for r in results)
+    # Without an output folder q comes back in memory, identical.
+    mem = extract_many(jobs[:1], dask_client, progress=False)
+    assert mem[0].outdir is None and np.array_equal(mem[0].q, results[0].load_q())
+
+
+def test_summary_files_and_recorded_failures(tiny, dask_client, tmp_path):
+    d = tiny["dir"]
+    jobs = [Job("missing-scene", d / "nope.ply", f"{d}/a_cams.json", sgi.BoxPrompt(tiny["a"]["box"]), OPTS),
+            Job("box-outside", d / "a.ply", f"{d}/a_cams.json", sgi.BoxPrompt([500, 500, 600, 600]), OPTS),
+            *_jobs(tiny)[:2]]
+    results = extract_many(jobs, dask_client, output=tmp_path / "res", progress=False)
+    st = {r.name: r for r in results}
+    assert st["missing-scene"].status == "failed"
+    assert "FileNotFoundError" in st["missing-scene"].error and "nope.ply" in st["missing-scene"].error
+    assert st["box-outside"].status == "failed"
+    assert "ValidationError" in st["box-outside"].error and "outside" in st["box-outside"].error
+    assert st["a-mask"].status == st["b-box"].status == "done"
+    assert not (tmp_path / "res" / "missing-scene").exists() and not (tmp_path / "res" / "box-outside").exists()
+    summary = json.loads((tmp_path / "res" / "summary.json").read_text())
+    assert summary["counts"] == {"jobs": 4, "done": 2, "failed": 2, "resumed": 0}
+    rows = list(csv.DictReader(open(tmp_path / "res" / "summary.csv")))
+    assert [r["name"] for r in rows] == [j.name for j in jobs]
+    by = {r["name"]: r for r in rows}
+    assert by["box-outside"]["status"] == "failed" and "outside" in by["box-outside"]["error"]
+    done = by["a-mask"]
+    assert done["worker"].startswith("tcp://") and int(done["n_selected"]) > 0
+    for stage in ("read", "render", "lift", "operators", "solve", "write"):
+        assert float(done[f"seconds_{stage}"]) >= 0.0
+
+
+def test_resume_skips_completed_jobs(tiny, dask_client, tmp_path):
+    d = tiny["dir"]
+    jobs = [*_jobs(tiny)[:2],
+            Job("bad", d / "nope.ply", f"{d}/a_cams.json", sgi.BoxPrompt(tiny["a"]["box"]), OPTS)]
+    first = extract_many(jobs, dask_client, output=tmp_path / "res", progress=False)
+    assert [r.status for r in first] == ["done", "done", "failed"]
+    stamp = {j.name: (tmp_path / "res" / j.name / "q.npy").stat().st_mtime_ns for j in jobs[:2]}
+    again = extract_many(jobs, dask_client, output=tmp_path / "res", progress=False)
+    assert [r.resumed for r in again] == [True, True, False]  # failed jobs run again
+    assert [r.status for r in again] == ["done", "done", "failed"]
+    assert {j.name: (tmp_path / "res" / j.name / "q.npy").stat().st_mtime_ns for j in jobs[:2]} == stamp
+    assert again[0].n_selected == first[0].n_selected
+    # A changed job description runs again; resume=False runs everything.
+    changed = [jobs[0], Job(jobs[1].name, jobs[1].scene, jobs[1].camera, jobs[1].prompt, {"n_views": 3}), jobs[2]]
+    third = extract_many(changed, dask_client, output=tmp_path / "res", progress=False)
+    assert [r.resumed for r in third] == [True, False, False]
+    assert (tmp_path / "res" / jobs[1].name / "q.npy").stat().st_mtime_ns != stamp[jobs[1].name]
+    fourth = extract_many(changed[:1], dask_client, output=tmp_path / "res", progress=False, resume=False)
+    assert not fourth[0].resumed
+
+
+def test_jobs_file_defaults_overrides_and_relative_paths(tiny, tmp_path):
+    d = tiny["dir"]
+    eye = tiny["a"]["camera"].center.tolist()
+    (tmp_path / "jobs.toml").write_text(f"""
+[defaults]
+scene = "{d}/a.ply"
+camera = "{d}/a_cams.json:reference"
+figure = false
+[defaults.options]
+n_views = 5
+method = "voting"
+
+[[jobs]]
+name = "m"
+mask = "{d}/a_sphere.png"
+
+[[jobs]]
+name = "p"
+point = [{tiny['a']['click'][0]}, {tiny['a']['click'][1]}]
+negative = [[1, 1]]
+options = {{ n_views = 3 }}
+
+[[jobs]]
+name = "look"
+scene = "../{tmp_path.name}/b.ply"
+camera = {{ eye = {eye}, target = [0, 0, 0], width = 64, height = 48, fov = 50 }}
+box = [10, 10, 40, 30]
+format = "splat"
+""")
+    jobs = read_jobs(tmp_path / "jobs.toml")
+    assert [j.name for j in jobs] == ["m", "p", "look"]
+    assert jobs[0].options == {"n_views": 5, "method": "voting"} and jobs[0].figure is False
+    assert jobs[1].options == {"n_views": 3, "method": "voting"}
+    assert isinstance(jobs[1].prompt, sgi.PointPrompt) and list(jobs[1].prompt.labels) == [1, 0]
+    assert jobs[2].scene == str((tmp_path / "b.ply").resolve()) and jobs[2].format == "splat"
+    cam = jobs[2].read_camera()
+    assert (cam.width, cam.height) == (64, 48) and np.allclose(cam.center, eye)
+    assert jobs[0].extract_kwargs() == {"n_views": 5, "method": "voting", "progress": False}
+    assert jobs[0].fingerprint() != jobs[1].fingerprint()
+
+
+@pytest.mark.parametrize("body, words", [
+    ('[[jobs]]\nname="x"\nscene="s.ply"\ncamera="c.json"\nbox=[0,0,5,5]\noptions={n_veiws=3}',
+     ["job 'x'", "n_veiws", "n_views"]),
+    ('[[jobs]]\nname="x"\nscene="s.ply"\ncamera="c.json"\nbox=[0,0,5,5]\ntext="cup"', ["exactly one prompt"]),
+    ('[[jobs]]\nname="x"\nscene="s.ply"\nbox=[0,0,5,5]', ["no 'camera'"]),
+    ('[[jobs]]\nname="x"\nscene="s.ply"\ncamera="c.json"\nbox=[0,0,5]', ["x0, y0, x1, y1"]),
+    ('[[jobs]]\nname="../x"\nscene="s.ply"\ncamera="c.json"\nbox=[0,0,5,5]', ["folder name"]),
+    ('[defaults]\nscene="s.ply"\ncamera="c.json"\nbox=[0,0,5,5]\n[[jobs]]\nname="x"\n[[jobs]]\nname="x"',
+     ["unique"]),
+    ('[[jobs]]\nname="x"\nscene="s.ply"\ncamera="c.json"\nbox=[0,0,5,5]\ncolour="red"', ["unknown key"]),
+    ('[[jobs]]\nname="x"\nscene="s.ply"\ncamera={eye=[0,0,0],target=[0,0,1]}\nbox=[0,0,5,5]', ["width"]),
+])
+def test_jobs_file_errors_name_file_and_job(tmp_path, body, words):
+    p = tmp_path / "jobs.toml"
+    p.write_text(body)
+    with pytest.raises((ValidationError, FormatError)) as exc:
+        read_jobs(p)
+    assert str(p) in str(exc.value)
+    for w in words:
+        assert w in str(exc.value)
+
+
+def test_job_and_runner_arguments_are_validated(tiny):
+    d = tiny["dir"]
+    with pytest.raises(ValidationError, match="not a Job"):
+        extract_many([{"name": "x"}], "sequential")
+    j = _jobs(tiny)[0]
+    with pytest.raises(ValidationError, match="unique"):
+        extract_many([j, j], "sequential")
+    with pytest.raises(ValidationError, match="tcp://"):
+        extract_many([j], "localhost:8786")
+    with pytest.raises(ValidationError, match="prompt"):
+        Job("x", d / "a.ply", "c.json", "a cup")
+    with pytest.raises(ValidationError, match="progress"):
+        jobs_from_table({"jobs": [{"name": "x", "scene": "s", "camera": "c", "box": [0, 0, 4, 4],
+                                   "options": {"progress": True}}]})
+
+
+def test_embedded_cluster_sizes_numba_threads(dask_client):
+    info = dask_client.scheduler_info()["workers"]
+    assert len(info) == 2 and all(w["nthreads"] == 1 for w in info.values())
+    cores = len(os.sched_getaffinity(0))
+    want = max(1, cores // 2)
+    cap = os.environ.get("NUMBA_NUM_THREADS")
+    if cap and cap.isdigit():
+        want = min(want, int(cap))
+    env = dask_client.run(lambda: (os.environ.get("NUMBA_NUM_THREADS"), os.environ.get("OMP_WAIT_POLICY")))
+    assert set(env.values()) == {(str(want), "PASSIVE")}
+
+
+def test_cli_batch_on_a_scheduler_address(tiny, dask_client, tmp_path, capsys):
+    from seed2gs_inverse.cli import main
+
+    d = tiny["dir"]
+    (tmp_path / "jobs.toml").write_text(f"""
+[defaults]
+scene = "{d}/a.ply"
+camera = "{d}/a_cams.json:reference"
+options = {{ n_views = 4 }}
+[[jobs]]
+name = "sphere"
+box = {tiny['a']['box']}
+[[jobs]]
+name = "broken"
+box = [900, 900, 950, 950]
+""")
+    args = ["batch", str(tmp_path / "jobs.toml"), "-o", str(tmp_path / "res"), "--scheduler",
+            dask_client.scheduler.address, "--no-progress"]
+    assert main(args) == 1  # one job failed
+    out, err = capsys.readouterr()
+    assert "2 jobs: 1 done, 1 failed" in out and "broken: ValidationError" in err
+    assert main(args) == 1
+    out, _ = capsys.readouterr()
+    assert "1 done (1 by an earlier run)" in out
+    import dask
+
+    with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):  # nobody listens on port 1
+        assert main(["batch", str(tmp_path / "jobs.toml"), "-o", str(tmp_path / "r2"), "--scheduler",
+                     "tcp://127.0.0.1:1", "--no-progress"]) == 2
+    assert "cannot reach the Dask scheduler" in capsys.readouterr().err
+    assert main(["batch", str(tmp_path / "nope.toml"), "-o", str(tmp_path / "r3")]) == 2
+    assert "no such file" in capsys.readouterr().err
+
+
+def test_killed_worker_job_is_retried_once(tiny, dask_client, tmp_path):
+    # Last in this module: it kills three worker processes (their nannies restart them).
+    # One killer per batch, so no other job shares a dying worker by chance.
+    d = tiny["dir"]
+    once, always = tmp_path / "once", tmp_path / "always"
+    once.mkdir()
+    always.mkdir()
+    m = tiny["a"]["mask"]
+    r1, = extract_many([Job("dies-once", d / "a.ply", f"{d}/a_cams.json",
+                            KillWorkerMask(m, marker_dir=str(once), times=1), OPTS)],
+                       dask_client, output=tmp_path / "res", progress=False)
+    assert len(list(once.glob("killed-*"))) == 1
+    assert r1.status == "done" and r1.attempts == 2
+    ref = _sequential_q(Job("ref", d / "a.ply", f"{d}/a_cams.json", sgi.MaskPrompt(m), OPTS))
+    assert np.array_equal(r1.load_q(), ref)
+    r2, = extract_many([Job("dies-twice", d / "a.ply", f"{d}/a_cams.json",
+                            KillWorkerMask(m, marker_dir=str(always), times=2), OPTS)],
+                       dask_client, output=tmp_path / "res", progress=False)
+    assert len(list(always.glob("killed-*"))) == 2  # tried twice, not more
+    assert r2.status == "failed" and r2.attempts == 2 and "worker died" in r2.error
+    summary = json.loads((tmp_path / "res" / "summary.json").read_text())
+    assert [(j["name"], j["status"], j["attempts"]) for j in summary["jobs"]] == [("dies-twice", "failed", 2)]
