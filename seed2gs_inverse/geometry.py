@@ -78,8 +78,10 @@ def axis_angle(axis, angle: float) -> np.ndarray:
 def rotation_between(a, b) -> np.ndarray:
     r"""Smallest rotation taking unit vector ``a`` to unit vector ``b``.
 
-    :math:`R = I + [a \times b]_\times + [a \times b]_\times^2 / (1 + a \cdot b)`;
-    for opposite vectors (:math:`a \cdot b < -1 + 10^{-12}`) a half turn
+    :math:`R = I + [a \times b]_\times + [a \times b]_\times^2 / (1 + a \cdot b)`, with
+    :math:`1 + a \cdot b = |a + b|^2 / 2` evaluated that way for obtuse pairs
+    (accurate as ``b`` nears ``-a``); for opposite vectors
+    (:math:`|a + b|^2 / 2 < 10^{-20}`) a half turn
     :math:`2 n n^T - I` about the axis ``n`` perpendicular to ``a`` built
     from the world axis least aligned with ``a``.
     """
@@ -87,13 +89,17 @@ def rotation_between(a, b) -> np.ndarray:
     b = np.asarray(b, dtype=np.float64)
     v = np.cross(a, b)
     c = float(np.dot(a, b))
-    if c < -1 + 1e-12:
-        # Opposite vectors: turn half a circle about any axis perpendicular to a.
+    # 1 + c loses its digits as b nears -a (b = -a + 1e-8 gave 1 + c = 0 and a
+    # half turn 1e-8 off b); |a + b|^2 / 2, equal for unit vectors, keeps them.
+    # Acute pairs keep 1 + c, so their bits are unchanged.
+    den = 1.0 + c if c > -0.5 else 0.5 * float(np.dot(a + b, a + b))
+    if den < 1e-20:
+        # Opposite vectors (to 1e-10 rad): turn half a circle about any axis perpendicular to a.
         axis = np.cross(a, np.eye(3)[int(np.argmin(np.abs(a)))])
         axis /= np.linalg.norm(axis)
         return 2 * np.outer(axis, axis) - np.eye(3)
     vx = cross_matrix(v)
-    return np.eye(3) + vx + vx @ vx / (1 + c)
+    return np.eye(3) + vx + vx @ vx / den
 
 
 def frame_for_up(up) -> np.ndarray:

@@ -86,7 +86,7 @@ BAD = [
     (EXTRACT + ["--threshold", 2.0, "-o", "{d}/o"], "--threshold must be in [0, 1)"),
     (EXTRACT + ["--orbit-scale", -1, "-o", "{d}/o"], "--orbit-scale must be > 0"),
     (EXTRACT + ["--up", "0,0,0", "-o", "{d}/o"], "--up 0,0,0: must be a non-zero direction"),
-    (EXTRACT + ["--up", "sideways", "-o", "{d}/o"], "--up 'sideways': expected 'level', 'camera' or three numbers X,Y,Z"),
+    (EXTRACT + ["--up", "sideways", "-o", "{d}/o"], "--up 'sideways': expected 'auto', 'level', 'camera' or three numbers X,Y,Z"),
     (["extract", "{d}/scene.ply", "--camera", "{d}/cameras.json", "--box", 1, 1, "x", 9, "-o", "{d}/o"],
      "argument --box: invalid float value: 'x'"),
     (["extract", "{d}/scene.ply", "--camera", "{d}/cameras.json", "--box", 500, 500, 600, 600, "-o", "{d}/o"],

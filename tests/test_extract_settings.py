@@ -22,13 +22,20 @@ DEFAULTS_BEFORE = {
     "min_weight": 0.0, "cull": True, "cull_far": 4.0, "min_evidence": 0.05, "threshold": None,
     "lift_options": None, "solver_options": None, "mode": "classic", "progress": None}
 
+# Issue 10 (measured on benchmarks/bench_up_axis.py and bench_extract.py):
+# the orbit axis is estimated ("auto"), a point prompt returns the object, and
+# smoothness=None turns the graph regulariser on for the model-free tracker
+# (resolved["smoothness"]). New options come after the old ones.
+DEFAULTS = {**DEFAULTS_BEFORE, "up": "auto", "point_mode": "object", "smoothness": None, "completion": None,
+            "graph_options": None}
 
-def test_defaults_are_those_of_the_old_extract():
+
+def test_defaults_are_those_of_the_old_extract_but_issue_10s():
     s = ExtractSettings()
-    assert ExtractSettings.names() == list(DEFAULTS_BEFORE)
-    for name, want in DEFAULTS_BEFORE.items():
+    assert ExtractSettings.names() == list(DEFAULTS)
+    for name, want in DEFAULTS.items():
         got = getattr(s, name)
-        if want is None and name.endswith("_options"):
+        if want is None and name.endswith("_options"):  # lift_, solver_, graph_options
             assert dict(got) == {}, name  # None meant "no options"
         else:
             assert got == want and type(got) is type(want), name
@@ -61,8 +68,19 @@ def test_defaults_are_those_of_the_old_extract():
     ("roi_margin", 0.0, "roi_margin must be > 0"),
     ("zoom_margin", float("nan"), "zoom_margin must be finite"),
     ("up", "sideways", "up must be one of"),
-    ("up", (0.0, 0.0, 0.0), "up must be 'level', 'camera' or a non-zero"),
-    ("up", (0.0, 1.0), "up must be 'level', 'camera' or a non-zero"),
+    ("up", (0.0, 0.0, 0.0), "up must be 'auto', 'level', 'camera' or a non-zero"),
+    ("up", (0.0, 1.0), "up must be 'auto', 'level', 'camera' or a non-zero"),
+    ("point_mode", "click", "point_mode must be one of 'object', 'region'"),
+    ("smoothness", -1.0, "smoothness must be >= 0"),
+    ("smoothness", float("inf"), "smoothness must be finite"),
+    ("smoothness", "1", "smoothness must be a number or None"),
+    ("completion", "both", "completion must be None, 'reference' or 'tracked'"),
+    ("graph_options", {"kk": 3}, r"object_graph has no option\(s\) \['kk'\]"),
+    ("graph_options", {"k": 0}, r"graph_options k must be in 1\.\.256"),
+    ("graph_options", {"k": 10 ** 6}, r"graph_options k must be in 1\.\.256"),
+    ("graph_options", {"sigma_color": -0.1}, "graph_options sigma_color must be > 0"),
+    ("graph_options", {"region": 0.0}, "graph_options region must be > 0"),
+    ("graph_options", {"min_opacity": 1.0}, "graph_options min_opacity must be < 1"),
     ("min_weight", -1e-3, "min_weight must be >= 0"),
     ("cull", 1, "cull must be True or False"),
     ("cull_far", -1.0, "cull_far must be > 0"),
@@ -170,8 +188,11 @@ def test_extract_settings_and_overrides(tiny):
     np.testing.assert_array_equal(old.q, ex.q)
     rep = json.loads(json.dumps(ex.report()))
     assert ExtractSettings.from_dict(rep["settings"]) == ex.settings
-    assert set(rep["resolved"]) == {"view_scale", "reference_scale", "up", "threshold", "solver_options",
-                                    "n_weak_evidence", "tracker", "grounder"}
+    assert set(rep["resolved"]) == {"view_scale", "reference_scale", "up", "up_method", "up_confidence",
+                                    "threshold", "solver_options", "n_weak_evidence", "smoothness", "tracker",
+                                    "grounder"}
+    assert rep["resolved"]["smoothness"] == 1.0  # None: on with the model-free tracker
+    assert rep["up"]["axis"] == rep["resolved"]["up"] and rep["up"]["method"] == rep["resolved"]["up_method"]
     assert rep["resolved"]["tracker"] == "GeometricTracker" and rep["resolved"]["grounder"] is None
     assert rep["resolved"]["threshold"] == ex.threshold and rep["resolved"]["reference_scale"] == 1.0
     assert rep["resolved"]["n_weak_evidence"] == ex.result.info["n_weak_evidence"]

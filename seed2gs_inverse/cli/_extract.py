@@ -25,9 +25,10 @@ __all__ = ["register", "write_outputs", "settings_from_args", "seed_summary_line
 
 #: Options that set ExtractSettings (None on the command line = not given).
 _SETTING_FLAGS = {"method": "--method", "views": "--views", "orbit_scale": "--orbit-scale",
-                  "threshold": "--threshold", "up": "--up", "option": "--option"}
+                  "threshold": "--threshold", "up": "--up", "option": "--option", "point_mode": "--point-mode",
+                  "smoothness": "--smoothness", "completion": "--completion"}
 _PROMPT_FLAGS = {"mask": "--mask", "box": "--box", "point": "--point", "prompt": "--prompt",
-                 "negative": "--negative", "camera": "--camera"}
+                 "negative": "--negative", "camera": "--camera", "cameras": "--cameras"}
 
 
 def register(subparsers) -> None:
@@ -64,10 +65,23 @@ def register(subparsers) -> None:
                    help="orbit view resolution relative to the camera, in (0, 4] (default 0.5)")
     p.add_argument("--threshold", type=float, default=None,
                    help="q threshold in [0, 1) (default: the solver's, 0.5)")
-    p.add_argument("--up", default=None, metavar="level|camera|X,Y,Z",
-                   help="orbit axis: 'level' (default: the camera's up without its pitch), "
-                        "'camera' (the image up) or a world direction X,Y,Z (--up=-1,0,0 when it starts "
-                        "with a minus)")
+    p.add_argument("--up", default=None, metavar="auto|level|camera|X,Y,Z",
+                   help="orbit axis: 'auto' (default: the support plane under the object, the scene's "
+                        "plane, the camera's roll and --cameras; report.json's 'up' says which and how "
+                        "sure), 'level' (the camera's up without its pitch), 'camera' (the image up) or a "
+                        "world direction X,Y,Z (--up=-1,0,0 when it starts with a minus)")
+    p.add_argument("--cameras", metavar="FILE", default=None,
+                   help="the scene's capture cameras (cameras.json / COLMAP / transforms.json): with "
+                        "--up auto their level right vectors fix the world up")
+    p.add_argument("--point-mode", choices=("object", "region"), default=None,
+                   help="--point: grow the click to the whole object in 3D (object, the default) or keep "
+                        "its colour region (region)")
+    p.add_argument("--smoothness", type=float, default=None, metavar="LAMBDA",
+                   help="graph-Laplacian regulariser of the solve: Gaussians no labelled view saw take their "
+                        "neighbours' membership (0: off; default 1 with the model-free tracker, 0 with SAM2)")
+    p.add_argument("--completion", choices=("reference", "tracked"), default=None,
+                   help="fill the orbit masks' unknown pixels by 3D label completion before the solve, "
+                        "seeded by the reference's labels or by every tracked label (default: off)")
     p.add_argument("--format", choices=("ply", "splat"), default=None, help="object/remainder format (default ply)")
     p.add_argument("--no-progress", action="store_true",
                    help="no progress bars (they are shown only when stderr is a terminal)")
@@ -202,7 +216,7 @@ def write_outputs(extraction, outdir, fmt: str = "ply", force: bool = False, fig
 
 # -- settings --------------------------------------------------------------------------------
 def _up(text):
-    if text is None or text in ("level", "camera"):
+    if text is None or text in ("auto", "level", "camera"):
         return text
     from ._common import parse_vector
 
@@ -211,7 +225,7 @@ def _up(text):
     except ValidationError as exc:
         if "expected three numbers" not in str(exc):
             raise
-        raise ValidationError(f"--up {text!r}: expected 'level', 'camera' or three numbers X,Y,Z "
+        raise ValidationError(f"--up {text!r}: expected 'auto', 'level', 'camera' or three numbers X,Y,Z "
                               f"(e.g. 0,-1,0)") from None
 
 
@@ -221,10 +235,12 @@ def settings_from_args(args):
 
     method = args.method or "weighted_bce"
     given = {"method": method, "n_views": args.views, "orbit_scale": args.orbit_scale,
-             "threshold": args.threshold, "up": _up(args.up),
+             "threshold": args.threshold, "up": _up(args.up), "point_mode": args.point_mode,
+             "smoothness": args.smoothness, "completion": args.completion,
              "solver_options": parse_options(args.option, method) if args.option else None}
     flags = {"n_views": "--views", "orbit_scale": "--orbit-scale", "threshold": "--threshold", "up": "--up",
-             "method": "--method", "solver_options": "--option"}
+             "method": "--method", "solver_options": "--option", "point_mode": "--point-mode",
+             "smoothness": "--smoothness", "completion": "--completion"}
     kw = {k: v for k, v in given.items() if v is not None}
     kw["progress"] = progress_enabled(args.no_progress)
     try:
@@ -254,8 +270,19 @@ def _read_report(path) -> dict:
     return rep
 
 
+def _up_cameras(path, where: str):
+    """The capture cameras of ``--cameras`` (or of a recorded run), read and validated; None without."""
+    if path is None:
+        return None
+    from ..io import read_cameras
+
+    if not os.path.exists(path):
+        raise ValidationError(f"{where} {path}: no such file")
+    return read_cameras(path)
+
+
 def _from_report(args):
-    """(scene path, camera, camera spec, prompt, settings, models path, format) of a recorded run."""
+    """(scene path, camera, camera spec, prompt, settings, models path, format, run) of a recorded run."""
     from ..camera import Camera
     from ..pipeline import ExtractSettings
 
@@ -303,6 +330,8 @@ def run(args) -> int:
             raise ValidationError(f"scene {scene_path}: no such file")
         prompt = _prompt_from_args(args)
         camera = read_camera(args.camera)
+    cameras_path = args.cameras if recorded is None else (recorded.get("up_cameras") or {}).get("path")
+    up_cameras = _up_cameras(cameras_path, "--cameras" if recorded is None else "run.up_cameras:")
     models = _models(models_path)
     grounder = models.grounder() if models is not None else None
     tracker = models.tracker() if models is not None else None
@@ -323,7 +352,7 @@ def run(args) -> int:
         if want.get("sha256") not in (None, scene_sha):
             print(f"seed2gs extract: warning: {scene_path} differs from the recorded file (same geometry, "
                   f"other bytes: colours or format); q may differ", file=sys.stderr)
-    ex = extract(scene, camera, prompt, grounder=grounder, tracker=tracker, settings=settings)
+    ex = extract(scene, camera, prompt, grounder=grounder, tracker=tracker, settings=settings, up_cameras=up_cameras)
     run_info = {
         "toolkit": f"seed2gs-inverse {__version__}",
         "command": "extract",
@@ -334,6 +363,8 @@ def run(args) -> int:
         "models": None if models_path is None else os.path.abspath(models_path),
         "format": fmt,
         "axis": ex.resolved.get("up"),
+        "up_cameras": None if cameras_path is None else {"path": os.path.abspath(cameras_path),
+                                                          "n_cameras": len(up_cameras)},
         "seeds": {"grabcut_opencv_rng": GRABCUT_SEED},
         "numba_threads": _numba_threads(),
     }

@@ -4,14 +4,21 @@ Each stage is a documented module-level function with explicit inputs and
 outputs, so it can be run, tested and timed on its own::
 
     render_reference   reference canvas I_r                       -> Rendering
-    seed_from_prompt   seed mask m* (prompt / grounder)            -> (seed, prompt_info)
+    seed_from_prompt   seed mask m* (prompt / grounder; a point
+                       prompt grows to the whole object in 3D)     -> (seed, prompt_info)
     reference_view     W(c_r) around the seed, at the lift size    -> ReferenceView
     lift_seed          seed lift (G0, o, extent)                   -> SeedLift
-    orbit_views        VAAS: flat orbit + visibility-adaptive
+    orbit_views        orbit axis (orbit_axis: support plane, ...)
+                       then VAAS: flat orbit + visibility-adaptive
                        ascending spiral, each frame with its W(c)  -> OrbitViews
     track_clips        the tracker propagates m* over both clips   -> list of (ClipFrame, mask)
+    evidence_graph     Gaussian kNN graph around the object (when
+                       smoothness > 0 or completion is on)         -> sparse (N, N) or None
+    complete_masks     3D label completion of the unknown pixels
+                       (completion="reference" / "tracked")        -> list of masks
     stack_operators    the supervision views' operators            -> OperatorStack
-    solve_selection    solver (initialised from G0) + threshold    -> Selection
+    solve_selection    solver (initialised from G0, graph-Laplacian
+                       regulariser when smoothness > 0) + threshold -> Selection
 
 All options live in one frozen :class:`~seed2gs_inverse.pipeline.settings.ExtractSettings`.
 Every intermediate is returned in an :class:`Extraction` so users can see
@@ -31,17 +38,18 @@ from ..camera import Camera
 from ..errors import ValidationError
 from ..scene import GaussianScene
 from .seed_lift import SeedLift, seed_lift
-from .settings import SOLVER_DEFAULTS, ExtractSettings
+from .settings import MODEL_FREE_SMOOTHNESS, SOLVER_DEFAULTS, ExtractSettings
 from .vaas import ClipFrame, VAASPlan, estimate_up, run_vaas
 
 __all__ = ["Extraction", "extract", "Renderer", "ExtractSettings", "EXTRACT_DEFAULTS", "SOLVER_DEFAULTS", "STAGES",
-           "ReferenceView", "OrbitViews", "Selection", "render_reference", "seed_from_prompt",
-           "reference_view", "lift_seed", "orbit_views", "track_clips", "stack_operators", "solve_selection"]
+           "MODEL_FREE_SMOOTHNESS", "ReferenceView", "OrbitViews", "Selection", "render_reference",
+           "seed_from_prompt", "reference_view", "lift_seed", "orbit_axis", "orbit_views", "track_clips",
+           "evidence_graph", "complete_masks", "stack_operators", "solve_selection"]
 
 #: Defaults of :func:`extract` beyond the VAAS ones (those of :class:`ExtractSettings`).
 EXTRACT_DEFAULTS = {k: getattr(ExtractSettings, k) for k in (
     "orbit_scale", "max_view_pixels", "max_reference_pixels", "roi_margin", "zoom_margin", "min_weight",
-    "cull_far", "min_evidence", "threshold")}
+    "cull_far", "min_evidence", "threshold", "smoothness", "completion")}
 
 STAGES = ("render", "grounding", "lift", "vaas", "tracking", "operators", "solve")
 
@@ -88,9 +96,16 @@ class Extraction:
     resolved : dict
         JSON-ready facts extract derived from the settings and the inputs:
         ``view_scale``, ``reference_scale``, ``up`` (the orbit axis used),
+        ``up_method`` and ``up_confidence`` (how it was chosen, see ``up``),
         ``threshold`` (tau used), ``solver_options`` (with the defaults),
-        ``tracker``, ``grounder`` (class names) and ``n_weak_evidence``
-        (Gaussians reset to the prior by ``min_evidence``).
+        ``tracker``, ``grounder`` (class names), ``n_weak_evidence``
+        (Gaussians without real evidence: reset to the prior by
+        ``min_evidence``, or decided by the regulariser) and ``smoothness``
+        (the regulariser's lambda used, after ``None`` was resolved).
+    up : dict
+        The orbit axis (:func:`orbit_axis`): ``axis``, ``method`` (how it
+        was chosen), ``confidence`` in [0, 1] (None when the user chose it)
+        and ``details``.
     """
 
     scene: GaussianScene
@@ -111,6 +126,7 @@ class Extraction:
     seconds: dict
     settings: ExtractSettings | None = None
     resolved: dict = field(default_factory=dict)
+    up: dict = field(default_factory=dict)
 
     @property
     def total_seconds(self) -> float:
@@ -145,6 +161,7 @@ class Extraction:
             "total_seconds": self.total_seconds,
             "settings": None if self.settings is None else self.settings.to_dict(),
             "resolved": self.resolved,
+            "up": self.up,
         }
 
 
@@ -352,6 +369,8 @@ class OrbitViews:
         Orbit view resolution relative to the camera.
     up : (3,) float64
         The orbit axis used.
+    up_info : dict
+        :func:`orbit_axis`'s report: ``axis``, ``method``, ``confidence``, ``details``.
     """
 
     plan: VAASPlan
@@ -359,6 +378,7 @@ class OrbitViews:
     spiral: list
     view_scale: float
     up: np.ndarray
+    up_info: dict = field(default_factory=dict)
 
     def clips(self) -> list:
         """``[("flat", frames), ("spiral", frames)]`` (no spiral entry when it was skipped)."""
@@ -367,7 +387,7 @@ class OrbitViews:
 
 @dataclass
 class Selection:
-    """The solve: ``result`` (its ``q`` already carries the ``min_evidence`` reset), tau and ``q > tau``."""
+    """The solve: ``result`` (its ``q`` already carries the ``min_evidence`` reset or the regulariser), tau and ``q > tau``."""
 
     result: object
     q: np.ndarray
@@ -393,17 +413,35 @@ def render_reference(renderer: Renderer, camera: Camera):
     return ref
 
 
-def seed_from_prompt(prompt, reference, grounder=None):
+def seed_from_prompt(prompt, reference, grounder=None, *, point_mode: str = "region", scene=None,
+                     camera: Camera | None = None, mode: str = "classic"):
     """Stage 2: the seed mask ``m*`` (H, W) bool of ``prompt`` on the reference canvas, and the prompt info.
 
     See :func:`~seed2gs_inverse.frontend.prompts.seed_mask_from_prompt`; text
-    prompts need ``grounder``. Raises ValidationError when the seed covers
-    only empty space (rendered alpha <= 0.05).
+    prompts need ``grounder``. With ``point_mode="object"`` a
+    :class:`~seed2gs_inverse.frontend.prompts.PointPrompt` returns the whole
+    clicked object instead of its colour region: the region is lifted,
+    grown in 3D down to the support plane and projected back
+    (:func:`~seed2gs_inverse.pipeline.point_object.point_object_mask`, which
+    needs the ``scene``, the reference ``camera`` and the rasterization
+    ``mode``); ``prompt_info`` then carries its growth facts. Raises
+    ValidationError when the seed covers only empty space (rendered alpha
+    <= 0.05).
     """
-    from ..frontend.prompts import seed_mask_from_prompt
+    from ..frontend.prompts import PointPrompt, seed_mask_from_prompt
 
-    seed, info = seed_mask_from_prompt(prompt, reference.rgb, depth=reference.depth, alpha=reference.alpha,
-                                       grounder=grounder)
+    if point_mode == "object" and isinstance(prompt, PointPrompt):
+        from .point_object import point_object_mask
+
+        if scene is None or camera is None:
+            raise ValidationError("seed_from_prompt: point_mode='object' needs the scene and the reference camera")
+        po = point_object_mask(scene, camera, prompt.points, prompt.labels, rendering=reference, mode=mode)
+        seed, info = po.mask, po.info
+    elif point_mode not in ("object", "region"):
+        raise ValidationError(f"point_mode must be 'object' or 'region', got {point_mode!r}")
+    else:
+        seed, info = seed_mask_from_prompt(prompt, reference.rgb, depth=reference.depth, alpha=reference.alpha,
+                                           grounder=grounder)
     if not (seed & (reference.alpha > 0.05)).any():
         raise ValidationError("the seed mask covers only empty space in the reference view: "
                               "it does not touch the scene")
@@ -435,13 +473,38 @@ def lift_seed(scene: GaussianScene, ref: ReferenceView, lift_options=None) -> Se
     return seed_lift(scene, ref.camera, ref.seed, op.rendering.depth, op.W, **dict(lift_options or {}))
 
 
-def _orbit_axis(up, scene: GaussianScene, base: Camera, ref_operator) -> np.ndarray:
-    """The orbit axis of the ``up`` setting: levelled image-up, the image-up itself, or the given vector."""
+def orbit_axis(up, scene: GaussianScene, base: Camera, ref: ReferenceView, lift: SeedLift,
+               up_cameras=None) -> dict:
+    """The VAAS axis of the ``up`` setting, as a report dict ``{axis, method, confidence, details}``.
+
+    ``"auto"``: :func:`~seed2gs_inverse.pipeline.up_axis.estimate_up_axis`
+    (support plane under the lift's G0, scene plane, the no-roll prior of
+    ``base`` and the capture cameras ``up_cameras``); a weak estimate warns,
+    naming ``--up``. ``"level"``: the image-up of ``base`` with its pitch
+    removed, weighted by the reference view's operator
+    (:func:`~seed2gs_inverse.pipeline.vaas.estimate_up`); ``"camera"``: the
+    image-up itself; a vector: that vector, normalised. ``confidence`` is
+    None unless estimated.
+    """
+    import warnings
+
+    if isinstance(up, str) and up == "auto":
+        from .up_axis import estimate_up_axis
+
+        if up_cameras is not None and not all(isinstance(c, Camera) for c in up_cameras):
+            raise ValidationError("up_cameras must be a sequence of Camera")
+        est = estimate_up_axis(scene, base, support=lift.support, center=lift.center, radius=lift.radius,
+                               cameras=up_cameras)
+        if est.weak:
+            warnings.warn(est.warning(), stacklevel=4)
+        return est.summary()
     if isinstance(up, str) and up == "level":
-        return estimate_up(scene, base, weights=np.asarray(ref_operator.W.sum(axis=0)).ravel())
+        axis = estimate_up(scene, base, weights=np.asarray(ref.operator.W.sum(axis=0)).ravel())
+        return {"axis": np.asarray(axis, float).tolist(), "method": "level", "confidence": None, "details": {}}
     if isinstance(up, str) and up == "camera":
-        return base.up
-    return np.asarray(up, dtype=np.float64)
+        return {"axis": base.up.tolist(), "method": "camera", "confidence": None, "details": {}}
+    axis = np.asarray(up, dtype=np.float64)  # validated by ExtractSettings
+    return {"axis": (axis / np.linalg.norm(axis)).tolist(), "method": "user", "confidence": None, "details": {}}
 
 
 def _clip_frame(op, clip: str, index: int) -> ClipFrame:
@@ -450,8 +513,10 @@ def _clip_frame(op, clip: str, index: int) -> ClipFrame:
 
 
 def orbit_views(renderer: Renderer, camera: Camera, ref: ReferenceView, lift: SeedLift,
-                settings: ExtractSettings, progress: _Progress | None = None) -> OrbitViews:
-    """Stage 5: VAAS (flat orbit, visibility, ascending spiral); each view rendered with its operator.
+                settings: ExtractSettings, progress: _Progress | None = None, up_cameras=None) -> OrbitViews:
+    """Stage 5: the orbit axis (:func:`orbit_axis`), then VAAS (flat orbit, visibility, ascending spiral).
+
+    Each view is rendered with its operator.
 
     The orbit views have the camera's geometry at ``view_scale`` (``orbit_scale``
     capped at ``max_view_pixels``), zoomed to ``zoom_margin * extent`` about
@@ -464,7 +529,8 @@ def orbit_views(renderer: Renderer, camera: Camera, ref: ReferenceView, lift: Se
     scene = renderer.scene
     view_scale = _view_scale(camera, s.orbit_scale, s.max_view_pixels)
     base = camera.scaled(view_scale)  # the orbits' base camera (geometry + view resolution)
-    up = _orbit_axis(s.up, scene, base, ref.operator)
+    up_info = orbit_axis(s.up, scene, base, ref, lift, up_cameras)
+    up = np.asarray(up_info["axis"], dtype=np.float64)
 
     def view(cam: Camera, clip: str, k: int) -> ClipFrame:
         if cam is base:
@@ -483,7 +549,7 @@ def orbit_views(renderer: Renderer, camera: Camera, ref: ReferenceView, lift: Se
         scene.means[lift.support], sigma, base, lift.center, view, n_views=s.n_views, a_max_deg=s.a_max_deg,
         gamma=s.gamma, skip_deg=s.skip_deg, profile=s.profile, max_elevation_deg=s.max_elevation_deg,
         fit_radius=None if s.zoom_margin is None else s.zoom_margin * lift.radius, up=up)
-    return OrbitViews(plan, flat, spiral, view_scale, np.asarray(up, dtype=np.float64))
+    return OrbitViews(plan, flat, spiral, view_scale, up, up_info)
 
 
 def track_clips(tracker, orbits: OrbitViews, seed: np.ndarray, progress: _Progress | None = None) -> list:
@@ -519,6 +585,58 @@ def track_clips(tracker, orbits: OrbitViews, seed: np.ndarray, progress: _Progre
     return labelled
 
 
+def evidence_graph(scene: GaussianScene, lift: SeedLift, settings: ExtractSettings, smoothness: float):
+    """Stage 6b: the Gaussian affinity graph around the object, or None when nothing needs it.
+
+    :func:`~seed2gs_inverse.pipeline.completion.object_graph` about the
+    lift's centre (``region`` lift radii, :data:`~.completion.GRAPH_DEFAULTS`
+    updated by ``settings.graph_options``), built when the regulariser is on
+    (``smoothness > 0``, resolved) or ``settings.completion`` is set.
+    """
+    if not (smoothness > 0 or settings.completion):
+        return None
+    from .completion import GRAPH_DEFAULTS, object_graph
+
+    return object_graph(scene, lift.center, lift.radius, **{**GRAPH_DEFAULTS, **settings.graph_options})
+
+
+def complete_masks(graph, labelled, lift: SeedLift, ref: ReferenceView, completion: str | None,
+                   filler=None) -> list:
+    """Stage 6c: the supervision masks, their unknown pixels filled by 3D label completion.
+
+    ``completion=None``: the tracker's masks as they are. ``"reference"``:
+    random-walker labels on ``graph`` seeded by the reference's labels alone
+    (:func:`~.completion.complete_membership` from G0, the reference
+    operator's column sums and the lift's membership); ``"tracked"``: seeded
+    by every pixel the tracker decided (:func:`~.completion.tracked_membership`,
+    prior G0). Either is rendered into each view and decides the unknown
+    pixels it is sure of (:func:`~.completion.fill_unknown`). ``filler``
+    (a :class:`~seed2gs_inverse.frontend.model_free.GeometricTracker`, with
+    ``"tracked"``) then decides what is still unknown with its 2D fill
+    (:meth:`~seed2gs_inverse.frontend.model_free.GeometricTracker.fill_labels`).
+    Returns float32 masks, one per ``(frame, mask)`` of ``labelled``.
+    """
+    masks = [m for _, m in labelled]
+    if not completion:
+        return masks
+    from .completion import complete_membership, fill_unknown, tracked_membership
+
+    ops = [f.operator for f, _ in labelled]
+    if completion == "reference":
+        q_c = complete_membership(graph, lift.support, np.asarray(ref.operator.W.sum(axis=0)).ravel(),
+                                  lift.membership)
+    elif completion == "tracked":
+        q_c = tracked_membership(graph, ops, masks, prior=lift.support.astype(np.float64))
+    else:
+        raise ValidationError(f"completion must be None, 'reference' or 'tracked', got {completion!r}")
+    masks = fill_unknown(ops, masks, q_c)
+    if filler is not None:
+        masks = [m if not np.isnan(m).any() else
+                 filler.fill_labels(op.rendering.rgb, op.rendering.depth, m).astype(np.float32)
+                 for op, m in zip(ops, masks)]
+    return masks
+
+
 def stack_operators(labelled, scene: GaussianScene):
     """Stage 7: the ``OperatorStack`` of the supervision views (``frame.operator`` of each pair)."""
     from ..operators import OperatorStack, scene_fingerprint
@@ -526,20 +644,24 @@ def stack_operators(labelled, scene: GaussianScene):
     return OperatorStack([f.operator for f, _ in labelled], fingerprint=scene_fingerprint(scene))
 
 
-def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, progress=None) -> Selection:
+def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, progress=None, *, graph=None,
+                    smoothness: float = 0.0) -> Selection:
     """Stage 8: ``q`` from the solver initialised from G0, and ``selected = q > tau``.
 
     ``solve(stack, masks, method, init=G0, min_evidence=settings.min_evidence,
-    **settings.solver_kwargs())``: Gaussians seen (almost) only on unknown
-    pixels carry no evidence (an unregularised fit could drive their logits
-    anywhere on a trace of weight), so the solver gives them the prior (G0
-    membership). ``tau`` is ``settings.threshold`` or the solver's own.
-    ``progress``: the solver's per-iteration hook (``solve(..., progress=)``).
+    smoothness=smoothness, graph=graph, **settings.solver_kwargs())``:
+    Gaussians seen (almost) only on unknown pixels carry no evidence (an
+    unregularised fit could drive their logits anywhere on a trace of
+    weight), so the solver gives them the prior (G0 membership), or, with
+    ``smoothness > 0`` (the resolved setting; :func:`evidence_graph`'s
+    ``graph``), the harmonic extension of their neighbours on the graph.
+    ``tau`` is ``settings.threshold`` or the solver's own. ``progress``: the
+    solver's per-iteration hook (``solve(..., progress=)``).
     """
     from ..solvers import solve
 
     result = solve(stack, masks, method=settings.method, init=lift.support, min_evidence=settings.min_evidence,
-                   progress=progress, **settings.solver_kwargs())
+                   progress=progress, smoothness=smoothness, graph=graph, **settings.solver_kwargs())
     q = np.asarray(result.q, dtype=np.float32)
     tau = result.threshold if settings.threshold is None else float(settings.threshold)
     return Selection(result, q, tau, q > tau)
@@ -558,18 +680,33 @@ def _settings(settings, overrides: dict) -> ExtractSettings:
     return settings.replace(**overrides) if overrides else settings
 
 
-def _check_tracker(tracker):
+def _trackers(tracker, settings: ExtractSettings):
+    """(tracker, 2D filler or None, resolved smoothness) for the given tracker and settings.
+
+    ``smoothness=None`` resolves to :data:`MODEL_FREE_SMOOTHNESS` with the
+    model-free tracker, 0 with any other. ``completion="tracked"`` with the
+    default tracker replaces its 2D fill of revealed pixels (which decides
+    them from image neighbours and is the main source of wrong labels on an
+    object's far side) by the 3D completion; the 2D fill (``filler``) then
+    only decides what the completion leaves open.
+    """
     from ..frontend.model_free import GeometricTracker
 
+    smoothness = settings.smoothness
+    if smoothness is None:
+        smoothness = MODEL_FREE_SMOOTHNESS if tracker is None or isinstance(tracker, GeometricTracker) else 0.0
+    filler = None
+    if tracker is None and settings.completion == "tracked":
+        tracker, filler = GeometricTracker(fill=False), GeometricTracker()
     tracker = GeometricTracker() if tracker is None else tracker
     if not callable(getattr(tracker, "track", None)):
         raise ValidationError(f"tracker must have a track(frames, seed_mask, references=()) method, "
                               f"got {type(tracker).__name__}")
-    return tracker
+    return tracker, filler, float(smoothness)
 
 
 def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker=None,
-            settings: ExtractSettings | None = None, **overrides) -> Extraction:
+            settings: ExtractSettings | None = None, *, up_cameras=None, **overrides) -> Extraction:
     """Extract one object from a frozen 3DGS scene (Algorithm 1).
 
     Parameters
@@ -590,6 +727,10 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
     settings : ExtractSettings, optional
         Every option (:class:`~seed2gs_inverse.pipeline.settings.ExtractSettings`,
         where each is documented); default ``ExtractSettings()``.
+    up_cameras : sequence of Camera, optional
+        Capture cameras of the scene (e.g. its training cameras): with
+        ``up="auto"`` they constrain the orbit axis (no-roll cameras are
+        level). Run-time data like ``grounder``, not a setting.
     **overrides
         Options replacing those of ``settings`` by name, e.g.
         ``extract(scene, cam, prompt, method="voting", n_views=12)``. An
@@ -609,34 +750,39 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
         raise ValidationError("the scene has no Gaussians")
     if not isinstance(camera, Camera):
         raise ValidationError(f"camera must be a Camera, got {type(camera).__name__}")
-    tracker = _check_tracker(tracker)
+    tracker, filler, smoothness = _trackers(tracker, s)
     progress = bool(getattr(sys.stderr, "isatty", lambda: False)()) if s.progress is None else s.progress
     timer = _StageTimer()
     renderer = Renderer(scene, s.mode)
     with timer("render"):
         reference = render_reference(renderer, camera)
     with timer("grounding"):
-        seed, prompt_info = seed_from_prompt(prompt, reference, grounder)
+        seed, prompt_info = seed_from_prompt(prompt, reference, grounder, point_mode=s.point_mode, scene=scene,
+                                             camera=camera, mode=s.mode)
     with timer("operators"):
         ref = reference_view(renderer, camera, seed, s.max_reference_pixels)
     with timer("lift"):
         lift = lift_seed(scene, ref, s.lift_options)
     before = renderer.operator_seconds
     with timer("vaas"), _Progress("VAAS views", progress, unit="view") as bar:
-        orbits = orbit_views(renderer, camera, ref, lift, s, bar)
+        orbits = orbit_views(renderer, camera, ref, lift, s, bar, up_cameras=up_cameras)
     timer.move("vaas", "operators", renderer.operator_seconds - before)
     with timer("tracking"), _Progress("tracking", progress, total=len(orbits.clips())) as bar:
         labelled = track_clips(tracker, orbits, ref.seed, bar)
+        # model-free evidence for surfaces no labelled view saw (pipeline/completion.py)
+        graph = evidence_graph(scene, lift, s, smoothness)
+        masks = complete_masks(graph, labelled, lift, ref, s.completion, filler)
     with timer("solve"), _Progress(f"solve ({s.method})", progress) as bar:
         stack = stack_operators(labelled, scene)
-        masks = [m for _, m in labelled]
-        sel = solve_selection(stack, masks, lift, s, progress=bar.solve_callback)
+        sel = solve_selection(stack, masks, lift, s, progress=bar.solve_callback, graph=graph,
+                              smoothness=smoothness)
     resolved = {"view_scale": float(orbits.view_scale), "reference_scale": float(ref.scale),
-                "up": orbits.up.tolist(), "threshold": float(sel.threshold),
+                "up": orbits.up.tolist(), "up_method": orbits.up_info.get("method"),
+                "up_confidence": orbits.up_info.get("confidence"), "threshold": float(sel.threshold),
                 "solver_options": {k: v for k, v in s.solver_kwargs().items()
                                    if isinstance(v, (int, float, str, bool))},
-                "n_weak_evidence": sel.n_weak_evidence, "tracker": type(tracker).__name__,
+                "n_weak_evidence": sel.n_weak_evidence, "smoothness": smoothness, "tracker": type(tracker).__name__,
                 "grounder": None if grounder is None else type(grounder).__name__}
     return Extraction(scene, sel.q, sel.selected, sel.threshold, seed, prompt_info, camera, reference, lift,
                       orbits.plan, [f.camera for f, _ in labelled], [f.clip for f, _ in labelled], masks, stack,
-                      sel.result, timer.seconds, s, resolved)
+                      sel.result, timer.seconds, s, resolved, orbits.up_info)

@@ -20,7 +20,8 @@ import numpy as np
 from ..errors import ValidationError
 from .vaas import DEFAULTS as VAAS_DEFAULTS
 
-__all__ = ["ExtractSettings", "SOLVER_DEFAULTS", "MODES", "PROFILES", "LIMITS"]
+__all__ = ["ExtractSettings", "SOLVER_DEFAULTS", "MODES", "PROFILES", "LIMITS", "UP_CHOICES", "POINT_MODES",
+           "COMPLETIONS", "MODEL_FREE_SMOOTHNESS"]
 
 #: Solver options extract() uses unless told otherwise: the weighted BCE
 #: selection settles within a few dozen L-BFGS-B iterations when started from
@@ -66,7 +67,7 @@ def _int(name, value, *, lo, hi, optional=False) -> int | None:
 #: Bounds of the count options: far beyond any useful value, but an absurd
 #: one (``n_views=10**7``) is refused up front instead of running for hours.
 LIMITS = {"n_views": (2, 360), "max_view_pixels": (64, 2 ** 24), "max_reference_pixels": (64, 2 ** 26),
-          "k_neighbors": (1, 256)}
+          "k_neighbors": (1, 256), "graph_k": (1, 256)}
 
 
 def _choice(name, value, choices) -> str:
@@ -87,15 +88,26 @@ def _options(name, value) -> Mapping:
     return MappingProxyType(dict(value))
 
 
+#: The named orbit axes (``up`` may also be a world vector).
+UP_CHOICES = ("auto", "level", "camera")
+#: What a point prompt seeds: the whole object grown in 3D, or the click's colour region.
+POINT_MODES = ("object", "region")
+#: Completion of the orbit masks' unknown pixels before the solve (None: off).
+COMPLETIONS = (None, "reference", "tracked")
+#: lambda of the graph regulariser when ``smoothness=None`` and the model-free
+#: tracker is used (measured on benchmarks/bench_extract.py; see its docstring).
+MODEL_FREE_SMOOTHNESS = 1.0
+
+
 def _up(value):
     if isinstance(value, str):
-        return _choice("up", value, ("level", "camera"))
+        return _choice("up", value, UP_CHOICES)
     try:
         u = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
         u = None
     if u is None or u.shape != (3,) or not np.all(np.isfinite(u)) or np.linalg.norm(u) == 0:
-        raise ValidationError(f"up must be 'level', 'camera' or a non-zero finite 3-vector, got {value!r}")
+        raise ValidationError(f"up must be 'auto', 'level', 'camera' or a non-zero finite 3-vector, got {value!r}")
     return tuple(float(x) for x in u)
 
 
@@ -154,11 +166,18 @@ class ExtractSettings:
         that the sphere of radius ``zoom_margin * extent`` about ``o`` fits
         the image (default 2, for the same reason as ``roi_margin``). None
         keeps the reference's field of view.
-    up : "level", "camera" or (3,) tuple of float
-        Orbit axis. ``"level"`` (default): the reference camera's image-up
-        with its pitch removed (:func:`~seed2gs_inverse.pipeline.vaas.estimate_up`);
-        ``"camera"``: the image-up itself (literal reading of the paper; the
-        flat orbit then tilts by the camera's pitch); or a world vector.
+    up : "auto", "level", "camera" or (3,) tuple of float
+        Orbit axis. ``"auto"`` (default): world up from the support plane
+        under the object, the scene's dominant plane, the reference's
+        no-roll prior and the capture cameras passed to extract as
+        ``up_cameras`` (:func:`~seed2gs_inverse.pipeline.up_axis.estimate_up_axis`);
+        the axis, the method that chose it and its confidence are in
+        ``report()["up"]``, and a weak estimate warns (naming ``--up``).
+        ``"level"`` (the default before issue 10): the reference camera's
+        image-up with its pitch removed
+        (:func:`~seed2gs_inverse.pipeline.vaas.estimate_up`); ``"camera"``:
+        the image-up itself (literal reading of the paper; the flat orbit
+        then tilts by the camera's pitch); or a world vector.
     min_weight : float
         Orbit operators drop compositing weights below this
         (:func:`~seed2gs_inverse.raster.build_operator`): fewer
@@ -199,6 +218,39 @@ class ExtractSettings:
         Progress bars on stderr (orbit views, tracking, and the solve's
         iterations with its current loss); default None: only when stderr is
         a terminal, so logs never fill with bars.
+    point_mode : {"object", "region"}
+        Point prompts: ``"object"`` (default) grows the clicked region to
+        the whole object in 3D, stopping at the support plane
+        (:func:`~seed2gs_inverse.pipeline.point_object.point_object_mask`);
+        ``"region"``: the colour-and-depth region of the click alone (the
+        behaviour before issue 10). Other prompts ignore it.
+    smoothness : float or None
+        lambda of the graph-Laplacian regulariser of the solve
+        (``solve(..., smoothness=, graph=)``,
+        :func:`~seed2gs_inverse.solvers.smoothing.laplacian_smooth` on
+        :func:`~seed2gs_inverse.pipeline.completion.object_graph`): Gaussians
+        without evidence take the harmonic extension of their neighbours
+        instead of the prior (replaces the ``min_evidence`` reset). 0: off.
+        None (default): :data:`MODEL_FREE_SMOOTHNESS` (1) with the
+        model-free tracker (whose 2D fill leaves undecided what is not
+        unanimous), 0 with any other tracker (SAM2 & co.: Algorithm 1 with
+        its 2D masks as the only evidence, unseen Gaussians keep the prior).
+        The value used is ``resolved["smoothness"]`` in the report.
+    completion : {None, "reference", "tracked"}
+        Fill the unknown pixels of the orbit masks, before the solve, with a
+        random-walker completion on the same graph rendered into each view
+        (:func:`~seed2gs_inverse.pipeline.completion.fill_unknown`), seeded by
+        the reference's labels alone (``"reference"``,
+        :func:`~seed2gs_inverse.pipeline.completion.complete_membership`) or by
+        every pixel the tracker decided (``"tracked"``,
+        :func:`~seed2gs_inverse.pipeline.completion.tracked_membership`; the
+        default tracker then runs without its 2D fill, which instead decides
+        only the pixels the 3D completion leaves undecided). None (default): off.
+    graph_options : mapping (read-only)
+        Keywords of :func:`~seed2gs_inverse.pipeline.completion.object_graph`
+        (``k`` in 1..256, ``sigma_color``, ``sigma_normal`` (positive or
+        None), ``region`` (> 0, in lift radii), ``min_opacity`` in [0, 1)),
+        on top of :data:`~seed2gs_inverse.pipeline.completion.GRAPH_DEFAULTS`.
     """
 
     method: str = "weighted_bce"
@@ -213,7 +265,7 @@ class ExtractSettings:
     max_reference_pixels: int | None = 1_000_000
     roi_margin: float | None = 2.0
     zoom_margin: float | None = 2.0
-    up: Any = "level"
+    up: Any = "auto"
     min_weight: float = 0.0
     cull: bool = True
     cull_far: float | None = 4.0
@@ -223,6 +275,10 @@ class ExtractSettings:
     solver_options: Mapping = field(default_factory=dict)
     mode: str = "classic"
     progress: bool | None = None
+    point_mode: str = "object"
+    smoothness: float | None = None
+    completion: str | None = None
+    graph_options: Mapping = field(default_factory=dict)
 
     def __post_init__(self):
         from ..solvers import available_methods, check_method_options
@@ -275,6 +331,11 @@ class ExtractSettings:
         if self.progress is not None and not isinstance(self.progress, (bool, np.bool_)):
             raise ValidationError(f"progress must be True, False or None, got {self.progress!r}")
         set_("progress", None if self.progress is None else bool(self.progress))
+        set_("point_mode", _choice("point_mode", self.point_mode, POINT_MODES))
+        set_("smoothness", _real("smoothness", self.smoothness, lo=0.0, optional=True))
+        if self.completion not in COMPLETIONS:
+            raise ValidationError(f"completion must be None, 'reference' or 'tracked', got {self.completion!r}")
+        set_("graph_options", _graph_options(self.graph_options))
 
     # -- derived -------------------------------------------------------------
     def solver_kwargs(self) -> dict:
@@ -312,6 +373,29 @@ class ExtractSettings:
             raise ValidationError(f"extract settings must be a dict, got {type(data).__name__}")
         _check_names(data, "extract settings have no option(s)")
         return cls(**dict(data))
+
+
+def _graph_options(value) -> Mapping:
+    """``graph_options``: names of object_graph's keywords, each value in its range."""
+    from .completion import GRAPH_DEFAULTS
+
+    opts = _options("graph_options", value)
+    bad = sorted(set(opts) - set(GRAPH_DEFAULTS))
+    if bad:
+        raise ValidationError(f"graph_options: object_graph has no option(s) {bad}; its options are "
+                              f"{list(GRAPH_DEFAULTS)}")
+    if "k" in opts:
+        _int("graph_options k", opts["k"], lo=LIMITS["graph_k"][0], hi=LIMITS["graph_k"][1])
+    for name in ("sigma_color", "sigma_normal"):
+        if name in opts:
+            _real(f"graph_options {name}", opts[name], lo=0.0, lo_open=True, optional=True)
+    if "region" in opts:
+        _real("graph_options region", opts["region"], lo=0.0, lo_open=True)
+    if "min_opacity" in opts:
+        v = _real("graph_options min_opacity", opts["min_opacity"], lo=0.0)
+        if not v < 1.0:
+            raise ValidationError(f"graph_options min_opacity must be < 1, got {opts['min_opacity']!r}")
+    return opts
 
 
 def _keyword_only(fn) -> dict:

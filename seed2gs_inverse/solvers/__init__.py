@@ -4,7 +4,8 @@ Every method solves the same problem: given fixed per-view operators
 ``W(c)`` (pixels x N) and target masks ``Y(c)``, find ``q in [0, 1]^N`` with
 ``W(c) q ~ Y(c)`` in every view. One call, interchangeable methods::
 
-    result = solve(operators, masks, method="weighted_bce", init=None, min_evidence=0.0, **options)
+    result = solve(operators, masks, method="weighted_bce", init=None, min_evidence=0.0,
+                   smoothness=0.0, graph=None, **options)
 
 Methods (one module each, equations in their docstrings):
 
@@ -12,6 +13,11 @@ Methods (one module each, equations in their docstrings):
 ``beta_bernoulli``  B3-Seg's Beta posterior, optional information-gain view order.
 ``weighted_bce``    Seed2GS reliability-weighted BCE on logits (L-BFGS-B).
 ``least_squares``   box-constrained least squares, the classical baseline.
+
+Common to every method: ``min_evidence`` (Gaussians without real evidence
+keep the prior) or, with ``smoothness > 0`` and a Gaussian ``graph``, the
+graph-Laplacian regulariser of :mod:`.smoothing` (they take the harmonic
+extension of their neighbours instead).
 
 New methods register themselves with :func:`register_method` and return a
 :class:`MethodResult`; :func:`method_options` lists a method's options.
@@ -31,9 +37,11 @@ from ._common import (MethodResult, Problem, SolveResult, available_methods, che
                       method_options, prepare, register_method)
 from . import beta_bernoulli, least_squares, voting, weighted_bce  # noqa: F401  (importing registers them)
 from ._progress import SolveProgress, reporting
+from .smoothing import harmonic_extension, laplacian_smooth
 
 __all__ = ["solve", "available_methods", "register_method", "get_method", "method_options", "SolveResult",
-           "MethodResult", "Problem", "prepare", "SolveProgress", "COUNT_LIMITS", "check_method_options"]
+           "MethodResult", "Problem", "prepare", "SolveProgress", "COUNT_LIMITS", "check_method_options",
+           "laplacian_smooth", "harmonic_extension"]
 
 #: Upper bounds of the count options of every method (``max_iter`` etc.): far
 #: above any useful value, low enough that a typo (``max_iter=10**9``) is an
@@ -43,7 +51,7 @@ COUNT_LIMITS = {"max_iter": 100_000, "inner_iters": 100_000, "maxcor": 1_000, "p
 
 
 def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidence: float = 0.0,
-          progress=None, **options) -> SolveResult:
+          progress=None, smoothness: float = 0.0, graph=None, **options) -> SolveResult:
     """Recover per-Gaussian foreground probabilities ``q`` from per-view masks.
 
     Parameters
@@ -67,6 +75,19 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
         and keeps the prior, ``q_i = q0_i`` (an unregularised fit can drive
         such Gaussians anywhere on a trace of weight). ``0`` only gives the
         unobserved Gaussians (``k_i = 0``) the prior.
+    smoothness : float, default 0
+        Common to every method: ``lambda`` of the graph-Laplacian
+        regulariser applied to the method's ``q``
+        (:func:`~seed2gs_inverse.solvers.smoothing.laplacian_smooth` with
+        evidence ``e_i = k_i``, set to 0 below ``min_evidence``, and the
+        prior): Gaussians without evidence take the harmonic extension of
+        their neighbours on ``graph`` instead of the prior, those with
+        evidence stay close to the fit. ``0``: off (the ``min_evidence``
+        reset above).
+    graph : scipy.sparse (N, N), optional
+        Symmetric non-negative Gaussian affinities
+        (:func:`seed2gs_inverse.graph.gaussian_graph`); needed when
+        ``smoothness > 0``.
     progress : callable, optional
         ``progress(SolveProgress(iteration, total, loss))`` after every
         iteration of the iterative methods (L-BFGS iterations of
@@ -87,7 +108,7 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
         Bad operators, masks, init, min_evidence or options (messages name
         the view).
     """
-    fn = _check_request(operators, method, min_evidence, progress, options)
+    fn = _check_request(operators, method, min_evidence, progress, options, smoothness, graph)
     t0 = time.perf_counter()
     problem = prepare(operators, masks, init)
     # Solvers call BLAS on vectors of length N every iteration; a multi-threaded
@@ -105,12 +126,18 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
     observed = np.asarray(problem.observed if out.observed is None else out.observed, dtype=bool)
     unobserved = ~observed
     q = np.where(unobserved, problem.prior, np.clip(q, 0.0, 1.0)).astype(np.float32)
-    # Gaussians seen (almost) only on unknown pixels carry no evidence: the prior.
+    # Gaussians seen (almost) only on unknown pixels carry no evidence: the
+    # prior, or with the regulariser their neighbours' values (weak evidence
+    # counts as none).
     weak = problem.known_weight < min_evidence
-    q[weak] = problem.prior[weak].astype(np.float32)
+    if smoothness > 0:
+        q = laplacian_smooth(q, np.where(weak, 0.0, problem.known_weight), graph, smoothness,
+                             prior=problem.prior).astype(np.float32)
+    else:
+        q[weak] = problem.prior[weak].astype(np.float32)
     weights = np.ones(problem.n_views) if out.view_weights is None else np.asarray(out.view_weights, np.float64)
     info = dict(out.info)
-    info.update(min_evidence=float(min_evidence), n_weak_evidence=int(weak.sum()))
+    info.update(min_evidence=float(min_evidence), n_weak_evidence=int(weak.sum()), smoothness=float(smoothness))
     return SolveResult(q=q, method=method, iterations=int(out.iterations), history=list(out.history),
                        view_weights=weights, unobserved=unobserved, seconds=time.perf_counter() - t0,
                        threshold=float(out.threshold), info=info)
@@ -135,18 +162,25 @@ def check_method_options(method, options) -> object:
     return fn
 
 
-def _check_request(operators, method, min_evidence, progress, options):
+def _check_request(operators, method, min_evidence, progress, options, smoothness=0.0, graph=None):
     """Validate what :func:`solve` can check before preparing the problem; returns the method.
 
     Catches, with a ValidationError naming the argument or view: a method
     name that is not a string, unknown options, count options outside
-    :data:`COUNT_LIMITS`, a bad ``min_evidence`` or ``progress``, operators
+    :data:`COUNT_LIMITS`, a bad ``min_evidence``, ``smoothness`` (or one
+    without ``graph``) or ``progress``, operators
     without columns (no Gaussians), and operators holding NaN/inf weights.
     """
     fn = check_method_options(method, options)
     if isinstance(min_evidence, bool) or not isinstance(min_evidence, (int, float, np.integer, np.floating)) \
             or not np.isfinite(min_evidence) or min_evidence < 0:
         raise ValidationError(f"min_evidence must be a finite number >= 0, got {min_evidence!r}")
+    if isinstance(smoothness, bool) or not isinstance(smoothness, (int, float, np.integer, np.floating)) \
+            or not np.isfinite(smoothness) or smoothness < 0:
+        raise ValidationError(f"smoothness must be a finite number >= 0, got {smoothness!r}")
+    if smoothness > 0 and graph is None:
+        raise ValidationError("smoothness > 0 needs graph=: the Gaussians' affinity matrix "
+                              "(seed2gs_inverse.graph.gaussian_graph)")
     if progress is not None and not callable(progress):
         raise ValidationError(f"progress must be a callable or None, got {type(progress).__name__}")
     views = getattr(operators, "views", operators)

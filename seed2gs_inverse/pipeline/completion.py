@@ -1,0 +1,197 @@
+r"""Evidence for surfaces no labelled view saw: 3D label completion on a Gaussian graph.
+
+The model-free tracker (:class:`~seed2gs_inverse.frontend.model_free.GeometricTracker`)
+copies labels only where a labelled view saw the surface, so the back and the
+underside of an object stay unknown (NaN) in the orbit masks, and the
+Gaussians there have no evidence. Two model-free additions decide them from
+3D neighbourhoods, on the affinity graph ``G`` of
+:func:`seed2gs_inverse.graph.gaussian_graph` (kNN of the means; weights from
+distance, colour and normal similarity), built only around the object
+(:func:`object_graph`).
+
+**Graph-Laplacian regularisation after the solve** (the default,
+:func:`seed2gs_inverse.solvers.smoothing.laplacian_smooth`):
+
+.. math::
+
+    q^\star = \arg\min_q \sum_i e_i (q_i - \hat q_i)^2 + \lambda\, q^T L q
+              + \epsilon \lVert q - p \rVert^2,
+
+with :math:`\hat q` the solver's membership, :math:`e_i` the Gaussian's
+summed weight over known pixels of all views, :math:`L = D - G` and the
+prior :math:`p = 1_{G_0}`: Gaussians with evidence keep the fit, those
+without become the harmonic extension (random-walker probability) of their
+evidenced neighbours, so the back of an object joins its front through the
+object's own surface, and stops at the support surface where colour or
+normal change and where the ground's own evidence (label 0) is.
+
+**Completion of the orbit masks before the solve** (:func:`complete_membership`
+and :func:`fill_unknown`): random-walker labels with Dirichlet seeds
+:math:`q_i = 1` on :math:`G_0` (the seed lift) and :math:`q_i = 0` on the
+Gaussians the reference shows outside the seed (reference weight
+:math:`\sum_u w_{ui} \ge w_{min}`, membership :math:`\mu_i \le \mu_{bg}`),
+
+.. math::
+
+    L_{UU}\, q_U = -L_{UB}\, q_B,
+
+rendered into each orbit view through its operator, :math:`P(c) = W(c) q`
+normalised by the rendered opacity :math:`\alpha(c) = W(c) 1`; an unknown
+pixel with :math:`\alpha \ge \alpha_{min}` takes 1 where
+:math:`P/\alpha \ge 1 - \delta`, 0 where :math:`P/\alpha \le \delta`, and
+stays unknown otherwise. It only uses the reference's labels, so it is
+weaker than the regulariser, which also uses every orbit view's evidence;
+both are options of :func:`~seed2gs_inverse.pipeline.extract.extract`.
+
+With user-supplied 2D trackers (SAM2) the masks have no unknown pixels where
+the object is visible: the fill is a no-op and the regulariser only decides
+Gaussians no view's pixels reach (Algorithm 1 is unchanged otherwise).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..errors import ValidationError
+from ..graph import gaussian_graph, region_subset
+from ..solvers.smoothing import harmonic_extension
+
+__all__ = ["object_graph", "complete_membership", "tracked_membership", "fill_unknown", "GRAPH_DEFAULTS"]
+
+#: Graph settings used by extract(): k neighbours, colour and normal sigmas,
+#: and the region (multiples of the lift's radius about its centre).
+GRAPH_DEFAULTS = {"k": 10, "sigma_color": 0.1, "sigma_normal": 0.2, "region": 3.0, "min_opacity": 0.05}
+
+
+def object_graph(scene, center, radius: float, *, k: int = GRAPH_DEFAULTS["k"],
+                 sigma_color: float | None = GRAPH_DEFAULTS["sigma_color"],
+                 sigma_normal: float | None = GRAPH_DEFAULTS["sigma_normal"],
+                 region: float = GRAPH_DEFAULTS["region"],
+                 min_opacity: float = GRAPH_DEFAULTS["min_opacity"]) -> sp.csr_matrix:
+    """:func:`~seed2gs_inverse.graph.gaussian_graph` among the Gaussians within ``region * radius`` of ``center``.
+
+    The seed lift's extent is conservative (it sees only the front), hence a
+    region of 3 radii by default. Returns the (N, N) weights of the whole
+    scene (nodes outside the region are isolated).
+    """
+    if not (np.isfinite(region) and region > 0):
+        raise ValidationError(f"region must be positive, got {region!r}")
+    idx = region_subset(scene, center, float(region) * float(radius))
+    return gaussian_graph(scene, k, subset=idx, sigma_color=sigma_color, sigma_normal=sigma_normal,
+                          min_opacity=min_opacity)
+
+
+def complete_membership(graph, support, reference_weight, reference_membership, *,
+                        min_weight: float = 0.1, max_background_membership: float = 0.1) -> np.ndarray:
+    r"""Random-walker membership from the reference view's labels alone.
+
+    Parameters
+    ----------
+    graph : (N, N) sparse symmetric weights
+    support : (N,) bool
+        :math:`G_0` (foreground seeds).
+    reference_weight : (N,) float
+        Each Gaussian's summed compositing weight in the reference view,
+        :math:`\sum_u w_{ui}`.
+    reference_membership : (N,) float
+        :math:`\mu_i = (W^T m^\star)_i / (W^T 1)_i` (``SeedLift.membership``).
+    min_weight, max_background_membership : float
+        Background seeds: visible in the reference (weight >= ``min_weight``)
+        and outside the seed (membership <= ``max_background_membership``).
+
+    Returns
+    -------
+    (N,) float64 in [0, 1]; 1 on G0, 0 on the background seeds.
+    """
+    support = np.asarray(support)
+    n = support.shape[0] if support.ndim == 1 else -1
+    if support.dtype != bool or support.ndim != 1:
+        raise ValidationError("support must be a boolean (N,) mask (the seed lift's G0)")
+    w = np.asarray(reference_weight, np.float64).ravel()
+    mu = np.asarray(reference_membership, np.float64).ravel()
+    if w.shape != (n,) or mu.shape != (n,):
+        raise ValidationError(f"reference_weight and reference_membership need shape ({n},), "
+                              f"got {w.shape} and {mu.shape}")
+    bg = ~support & (w >= min_weight) & (mu <= max_background_membership)
+    fixed = support | bg
+    return harmonic_extension(graph, fixed, support.astype(np.float64), prior=support.astype(np.float64))
+
+
+def fill_unknown(operators, masks, q, *, decisive: float = 0.2, alpha_min: float = 0.5) -> list:
+    r"""Fill the unknown (NaN) pixels of each mask from a 3D membership rendered into the view.
+
+    ``P = W q`` over ``alpha = W 1``: 1 where ``P / alpha >= 1 - decisive``,
+    0 where ``<= decisive``, NaN elsewhere and where ``alpha < alpha_min``.
+    Known pixels are kept. Returns new float32 masks.
+    """
+    q = np.asarray(q, np.float32).ravel()
+    out = []
+    ops = list(operators)
+    if len(ops) != len(masks):
+        raise ValidationError(f"got {len(masks)} masks for {len(ops)} views")
+    for i, (op, m) in enumerate(zip(ops, masks)):
+        W = getattr(op, "W", op)
+        m = np.asarray(m, np.float32)
+        if W.shape[1] != q.size or W.shape[0] != m.size:
+            raise ValidationError(f"view {i}: operator {W.shape} does not match the mask {m.shape} "
+                                  f"and q ({q.size},)")
+        nan = np.isnan(m).ravel()
+        if not nan.any():
+            out.append(m)
+            continue
+        rows = np.flatnonzero(nan)
+        Wr = W[rows]
+        alpha = np.asarray(Wr.sum(axis=1)).ravel()
+        p = Wr @ q
+        with np.errstate(invalid="ignore", divide="ignore"):
+            v = np.where(alpha >= alpha_min, p / np.maximum(alpha, 1e-12), np.nan)
+        fill = np.full(rows.size, np.nan, np.float32)
+        fill[v >= 1 - decisive] = 1.0
+        fill[v <= decisive] = 0.0
+        flat = m.ravel().copy()
+        flat[rows] = fill
+        out.append(flat.reshape(m.shape))
+    return out
+
+
+def tracked_membership(graph, operators, masks, prior=None, *, min_evidence: float = 0.5,
+                       confident: float = 0.2) -> np.ndarray:
+    r"""Random-walker membership seeded by every decided pixel of every view.
+
+    Each Gaussian's label estimate from the known pixels,
+
+    .. math::
+
+        \hat q_i = \frac{\sum_c \sum_{u \in K(c)} w_{ui}(c)\, y_u(c)}{\sum_c \sum_{u \in K(c)} w_{ui}(c)},
+
+    fixes the Gaussians with evidence :math:`e_i = \sum_c \sum_{u \in K(c)} w_{ui}(c) \ge`
+    ``min_evidence`` and a confident estimate (:math:`\hat q_i \le` ``confident``
+    or :math:`\ge 1 -` ``confident``); the others (unseen surfaces, and
+    silhouette Gaussians whose pixels disagree) take the harmonic extension
+    :math:`L_{UU} q_U = -L_{UB} \hat q_B`; those no fixed node reaches keep ``prior``.
+
+    Returns
+    -------
+    (N,) float64 in [0, 1]
+    """
+    ops = list(operators)
+    if len(ops) != len(masks):
+        raise ValidationError(f"got {len(masks)} masks for {len(ops)} views")
+    if not 0 <= confident < 0.5:
+        raise ValidationError(f"confident must be in [0, 0.5), got {confident!r}")
+    n = getattr(ops[0], "W", ops[0]).shape[1]
+    num, den = np.zeros(n), np.zeros(n)
+    for i, (op, m) in enumerate(zip(ops, masks)):
+        W = getattr(op, "W", op)
+        y = np.asarray(m, np.float32).ravel()
+        if W.shape != (y.size, n):
+            raise ValidationError(f"view {i}: operator {W.shape} does not match its mask ({y.size} px) / N={n}")
+        known = ~np.isnan(y)
+        num += W.T @ np.where(known, y, 0.0).astype(np.float32)
+        den += W.T @ known.astype(np.float32)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        qhat = np.where(den > 0, num / np.maximum(den, 1e-30), 0.0)
+    qhat = np.clip(qhat, 0.0, 1.0)
+    fixed = (den >= min_evidence) & ((qhat <= confident) | (qhat >= 1.0 - confident))
+    return harmonic_extension(graph, fixed, qhat, prior=prior)

@@ -1,0 +1,192 @@
+r"""Graph-Laplacian regularisation of a per-Gaussian membership.
+
+Every solver method fits ``q`` to the pixels it is given. A Gaussian that
+lies (almost) only under unknown pixels (NaN in every mask: a surface no
+labelled view saw) has no evidence, and the fit leaves it at the prior or
+anywhere a trace of weight drives it. :func:`laplacian_smooth` decides such
+Gaussians from their neighbours on an affinity graph ``G``
+(:func:`seed2gs_inverse.graph.gaussian_graph`) while Gaussians with evidence
+keep the solver's value:
+
+.. math::
+
+    q^\star = \arg\min_q \; \sum_i e_i (q_i - \hat q_i)^2
+              + \lambda\, q^T L q + \epsilon \sum_i (q_i - p_i)^2,
+    \qquad L = D - G,
+
+with :math:`\hat q` the solver's membership, :math:`e_i` the Gaussian's
+evidence (its summed compositing weight over known pixels,
+``Problem.known_weight``), :math:`\lambda` the smoothness, :math:`p` the
+prior and :math:`\epsilon` a tiny ridge that only decides graph components
+without any evidence (they keep the prior). The minimiser solves the
+symmetric positive definite system
+
+.. math::
+
+    (E + \lambda L + \epsilon I)\, q = E \hat q + \epsilon p,
+    \qquad E = \mathrm{diag}(e).
+
+A Gaussian with :math:`e_i = 0` then satisfies
+:math:`q_i = \sum_j w_{ij} q_j / \sum_j w_{ij}` (up to :math:`\epsilon`): the
+harmonic extension of its neighbours, i.e. the probability that a random
+walk on ``G`` started at ``i`` first meets an evidenced Gaussian labelled
+foreground (Grady's random walker). Isolated nodes (no edges) decouple and
+get :math:`(e_i \hat q_i + \epsilon p_i) / (e_i + \epsilon)`.
+
+:func:`harmonic_extension` is the Dirichlet limit (:math:`e \to \infty` on
+the fixed nodes, 0 elsewhere): :math:`L_{UU} q_U = -L_{UB} q_B`.
+
+numpy/scipy only: no rasterizer, no Numba.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from ..errors import ValidationError
+from ..graph import check_graph, graph_laplacian
+
+__all__ = ["laplacian_smooth", "harmonic_extension"]
+
+#: Systems up to this many unknowns are factorised (SuperLU); larger ones use
+#: Jacobi-preconditioned conjugate gradients.
+DIRECT_MAX = 30_000
+
+
+def _vector(name, v, n, lo=None, hi=None) -> np.ndarray:
+    a = np.asarray(v, dtype=np.float64)
+    if a.shape != (n,):
+        raise ValidationError(f"{name} must have shape ({n},), one value per Gaussian, got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ValidationError(f"{name} must be finite")
+    if lo is not None and a.min(initial=lo) < lo or hi is not None and a.max(initial=hi) > hi:
+        raise ValidationError(f"{name} must lie in [{lo}, {hi if hi is not None else 'inf'}]")
+    return a
+
+
+def _spd_solve(A: sp.spmatrix, b: np.ndarray, x0: np.ndarray, method: str, rtol: float) -> np.ndarray:
+    n = A.shape[0]
+    if method == "auto":
+        method = "direct" if n <= DIRECT_MAX else "cg"
+    if method == "direct":
+        return np.asarray(spla.spsolve(A.tocsc(), b), dtype=np.float64)
+    if method != "cg":
+        raise ValidationError(f"linear solver must be 'auto', 'direct' or 'cg', got {method!r}")
+    d = A.diagonal()
+    M = sp.diags(1.0 / d)
+    x, info = spla.cg(A, b, x0=x0, rtol=rtol, maxiter=20 * n + 100, M=M)
+    if info != 0:
+        # Not converged within the budget: fall back to the exact factorisation.
+        x = spla.spsolve(A.tocsc(), b)
+    return np.asarray(x, dtype=np.float64)
+
+
+def laplacian_smooth(q_hat, evidence, graph, smoothness: float = 1.0, prior=None, *,
+                     ridge: float = 1e-6, solver: str = "cg", rtol: float = 1e-8) -> np.ndarray:
+    r"""Graph-regularised membership :math:`q^\star` (see the module docstring).
+
+    Parameters
+    ----------
+    q_hat : (N,) array in [0, 1]
+        The solver's membership.
+    evidence : (N,) array >= 0
+        :math:`e_i`, e.g. ``Problem.known_weight`` (summed weight on known pixels).
+    graph : scipy.sparse (N, N)
+        Symmetric non-negative weights, e.g. :func:`~seed2gs_inverse.graph.gaussian_graph`.
+    smoothness : float
+        :math:`\lambda \ge 0`; 0 returns :math:`\hat q` where ``e > 0`` and the
+        prior elsewhere (as without a graph).
+    prior : (N,) array in [0, 1], optional
+        :math:`p`, the value of Gaussians no evidence reaches; default 0.
+    ridge : float
+        :math:`\epsilon > 0`.
+    solver : {"cg", "direct", "auto"}
+        Linear solver for the coupled nodes: Jacobi-preconditioned conjugate
+        gradients warm-started from the Dirichlet limit (default), SuperLU,
+        or ``auto`` (SuperLU up to :data:`DIRECT_MAX` unknowns, else CG).
+    rtol : float
+        CG relative tolerance.
+
+    Returns
+    -------
+    (N,) float64 in [0, 1]
+    """
+    q_hat = np.asarray(q_hat, dtype=np.float64).ravel()
+    n = q_hat.size
+    q_hat = _vector("q_hat", q_hat, n, 0.0, 1.0)
+    e = _vector("evidence", evidence, n, 0.0)
+    p = np.zeros(n) if prior is None else _vector("prior", prior, n, 0.0, 1.0)
+    g = check_graph(graph, n)
+    lam = float(smoothness)
+    if not (np.isfinite(lam) and lam >= 0):
+        raise ValidationError(f"smoothness must be a finite number >= 0, got {smoothness!r}")
+    eps = float(ridge)
+    if not (np.isfinite(eps) and eps > 0):
+        raise ValidationError(f"ridge must be positive, got {ridge!r}")
+    # Closed form for every node first (exact for isolated nodes and for lam = 0).
+    out = (e * q_hat + eps * p) / (e + eps)
+    if lam == 0 or g.nnz == 0:
+        return np.clip(out, 0.0, 1.0)
+    L = graph_laplacian(g)
+    coupled = np.flatnonzero(L.diagonal() > 0)  # nodes with at least one edge
+    if coupled.size:
+        Lc = L[coupled][:, coupled]  # edges only join coupled nodes, so this block is exact
+        A = (lam * Lc + sp.diags(e[coupled] + eps)).tocsr()
+        b = e[coupled] * q_hat[coupled] + eps * p[coupled]
+        # Warm start: the Dirichlet limit (evidenced nodes pinned at q_hat, the
+        # others harmonic) is a small system and already carries the slow,
+        # long-range part of the solution that CG would need many steps for.
+        ec = e[coupled]
+        x0 = out[coupled]
+        if solver != "direct" and (ec > 0).any() and (ec == 0).any():
+            x0 = harmonic_extension(g[coupled][:, coupled], ec > 0, q_hat[coupled], prior=p[coupled])
+        out[coupled] = _spd_solve(A, b, x0, solver, rtol)
+    return np.clip(out, 0.0, 1.0)
+
+
+def harmonic_extension(graph, fixed, values, prior=None, *, ridge: float = 1e-9,
+                       solver: str = "auto") -> np.ndarray:
+    r"""Random-walker labels: fixed nodes keep ``values``, the rest are harmonic.
+
+    Solves :math:`(L_{UU} + \epsilon I) q_U = -L_{UB} q_B + \epsilon p_U`;
+    every free node connected to a fixed one then satisfies
+    :math:`q_i = \sum_j w_{ij} q_j / \sum_j w_{ij}` (to :math:`O(\epsilon)`),
+    free components without a fixed node keep the prior.
+
+    Parameters
+    ----------
+    graph : scipy.sparse (N, N) symmetric weights
+    fixed : (N,) bool
+        The seeds (Dirichlet nodes).
+    values : (N,) array in [0, 1]
+        Their labels (read only where ``fixed``).
+    prior : (N,) array in [0, 1], optional
+        Value of free nodes no seed reaches (default 0).
+
+    Returns
+    -------
+    (N,) float64 in [0, 1]
+    """
+    g = check_graph(graph)
+    n = g.shape[0]
+    fixed = np.asarray(fixed)
+    if fixed.dtype != bool or fixed.shape != (n,):
+        raise ValidationError(f"fixed must be a boolean mask of shape ({n},), got {fixed.dtype} {fixed.shape}")
+    v = _vector("values", np.where(fixed, values, 0.0), n, 0.0, 1.0)
+    p = np.zeros(n) if prior is None else _vector("prior", prior, n, 0.0, 1.0)
+    eps = float(ridge)
+    if not (np.isfinite(eps) and eps > 0):
+        raise ValidationError(f"ridge must be positive, got {ridge!r}")
+    out = np.where(fixed, v, p)
+    L = graph_laplacian(g)
+    deg = L.diagonal()
+    free = np.flatnonzero(~fixed & (deg > 0))
+    if free.size == 0:
+        return np.clip(out, 0.0, 1.0)
+    bidx = np.flatnonzero(fixed)
+    A = (L[free][:, free] + sp.diags(np.full(free.size, eps))).tocsr()
+    b = -(L[free][:, bidx] @ v[bidx]) + eps * p[free]
+    out[free] = _spd_solve(A, b, p[free], solver, 1e-10)
+    return np.clip(out, 0.0, 1.0)

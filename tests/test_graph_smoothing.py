@@ -1,0 +1,143 @@
+"""Gaussian affinity graph and the graph-Laplacian regulariser, against independent references."""
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from seed2gs_inverse.errors import ValidationError
+from seed2gs_inverse.graph import check_graph, gaussian_graph, graph_laplacian, region_subset
+from seed2gs_inverse.scene import GaussianScene
+from seed2gs_inverse.sh import SH_C0
+from seed2gs_inverse.solvers.smoothing import harmonic_extension, laplacian_smooth
+
+
+def _scene(n=60, seed=0, flat=True):
+    rng = np.random.default_rng(seed)
+    means = rng.normal(size=(n, 3))
+    quats = rng.normal(size=(n, 4))
+    ls = np.log(rng.uniform(0.05, 0.2, (n, 3)))
+    if flat:
+        ls[:, 2] = np.log(0.005)
+    rgb = rng.uniform(0.1, 0.9, (n, 3))
+    sh = ((rgb - 0.5) / SH_C0)[:, None, :]
+    return GaussianScene(means, quats, ls, np.full(n, 2.0), sh)
+
+
+def _rotmat(q):
+    w, x, y, z = q / np.linalg.norm(q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+def test_graph_weights_match_brute_force():
+    sc = _scene(40)
+    k, sc_c, sc_n = 5, 0.2, 0.3
+    g = gaussian_graph(sc, k, sigma_color=sc_c, sigma_normal=sc_n).toarray()
+    x = sc.means.astype(np.float64)
+    d = np.linalg.norm(x[:, None] - x[None], axis=2)
+    order = np.argsort(d, axis=1)[:, 1:k + 1]
+    rho = d[np.arange(40), order[:, -1]]
+    rgb = np.clip(0.5 + SH_C0 * sc.sh[:, 0].astype(np.float64), 0, 1)
+    scales = np.exp(sc.log_scales.astype(np.float64))
+    normals = np.array([_rotmat(sc.quats[i].astype(np.float64))[:, np.argmin(scales[i])] for i in range(40)])
+    s = np.sort(scales, axis=1)
+    flat = np.clip(1 - s[:, 0] / s[:, 1], 0, 1)
+    ref = np.zeros((40, 40))
+    for i in range(40):
+        for j in order[i]:
+            w = np.exp(-d[i, j] ** 2 / (rho[i] * rho[j]) - np.sum((rgb[i] - rgb[j]) ** 2) / (2 * sc_c ** 2)
+                       - (1 - abs(normals[i] @ normals[j])) / sc_n * flat[i] * flat[j])
+            ref[i, j] = ref[j, i] = w  # union of both directions, same weight
+    np.testing.assert_allclose(g, ref, rtol=1e-6, atol=1e-12)
+
+
+def test_graph_subset_and_laplacian_psd():
+    sc = _scene(80, seed=1)
+    sub = region_subset(sc, np.zeros(3), 1.2)
+    g = gaussian_graph(sc, 6, subset=sub)
+    assert g.shape == (80, 80)
+    out = np.setdiff1d(np.arange(80), sub)
+    assert g[out].nnz == 0 and g[:, out].nnz == 0
+    check_graph(g, 80)
+    L = graph_laplacian(g).toarray()
+    np.testing.assert_allclose(L, L.T, atol=1e-12)
+    assert np.linalg.eigvalsh(L).min() > -1e-10
+    np.testing.assert_allclose(L.sum(1), 0, atol=1e-12)
+    rng = np.random.default_rng(2)
+    q = rng.uniform(size=80)
+    gd = g.toarray()
+    assert np.isclose(q @ L @ q, 0.5 * np.sum(gd * (q[:, None] - q[None]) ** 2))
+
+
+def test_check_graph_rejects_asymmetric_and_wrong_size():
+    g = sp.csr_matrix(np.array([[0, 1.0], [0.5, 0]]))
+    with pytest.raises(ValidationError, match="symmetric"):
+        check_graph(g)
+    with pytest.raises(ValidationError, match="3 Gaussians"):
+        check_graph(sp.csr_matrix((2, 2)), 3)
+    with pytest.raises(ValidationError, match="scipy.sparse"):
+        check_graph(np.zeros((2, 2)))
+
+
+def _random_graph(n, seed, p=0.15):
+    rng = np.random.default_rng(seed)
+    w = rng.uniform(0.1, 1.0, (n, n)) * (rng.uniform(size=(n, n)) < p)
+    w = np.triu(w, 1)
+    return sp.csr_matrix(w + w.T)
+
+
+@pytest.mark.parametrize("solver", ["direct", "cg"])
+def test_laplacian_smooth_matches_dense_solve(solver):
+    n = 50
+    g = _random_graph(n, 3)
+    rng = np.random.default_rng(4)
+    qh = rng.uniform(size=n)
+    e = rng.uniform(0, 3, n) * (rng.uniform(size=n) < 0.6)
+    p = (rng.uniform(size=n) < 0.3).astype(float)
+    lam, eps = 0.7, 1e-3
+    gd = g.toarray()
+    L = np.diag(gd.sum(1)) - gd
+    ref = np.linalg.solve(np.diag(e + eps) + lam * L, e * qh + eps * p)
+    out = laplacian_smooth(qh, e, g, lam, p, ridge=eps, solver=solver)
+    np.testing.assert_allclose(out, np.clip(ref, 0, 1), atol=1e-7)
+
+
+@pytest.mark.parametrize("solver", ["direct", "cg"])
+def test_laplacian_smooth_free_nodes_are_harmonic(solver):
+    n = 60
+    g = _random_graph(n, 5, p=0.2)
+    rng = np.random.default_rng(6)
+    e = np.where(rng.uniform(size=n) < 0.4, 1e3, 0.0)  # evidence only on some nodes
+    qh = rng.uniform(size=n)
+    out = laplacian_smooth(qh, e, g, 1.0, ridge=1e-12, solver=solver, rtol=1e-12)
+    gd = g.toarray()
+    free = (e == 0) & (gd.sum(1) > 0)
+    assert free.sum() > 10
+    mean_nb = gd @ out / gd.sum(1).clip(1e-300)
+    np.testing.assert_allclose(out[free], mean_nb[free], atol=1e-6)
+    np.testing.assert_allclose(out[e > 0], qh[e > 0], atol=2e-2)  # pulled by lam * degree / e
+
+
+def test_laplacian_smooth_isolated_and_zero_smoothness():
+    g = sp.csr_matrix((4, 4))
+    qh = np.array([0.2, 0.9, 0.4, 0.0])
+    e = np.array([1.0, 0.0, 2.0, 0.0])
+    p = np.array([0.0, 1.0, 0.0, 0.0])
+    out = laplacian_smooth(qh, e, g, 5.0, p)
+    np.testing.assert_allclose(out, [0.2, 1.0, 0.4, 0.0], atol=1e-5)
+    with pytest.raises(ValidationError, match="smoothness"):
+        laplacian_smooth(qh, e, g, -1.0)
+    with pytest.raises(ValidationError, match="evidence"):
+        laplacian_smooth(qh, -e, g, 1.0)
+
+
+def test_harmonic_extension_on_a_path_is_linear():
+    # Path 0-1-2-3-4 with unit weights, ends fixed to 1 and 0: q = 1 - i/4 exactly.
+    n = 5
+    w = np.zeros((n, n))
+    for i in range(n - 1):
+        w[i, i + 1] = w[i + 1, i] = 1.0
+    fixed = np.array([True, False, False, False, True])
+    q = harmonic_extension(sp.csr_matrix(w), fixed, np.array([1.0, 0, 0, 0, 0.0]))
+    np.testing.assert_allclose(q, [1, 0.75, 0.5, 0.25, 0], atol=1e-7)

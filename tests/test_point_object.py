@@ -1,0 +1,141 @@
+"""Point prompts that return the whole object (issue 10, part 3)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from seed2gs_inverse.errors import ValidationError
+from seed2gs_inverse.frontend.prompts import PointPrompt
+from seed2gs_inverse.synthetic.ground import make_ground_scene
+from seed2gs_inverse.metrics import iou
+from seed2gs_inverse.raster import build_operator
+from seed2gs_inverse.pipeline.point_object import (depth_normals, grow_object, point_object_mask,
+                                                   surface_patch)
+
+
+@pytest.fixture(scope="module")
+def table_view():
+    g = make_ground_scene(1)
+    cam = g.camera("table", 50, 30, 2.2, 320, 240)
+    op = build_operator(g.scene, cam)
+    table = g.object_mask("table")
+    truth = (op.W @ table.astype(np.float32)).reshape(cam.image_shape) > 0.5
+    # The skirt (and the rim under the top): table Gaussians below the top
+    # surface and at the rim radius, found from the construction geometry.
+    loc = g.to_local(g.scene.means) - g.to_local(g.anchors["table"][None])
+    skirt = table & (np.hypot(loc[:, 0], loc[:, 1]) > 0.33) & (loc[:, 2] < 0.53) & (loc[:, 2] > 0.42)
+    skirt_px = (op.W @ skirt.astype(np.float32)).reshape(cam.image_shape) > 0.5
+    uv, _ = cam.project((g.anchors["table"] + 0.55 * g.up)[None])
+    click = tuple(int(v) for v in uv[0])
+    return g, cam, op.rendering, truth, skirt_px, click
+
+
+def test_click_on_the_table_top_returns_top_and_skirt(table_view):
+    g, cam, ref, truth, skirt_px, click = table_view
+    assert skirt_px.sum() > 300
+    po = point_object_mask(g.scene, cam, [click], rendering=ref)
+    assert po.mask.shape == cam.image_shape and po.mask[click[1], click[0]]
+    assert iou(po.mask, truth) >= 0.8
+    assert (po.mask & skirt_px).sum() >= 0.9 * skirt_px.sum()
+    # Nothing of the ground or of other objects in 3D either.
+    table = g.object_mask("table")
+    assert (po.selected & ~table).sum() <= 0.02 * po.selected.sum()
+    assert po.info["support"]["source"] == "support_plane" and not po.info["fallback_to_patch"]
+    # The colour region of today's PointPrompt misses the skirt: the test can fail.
+    old = PointPrompt([click]).to_mask(ref.rgb, depth=ref.depth, alpha=ref.alpha)
+    assert (old & skirt_px).sum() < 0.5 * skirt_px.sum()
+
+
+def test_negative_click_on_the_skirt_keeps_it_out(table_view):
+    g, cam, ref, truth, skirt_px, click = table_view
+    ys, xs = np.nonzero(skirt_px & ~np.roll(skirt_px, -3, axis=0))  # a skirt pixel
+    neg = (int(np.median(xs)), int(ys[np.argmin(np.abs(xs - np.median(xs)))]) - 2)
+    po = point_object_mask(g.scene, cam, [click, neg], [1, 0], rendering=ref)
+    assert po.mask[click[1], click[0]]
+    assert (po.mask & skirt_px).sum() < (point_object_mask(g.scene, cam, [click], rendering=ref).mask
+                                         & skirt_px).sum()
+
+
+def test_depth_normals_of_a_plane_match_its_normal():
+    g = make_ground_scene(2, objects=("box",), clutter=(), uneven=0.0)
+    cam = g.camera(g.ground_point, 0, 40, 3.0, 120, 90)
+    # Analytic depth of the ground plane n.(X - p) = 0 along each pixel ray.
+    xs = (np.arange(120) + 0.5 - cam.cx) / cam.fx
+    ys = (np.arange(90) + 0.5 - cam.cy) / cam.fy
+    rays = np.stack(np.broadcast_arrays(xs[None, :], ys[:, None], 1.0), -1)
+    n_cam = cam.rotation @ g.ground_normal
+    p_cam = cam.world_to_view(g.ground_point[None])[0]
+    depth = (n_cam @ p_cam) / (rays @ n_cam)
+    n = depth_normals(cam, depth)
+    assert np.abs(n.reshape(-1, 3) @ n_cam - 1).max() < 1e-6  # faces the camera (n . up_cam > 0)
+    patch = surface_patch(cam, depth, np.ones_like(depth), (60, 45))
+    assert patch.all()  # one smooth surface: nothing separates it
+
+
+def test_grow_object_stops_at_the_plane_and_at_gaps():
+    rng = np.random.default_rng(0)
+    from seed2gs_inverse.scene import GaussianScene
+
+    floor = np.column_stack([rng.uniform(-1, 1, (1500, 2)), np.zeros(1500)])
+    block = rng.uniform([-0.2, -0.2, 0.0], [0.2, 0.2, 0.4], (800, 3))
+    far = rng.uniform([0.5, 0.5, 0.0], [0.7, 0.7, 0.3], (300, 3))  # a separate object 0.3 away
+    pts = np.concatenate([floor, block, far])
+    n = len(pts)
+    scene = GaussianScene(pts, np.tile([1.0, 0, 0, 0], (n, 1)), np.full((n, 3), np.log(0.01)),
+                          np.full(n, 3.0), np.zeros((n, 1, 3)))
+    seeds = np.zeros(n, bool)
+    seeds[1500:1520] = True
+    sel, info = grow_object(scene, seeds, center=pts[1500:1520].mean(0), radius=2.0,
+                            plane=(np.array([0, 0, 1.0]), np.zeros(3), 0.03))
+    assert sel[1500:2300][block[:, 2] >= 0.03].all()
+    assert not sel[:1500].any() and not sel[2300:].any()
+    # Without the plane the floor connects everything.
+    sel2, _ = grow_object(scene, seeds, center=pts[1500:1520].mean(0), radius=2.0)
+    assert sel2[:1500].mean() > 0.9
+
+
+def test_validation(table_view):
+    g, cam, ref, *_ = table_view
+    with pytest.raises(ValidationError, match="outside"):
+        point_object_mask(g.scene, cam, [(999, 5)], rendering=ref)
+    with pytest.raises(ValidationError, match="labels"):
+        point_object_mask(g.scene, cam, [(5, 5)], [0], rendering=ref)
+    with pytest.raises(ValidationError, match="unknown options"):
+        point_object_mask(g.scene, cam, [(5, 5)], rendering=ref, radius=3)
+
+
+@pytest.mark.shared_data
+def test_firepit_table_click_returns_top_and_skirt(shared_data):
+    from seed2gs_inverse.io import read_camera, read_scene
+    from seed2gs_inverse.raster import render
+
+    scene = read_scene(shared_data / "firepit_562k_sh0.ply")
+    cam = read_camera(str(shared_data / "firepit_cameras.json") + ":overview").scaled(0.5)
+    ref = render(scene, cam)
+    click = (294, 157)  # the README's (589, 315) at half resolution
+    po = point_object_mask(scene, cam, [click], rendering=ref)
+    old = PointPrompt([click]).to_mask(ref.rgb, depth=ref.depth, alpha=ref.alpha)
+    assert po.mask[click[1], click[0]] and po.info["support"]["source"] == "support_plane"
+    ys_new, xs_new = np.nonzero(po.mask)
+    ys_old, xs_old = np.nonzero(old)
+    # The skirt hangs below the top in the image: the mask reaches further
+    # down than the top's colour region, and covers that region.
+    assert ys_new.max() >= ys_old.max() + 8
+    assert (po.mask & old).sum() >= 0.9 * old.sum()
+    # No leak into the patio or the chairs: about the table's size.
+    assert po.mask.sum() <= 2.5 * old.sum()
+    assert np.ptp(xs_new) <= 1.3 * np.ptp(xs_old)
+
+
+def test_culling_for_the_projection_keeps_the_weights_exact(table_view):
+    # point_object_mask rasterizes its back-projection from raster.cone_cull's subset
+    from seed2gs_inverse.raster import cone_cull
+
+    g, cam, *_ = table_view
+    for roi in [(100, 60, 220, 180), (0, 0, 40, 30), (300, 200, 320, 240)]:
+        full = build_operator(g.scene, cam, roi=roi)
+        idx = cone_cull(g.scene, cam, roi)
+        assert len(idx) < len(g.scene)
+        part = build_operator(g.scene, cam, roi=roi, subset=idx)
+        assert abs(full.W - part.W).max() == 0 and full.W.nnz == part.W.nnz
