@@ -125,8 +125,8 @@ def batch_client(client=None, n_workers: int | None = None, n_jobs: int | None =
     # scene-grouped order.
     # Dask's MALLOC_TRIM_THRESHOLD_ for worker processes also freezes glibc's
     # mmap threshold at 128 KiB, so every large numpy temporary of the solver
-    # is mapped and zeroed afresh: the solve stage ran 1.5x slower in a
-    # worker than in this process. The workers keep glibc's defaults.
+    # is mapped and zeroed afresh, and the solve stage was slower in a worker
+    # than in the main process. The workers keep glibc's defaults.
     with dask.config.set({"distributed.scheduler.allowed-failures": 0,
                           "distributed.scheduler.worker-saturation": 1.0,
                           "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
