@@ -141,13 +141,17 @@ def laplacian_smooth(q_hat, evidence, graph, smoothness: float = 1.0, prior=None
         ec = e[coupled]
         x0 = out[coupled]
         if solver != "direct" and (ec > 0).any() and (ec == 0).any():
-            x0 = harmonic_extension(g[coupled][:, coupled], ec > 0, q_hat[coupled], prior=p[coupled])
+            # Only a starting point: a loose tolerance (the CG below converges to
+            # rtol either way), where 1e-10 cost thousands of CG steps on the
+            # firepit table's 60k-node region.
+            x0 = harmonic_extension(g[coupled][:, coupled], ec > 0, q_hat[coupled], prior=p[coupled],
+                                    rtol=1e-4)
         out[coupled] = _spd_solve(A, b, x0, solver, rtol)
     return np.clip(out, 0.0, 1.0)
 
 
 def harmonic_extension(graph, fixed, values, prior=None, *, ridge: float = 1e-9,
-                       solver: str = "auto") -> np.ndarray:
+                       solver: str = "auto", rtol: float = 1e-10) -> np.ndarray:
     r"""Random-walker labels: fixed nodes keep ``values``, the rest are harmonic.
 
     Solves :math:`(L_{UU} + \epsilon I) q_U = -L_{UB} q_B + \epsilon p_U`;
@@ -164,6 +168,13 @@ def harmonic_extension(graph, fixed, values, prior=None, *, ridge: float = 1e-9,
         Their labels (read only where ``fixed``).
     prior : (N,) array in [0, 1], optional
         Value of free nodes no seed reaches (default 0).
+    ridge : float
+        :math:`\epsilon > 0`.
+    solver : {"auto", "direct", "cg"}
+        As in :func:`laplacian_smooth` (``auto``: SuperLU up to
+        :data:`DIRECT_MAX` unknowns, else CG).
+    rtol : float
+        CG relative tolerance.
 
     Returns
     -------
@@ -188,5 +199,5 @@ def harmonic_extension(graph, fixed, values, prior=None, *, ridge: float = 1e-9,
     bidx = np.flatnonzero(fixed)
     A = (L[free][:, free] + sp.diags(np.full(free.size, eps))).tocsr()
     b = -(L[free][:, bidx] @ v[bidx]) + eps * p[free]
-    out[free] = _spd_solve(A, b, p[free], solver, 1e-10)
+    out[free] = _spd_solve(A, b, p[free], solver, rtol)
     return np.clip(out, 0.0, 1.0)
