@@ -99,18 +99,18 @@ def read_scene(path, drop_nonfinite: bool = False) -> GaussianScene:
         compressed ``.spz`` streams, more than ``MAX_COMPRESSION_RATIO`` = 16
         times the file size once decompressed), missing properties,
         non-finite values. The message names the file.
+    OSError
+        The file cannot be opened.
 
     Notes
     -----
     Memory is bounded by what the file justifies: headers are checked
     against the file size before anything is allocated or decompressed,
     compressed streams are inflated into one buffer of exactly the promised
-    size, and decoding runs in blocks. Peak memory is about the decoded scene
-    plus the file (binary PLY ~2.2-2.5x the file, ASCII PLY ~0.5-1.6x,
-    ``.splat`` ~2.2x; the compressed formats decode to 4-15x their size).
-    The arrays of the returned scene are read-only.
-    OSError
-        The file cannot be opened.
+    size, and decoding runs in blocks, so the peak is about the decoded scene
+    plus the file (``benchmarks/bench_io.py`` prints it for the real scenes;
+    the fuzz tests hold every input under 3x its size + 64 MB). The arrays
+    of the returned scene are read-only.
     """
     fam = _family(path)
     try:
