@@ -123,6 +123,28 @@ def compose(background, objects, remove_overlap: bool = False,
     return GaussianScene.concat(parts), np.concatenate(labels)
 
 
+
+def height_range_scale(h, height=None, scale=None, quantile: float = 0.0) -> tuple[float, float]:
+    """``(lo, s)``: the object's low height and the scale that gives it ``height``.
+
+    ``h`` (M,) are the heights of an object's Gaussians along its up axis;
+    ``lo``/``hi`` are their ``quantile`` / ``1 - quantile`` quantiles (min and
+    max for 0). ``s = height / (hi - lo)`` when ``height`` is given, else
+    ``scale`` (default 1). Shared by :func:`pose_on_point` and
+    :func:`~seed2gs_inverse.synthetic.ground.place_object`.
+    """
+    lo, hi = np.quantile(h, [quantile, 1 - quantile]) if quantile > 0 else (h.min(), h.max())
+    if height is not None:
+        if not (np.isfinite(height) and height > 0):
+            raise ValidationError(f"height must be positive, got {height!r}")
+        if hi - lo <= 0:
+            raise ValidationError("the object has no extent along object_up; pass scale instead of height")
+        return float(lo), float(height) / (hi - lo)
+    s = 1.0 if scale is None else float(scale)
+    if not (np.isfinite(s) and s > 0):
+        raise ValidationError(f"scale must be positive, got {scale!r}")
+    return float(lo), s
+
 def pose_on_point(object_scene: GaussianScene, anchor, up, object_up=(0.0, 0.0, 1.0),
                   height: float | None = None, scale: float | None = None,
                   yaw_deg: float = 0.0, quantile: float = 0.0) -> np.ndarray:
@@ -167,17 +189,7 @@ def pose_on_point(object_scene: GaussianScene, anchor, up, object_up=(0.0, 0.0, 
         raise ValidationError("give either height or scale, not both")
     means = object_scene.means.astype(np.float64)
     h = means @ object_up
-    lo, hi = np.quantile(h, [quantile, 1 - quantile]) if quantile > 0 else (h.min(), h.max())
-    if height is not None:
-        if not (np.isfinite(height) and height > 0):
-            raise ValidationError(f"height must be positive, got {height!r}")
-        if hi - lo <= 0:
-            raise ValidationError("the object has no extent along object_up; pass scale instead of height")
-        s = float(height) / (hi - lo)
-    else:
-        s = 1.0 if scale is None else float(scale)
-        if not (np.isfinite(s) and s > 0):
-            raise ValidationError(f"scale must be positive, got {scale!r}")
+    lo, s = height_range_scale(h, height, scale, quantile)
     rot = axis_angle(up, np.radians(yaw_deg)) @ rotation_between(object_up, up)
     c = np.median(means, axis=0)
     bottom = c + (lo - c @ object_up) * object_up

@@ -60,6 +60,7 @@ from ..errors import ValidationError
 from ..geometry import rotation_between, unit_vector
 from ..scene import GaussianScene, quat_to_rotmat
 from ..sh import SH_C0
+from .compose import height_range_scale
 
 __all__ = ["GroundScene", "make_ground_scene", "place_object", "OBJECT_KINDS", "CLUTTER_KINDS",
            "random_rotation"]
@@ -634,18 +635,7 @@ def place_object(ground: GroundScene, obj: GaussianScene, at=(0.0, 0.0), *, obje
     obj_up = unit_vector("object_up", object_up)
     align = _rot_z(np.radians(yaw_deg)) @ rotation_between(obj_up, np.array([0.0, 0.0, 1.0]))
     p = obj.means.astype(np.float64) @ align.T
-    if height is not None:
-        if not (np.isfinite(height) and height > 0):
-            raise ValidationError(f"height must be positive, got {height!r}")
-        lo, hi = (np.quantile(p[:, 2], [quantile, 1 - quantile]) if quantile > 0
-                  else (p[:, 2].min(), p[:, 2].max()))
-        if hi - lo <= 0:
-            raise ValidationError("the object has no extent along object_up; pass scale instead")
-        s = float(height) / (hi - lo)
-    else:
-        s = 1.0 if scale is None else float(scale)
-        if not (np.isfinite(s) and s > 0):
-            raise ValidationError(f"scale must be positive, got {scale!r}")
+    _, s = height_range_scale(p[:, 2], height, scale, quantile)
     p = s * p
     shift = np.array([at[0], at[1], 0.0]) - np.array([*np.median(p[:, :2], axis=0), 0.0])
     p = p + shift
