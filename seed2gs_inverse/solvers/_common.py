@@ -144,7 +144,12 @@ class SolveResult:
         Default threshold of :meth:`selected` (0.5 unless the method says
         otherwise, e.g. voting with a bias).
     info : dict
-        Method-specific extras (e.g. the chosen view order).
+        Method-specific extras (e.g. the chosen view order), plus what
+        ``solve`` adds for every method: ``min_evidence``,
+        ``n_weak_evidence``, ``smoothness``, and the wall-clock split of
+        ``seconds`` into ``seconds_method`` (the method itself) and
+        ``seconds_smoothing`` (the graph regulariser, or resetting the
+        Gaussians without evidence to the prior).
     """
 
     q: np.ndarray

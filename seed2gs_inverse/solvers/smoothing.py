@@ -51,8 +51,12 @@ from ..graph import check_graph, graph_laplacian
 __all__ = ["laplacian_smooth", "harmonic_extension"]
 
 #: Systems up to this many unknowns are factorised (SuperLU); larger ones use
-#: Jacobi-preconditioned conjugate gradients.
-DIRECT_MAX = 30_000
+#: Jacobi-preconditioned conjugate gradients. The evidence spans orders of
+#: magnitude (0 on unseen Gaussians, thousands on well-seen ones), which leaves
+#: the system badly conditioned for CG even after Jacobi scaling, while the
+#: factor of a kNN graph of a few hundred thousand nodes still fits in well
+#: under 1 GB; ``benchmarks/bench_smoothing.py`` prints both solvers' times.
+DIRECT_MAX = 250_000
 
 
 def _vector(name, v, n, lo=None, hi=None) -> np.ndarray:
@@ -84,7 +88,7 @@ def _spd_solve(A: sp.spmatrix, b: np.ndarray, x0: np.ndarray, method: str, rtol:
 
 
 def laplacian_smooth(q_hat, evidence, graph, smoothness: float = 1.0, prior=None, *,
-                     ridge: float = 1e-6, solver: str = "cg", rtol: float = 1e-8) -> np.ndarray:
+                     ridge: float = 1e-6, solver: str = "auto", rtol: float = 1e-8) -> np.ndarray:
     r"""Graph-regularised membership :math:`q^\star` (see the module docstring).
 
     Parameters
@@ -102,10 +106,11 @@ def laplacian_smooth(q_hat, evidence, graph, smoothness: float = 1.0, prior=None
         :math:`p`, the value of Gaussians no evidence reaches; default 0.
     ridge : float
         :math:`\epsilon > 0`.
-    solver : {"cg", "direct", "auto"}
-        Linear solver for the coupled nodes: Jacobi-preconditioned conjugate
-        gradients warm-started from the Dirichlet limit (default), SuperLU,
-        or ``auto`` (SuperLU up to :data:`DIRECT_MAX` unknowns, else CG).
+    solver : {"auto", "direct", "cg"}
+        Linear solver for the coupled nodes: ``auto`` (default) factorises
+        with SuperLU up to :data:`DIRECT_MAX` unknowns and uses CG beyond;
+        ``direct`` always factorises; ``cg`` is Jacobi-preconditioned
+        conjugate gradients warm-started from the Dirichlet limit.
     rtol : float
         CG relative tolerance.
 
@@ -140,7 +145,8 @@ def laplacian_smooth(q_hat, evidence, graph, smoothness: float = 1.0, prior=None
         # long-range part of the solution that CG would need many steps for.
         ec = e[coupled]
         x0 = out[coupled]
-        if solver != "direct" and (ec > 0).any() and (ec == 0).any():
+        use_cg = solver == "cg" or (solver == "auto" and coupled.size > DIRECT_MAX)
+        if use_cg and (ec > 0).any() and (ec == 0).any():
             # Only a starting point: a loose tolerance (the CG below converges to
             # rtol either way), where 1e-10 cost thousands of CG steps on the
             # firepit table's 60k-node region.
