@@ -7,6 +7,7 @@
 
 from .lerf_mask import (LerfScene, check_models, evaluate_lerf_mask, evaluate_scenes, lerf_jobs, read_gt_mask,
                         read_lerf_mask, score_frame)
+from .ovs3d import evaluate_3d_ovs, read_3d_ovs
 
 __all__ = ["LerfScene", "check_models", "evaluate_lerf_mask", "evaluate_scenes", "lerf_jobs", "read_gt_mask",
-           "read_lerf_mask", "score_frame"]
+           "read_lerf_mask", "score_frame", "evaluate_3d_ovs", "read_3d_ovs"]

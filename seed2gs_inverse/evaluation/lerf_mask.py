@@ -179,6 +179,22 @@ def _at_size(cam: Camera, shape, where: str) -> Camera:
                   name=cam.name, near=cam.near)
 
 
+def _scene_names(data_dir: Path, scenes_dir: Path, scenes, marker: str, layout: str) -> list:
+    """Sorted names of the folders of ``data_dir`` holding ``marker``, or the requested ``scenes``."""
+    for d, what in ((data_dir, "DATA_DIR"), (scenes_dir, "--scenes")):
+        if not d.is_dir():
+            raise ValidationError(f"{what} {d} is not a directory")
+    names = sorted(p.name for p in data_dir.iterdir() if (p / marker).exists())
+    if scenes is not None:
+        missing = sorted(set(scenes) - set(names))
+        if missing:
+            raise ValidationError(f"{data_dir}: no scene(s) {missing} with {marker}; found {names}")
+        names = [n for n in names if n in set(scenes)]
+    if not names:
+        raise ValidationError(f"{data_dir}: no {layout} found")
+    return names
+
+
 def read_lerf_mask(data_dir, scenes_dir, scenes=None) -> list:
     """The scenes of a LERF-Mask style dataset (layout in the module docstring).
 
@@ -192,17 +208,7 @@ def read_lerf_mask(data_dir, scenes_dir, scenes=None) -> list:
         Only these scenes (default: every folder with ``test_mask``).
     """
     data_dir, scenes_dir = Path(data_dir), Path(scenes_dir)
-    for d, what in ((data_dir, "DATA_DIR"), (scenes_dir, "--scenes")):
-        if not d.is_dir():
-            raise ValidationError(f"{what} {d} is not a directory")
-    names = sorted(p.name for p in data_dir.iterdir() if (p / "test_mask").is_dir())
-    if scenes is not None:
-        missing = sorted(set(scenes) - set(names))
-        if missing:
-            raise ValidationError(f"{data_dir}: no scene(s) {missing} with a test_mask folder; found {names}")
-        names = [n for n in names if n in set(scenes)]
-    if not names:
-        raise ValidationError(f"{data_dir}: no <scene>/test_mask/<frame>/<query>.png found")
+    names = _scene_names(data_dir, scenes_dir, scenes, "test_mask", "<scene>/test_mask/<frame>/<query>.png")
     out = []
     for name in names:
         root = data_dir / name
