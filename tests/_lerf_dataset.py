@@ -46,8 +46,12 @@ def _colmap_text(d: Path, cams) -> None:
     (d / "images.txt").write_text("\n".join(lines_i) + "\n")
 
 
-def build(root) -> dict:
+def build(root, names=None) -> dict:
     """Write ``root/data`` and ``root/scenes``; return what the answers need.
+
+    ``names`` renames queries: ``{(scene, query): file stem}`` (the text a
+    text-prompted evaluation sends to the grounder); the returned ``gt``
+    uses the new names.
 
     Returns
     -------
@@ -76,6 +80,8 @@ def build(root) -> dict:
             rows = np.flatnonzero(truth[f].any(axis=1))
             top[(rows[0] + rows[-1]) // 2:] = False
         gt[(f, "sphere top")] = top
+    names = dict(names or {})
+    gt = {(f, names.get(("blocks", q), q)): m for (f, q), m in gt.items()}
     for (f, q), m in gt.items():
         _png(data / "blocks" / "test_mask" / f / f"{q}.png", m)
     out["blocks"] = {"synthetic": s, "truth": truth, "gt": gt, "frames": frames}
@@ -87,7 +93,7 @@ def build(root) -> dict:
     write_scene(scenes / "shelf" / "point_cloud" / "iteration_7000" / "point_cloud.ply", s2.scene)
     frames2 = {"0": cams2[0], "1": cams2[8]}
     truth2 = {f: render_label_masks(s2.scene, [c], s2.object_mask("sphere"))[0] > 0.5 for f, c in frames2.items()}
-    gt2 = {(f, "sphere"): m for f, m in truth2.items()}
+    gt2 = {(f, names.get(("shelf", "sphere"), "sphere")): m for f, m in truth2.items()}
     for (f, q), m in gt2.items():
         _png(data / "shelf" / "test_mask" / f / f"{q}.png", m)
     out["shelf"] = {"synthetic": s2, "truth": truth2, "gt": gt2, "frames": frames2}

@@ -290,8 +290,11 @@ def _token_hit_nodes(ids, token_ids, out, prefix="t"):
     return nodes, inits
 
 
-def grounding_dino(path, chair_id=7, table_id=12, layout="groundingdino"):
+def grounding_dino(path, chair_id=7, table_id=12, layout="groundingdino", boxes=None):
     """Query 0 fires on the token 'chair', query 1 on 'table' (logits +-10).
+
+    ``boxes``: (1, 2, 4) normalised (cx, cy, w, h) of the two queries
+    (default :data:`GDINO_BOXES`), whatever the image.
 
     ``layout="transformers"``: the names of a transformers export
     (``pixel_values``, ``input_ids``, ``token_type_ids``, ``attention_mask``,
@@ -301,7 +304,8 @@ def grounding_dino(path, chair_id=7, table_id=12, layout="groundingdino"):
     inits += [const("ax0", np.array([0], np.int64)), const("s1", np.array([1], np.int64)),
               const("s2", np.array([2], np.int64)), const("n256", np.array([256], np.int64)),
               const("pad0", np.zeros(5, np.int64)), const("mten", np.array(-10, np.float32)),
-              const("boxc", GDINO_BOXES), const("zero", np.array(0, np.float32))]
+              const("boxc", GDINO_BOXES if boxes is None else np.asarray(boxes, np.float32).reshape(1, 2, 4)),
+              const("zero", np.array(0, np.float32))]
     n += [helper.make_node("Unsqueeze", ["hits", "ax0"], ["hits3"]),
           helper.make_node("Shape", ["input_ids"], ["ishape"]),
           helper.make_node("Slice", ["ishape", "s1", "s2"], ["L"]),

@@ -23,28 +23,9 @@ import pytest
 from seed2gs_inverse.errors import ValidationError
 
 import _lerf_dataset
+from _mask_scores import biou_reference, iou_reference
 
 OPTS = ["--views", "6"]
-
-
-def _erode_reference(mask: np.ndarray, d: int) -> np.ndarray:
-    """A pixel survives d 3x3 erosions of the zero-padded mask iff its (2d+1)^2 window
-    lies inside the image and is all object (chessboard distance)."""
-    h, w = mask.shape
-    out = np.zeros_like(mask)
-    for y in range(h):
-        for x in range(w):
-            if y - d < 0 or x - d < 0 or y + d >= h or x + d >= w:
-                continue
-            out[y, x] = mask[y - d:y + d + 1, x - d:x + d + 1].all()
-    return out
-
-
-def _biou_reference(a: np.ndarray, b: np.ndarray) -> float:
-    h, w = a.shape
-    d = max(1, int(round(0.02 * np.hypot(h, w))))
-    ba, bb = a & ~_erode_reference(a, d), b & ~_erode_reference(b, d)
-    return (ba & bb).sum() / (ba | bb).sum()
 
 
 def _known_scores(info) -> dict:
@@ -53,8 +34,7 @@ def _known_scores(info) -> dict:
     for scene, d in info.items():
         for (frame, query), gt in d["gt"].items():
             pred = d["truth"][frame]  # what an exact extraction renders
-            iou = (pred & gt).sum() / (pred | gt).sum()
-            want.setdefault((scene, query), {})[frame] = (iou, _biou_reference(pred, gt))
+            want.setdefault((scene, query), {})[frame] = (iou_reference(pred, gt), biou_reference(pred, gt))
     return want
 
 

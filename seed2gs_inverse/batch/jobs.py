@@ -220,8 +220,16 @@ class Job:
                 "models": self.models, "format": self.format, "figure": self.figure}
 
     def fingerprint(self) -> str:
-        """SHA-256 of :meth:`to_dict`: resume re-runs a job whose description changed."""
-        text = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
+        """SHA-256 of :meth:`to_dict` and the models file's content: resume re-runs a job
+        whose description changed, or whose models configuration was edited in place."""
+        d = self.to_dict()
+        if self.models is not None:
+            try:
+                with open(self.models, "rb") as fh:
+                    d["models_sha256"] = hashlib.sha256(fh.read()).hexdigest()
+            except OSError:
+                d["models_sha256"] = None  # the job fails on it and is re-run next time
+        text = json.dumps(d, sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
@@ -396,6 +404,10 @@ def jobs_from_table(table: Mapping, base=".", source: str = "jobs") -> list[Job]
             models = merged.get("models")
             if models is not None and not isinstance(models, str):
                 raise ValidationError(f"{where}: 'models' must be a file path string")
+            if models is not None and not os.path.isfile(_resolve(base, models)):
+                # checked here, once, rather than failing every job on a worker
+                raise ValidationError(f"{where}: models file {_resolve(base, models)} not found "
+                                      f"(a TOML or JSON models configuration, see docs/models.md)")
             jobs.append(Job(name=name, scene=_resolve(base, merged["scene"]), camera=camera, prompt=prompt,
                             options=_check_options(opts, where),
                             models=None if models is None else _resolve(base, models),

@@ -9,7 +9,9 @@ process itself reaches the runner (which then retries the job once).
 Scenes are kept in a small per-process cache keyed by the file's path, size
 and modification time, so every job on the same scene that lands on the
 same worker reuses the arrays instead of reading the file again (the runner
-submits jobs grouped by scene, so each worker meets each scene once).
+submits jobs grouped by scene, so each worker meets each scene once). A
+models configuration (ONNX sessions) is likewise opened once per process
+(:func:`job_models`), not once per job.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["JobResult", "run_job", "scene_cache_info", "clear_scene_cache", "SCENE_CACHE_SIZE"]
+__all__ = ["JobResult", "run_job", "job_models", "scene_cache_info", "clear_scene_cache", "SCENE_CACHE_SIZE"]
 
 #: Scenes kept per worker process (least recently used dropped first).
 SCENE_CACHE_SIZE = 2
@@ -34,7 +36,8 @@ SCENE_CACHE_SIZE = 2
 _lock = threading.Lock()
 _scenes: "OrderedDict[tuple, object]" = OrderedDict()
 _reads: list = []          # (path, seconds) of every read by this process
-_models: dict = {}
+_models: dict = {}         # (path, size, mtime) of a models file -> (grounder, tracker)
+_model_loads: list = []    # path of every models file this process opened
 
 
 @dataclass
@@ -175,29 +178,49 @@ def _scene(path: str):
 
 
 def scene_cache_info() -> dict:
-    """This process's scene reads: ``{"reads": [(path, seconds), ...], "cached": [paths]}``."""
+    """This process's scene reads and models loads.
+
+    ``{"reads": [(path, seconds), ...], "cached": [paths], "model_loads": [paths]}``.
+    """
     with _lock:
-        return {"reads": list(_reads), "cached": [k[0] for k in _scenes]}
+        return {"reads": list(_reads), "cached": [k[0] for k in _scenes], "model_loads": list(_model_loads)}
 
 
 def clear_scene_cache() -> None:
-    """Forget this process's scenes and read counts (after running jobs in a non-worker process)."""
+    """Forget this process's scenes, models and counts (after running jobs in a non-worker process)."""
     with _lock:
         _scenes.clear()
         _reads.clear()
+        _models.clear()
+        _model_loads.clear()
 
 
-def _job_models(path):
-    """(grounder, tracker) of a models file, opened once per process; (None, None) without."""
+def job_models(path):
+    """(grounder, tracker) of a models file, opened once per process; (None, None) without.
+
+    Keyed by the file's real path, size and modification time, so an edited
+    configuration is opened again. Errors are those of
+    :func:`~seed2gs_inverse.frontend.config.load_models` (a ``FormatError``
+    naming the file).
+    """
     if path is None:
         return None, None
+    path = os.fspath(path)
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        from ..errors import FormatError
+
+        raise FormatError(f"{path}: models configuration file not found") from None
+    key = (os.path.realpath(path), st.st_size, st.st_mtime_ns)
     with _lock:
-        if path not in _models:
+        if key not in _models:
             from ..frontend.config import load_models
 
             models = load_models(path)
-            _models[path] = (models.grounder(), models.tracker())
-        return _models[path]
+            _model_loads.append(key[0])
+            _models[key] = (models.grounder(), models.tracker())
+        return _models[key]
 
 
 def _error_text(exc: BaseException) -> str:
@@ -238,7 +261,7 @@ def run_job(job, output=None, attempt: int = 1) -> JobResult:
         t0 = time.perf_counter()
         camera = job.read_camera()  # cheap checks first
         seconds["camera"] = time.perf_counter() - t0
-        grounder, tracker = _job_models(job.models)
+        grounder, tracker = job_models(job.models)
         scene, seconds["read"], res.scene_cached = _scene(job.scene)
         res.n_gaussians = int(len(scene))
         ex = extract(scene, camera, job.prompt, grounder=grounder, tracker=tracker, **job.extract_kwargs())

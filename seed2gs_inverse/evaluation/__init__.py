@@ -1,9 +1,13 @@
 """Benchmark evaluations that run through the batch runner.
 
 :mod:`.lerf_mask`: the LERF-Mask protocol of Gaussian Grouping
-(``seed2gs eval lerf-mask``).
+(``seed2gs eval lerf-mask``); :mod:`.ovs3d`: the same protocol on the
+3D-OVS layout (``seed2gs eval 3d-ovs``).
 """
 
-from .lerf_mask import LerfScene, evaluate_lerf_mask, lerf_jobs, read_gt_mask, read_lerf_mask, score_frame
+from .lerf_mask import (LerfScene, check_models, evaluate_lerf_mask, evaluate_scenes, lerf_jobs, read_gt_mask,
+                        read_lerf_mask, score_frame)
+from .ovs3d import evaluate_3d_ovs, read_3d_ovs
 
-__all__ = ["LerfScene", "evaluate_lerf_mask", "lerf_jobs", "read_gt_mask", "read_lerf_mask", "score_frame"]
+__all__ = ["LerfScene", "check_models", "evaluate_lerf_mask", "evaluate_scenes", "lerf_jobs", "read_gt_mask",
+           "read_lerf_mask", "score_frame", "evaluate_3d_ovs", "read_3d_ovs"]

@@ -18,10 +18,13 @@ image extension); an integer name ``k`` is the k-th *test* camera of the
 ``images_train`` when that folder exists, else every 8th camera, LLFF hold-out).
 Each frame's camera is rescaled to the size of its ground-truth masks.
 
-Protocol: every query is extracted once, from the first test frame that has
-its mask, seeded by that ground-truth mask (``oracle_seed``, the paper's
-"fixed GT-oracle seed") or by the query text with a grounding model. The
-object is then rendered into every test view with the *full* scene, so
+Protocol: every query is extracted once. With ``oracle_seed`` (the paper's
+"fixed GT-oracle seed") the reference is the first test frame that has the
+query's mask and the seed is that mask. With text (``models``) the query
+text, the mask file's stem, is grounded in the first test frame, whatever
+its masks, as Gaussian Grouping's ``render_lerf_mask.py`` grounds every
+prompt in the first test view (choosing the frame by its ground truth would
+hand the grounder a hint). The object is then rendered into every test view with the *full* scene, so
 occlusions count: the predicted mask is ``W(c) s > 0.5`` with ``s`` the 0/1
 selection (the share of each pixel's colour that the object contributes).
 Ground truth is read as Gaussian Grouping's evaluator does (grey level after
@@ -46,7 +49,8 @@ import numpy as np
 from ..camera import Camera
 from ..errors import FormatError, ValidationError
 
-__all__ = ["LerfScene", "read_lerf_mask", "read_gt_mask", "lerf_jobs", "evaluate_lerf_mask", "score_frame"]
+__all__ = ["LerfScene", "read_lerf_mask", "read_gt_mask", "lerf_jobs", "evaluate_lerf_mask", "evaluate_scenes",
+           "score_frame", "check_models"]
 
 _LLFF_HOLD = 8
 _IMAGE_EXT = (".png", ".jpg", ".jpeg", ".JPG", ".JPEG", ".PNG")
@@ -67,6 +71,9 @@ class LerfScene:
     cameras : dict frame -> Camera
         At the resolution of the frame's ground-truth masks.
     gt : dict (frame, query) -> Path
+    gt_threshold : int
+        A ground-truth pixel is object where its grey level exceeds this
+        (128 for LERF-Mask; 254 for 3D-OVS, whose loader keeps only 255).
     """
 
     name: str
@@ -75,6 +82,7 @@ class LerfScene:
     queries: list
     cameras: dict
     gt: dict = field(default_factory=dict)
+    gt_threshold: int = 128
 
     def seed_frame(self, query: str) -> str:
         """The first frame that has a ground-truth mask of ``query``."""
@@ -83,18 +91,30 @@ class LerfScene:
                 return f
         raise ValidationError(f"scene {self.name}: no frame has a mask of {query!r}")
 
+    def reference_frame(self, query: str, oracle_seed: bool) -> str:
+        """Where ``query`` is extracted from: :meth:`seed_frame` for the oracle seed,
+        the first test frame for a text query (module docstring)."""
+        return self.seed_frame(query) if oracle_seed else self.frames[0]
+
+    def read_gt(self, frame: str, query: str) -> np.ndarray:
+        """(H, W) bool ground truth of ``query`` in ``frame``."""
+        return read_gt_mask(self.gt[(frame, query)], self.gt_threshold)
+
 
 def _natural(name: str):
     return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", name)]
 
 
-def read_gt_mask(path) -> np.ndarray:
-    """(H, W) bool ground truth: grey level (PIL ``convert("L")``) > 128, as the LERF-Mask evaluator reads it."""
+def read_gt_mask(path, threshold: int = 128) -> np.ndarray:
+    """(H, W) bool ground truth: grey level (PIL ``convert("L")``) > ``threshold``.
+
+    128 is how the LERF-Mask evaluator reads its masks.
+    """
     from PIL import Image, UnidentifiedImageError
 
     try:
         with Image.open(path) as im:
-            return np.asarray(im.convert("L")) > 128
+            return np.asarray(im.convert("L")) > threshold
     except FileNotFoundError:
         raise FileNotFoundError(2, "No such file", os.fspath(path)) from None
     except (UnidentifiedImageError, OSError) as exc:
@@ -159,6 +179,22 @@ def _at_size(cam: Camera, shape, where: str) -> Camera:
                   name=cam.name, near=cam.near)
 
 
+def _scene_names(data_dir: Path, scenes_dir: Path, scenes, marker: str, layout: str) -> list:
+    """Sorted names of the folders of ``data_dir`` holding ``marker``, or the requested ``scenes``."""
+    for d, what in ((data_dir, "DATA_DIR"), (scenes_dir, "--scenes")):
+        if not d.is_dir():
+            raise ValidationError(f"{what} {d} is not a directory")
+    names = sorted(p.name for p in data_dir.iterdir() if (p / marker).exists())
+    if scenes is not None:
+        missing = sorted(set(scenes) - set(names))
+        if missing:
+            raise ValidationError(f"{data_dir}: no scene(s) {missing} with {marker}; found {names}")
+        names = [n for n in names if n in set(scenes)]
+    if not names:
+        raise ValidationError(f"{data_dir}: no {layout} found")
+    return names
+
+
 def read_lerf_mask(data_dir, scenes_dir, scenes=None) -> list:
     """The scenes of a LERF-Mask style dataset (layout in the module docstring).
 
@@ -172,17 +208,7 @@ def read_lerf_mask(data_dir, scenes_dir, scenes=None) -> list:
         Only these scenes (default: every folder with ``test_mask``).
     """
     data_dir, scenes_dir = Path(data_dir), Path(scenes_dir)
-    for d, what in ((data_dir, "DATA_DIR"), (scenes_dir, "--scenes")):
-        if not d.is_dir():
-            raise ValidationError(f"{what} {d} is not a directory")
-    names = sorted(p.name for p in data_dir.iterdir() if (p / "test_mask").is_dir())
-    if scenes is not None:
-        missing = sorted(set(scenes) - set(names))
-        if missing:
-            raise ValidationError(f"{data_dir}: no scene(s) {missing} with a test_mask folder; found {names}")
-        names = [n for n in names if n in set(scenes)]
-    if not names:
-        raise ValidationError(f"{data_dir}: no <scene>/test_mask/<frame>/<query>.png found")
+    names = _scene_names(data_dir, scenes_dir, scenes, "test_mask", "<scene>/test_mask/<frame>/<query>.png")
     out = []
     for name in names:
         root = data_dir / name
@@ -225,42 +251,76 @@ def _slug(text: str) -> str:
     return s or "query"
 
 
-def lerf_jobs(scenes, oracle_seed: bool = True, models=None, options=None) -> list:
+def _seed_mode(oracle_seed, models) -> bool:
+    """True for the oracle seed, False for text; None picks text exactly when ``models`` is given."""
+    if oracle_seed is None:
+        return models is None
+    if oracle_seed and models is not None:
+        raise ValidationError("oracle_seed=True seeds every query with its ground-truth mask, and models "
+                              "are for text queries: give one of the two (--oracle-seed or --models FILE)")
+    if not oracle_seed and models is None:
+        raise ValidationError("text queries need a grounding model: give models (--models FILE), "
+                              "or use the oracle seed (--oracle-seed)")
+    return bool(oracle_seed)
+
+
+def check_models(models) -> None:
+    """Open a models configuration once, before any job runs, and check it can ground text.
+
+    Raises
+    ------
+    FormatError
+        The file does not exist, is not a valid configuration, or one of its
+        ONNX files does not match its role (message names the file).
+    ValidationError
+        It configures no text-grounding source.
+    """
+    from ..batch.worker import job_models
+
+    grounder, _ = job_models(models)  # opened in this process's cache: a sequential run reuses it
+    if grounder is None:
+        raise ValidationError(f"{models}: configures no text-grounding source; text queries need "
+                              f"[groundingdino], [owlvit], [sam3] with a language_encoder, or [external] "
+                              f"(see docs/models.md)")
+
+
+def lerf_jobs(scenes, oracle_seed: bool | None = None, models=None, options=None) -> list:
     """One batch :class:`~seed2gs_inverse.batch.Job` per (scene, query).
 
-    The reference camera is the query's seed frame (:meth:`LerfScene.seed_frame`);
-    the prompt its ground-truth mask (``oracle_seed``) or the query text
-    (needs ``models``). Job names are ``<scene>--<query>`` made folder-safe.
+    The reference camera is :meth:`LerfScene.reference_frame`'s; the prompt
+    the ground-truth mask there (``oracle_seed``) or the query text (needs
+    ``models``; ``oracle_seed=None`` means text exactly when ``models`` is
+    given). Job names are ``<scene>--<query>`` made folder-safe.
     """
     from ..batch import Job
     from ..frontend.prompts import MaskPrompt, TextPrompt
 
-    if not oracle_seed and models is None:
-        raise ValidationError("text queries need a grounding model: give models (--models FILE), "
-                              "or use the oracle seed (--oracle-seed)")
+    oracle_seed = _seed_mode(oracle_seed, models)
     jobs, names = [], set()
     for sc in scenes:
         for q in sc.queries:
-            f = sc.seed_frame(q)
+            f = sc.reference_frame(q, oracle_seed)
             name = f"{_slug(sc.name)}--{_slug(q)}"
             k = 2
             while name in names:  # two queries that differ only in punctuation
                 name, k = f"{_slug(sc.name)}--{_slug(q)}-{k}", k + 1
             names.add(name)
-            prompt = MaskPrompt(read_gt_mask(sc.gt[(f, q)])) if oracle_seed else TextPrompt(q)
+            prompt = MaskPrompt(sc.read_gt(f, q)) if oracle_seed else TextPrompt(q)
             jobs.append(Job(name=name, scene=os.fspath(sc.scene_file.resolve()), camera=sc.cameras[f],
                             prompt=prompt, options=dict(options or {}),
                             models=None if oracle_seed else os.fspath(models), figure=False))
     return jobs
 
 
-def score_frame(scene_file, camera: Camera, queries: list, outdirs: list, gt_paths: list, pred_paths=None):
+def score_frame(scene_file, camera: Camera, queries: list, outdirs: list, gt_paths: list, pred_paths=None,
+                gt_threshold: int = 128):
     """Predicted masks and scores of every query in one test view (a batch task).
 
     Builds the view's operator ``W(c)`` once over the full scene (read once
     per worker) and renders each query's selection ``s`` (``q > tau`` from
     the job folder) as ``W(c) s > 0.5``. Writes the predicted masks to
-    ``pred_paths`` (PNG, 0/255) when given.
+    ``pred_paths`` (PNG, 0/255) when given. Ground truth is read with
+    :func:`read_gt_mask` at ``gt_threshold``.
 
     Returns
     -------
@@ -286,7 +346,7 @@ def score_frame(scene_file, camera: Camera, queries: list, outdirs: list, gt_pat
         pred = (np.asarray(W @ sel) > 0.5).reshape(camera.image_shape)
         rec = {"query": query, "iou": None, "biou": None, "pred": pred}
         if gt_path is not None:
-            gt = read_gt_mask(gt_path)
+            gt = read_gt_mask(gt_path, gt_threshold)
             rec["iou"], rec["biou"] = float(iou(pred, gt)), float(boundary_iou(pred, gt))
         if pred_paths is not None:
             import cv2
@@ -303,10 +363,10 @@ def score_frame(scene_file, camera: Camera, queries: list, outdirs: list, gt_pat
 # ---------------------------------------------------------------------------
 # the whole evaluation
 # ---------------------------------------------------------------------------
-def evaluate_lerf_mask(data_dir, scenes_dir, output, *, oracle_seed: bool = True, models=None,
+def evaluate_lerf_mask(data_dir, scenes_dir, output, *, oracle_seed: bool | None = None, models=None,
                        options=None, scenes=None, client=None, n_workers=None, resume: bool = True,
                        progress: bool | None = None, log=None) -> dict:
-    """Extract every query, score every test view, write the report.
+    """Extract every query of a LERF-Mask style dataset, score every test view, write the report.
 
     Parameters
     ----------
@@ -318,11 +378,13 @@ def evaluate_lerf_mask(data_dir, scenes_dir, output, *, oracle_seed: bool = True
         masks in the dataset's layout (``masks/<scene>/<frame>/<query>.png``,
         readable by Gaussian Grouping's own evaluator) and the batch job
         folders with their summary (``jobs/``, so a re-run resumes).
-    oracle_seed : bool
-        Seed each query with its ground-truth mask in its first frame;
-        False uses the query text with ``models``.
+    oracle_seed : bool, optional
+        True: seed each query with its ground-truth mask in its first frame.
+        False: ground the query text with ``models``. Default: text exactly
+        when ``models`` is given.
     models : path, optional
-        Models configuration for text queries.
+        Models configuration for text queries (docs/models.md); opened and
+        checked once before any job runs (:func:`check_models`).
     options : dict, optional
         ``extract()`` options for every query.
     scenes : list of str, optional
@@ -338,48 +400,87 @@ def evaluate_lerf_mask(data_dir, scenes_dir, output, *, oracle_seed: bool = True
         ``scenes`` (per scene), ``queries`` (per query, with per-frame
         scores) and ``failed`` jobs.
     """
-    from .._atomic import write_files
-    from ..batch import batch_client, extract_many
-    from ..metrics import protocol_mean
+    out = _check_output(output)
+    oracle = _seed_mode(oracle_seed, models)
+    dataset = read_lerf_mask(data_dir, scenes_dir, scenes)
+    return evaluate_scenes(dataset, out, oracle_seed=oracle, models=models, options=options, client=client,
+                           n_workers=n_workers, resume=resume, progress=progress, log=log,
+                           protocol={"dataset": "LERF-Mask", "gt": "grey > 128"})
 
+
+def _check_output(output) -> Path:
     out = Path(output)
     if not out.resolve().parent.is_dir():
         raise ValidationError(f"cannot create {out}: parent directory {out.resolve().parent} does not exist")
-    dataset = read_lerf_mask(data_dir, scenes_dir, scenes)
-    jobs = lerf_jobs(dataset, oracle_seed=oracle_seed, models=models, options=options)
-    out.mkdir(exist_ok=True)
-    out = out.resolve()
-    job_of = {}
-    it = iter(jobs)
-    for sc in dataset:
-        for q in sc.queries:
-            job_of[(sc.name, q)] = next(it)
-    n_tasks = sum(len(sc.frames) for sc in dataset)
-    with batch_client(client, n_workers=n_workers, n_jobs=max(len(jobs), n_tasks)) as c:
-        results = extract_many(jobs, "sequential" if c is None else c, output=out / "jobs", resume=resume,
-                               progress=progress, log=log)
-        by_name = {r.name: r for r in results}
-        tasks = []  # (scene, frame, queries) per test view
-        for sc in dataset:
-            for f in sc.frames:
-                qs = [q for q in sc.queries if by_name[job_of[(sc.name, q)].name].ok]
-                if not qs:
-                    continue
-                args = (os.fspath(sc.scene_file.resolve()), sc.cameras[f], qs,
-                        [by_name[job_of[(sc.name, q)].name].outdir for q in qs],
-                        [sc.gt.get((f, q)) for q in qs],
-                        [os.fspath(out / "masks" / sc.name / f / f"{q}.png") for q in qs])
-                tasks.append(((sc, f), args))
-        if c is None:
-            from ..batch.worker import clear_scene_cache
+    if out.exists() and not out.is_dir():
+        raise ValidationError(f"output {out} exists and is not a directory")
+    return out
 
-            try:
+
+def evaluate_scenes(dataset, output, *, oracle_seed: bool | None = None, models=None, options=None,
+                    client=None, n_workers=None, resume: bool = True, progress: bool | None = None,
+                    log=None, protocol=None) -> dict:
+    """The evaluation of :func:`evaluate_lerf_mask` on scenes already read (any layout reader).
+
+    Parameters
+    ----------
+    dataset : list of LerfScene
+        From :func:`read_lerf_mask` or :func:`~seed2gs_inverse.evaluation.read_3d_ovs`.
+    output, oracle_seed, models, options, client, n_workers, resume, progress, log
+        As :func:`evaluate_lerf_mask`.
+    protocol : dict, optional
+        Extra entries for the report's ``protocol`` record (dataset name, ground-truth rule).
+
+    Returns
+    -------
+    dict
+        As :func:`evaluate_lerf_mask`.
+    """
+    from .._atomic import write_files
+    from ..batch import batch_client, extract_many
+    from ..batch.worker import clear_scene_cache
+    from ..metrics import protocol_mean
+
+    out = _check_output(output)
+    oracle_seed = _seed_mode(oracle_seed, models)
+    if not dataset:
+        raise ValidationError("no scenes to evaluate")
+    try:
+        if not oracle_seed:
+            check_models(models)  # one clear error naming the file, before any job
+        jobs = lerf_jobs(dataset, oracle_seed=oracle_seed, models=models, options=options)
+        out.mkdir(exist_ok=True)
+        out = out.resolve()
+        job_of = {}
+        it = iter(jobs)
+        for sc in dataset:
+            for q in sc.queries:
+                job_of[(sc.name, q)] = next(it)
+        n_tasks = sum(len(sc.frames) for sc in dataset)
+        with batch_client(client, n_workers=n_workers, n_jobs=max(len(jobs), n_tasks)) as c:
+            results = extract_many(jobs, "sequential" if c is None else c, output=out / "jobs",
+                                   resume=resume, progress=progress, log=log)
+            by_name = {r.name: r for r in results}
+            tasks = []  # (scene, frame, queries) per test view
+            for sc in dataset:
+                for f in sc.frames:
+                    qs = [q for q in sc.queries if by_name[job_of[(sc.name, q)].name].ok]
+                    if not qs:
+                        continue
+                    args = (os.fspath(sc.scene_file.resolve()), sc.cameras[f], qs,
+                            [by_name[job_of[(sc.name, q)].name].outdir for q in qs],
+                            [sc.gt.get((f, q)) for q in qs],
+                            [os.fspath(out / "masks" / sc.name / f / f"{q}.png") for q in qs],
+                            sc.gt_threshold)
+                    tasks.append(((sc, f), args))
+            if c is None:
                 scored = [score_frame(*a) for _, a in tasks]
-            finally:
-                clear_scene_cache()  # this process is no worker: do not keep the scenes
-        else:
-            futs = [c.submit(score_frame, *a, pure=False) for _, a in tasks]
-            scored = c.gather(futs)
+            else:
+                futs = [c.submit(score_frame, *a, pure=False) for _, a in tasks]
+                scored = c.gather(futs)
+    finally:
+        # This process is no worker: do not keep the scenes, nor the models check_models opened.
+        clear_scene_cache()
     per_frame = {}  # (scene, query) -> {frame: (iou, biou)}
     preds = {}
     for ((sc, f), _), recs in zip(tasks, scored):
@@ -388,16 +489,17 @@ def evaluate_lerf_mask(data_dir, scenes_dir, output, *, oracle_seed: bool = True
             if r["iou"] is not None:
                 per_frame.setdefault((sc.name, r["query"]), {})[f] = (r["iou"], r["biou"])
     failed = {r.name: r.error for r in results if not r.ok}
-    report = _tables(dataset, job_of, by_name, per_frame, protocol_mean)
+    report = _tables(dataset, job_of, by_name, per_frame, protocol_mean, oracle_seed)
     report["failed"] = failed
-    report["protocol"] = {"seed": "ground-truth mask of the first test frame" if oracle_seed else "text",
+    report["protocol"] = {**dict(protocol or {}),
+                          "seed": ("ground-truth mask of the query's first annotated test frame" if oracle_seed
+                                   else "query text, grounded in the first test frame"),
+                          "models": None if models is None else os.path.abspath(os.fspath(models)),
                           "prediction": "W(c) s > 0.5 over the full scene (occlusion-aware)",
-                          "gt": "grey > 128", "boundary_dilation_ratio": 0.02,
-                          "options": dict(options or {})}
+                          "boundary_dilation_ratio": 0.02, "options": dict(options or {})}
+    report["protocol"].setdefault("gt", "grey > 128")
     files = [(out / "report.json", json.dumps(report, indent=1).encode("utf-8")),
-             (out / "per_query.csv", _csv(report["queries"], ["scene", "query", "miou", "mbiou",
-                                                              "miou_heldout", "n_frames", "seed_frame",
-                                                              "n_selected", "status", "error"])),
+             (out / "per_query.csv", _csv(report["queries"], list(QUERY_COLUMNS))),
              (out / "per_scene.csv", _csv(report["scenes"], ["scene", "miou", "mbiou", "n_queries",
                                                              "n_failed"]))]
     png = _grid(dataset, preds, per_frame)
@@ -407,15 +509,39 @@ def evaluate_lerf_mask(data_dir, scenes_dir, output, *, oracle_seed: bool = True
     return report
 
 
-def _tables(dataset, job_of, by_name, per_frame, protocol_mean) -> dict:
+#: Columns of ``per_query.csv``. ``prompt`` is the query text or ``gt-mask``;
+#: ``grounded_by`` / ``grounding_score`` name the source (and its selector
+#: score) of the candidate that became the seed of a text query.
+QUERY_COLUMNS = ("scene", "query", "miou", "mbiou", "miou_heldout", "n_frames", "seed_frame", "prompt",
+                 "grounded_by", "grounding_score", "n_selected", "status", "error")
+
+
+def _grounding(result) -> tuple:
+    """(source, score) of the seed candidate of a done text job, from its report.json."""
+    if not result.ok or result.outdir is None:
+        return None, None
+    try:
+        with open(Path(result.outdir) / "report.json") as fh:
+            cands = json.load(fh).get("prompt", {}).get("candidates") or []
+    except (OSError, ValueError):
+        return None, None
+    if not cands:
+        return None, None
+    return cands[0].get("source"), cands[0].get("score")
+
+
+def _tables(dataset, job_of, by_name, per_frame, protocol_mean, oracle_seed=True) -> dict:
     queries, iou_in, biou_in = [], {}, {}
     for sc in dataset:
         for q in sc.queries:
             r = by_name[job_of[(sc.name, q)].name]
             frames = per_frame.get((sc.name, q), {})
-            seed = sc.seed_frame(q)
+            seed = sc.reference_frame(q, oracle_seed)
+            source, score = (None, None) if oracle_seed else _grounding(r)
             row = {"scene": sc.name, "query": q, "job": r.name, "status": r.status, "error": r.error,
-                   "seed_frame": seed, "n_selected": r.n_selected, "n_frames": len(frames),
+                   "seed_frame": seed, "prompt": "gt-mask" if oracle_seed else q,
+                   "grounded_by": source, "grounding_score": score,
+                   "n_selected": r.n_selected, "n_frames": len(frames),
                    "frames": {f: {"iou": v[0], "biou": v[1]} for f, v in frames.items()}}
             if r.ok and frames:
                 row["miou"] = float(np.mean([v[0] for v in frames.values()]))
@@ -478,7 +604,7 @@ def _grid(dataset, preds, per_frame):
                 continue
             f = sc.frames[j]
             pred = preds.get((sc.name, f, q))
-            gt = read_gt_mask(sc.gt[(f, q)]) if (f, q) in sc.gt else None
+            gt = sc.read_gt(f, q) if (f, q) in sc.gt else None
             shape = (pred if pred is not None else gt).shape if (pred is not None or gt is not None) else (8, 8)
             img = np.full((*shape, 3), 0.12, np.float32)
             p = pred if pred is not None else np.zeros(shape, bool)
