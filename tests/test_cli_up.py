@@ -1,4 +1,4 @@
-"""`seed2gs extract --up / --cameras / --point-mode / --smoothness / --completion` (issue 10)."""
+"""`seed2gs extract --up / --cameras / --point-mode / --smoothness / --completion / --keep-islands` (issue 10)."""
 
 import json
 
@@ -102,3 +102,16 @@ def test_smoothness_and_completion_reach_the_settings(files, capsys):
     assert rep["resolved"]["smoothness"] == 0.5
     assert _extract(d, d / "sm_bad", "--smoothness", -1) == 2
     assert "--smoothness must be >= 0" in capsys.readouterr().err and not (d / "sm_bad").exists()
+
+
+def test_keep_islands_reaches_the_settings(files, capsys):
+    d, _ = files
+    assert _extract(d, d / "isl", "--keep-islands", "--up", "level") == 0, capsys.readouterr().err
+    rep = json.loads((d / "isl" / "report.json").read_text())
+    assert rep["settings"]["seed_connected"] is False and rep["resolved"]["n_disconnected"] == 0
+    assert _extract(d, d / "isl_default", "--up", "level") == 0, capsys.readouterr().err
+    rep = json.loads((d / "isl_default" / "report.json").read_text())
+    assert rep["settings"]["seed_connected"] is True and rep["resolved"]["n_disconnected"] >= 0
+    rep_path = d / "isl" / "report.json"
+    assert cli.main(["extract", "--from-report", str(rep_path), "--keep-islands", "-o", str(d / "isl_rep")]) == 2
+    assert "cannot be combined with --keep-islands" in capsys.readouterr().err

@@ -27,7 +27,7 @@ DEFAULTS_BEFORE = {
 # smoothness=None turns the graph regulariser on for the model-free tracker
 # (resolved["smoothness"]). New options come after the old ones.
 DEFAULTS = {**DEFAULTS_BEFORE, "up": "auto", "point_mode": "object", "smoothness": None, "completion": None,
-            "graph_options": None}
+            "graph_options": None, "seed_connected": True}
 
 
 def test_defaults_are_those_of_the_old_extract_but_issue_10s():
@@ -75,6 +75,7 @@ def test_defaults_are_those_of_the_old_extract_but_issue_10s():
     ("smoothness", float("inf"), "smoothness must be finite"),
     ("smoothness", "1", "smoothness must be a number or None"),
     ("completion", "both", "completion must be None, 'reference' or 'tracked'"),
+    ("seed_connected", 1, "seed_connected must be True or False"),
     ("graph_options", {"kk": 3}, r"object_graph has no option\(s\) \['kk'\]"),
     ("graph_options", {"k": 0}, r"graph_options k must be in 1\.\.256"),
     ("graph_options", {"k": 10 ** 6}, r"graph_options k must be in 1\.\.256"),
@@ -189,7 +190,7 @@ def test_extract_settings_and_overrides(tiny):
     rep = json.loads(json.dumps(ex.report()))
     assert ExtractSettings.from_dict(rep["settings"]) == ex.settings
     assert set(rep["resolved"]) == {"view_scale", "reference_scale", "up", "up_method", "up_confidence",
-                                    "threshold", "solver_options", "n_weak_evidence", "smoothness", "tracker",
+                                    "threshold", "solver_options", "n_weak_evidence", "n_disconnected", "smoothness", "tracker",
                                     "grounder"}
     assert rep["resolved"]["smoothness"] == 1.0  # None: on with the model-free tracker
     assert rep["up"]["axis"] == rep["resolved"]["up"] and rep["up"]["method"] == rep["resolved"]["up_method"]

@@ -73,7 +73,8 @@ def staged(syn, setup):
     graph = ex_mod.evidence_graph(syn.scene, lift, s, ex_mod.MODEL_FREE_SMOOTHNESS)  # smoothness=None resolved
     masks = ex_mod.complete_masks(graph, labelled, lift, ref, s.completion)
     stack = ex_mod.stack_operators(labelled, syn.scene)
-    sel = ex_mod.solve_selection(stack, masks, lift, s, graph=graph, smoothness=ex_mod.MODEL_FREE_SMOOTHNESS)
+    sel = ex_mod.solve_selection(stack, masks, lift, s, graph=graph, smoothness=ex_mod.MODEL_FREE_SMOOTHNESS,
+                                 scene=syn.scene)
     return SimpleNamespace(settings=s, ref_img=ref_img, seed=seed2, info=info, ref=ref, lift=lift, bar=bar,
                            orbits=orbits, labelled=labelled, stack=stack, sel=sel, renderer=r, graph=graph,
                            masks=masks)
@@ -255,7 +256,8 @@ def _evidence(syn, labelled):
 def test_solve_selection_equals_the_old_evidence_reset(syn, staged):
     """q: the solver's q with Gaussians of evidence e = sum_c W(c)^T k(c) < 0.05 reset to G0 (the old loop)."""
     masks = [m for _, m in staged.labelled]
-    sel = ex_mod.solve_selection(staged.stack, masks, staged.lift, staged.settings)  # smoothness 0: off
+    off = staged.settings.replace(seed_connected=False)  # the solver's selection as it is
+    sel = ex_mod.solve_selection(staged.stack, masks, staged.lift, off)  # smoothness 0: off
     raw = solve(staged.stack, masks, method="weighted_bce", init=staged.lift.support, max_iter=30)
     weak = _evidence(syn, staged.labelled) < 0.05
     assert 0 < weak.sum() < len(weak)
@@ -264,7 +266,7 @@ def test_solve_selection_equals_the_old_evidence_reset(syn, staged):
     np.testing.assert_array_equal(sel.q, want)
     assert sel.n_weak_evidence == int(weak.sum())
     assert sel.threshold == 0.5 and np.array_equal(sel.selected, sel.q > 0.5)
-    t = ex_mod.solve_selection(staged.stack, masks, staged.lift, staged.settings.replace(threshold=0.3))
+    t = ex_mod.solve_selection(staged.stack, masks, staged.lift, off.replace(threshold=0.3))
     assert t.threshold == 0.3 and np.array_equal(t.selected, t.q > 0.3)
 
 
@@ -289,12 +291,17 @@ def test_solve_selection_with_the_graph_regulariser(syn, staged):
     want = (e * qh + eps * p) / (e + eps)
     want[nodes] = np.linalg.solve(np.diag(e[nodes] + eps) + lam * L, e[nodes] * qh[nodes] + eps * p[nodes])
     want = np.clip(want, 0.0, 1.0)
-    np.testing.assert_allclose(staged.sel.q, want, atol=2e-4)
+    np.testing.assert_allclose(staged.sel.result.q, want, atol=2e-4)
+    # seed_connected: q is the regularised q but 0 on islands apart from G0
+    island = staged.sel.result.q != staged.sel.q
+    assert island.sum() == staged.sel.n_disconnected and np.all(staged.sel.q[island] == 0)
     # unseen Gaussians on the graph are decided by their neighbours, not reset to G0
     free = nodes[e[nodes] == 0]
     assert free.size and np.abs(staged.sel.q[free] - p[free]).max() > 0.1
     with pytest.raises(ValidationError, match="smoothness > 0 needs graph"):
         ex_mod.solve_selection(staged.stack, staged.masks, staged.lift, staged.settings, smoothness=1.0)
+    with pytest.raises(ValidationError, match="seed_connected needs the scene"):
+        ex_mod.solve_selection(staged.stack, staged.masks, staged.lift, staged.settings)
 
 
 def test_solve_min_evidence_option_validation(staged):

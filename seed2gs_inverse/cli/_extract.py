@@ -26,7 +26,7 @@ __all__ = ["register", "write_outputs", "settings_from_args", "seed_summary_line
 #: Options that set ExtractSettings (None on the command line = not given).
 _SETTING_FLAGS = {"method": "--method", "views": "--views", "orbit_scale": "--orbit-scale",
                   "threshold": "--threshold", "up": "--up", "option": "--option", "point_mode": "--point-mode",
-                  "smoothness": "--smoothness", "completion": "--completion"}
+                  "smoothness": "--smoothness", "completion": "--completion", "keep_islands": "--keep-islands"}
 _PROMPT_FLAGS = {"mask": "--mask", "box": "--box", "point": "--point", "prompt": "--prompt",
                  "negative": "--negative", "camera": "--camera", "cameras": "--cameras"}
 
@@ -82,6 +82,10 @@ def register(subparsers) -> None:
     p.add_argument("--completion", choices=("reference", "tracked"), default=None,
                    help="fill the orbit masks' unknown pixels by 3D label completion before the solve, "
                         "seeded by the reference's labels or by every tracked label (default: off)")
+    p.add_argument("--keep-islands", action="store_true",
+                   help="keep parts of the selection apart from the seeded object (by default islands holding "
+                        "at least 0.5%% as many Gaussians as the object are left out: background the masks "
+                        "brought in)")
     p.add_argument("--format", choices=("ply", "splat"), default=None, help="object/remainder format (default ply)")
     p.add_argument("--no-progress", action="store_true",
                    help="no progress bars (they are shown only when stderr is a terminal)")
@@ -237,6 +241,7 @@ def settings_from_args(args):
     given = {"method": method, "n_views": args.views, "orbit_scale": args.orbit_scale,
              "threshold": args.threshold, "up": _up(args.up), "point_mode": args.point_mode,
              "smoothness": args.smoothness, "completion": args.completion,
+             "seed_connected": False if getattr(args, "keep_islands", False) else None,
              "solver_options": parse_options(args.option, method) if args.option else None}
     flags = {"n_views": "--views", "orbit_scale": "--orbit-scale", "threshold": "--threshold", "up": "--up",
              "method": "--method", "solver_options": "--option", "point_mode": "--point-mode",

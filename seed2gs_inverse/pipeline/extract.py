@@ -18,7 +18,8 @@ outputs, so it can be run, tested and timed on its own::
                        (completion="reference" / "tracked")        -> list of masks
     stack_operators    the supervision views' operators            -> OperatorStack
     solve_selection    solver (initialised from G0, graph-Laplacian
-                       regulariser when smoothness > 0) + threshold -> Selection
+                       regulariser when smoothness > 0) + threshold,
+                       kept where connected to G0 in 3D             -> Selection
 
 All options live in one frozen :class:`~seed2gs_inverse.pipeline.settings.ExtractSettings`.
 Every intermediate is returned in an :class:`Extraction` so users can see
@@ -64,7 +65,9 @@ class Extraction:
         The input scene.
     q : (N,) float32
         Foreground probabilities: ``result.q``, in which the solver reset
-        Gaussians without evidence (``min_evidence``) to the prior.
+        Gaussians without evidence (``min_evidence``) to the prior, and 0 on
+        islands apart from G0 (``settings.seed_connected``, counted in
+        ``resolved["n_disconnected"]``).
     selected : (N,) bool
         ``q > threshold``: the object.
     threshold : float
@@ -100,7 +103,8 @@ class Extraction:
         ``threshold`` (tau used), ``solver_options`` (with the defaults),
         ``tracker``, ``grounder`` (class names), ``n_weak_evidence``
         (Gaussians without real evidence: reset to the prior by
-        ``min_evidence``, or decided by the regulariser) and ``smoothness``
+        ``min_evidence``, or decided by the regulariser), ``n_disconnected``
+        (above the threshold in islands apart from G0, set to 0) and ``smoothness``
         (the regulariser's lambda used, after ``None`` was resolved).
     up : dict
         The orbit axis (:func:`orbit_axis`): ``axis``, ``method`` (how it
@@ -387,12 +391,17 @@ class OrbitViews:
 
 @dataclass
 class Selection:
-    """The solve: ``result`` (its ``q`` already carries the ``min_evidence`` reset or the regulariser), tau and ``q > tau``."""
+    """The solve: ``result`` (its ``q`` already carries the ``min_evidence`` reset or the regulariser), tau and the selection.
+
+    ``selected`` is ``q > tau``; with ``settings.seed_connected`` ``q`` is 0
+    on the ``n_disconnected`` Gaussians of islands apart from G0.
+    """
 
     result: object
     q: np.ndarray
     threshold: float
     selected: np.ndarray
+    n_disconnected: int = 0
 
     @property
     def n_weak_evidence(self) -> int:
@@ -645,7 +654,7 @@ def stack_operators(labelled, scene: GaussianScene):
 
 
 def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, progress=None, *, graph=None,
-                    smoothness: float = 0.0) -> Selection:
+                    smoothness: float = 0.0, scene: GaussianScene | None = None) -> Selection:
     """Stage 8: ``q`` from the solver initialised from G0, and ``selected = q > tau``.
 
     ``solve(stack, masks, method, init=G0, min_evidence=settings.min_evidence,
@@ -656,15 +665,31 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     ``smoothness > 0`` (the resolved setting; :func:`evidence_graph`'s
     ``graph``), the harmonic extension of their neighbours on the graph.
     ``tau`` is ``settings.threshold`` or the solver's own. ``progress``: the
-    solver's per-iteration hook (``solve(..., progress=)``).
+    solver's per-iteration hook (``solve(..., progress=)``). With
+    ``settings.seed_connected`` (default) the Gaussians above ``tau`` in
+    islands apart from G0 (:func:`~.seed_lift.seed_connected`) get ``q = 0``,
+    the prior of Gaussians outside G0 (``result.q`` keeps the solver's
+    values). ``scene``: the scene of the operators, needed for that rule
+    (its means).
     """
     from ..solvers import solve
+    from .seed_lift import seed_connected
 
     result = solve(stack, masks, method=settings.method, init=lift.support, min_evidence=settings.min_evidence,
                    progress=progress, smoothness=smoothness, graph=graph, **settings.solver_kwargs())
     q = np.asarray(result.q, dtype=np.float32)
     tau = result.threshold if settings.threshold is None else float(settings.threshold)
-    return Selection(result, q, tau, q > tau)
+    n_removed = 0
+    if settings.seed_connected:
+        if scene is None:
+            raise ValidationError("solve_selection: settings.seed_connected needs the scene (scene=, for its "
+                                  "Gaussian means); pass it or set seed_connected=False")
+        island = (q > tau) & ~seed_connected(scene.means, q > tau, lift.support)
+        # islands hold no G0 Gaussian: they take the prior of the Gaussians outside G0 (0)
+        q = np.where(island, np.float32(0), q)
+        n_removed = int(island.sum())
+    selected = q > tau
+    return Selection(result, q, tau, selected, n_removed)
 
 
 # -- Algorithm 1 --------------------------------------------------------------------------------
@@ -775,13 +800,14 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
     with timer("solve"), _Progress(f"solve ({s.method})", progress) as bar:
         stack = stack_operators(labelled, scene)
         sel = solve_selection(stack, masks, lift, s, progress=bar.solve_callback, graph=graph,
-                              smoothness=smoothness)
+                              smoothness=smoothness, scene=scene)
     resolved = {"view_scale": float(orbits.view_scale), "reference_scale": float(ref.scale),
                 "up": orbits.up.tolist(), "up_method": orbits.up_info.get("method"),
                 "up_confidence": orbits.up_info.get("confidence"), "threshold": float(sel.threshold),
                 "solver_options": {k: v for k, v in s.solver_kwargs().items()
                                    if isinstance(v, (int, float, str, bool))},
-                "n_weak_evidence": sel.n_weak_evidence, "smoothness": smoothness, "tracker": type(tracker).__name__,
+                "n_weak_evidence": sel.n_weak_evidence, "n_disconnected": sel.n_disconnected,
+                "smoothness": smoothness, "tracker": type(tracker).__name__,
                 "grounder": None if grounder is None else type(grounder).__name__}
     return Extraction(scene, sel.q, sel.selected, sel.threshold, seed, prompt_info, camera, reference, lift,
                       orbits.plan, [f.camera for f, _ in labelled], [f.clip for f, _ in labelled], masks, stack,

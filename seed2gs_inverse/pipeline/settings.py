@@ -246,6 +246,16 @@ class ExtractSettings:
         :func:`~seed2gs_inverse.pipeline.completion.tracked_membership`; the
         default tracker then runs without its 2D fill, which instead decides
         only the pixels the 3D completion leaves undecided). None (default): off.
+    seed_connected : bool
+        Leave out islands of the selection apart from the seed lift's G0
+        (:func:`~seed2gs_inverse.pipeline.seed_lift.seed_connected`: the
+        lift's neighbour graph over the selection; components without a G0
+        Gaussian holding at least 0.5 % as many Gaussians as those with
+        one); their ``q`` becomes 0. Default True. A few wrong mask pixels
+        below an object's edge can make the solver (and the regulariser
+        after it) select a mostly hidden background surface under the
+        object, apart from it. The count is ``resolved["n_disconnected"]``.
+        False: the solver's selection as it is.
     graph_options : mapping (read-only)
         Keywords of :func:`~seed2gs_inverse.pipeline.completion.object_graph`
         (``k`` in 1..256, ``sigma_color``, ``sigma_normal`` (positive or
@@ -279,6 +289,7 @@ class ExtractSettings:
     smoothness: float | None = None
     completion: str | None = None
     graph_options: Mapping = field(default_factory=dict)
+    seed_connected: bool = True
 
     def __post_init__(self):
         from ..solvers import available_methods, check_method_options
@@ -336,6 +347,9 @@ class ExtractSettings:
         if self.completion not in COMPLETIONS:
             raise ValidationError(f"completion must be None, 'reference' or 'tracked', got {self.completion!r}")
         set_("graph_options", _graph_options(self.graph_options))
+        if not isinstance(self.seed_connected, (bool, np.bool_)):
+            raise ValidationError(f"seed_connected must be True or False, got {self.seed_connected!r}")
+        set_("seed_connected", bool(self.seed_connected))
 
     # -- derived -------------------------------------------------------------
     def solver_kwargs(self) -> dict:
