@@ -32,7 +32,9 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit, prange
+from numba import get_num_threads, njit, prange, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from ..sh import SH_C0, SH_C1, SH_C2, SH_C3
 
@@ -47,6 +49,40 @@ _C0 = SH_C0
 _C1 = SH_C1
 _C20, _C21, _C22, _C23, _C24 = SH_C2
 _C30, _C31, _C32, _C33, _C34, _C35, _C36 = SH_C3
+
+
+# -- dynamic scheduling -------------------------------------------------------
+# Numba hands each thread one equal, contiguous share of a prange, so a thread
+# the OS deschedules (other work on the cores) stalls the whole loop while the
+# other threads sit idle. The tile loops below instead start one worker per
+# thread, and each worker claims the next tile from a shared counter with an
+# atomic fetch-and-add until none is left: a slowed thread just takes fewer
+# tiles. Every tile writes only its own outputs, so results do not depend on
+# which thread took which tile.
+@intrinsic
+def _fetch_add(typingctx, counter, value):
+    """``old = counter[0]; counter[0] += value; return old``, atomically (``counter``: (1,) int64)."""
+    if not (isinstance(counter, types.Array) and counter.dtype == types.int64):
+        return None
+    sig = types.int64(counter, types.int64)
+
+    def codegen(context, builder, signature, args):
+        aryty = signature.args[0]
+        ary = context.make_array(aryty)(context, builder, args[0])
+        zero = context.get_constant(types.intp, 0)
+        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [zero])
+        return builder.atomic_rmw("add", ptr, args[1], "monotonic")
+
+    return sig, codegen
+
+
+def workers(n_items: int) -> int:
+    """Workers for a loop over ``n_items``: one per Numba thread, at most one per item.
+
+    Asked in Python and passed to the kernels: ``get_num_threads`` inside a
+    kernel would keep it out of the on-disk cache.
+    """
+    return max(1, min(get_num_threads(), int(n_items)))
 
 
 # -- argument bundles (Numba passes NamedTuples of arrays and scalars as typed tuples) --
@@ -444,7 +480,8 @@ def bin_tiles(order, rects, tiles_x, n_tiles):
 
 
 @njit(cache=True)
-def composite(tiles, splats, width, height, roi, background, min_weight, fill, gid, img, csr, scr, tile_evals):
+def composite(tiles, splats, width, height, roi, background, min_weight, fill, gid, img, csr, scr, tile_evals,
+              n_workers):
     """Front-to-back compositing of every tile (parallel over tiles).
 
     For pixel centre ``p = (x + 0.5, y + 0.5)`` and each Gaussian g of the
@@ -478,7 +515,9 @@ def composite(tiles, splats, width, height, roi, background, min_weight, fill, g
     (that tile then needs the second pass). Pass ``scr_start`` all zeros to
     log nothing.
     ``tile_evals`` (n_tiles,) int64 receives the number of Gaussian-pixel
-    evaluations (power computed) per tile, for benchmarks.
+    evaluations (power computed) per tile, for benchmarks. ``n_workers``:
+    :func:`workers` of the number of tiles (dynamic scheduling, see
+    :func:`_fetch_add`).
 
     Bundles: ``tiles`` :class:`TileLists` (the tiles to visit), ``splats``
     :class:`Splats` (projection), ``img`` :class:`Image` (rgb, alpha, depth,
@@ -494,169 +533,181 @@ def composite(tiles, splats, width, height, roi, background, min_weight, fill, g
     _composite_tiles(tile_start, tile_gauss, tile_order, means2d, conics, opacities, support, colors, depths,
                      width, height, roi, background, min_weight, fill, gid,
                      rgb, alpha, depth, n_contrib, n_kept, indptr, indices, data,
-                     scr_start, scr_pix, scr_gi, scr_w, scr_used, tile_evals)
+                     scr_start, scr_pix, scr_gi, scr_w, scr_used, tile_evals, n_workers)
 
 
 @njit(cache=True, parallel=True)
 def _composite_tiles(tile_start, tile_gauss, tile_order, means2d, conics, opacities, support, colors, depths,
                      width, height, roi, background, min_weight, fill, gid,
                      rgb, alpha, depth, n_contrib, n_kept, indptr, indices, data,
-                     scr_start, scr_pix, scr_gi, scr_w, scr_used, tile_evals):
+                     scr_start, scr_pix, scr_gi, scr_w, scr_used, tile_evals, n_workers):
     """The parallel loop of :func:`composite` (same arguments, unpacked)."""
     tiles_x = (width + TILE - 1) // TILE
     n_tiles = tile_order.shape[0]
-    for it in prange(n_tiles):
-        t = tile_order[it]
-        ty = t // tiles_x
-        tx = t - ty * tiles_x
-        x0 = tx * TILE
-        y0 = ty * TILE
-        x1 = min(x0 + TILE, width)
-        y1 = min(y0 + TILE, height)
-        tw = x1 - x0
-        npix = tw * (y1 - y0)
-        # Per-pixel state of the tile, local index (y - y0) * tw + (x - x0).
-        T = np.ones(npix)
-        acc = np.zeros((npix, 4))  # r, g, b, depth
-        cnt = np.zeros(npix, np.int64)
-        kept = np.zeros(npix, np.int64)
-        cursor = np.zeros(npix, np.int64)
-        done = np.zeros(npix, np.bool_)
-        n_done = 0
-        n_eval = 0
-        sp = scr_start[t]
-        sp_end = scr_start[t + 1]
-        overflow = False
-        for yy in range(y0, y1):
-            for xx in range(x0, x1):
-                lp = (yy - y0) * tw + (xx - x0)
-                if not roi[yy, xx]:
-                    done[lp] = True
-                    n_done += 1
-                elif fill:
-                    cursor[lp] = indptr[yy * width + xx]
-                    # The first pass counted this pixel's contributors: stop
-                    # right after the last one instead of scanning the rest.
-                    if n_contrib[yy, xx] == 0:
-                        done[lp] = True
-                        n_done += 1
-        s = tile_start[t]
-        e = tile_start[t + 1]
-        j = s
-        while j < e and n_done < npix:
-            gi = tile_gauss[j]
-            j += 1
-            mx = means2d[gi, 0]
-            my = means2d[gi, 1]
-            ca = conics[gi, 0]
-            cb = conics[gi, 1]
-            cc = conics[gi, 2]
-            o = opacities[gi]
-            pmin = support[gi, 0]
-            hx = support[gi, 1]
-            hy = support[gi, 2]
-            # Clamped as floats first: int() of a huge float is undefined.
-            bx0 = int(max(float(x0), np.ceil(mx - hx - 0.5)))
-            bx1 = int(min(float(x1), np.floor(mx + hx - 0.5) + 1.0))
-            by0 = int(max(float(y0), np.ceil(my - hy - 0.5)))
-            by1 = int(min(float(y1), np.floor(my + hy - 0.5) + 1.0))
-            if bx0 >= bx1 or by0 >= by1:
-                continue
-            cr = colors[gi, 0]
-            cg = colors[gi, 1]
-            cbl = colors[gi, 2]
-            z = depths[gi]
-            for yy in range(by0, by1):
-                dy = my - (yy + 0.5)
-                for xx in range(bx0, bx1):
+    claimed = np.zeros(1, np.int64)  # items handed out so far (_fetch_add)
+    for _worker in prange(n_workers):
+        while True:
+            it = _fetch_add(claimed, 1)
+            if it >= n_tiles:
+                break
+            t = tile_order[it]
+            ty = t // tiles_x
+            tx = t - ty * tiles_x
+            x0 = tx * TILE
+            y0 = ty * TILE
+            x1 = min(x0 + TILE, width)
+            y1 = min(y0 + TILE, height)
+            tw = x1 - x0
+            npix = tw * (y1 - y0)
+            # Per-pixel state of the tile, local index (y - y0) * tw + (x - x0).
+            T = np.ones(npix)
+            acc = np.zeros((npix, 4))  # r, g, b, depth
+            cnt = np.zeros(npix, np.int64)
+            kept = np.zeros(npix, np.int64)
+            cursor = np.zeros(npix, np.int64)
+            done = np.zeros(npix, np.bool_)
+            n_done = 0
+            n_eval = 0
+            sp = scr_start[t]
+            sp_end = scr_start[t + 1]
+            overflow = False
+            for yy in range(y0, y1):
+                for xx in range(x0, x1):
                     lp = (yy - y0) * tw + (xx - x0)
-                    if done[lp]:
-                        continue
-                    n_eval += 1
-                    dx = mx - (xx + 0.5)
-                    power = -0.5 * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
-                    if power > 0.0 or power < pmin:
-                        continue
-                    a = min(ALPHA_MAX, o * math.exp(power))
-                    if a < ALPHA_MIN:
-                        continue
-                    tp = T[lp]
-                    nt = tp * (1.0 - a)
-                    if nt < T_MIN:
+                    if not roi[yy, xx]:
                         done[lp] = True
                         n_done += 1
-                        continue
-                    w = a * tp
-                    acc[lp, 0] += w * cr
-                    acc[lp, 1] += w * cg
-                    acc[lp, 2] += w * cbl
-                    acc[lp, 3] += w * z
-                    cnt[lp] += 1
-                    if w >= min_weight:
-                        if fill:
-                            indices[cursor[lp]] = gid[gi]
-                            data[cursor[lp]] = w
-                            cursor[lp] += 1
-                        elif sp < sp_end:
-                            scr_pix[sp] = lp
-                            scr_gi[sp] = gi
-                            scr_w[sp] = w
-                            sp += 1
-                        else:
-                            overflow = True
-                        kept[lp] += 1
-                    T[lp] = nt
-                    if fill and cnt[lp] == n_contrib[yy, xx]:
-                        done[lp] = True
-                        n_done += 1
-        tile_evals[t] = n_eval
-        if fill:
-            continue
-        scr_used[t] = -1 if overflow else sp - scr_start[t]
-        for yy in range(y0, y1):
-            for xx in range(x0, x1):
-                if not roi[yy, xx]:
+                    elif fill:
+                        cursor[lp] = indptr[yy * width + xx]
+                        # The first pass counted this pixel's contributors: stop
+                        # right after the last one instead of scanning the rest.
+                        if n_contrib[yy, xx] == 0:
+                            done[lp] = True
+                            n_done += 1
+            s = tile_start[t]
+            e = tile_start[t + 1]
+            j = s
+            while j < e and n_done < npix:
+                gi = tile_gauss[j]
+                j += 1
+                mx = means2d[gi, 0]
+                my = means2d[gi, 1]
+                ca = conics[gi, 0]
+                cb = conics[gi, 1]
+                cc = conics[gi, 2]
+                o = opacities[gi]
+                pmin = support[gi, 0]
+                hx = support[gi, 1]
+                hy = support[gi, 2]
+                # Clamped as floats first: int() of a huge float is undefined.
+                bx0 = int(max(float(x0), np.ceil(mx - hx - 0.5)))
+                bx1 = int(min(float(x1), np.floor(mx + hx - 0.5) + 1.0))
+                by0 = int(max(float(y0), np.ceil(my - hy - 0.5)))
+                by1 = int(min(float(y1), np.floor(my + hy - 0.5) + 1.0))
+                if bx0 >= bx1 or by0 >= by1:
                     continue
-                lp = (yy - y0) * tw + (xx - x0)
-                tp = T[lp]
-                al = 1.0 - tp
-                rgb[yy, xx, 0] = acc[lp, 0] + tp * background[0]
-                rgb[yy, xx, 1] = acc[lp, 1] + tp * background[1]
-                rgb[yy, xx, 2] = acc[lp, 2] + tp * background[2]
-                alpha[yy, xx] = al
-                depth[yy, xx] = acc[lp, 3] / al if cnt[lp] > 0 else 0.0
-                n_contrib[yy, xx] = cnt[lp]
-                n_kept[yy * width + xx] = kept[lp]
+                cr = colors[gi, 0]
+                cg = colors[gi, 1]
+                cbl = colors[gi, 2]
+                z = depths[gi]
+                for yy in range(by0, by1):
+                    dy = my - (yy + 0.5)
+                    for xx in range(bx0, bx1):
+                        lp = (yy - y0) * tw + (xx - x0)
+                        if done[lp]:
+                            continue
+                        n_eval += 1
+                        dx = mx - (xx + 0.5)
+                        power = -0.5 * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
+                        if power > 0.0 or power < pmin:
+                            continue
+                        a = min(ALPHA_MAX, o * math.exp(power))
+                        if a < ALPHA_MIN:
+                            continue
+                        tp = T[lp]
+                        nt = tp * (1.0 - a)
+                        if nt < T_MIN:
+                            done[lp] = True
+                            n_done += 1
+                            continue
+                        w = a * tp
+                        acc[lp, 0] += w * cr
+                        acc[lp, 1] += w * cg
+                        acc[lp, 2] += w * cbl
+                        acc[lp, 3] += w * z
+                        cnt[lp] += 1
+                        if w >= min_weight:
+                            if fill:
+                                indices[cursor[lp]] = gid[gi]
+                                data[cursor[lp]] = w
+                                cursor[lp] += 1
+                            elif sp < sp_end:
+                                scr_pix[sp] = lp
+                                scr_gi[sp] = gi
+                                scr_w[sp] = w
+                                sp += 1
+                            else:
+                                overflow = True
+                            kept[lp] += 1
+                        T[lp] = nt
+                        if fill and cnt[lp] == n_contrib[yy, xx]:
+                            done[lp] = True
+                            n_done += 1
+            tile_evals[t] = n_eval
+            if fill:
+                continue
+            scr_used[t] = -1 if overflow else sp - scr_start[t]
+            for yy in range(y0, y1):
+                for xx in range(x0, x1):
+                    if not roi[yy, xx]:
+                        continue
+                    lp = (yy - y0) * tw + (xx - x0)
+                    tp = T[lp]
+                    al = 1.0 - tp
+                    rgb[yy, xx, 0] = acc[lp, 0] + tp * background[0]
+                    rgb[yy, xx, 1] = acc[lp, 1] + tp * background[1]
+                    rgb[yy, xx, 2] = acc[lp, 2] + tp * background[2]
+                    alpha[yy, xx] = al
+                    depth[yy, xx] = acc[lp, 3] / al if cnt[lp] > 0 else 0.0
+                    n_contrib[yy, xx] = cnt[lp]
+                    n_kept[yy * width + xx] = kept[lp]
 
 
 @njit(cache=True, parallel=True)
-def scatter(tiles, lo, hi, width, height, scr_pix, scr_gi, scr_w, gid, indptr, indices, data):
+def scatter(tiles, lo, hi, width, height, scr_pix, scr_gi, scr_w, gid, indptr, indices, data, n_workers):
     """CSR fill from the first compositing pass's scratch (parallel over tiles).
 
     Tile ``tiles[j]`` logged its entries at ``[lo[j], hi[j])`` of ``scr_*``
     (see :func:`composite`); they go to the rows of their pixels in logged
     order, which is compositing order: ``indices = gid[scr_gi]``,
-    ``data = scr_w``, row ``u`` starting at ``indptr[u]``.
+    ``data = scr_w``, row ``u`` starting at ``indptr[u]``. ``n_workers``:
+    :func:`workers` of the number of tiles.
     """
     tiles_x = (width + TILE - 1) // TILE
-    for it in prange(tiles.shape[0]):
-        t = tiles[it]
-        ty = t // tiles_x
-        tx = t - ty * tiles_x
-        x0 = tx * TILE
-        y0 = ty * TILE
-        tw = min(x0 + TILE, width) - x0
-        th = min(y0 + TILE, height) - y0
-        cursor = np.empty(tw * th, np.int64)
-        for yy in range(th):
-            for xx in range(tw):
-                cursor[yy * tw + xx] = indptr[(y0 + yy) * width + x0 + xx]
-        for e in range(lo[it], hi[it]):
-            lp = scr_pix[e]
-            c = cursor[lp]
-            indices[c] = gid[scr_gi[e]]
-            data[c] = scr_w[e]
-            cursor[lp] = c + 1
+    n_tiles = tiles.shape[0]
+    claimed = np.zeros(1, np.int64)  # items handed out so far (_fetch_add)
+    for _worker in prange(n_workers):
+        while True:
+            it = _fetch_add(claimed, 1)
+            if it >= n_tiles:
+                break
+            t = tiles[it]
+            ty = t // tiles_x
+            tx = t - ty * tiles_x
+            x0 = tx * TILE
+            y0 = ty * TILE
+            tw = min(x0 + TILE, width) - x0
+            th = min(y0 + TILE, height) - y0
+            cursor = np.empty(tw * th, np.int64)
+            for yy in range(th):
+                for xx in range(tw):
+                    cursor[yy * tw + xx] = indptr[(y0 + yy) * width + x0 + xx]
+            for e in range(lo[it], hi[it]):
+                lp = scr_pix[e]
+                c = cursor[lp]
+                indices[c] = gid[scr_gi[e]]
+                data[c] = scr_w[e]
+                cursor[lp] = c + 1
 
 
 @njit(cache=True)

@@ -219,8 +219,8 @@ def _rasterize(scene, frozen, camera, background, mode, roi, min_weight, build_w
     tiles_y = (h + _kernels.TILE - 1) // _kernels.TILE
     n_tiles = tiles_x * tiles_y
     tile_start, tile_gauss = _kernels.bin_tiles(order, rects, tiles_x, n_tiles)
-    # Tiles differ a lot in cost and prange splits the range into equal
-    # contiguous chunks, so visit them in a fixed shuffled order.
+    # Tiles differ a lot in cost: visited in a fixed shuffled order, the last
+    # tiles claimed (see _kernels._fetch_add) are rarely a run of expensive ones.
     tile_order = np.random.default_rng(0).permutation(n_tiles).astype(np.int64)
     clock.append(time.perf_counter())
 
@@ -240,7 +240,7 @@ def _rasterize(scene, frozen, camera, background, mode, roi, min_weight, build_w
                            w=_lazy_empty(n_scr, np.float32), used=np.zeros(n_tiles, np.int64))
     no_csr = _kernels.CSR(np.zeros(1, np.int64), np.zeros(0, np.int32), np.zeros(0, np.float32))
     _kernels.composite(_kernels.TileLists(tile_start, tile_gauss, tile_order), splats, w, h, roi_mask, bg,
-                       float(min_weight), False, gid, img, no_csr, scr, tile_evals)
+                       float(min_weight), False, gid, img, no_csr, scr, tile_evals, _kernels.workers(n_tiles))
     clock.append(time.perf_counter())
     rendering = Rendering(img.rgb, img.alpha, img.depth, img.n_contrib)
     if stats is not None:
@@ -260,11 +260,11 @@ def _rasterize(scene, frozen, camera, background, mode, roi, min_weight, build_w
     # their weights directly.
     logged = np.flatnonzero(scr.used > 0)
     _kernels.scatter(logged, scr_start[logged], scr_start[logged] + scr.used[logged], w, h,
-                     scr.pix, scr.gi, scr.w, gid, indptr, csr.indices, csr.data)
+                     scr.pix, scr.gi, scr.w, gid, indptr, csr.indices, csr.data, _kernels.workers(logged.size))
     redo = np.flatnonzero(scr.used < 0)
     if redo.size:
         _kernels.composite(_kernels.TileLists(tile_start, tile_gauss, redo), splats, w, h, roi_mask, bg,
-                           float(min_weight), True, gid, img, csr, scr, tile_evals)
+                           float(min_weight), True, gid, img, csr, scr, tile_evals, _kernels.workers(redo.size))
     if nnz <= np.iinfo(np.int32).max:
         indptr = indptr.astype(np.int32)
     W = sp.csr_matrix((csr.data, csr.indices, indptr), shape=(h * w, len(scene)), copy=False)
