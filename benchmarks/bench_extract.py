@@ -1,7 +1,8 @@
 """Whole-object extraction suite: composites with exact truth (issue 10 benchmark).
 
 Every case stands one object *in contact* on a surface of a background
-(the real firepit patio, ``firepit_562k_sh0.ply``, or procedural ground
+(the real firepit patio or, for firepit-box-60, a chair seat on it,
+``firepit_562k_sh0.ply``; or procedural ground
 scenes with vertical clutter from :mod:`seed2gs_inverse.synthetic.ground`), so
 the object's Gaussians are the exact truth. The reference camera is a level
 look-at camera (no roll) at a chosen pitch (10-60 degrees) and distance
@@ -232,7 +233,9 @@ def _firepit_cache(cache):
     cam = read_camera(DATA / "firepit_cameras.json:overview")
     base = render(firepit, cam)
     up = _unit(estimate_up(firepit, cam))
-    # Patio floor points in front of the overview camera, one per case azimuth.
+    # Support points in front of the overview camera, one per case: patio floor,
+    # except (480, 365), which lands on the seat of a red chair (firepit-box-60's
+    # box rests on the chair; compose's remove_overlap cuts the seat inside it).
     spots = [(400, 470), (600, 490), (340, 430), (480, 365), (560, 200)]
 
     def floor(case):
