@@ -10,6 +10,9 @@ whole patio; near plane 0.2 as the reference image):
   loads the cache;
 * Gaussian-pixel evaluations per second in the compositing kernel;
 * parity with the independent reference rendering (mean absolute difference);
+* with ``--competing-load``: the render and the operator build again while
+  two busy-loop processes compete for the cores, and the ratio to the
+  quiet figures (the "holds under load" check of issue 11);
 * a baseline measured in the same run: one sparse product ``W @ colors``
   with the operator just built (what applying the operator costs), and the
   ratio of each figure to the project's marks (render < 1 s, operator < 1 s,
@@ -17,7 +20,7 @@ whole patio; near plane 0.2 as the reference image):
 
 Usage::
 
-    NUMBA_NUM_THREADS=2 python benchmarks/bench_render.py [--data DIR] [--repeat 5]
+    NUMBA_NUM_THREADS=2 python benchmarks/bench_render.py [--data DIR] [--repeat 5] [--competing-load]
 
 Exits 0 with a message when the data directory is absent.
 """
@@ -97,6 +100,9 @@ def main(argv=None) -> int:
     ap.add_argument("--data", help="directory of the shared scenes (default ../shared/data or $SEED2GS_DATA)")
     ap.add_argument("--repeat", type=int, default=5, help="timed repetitions (median reported)")
     ap.add_argument("--skip-cold", action="store_true", help="skip the cold-compile measurement")
+    ap.add_argument("--competing-load", action="store_true",
+                    help="also time render and build_operator beside two busy-loop processes")
+    ap.add_argument("--skip-orbit", action="store_true", help="skip the 24 orbit views")
     args = ap.parse_args(argv)
     data = _data_dir(args.data)
     if not (data / "firepit_562k_sh0.ply").is_file():
@@ -159,7 +165,21 @@ def main(argv=None) -> int:
     print(f"baseline (same run): W @ colors (scipy CSR, {W.nnz} nnz x 3) {med_mv:.3f} s; "
           f"operator build = {med_op / med_mv:.1f} x that product, "
           f"render at 4x the pixels = {med / med_mv:.1f} x")
-    _orbit_views(scene, c, render(scene, c).depth, args.repeat)
+    if args.competing_load:
+        busy = [subprocess.Popen([sys.executable, "-c", "while True:\n    pass\n"]) for _ in range(2)]
+        try:
+            time.sleep(1.0)
+            med_l, _, _, _ = _timeit(lambda: render(scene, cam), args.repeat)
+            med_opl, _, _, _ = _timeit(lambda: build_operator(scene, cam, scale=0.5), args.repeat)
+        finally:
+            for b in busy:
+                b.kill()
+                b.wait()
+        print(f"beside two busy-loop processes: render 960x540 {med_l:.3f} s ({med_l / med:.2f}x quiet), "
+              f"build_operator {small.width}x{small.height} {med_opl:.3f} s ({med_opl / med_op:.2f}x quiet); "
+              f"a fair share of the 2 cores would be 2x")
+    if not args.skip_orbit:
+        _orbit_views(scene, c, render(scene, c).depth, args.repeat)
     print(f"load average at the end: {os.getloadavg()[0]:.1f}")
     return 0
 
