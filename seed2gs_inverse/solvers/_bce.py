@@ -85,6 +85,22 @@ class PixelBCE:
 
     def __call__(self, pred, w) -> tuple:
         """``(b (P,) float64, g (P,) dtype)`` at the prediction ``pred = A q`` (P,) and weights ``w`` (P,)."""
+        r = self._evaluate(pred, w)
+        r.bce[r.rows] = r.b
+        return r.bce, r.g
+
+    def loss_grad(self, pred, w) -> tuple:
+        """``(sum_u w_u b_u, g (P,) dtype)``: the loss without the per-pixel BCE written out.
+
+        The loss is summed over the pixels with ``w_u != 0`` only (the others
+        contribute 0), which saves a scatter and a dot product over all P
+        pixels per evaluation.
+        """
+        r = self._evaluate(pred, w)
+        return float(np.dot(r.w, r.b)), r.g
+
+    def _evaluate(self, pred, w) -> _Rows:
+        """Fill ``r.b`` (BCE of the pixels ``r.rows``) and ``r.g`` (all P) for weights ``w``; return ``r``."""
         r = self._rows(w)
         p, t, d, b = r.p, r.t, r.d, r.b
         eps = self.eps
@@ -117,9 +133,8 @@ class PixelBCE:
         if r.inv is not None:
             np.multiply(t, r.inv, out=t)
         t[r.out_lo] = 0.0
-        r.bce[r.rows] = b
         r.g[r.rows] = t
-        return r.bce, r.g
+        return r
 
 
 def bce_pixels(pred, y, w, inv_alpha, eps) -> tuple:

@@ -54,8 +54,9 @@ __all__ = ["laplacian_smooth", "harmonic_extension"]
 #: Jacobi-preconditioned conjugate gradients. The evidence spans orders of
 #: magnitude (0 on unseen Gaussians, thousands on well-seen ones), which leaves
 #: the system badly conditioned for CG even after Jacobi scaling, while the
-#: factor of a kNN graph of a few hundred thousand nodes still fits in well
-#: under 1 GB; ``benchmarks/bench_smoothing.py`` prints both solvers' times.
+#: sparse factor of a 3D kNN graph grows only moderately faster than the
+#: graph; ``benchmarks/bench_smoothing.py`` prints both solvers' times on
+#: graph regions of a real extraction.
 DIRECT_MAX = 250_000
 
 

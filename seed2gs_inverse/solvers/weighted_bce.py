@@ -150,13 +150,14 @@ class BCEObjective:
         self._pixels = PixelBCE(self.y, self.inv_alpha, eps, self.dtype)
 
     def _forward(self, q: np.ndarray, w: np.ndarray) -> tuple:
-        """(BCE per pixel (P,) float64, pixel gradient ``g`` (P,) in A's dtype) at ``q`` (N,)."""
+        """(loss ``sum_u w_u BCE_u``, pixel gradient ``g`` (P,) in A's dtype) at ``q`` (N,)."""
         pred = self.A @ np.asarray(q, dtype=self.dtype)
-        return self._pixels(pred, w)
+        return self._pixels.loss_grad(pred, w)
 
     def pixel_bce(self, q: np.ndarray) -> np.ndarray:
         """BCE of every usable pixel (P,) at ``q`` (N,); 0 at the others."""
-        return self._forward(q, self.s)[0].copy()
+        pred = self.A @ np.asarray(q, dtype=self.dtype)
+        return self._pixels(pred, self.s)[0].copy()
 
     def residuals(self, q: np.ndarray) -> np.ndarray:
         """``D_c``: weighted mean BCE of each view (V,) at ``q``; 0 for a view with no usable pixel."""
@@ -174,9 +175,8 @@ class BCEObjective:
 
     def loss_grad_q(self, q: np.ndarray, omega: np.ndarray) -> tuple:
         """``(L, dL/dq)`` at ``q`` (N,) with view weights ``omega`` (V,)."""
-        w = self._pixel_weights(omega)
-        bce, g = self._forward(q, w)
-        return float(np.dot(w, bce)), np.asarray(self.AT @ g, dtype=np.float64).ravel()
+        loss, g = self._forward(q, self._pixel_weights(omega))
+        return loss, np.asarray(self.AT @ g, dtype=np.float64).ravel()
 
     def loss_grad_rows(self, x: np.ndarray, rows: np.ndarray, q_full: np.ndarray, omega: np.ndarray) -> tuple:
         """``(L, dL/dx)`` for the logits ``x`` of the Gaussians ``rows`` only.
@@ -188,10 +188,9 @@ class BCEObjective:
         """
         qr = expit(x)
         q_full[rows] = qr
-        w = self._pixel_weights(omega)
-        bce, g = self._forward(q_full, w)
+        loss, g = self._forward(q_full, self._pixel_weights(omega))
         gq = (self.AT @ g)[rows]
-        return float(np.dot(w, bce)), qr * (1.0 - qr) * gq
+        return loss, qr * (1.0 - qr) * gq
 
     def loss_grad_logits(self, logits: np.ndarray, omega: np.ndarray, rows=None) -> tuple:
         """``(L, dL/dl)`` for full logits (N,): ``dL/dl = q (1-q) dL/dq``.
@@ -200,12 +199,11 @@ class BCEObjective:
         only (the optimised ones); by default all N.
         """
         q = expit(logits)
-        w = self._pixel_weights(omega)
-        bce, g = self._forward(q, w)
+        loss, g = self._forward(q, self._pixel_weights(omega))
         gq = self.AT @ g
         if rows is not None:
             q, gq = q[rows], gq[rows]
-        return float(np.dot(w, bce)), q * (1.0 - q) * gq
+        return loss, q * (1.0 - q) * gq
 
 
 def _lbfgs(fun, x, max_iter: int, ftol: float, gtol: float, memory: deque, callback=None) -> tuple:
