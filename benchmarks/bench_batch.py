@@ -169,9 +169,9 @@ def main(argv=None) -> int:
             line = f"{m:>4}: {60 * len(jobs) / r['wall']:.2f} jobs/min"
             if base is not None and m != "seq":
                 line += f", speed-up over sequential x{base['wall'] / r['wall']:.2f}"
-                same = all(np.array_equal(a.load_q(), b.load_q()) for a, b in zip(base["results"], r["results"])
-                           if a.ok and b.ok)
-                line += f", q identical to sequential: {'yes' if same else 'NO'}"
+                differ = [a.name for a, b in zip(base["results"], r["results"])
+                          if a.ok and b.ok and not np.array_equal(a.load_q(), b.load_q())]
+                line += f", q identical to sequential: {'NO (' + ', '.join(differ) + ')' if differ else 'yes'}"
             if m != "seq":
                 what = "Dask overhead" if r["n_workers"] == 1 else "Dask overhead + idle workers"
                 line += f", {what} {(r['wall'] * r['n_workers'] - r['busy']) / len(jobs):.2f} s/job"

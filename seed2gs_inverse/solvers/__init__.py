@@ -134,8 +134,12 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
     weak = problem.known_weight < min_evidence
     t_smooth = time.perf_counter()
     if smoothness > 0:
-        q = laplacian_smooth(q, np.where(weak, 0.0, problem.known_weight), graph, smoothness,
-                             prior=problem.prior).astype(np.float32)
+        # One BLAS thread here too: the factorisation's dense kernels round
+        # differently with more threads, and q must not depend on the machine's
+        # thread settings (a Dask worker runs with one BLAS thread).
+        with threadpool_limits(limits=1, user_api="blas"):
+            q = laplacian_smooth(q, np.where(weak, 0.0, problem.known_weight), graph, smoothness,
+                                 prior=problem.prior).astype(np.float32)
     else:
         q[weak] = problem.prior[weak].astype(np.float32)
     t_smooth = time.perf_counter() - t_smooth
