@@ -255,15 +255,16 @@ class GeometricTracker:
     fill_passes : int
         Passes of the fill per view (module docstring), >= 1.
         Measured on benchmarks/bench_extract.py (13 cases, mean held-out
-        mIoU / mBIoU): 1 pass 0.950 / 0.849 without refill, 0.934 / 0.817
-        with it; 2 passes 0.954 / 0.856 without, 0.957 / 0.868 with; 3
-        passes 0.949 / 0.839 without, 0.954 / 0.862 with. ``refill=True,
+        mIoU / mBIoU) with the seed-connected selection of ``extract``:
+        1 pass 0.957 / 0.868 without refill, ``refill=True,
+        fill_passes=2`` 0.965 / 0.889 (worst case 0.863 -> 0.887, same
+        seconds per extraction). Before that selection: 1 pass with refill
+        0.934 / 0.817; 2 passes without refill 0.954 / 0.856; 3 passes
+        0.949 / 0.839 without, 0.954 / 0.862 with. ``refill=True,
         fill_passes=2`` is not the default because it loses on the back
         views of the plush scenes of tests/test_unseen_surfaces.py (mean
         IoU over 3 scenes x 3 views 0.945 -> 0.927; a second pass alone
-        0.925), and it adds about 5 % to an extraction's time (the
-        solver's iterations change with the masks; the fill itself costs
-        about 0.05 s more).
+        0.925; the test's own scene falls below its 0.9 bound).
     """
 
     def __init__(self, alpha_min: float = 0.5, depth_tol: float = 0.01, fill: bool = True,
