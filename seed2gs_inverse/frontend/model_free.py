@@ -262,9 +262,8 @@ class GeometricTracker:
         0.934 / 0.817; 2 passes without refill 0.954 / 0.856; 3 passes
         0.949 / 0.839 without, 0.954 / 0.862 with. ``refill=True,
         fill_passes=2`` is not the default because it loses on the back
-        views of the plush scenes of tests/test_unseen_surfaces.py (mean
-        IoU over 3 scenes x 3 views 0.945 -> 0.927; a second pass alone
-        0.925; the test's own scene falls below its 0.9 bound).
+        views of the plush scenes of tests/test_unseen_surfaces.py (a back
+        view of the test's scene falls below its 0.9 bound).
     """
 
     def __init__(self, alpha_min: float = 0.5, depth_tol: float = 0.01, fill: bool = True,
