@@ -50,13 +50,9 @@ from ..graph import check_graph, graph_laplacian
 
 __all__ = ["laplacian_smooth", "harmonic_extension"]
 
-#: Systems up to this many unknowns are factorised (SuperLU); larger ones use
-#: Jacobi-preconditioned conjugate gradients. The evidence spans orders of
-#: magnitude (0 on unseen Gaussians, thousands on well-seen ones), which leaves
-#: the system badly conditioned for CG even after Jacobi scaling, while the
-#: sparse factor of a 3D kNN graph grows only moderately faster than the
-#: graph; ``benchmarks/bench_smoothing.py`` prints both solvers' times on
-#: graph regions of a real extraction.
+#: With ``solver="auto"``, systems up to this many unknowns are factorised
+#: (SuperLU), larger ones use Jacobi-preconditioned conjugate gradients (the
+#: factor of a 3D kNN graph grows faster than the graph).
 DIRECT_MAX = 250_000
 
 
@@ -89,7 +85,7 @@ def _spd_solve(A: sp.spmatrix, b: np.ndarray, x0: np.ndarray, method: str, rtol:
 
 
 def laplacian_smooth(q_hat, evidence, graph, smoothness: float = 1.0, prior=None, *,
-                     ridge: float = 1e-6, solver: str = "auto", rtol: float = 1e-8) -> np.ndarray:
+                     ridge: float = 1e-6, solver: str = "cg", rtol: float = 1e-6) -> np.ndarray:
     r"""Graph-regularised membership :math:`q^\star` (see the module docstring).
 
     Parameters
@@ -107,13 +103,18 @@ def laplacian_smooth(q_hat, evidence, graph, smoothness: float = 1.0, prior=None
         :math:`p`, the value of Gaussians no evidence reaches; default 0.
     ridge : float
         :math:`\epsilon > 0`.
-    solver : {"auto", "direct", "cg"}
-        Linear solver for the coupled nodes: ``auto`` (default) factorises
-        with SuperLU up to :data:`DIRECT_MAX` unknowns and uses CG beyond;
-        ``direct`` always factorises; ``cg`` is Jacobi-preconditioned
-        conjugate gradients warm-started from the Dirichlet limit.
+    solver : {"cg", "direct", "auto"}
+        Linear solver for the coupled nodes: ``cg`` (default),
+        Jacobi-preconditioned conjugate gradients warm-started from the
+        Dirichlet limit, to ``rtol``; ``direct`` factorises with SuperLU
+        (exact, slower: ``benchmarks/bench_smoothing.py`` prints both);
+        ``auto`` factorises up to :data:`DIRECT_MAX` unknowns and uses CG
+        beyond.
     rtol : float
-        CG relative tolerance.
+        CG relative tolerance (only used with CG). At 1e-6 a few labels in
+        100,000 may fall on the other side of 0.5 than in the exact solve,
+        at a tenth of the steps 1e-8 needs on a region of the whole firepit
+        (``benchmarks/bench_smoothing.py`` prints the differing labels).
 
     Returns
     -------
