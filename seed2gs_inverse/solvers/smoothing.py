@@ -113,8 +113,8 @@ def laplacian_smooth(q_hat, evidence, graph, smoothness: float = 1.0, prior=None
     rtol : float
         CG relative tolerance (only used with CG). At 1e-6 a few labels in
         100,000 may fall on the other side of 0.5 than in the exact solve,
-        at a tenth of the steps 1e-8 needs on a region of the whole firepit
-        (``benchmarks/bench_smoothing.py`` prints the differing labels).
+        in far fewer steps than 1e-8 needs (``benchmarks/bench_smoothing.py``
+        prints the times and the differing labels).
 
     Returns
     -------
