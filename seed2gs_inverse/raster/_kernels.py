@@ -76,6 +76,15 @@ def _fetch_add(typingctx, counter, value):
     return sig, codegen
 
 
+@njit(cache=True, inline="always")
+def _tile_box(t, tiles_x, width, height):
+    """Pixel box ``(x0, y0, x1, y1)`` (end exclusive, clipped to the image) of tile ``t``."""
+    ty = t // tiles_x
+    x0 = (t - ty * tiles_x) * TILE
+    y0 = ty * TILE
+    return x0, y0, min(x0 + TILE, width), min(y0 + TILE, height)
+
+
 def workers(n_items: int) -> int:
     """Workers for a loop over ``n_items``: one per Numba thread, at most one per item.
 
@@ -551,12 +560,7 @@ def _composite_tiles(tile_start, tile_gauss, tile_order, means2d, conics, opacit
             if it >= n_tiles:
                 break
             t = tile_order[it]
-            ty = t // tiles_x
-            tx = t - ty * tiles_x
-            x0 = tx * TILE
-            y0 = ty * TILE
-            x1 = min(x0 + TILE, width)
-            y1 = min(y0 + TILE, height)
+            x0, y0, x1, y1 = _tile_box(t, tiles_x, width, height)
             tw = x1 - x0
             npix = tw * (y1 - y0)
             # Per-pixel state of the tile, local index (y - y0) * tw + (x - x0).
@@ -691,13 +695,9 @@ def scatter(tiles, lo, hi, width, height, scr_pix, scr_gi, scr_w, gid, indptr, i
             it = _fetch_add(claimed, 1)
             if it >= n_tiles:
                 break
-            t = tiles[it]
-            ty = t // tiles_x
-            tx = t - ty * tiles_x
-            x0 = tx * TILE
-            y0 = ty * TILE
-            tw = min(x0 + TILE, width) - x0
-            th = min(y0 + TILE, height) - y0
+            x0, y0, x1, y1 = _tile_box(tiles[it], tiles_x, width, height)
+            tw = x1 - x0
+            th = y1 - y0
             cursor = np.empty(tw * th, np.int64)
             for yy in range(th):
                 for xx in range(tw):
