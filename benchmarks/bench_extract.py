@@ -260,18 +260,26 @@ def _parse_set(items):
     return out
 
 
-def run_case(built: Built, options: dict):
-    from seed2gs_inverse import extract
-    from seed2gs_inverse.metrics import boundary_iou, iou, membership_scores
-
+def extract_kwargs(options: dict, true_up=None) -> dict:
+    """``extract()`` keywords from ``--set`` options: ``tracker.NAME`` builds a GeometricTracker, ``up=truth``."""
     opts = {k: v for k, v in options.items() if not k.startswith("tracker.")}
     if isinstance(opts.get("up"), str) and opts["up"] == "truth":
-        opts["up"] = built.up
+        if true_up is None:
+            raise SystemExit("--set up=truth: this benchmark has no true up")
+        opts["up"] = true_up
     tracker_kw = {k[len("tracker."):]: v for k, v in options.items() if k.startswith("tracker.")}
     if tracker_kw:
         from seed2gs_inverse.frontend.model_free import GeometricTracker
 
         opts["tracker"] = GeometricTracker(**tracker_kw)
+    return opts
+
+
+def run_case(built: Built, options: dict):
+    from seed2gs_inverse import extract
+    from seed2gs_inverse.metrics import boundary_iou, iou, membership_scores
+
+    opts = extract_kwargs(options, built.up)
     t0 = time.perf_counter()
     ex = extract(built.scene, built.camera, built.seed, progress=False, **opts)
     wall = time.perf_counter() - t0

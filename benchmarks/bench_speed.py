@@ -30,7 +30,7 @@ benchmarks (``bench_extract``).
 
 Usage::
 
-    python benchmarks/bench_speed.py [--repeat 3] [--views 24] [--competing-load]
+    python benchmarks/bench_speed.py [--repeat 3] [--views 24] [--competing-load] [--set KEY=VALUE ...]
 """
 
 from __future__ import annotations
@@ -193,15 +193,18 @@ def _accuracy(scene, truth, up, cam, selected):
     return float(np.mean(ious)), float(np.mean(bious)), float(membership_scores(selected, truth)["iou"])
 
 
-def run_once(scene, truth, cam, seed, up, views: int, method: str, accuracy: bool) -> dict:
-    """One extraction with its baselines, solver ratios, peak memory and (optionally) accuracy."""
+def run_once(scene, truth, cam, seed, up, views: int, method: str, accuracy: bool, options=None) -> dict:
+    """One extraction with its baselines, solver ratios, peak memory and (optionally) accuracy.
+
+    ``options``: further ``extract()`` keywords (``--set``).
+    """
     from seed2gs_inverse.pipeline import extract
     from seed2gs_inverse.solvers import solve
 
     load0 = _load()
     reset_ok = _reset_peak()
     t0 = time.perf_counter()
-    ex = extract(scene, cam, seed, n_views=views, method=method, progress=False)
+    ex = extract(scene, cam, seed, n_views=views, method=method, progress=False, **(options or {}))
     wall = time.perf_counter() - t0
     peak = _peak_rss_gb(reset_ok)
     stack, masks = ex.operators, ex.masks
@@ -252,12 +255,18 @@ def main(argv=None) -> int:
     p.add_argument("--method", default="weighted_bce")
     p.add_argument("--no-accuracy", action="store_true", help="skip the held-out scores")
     p.add_argument("--competing-load", action="store_true", help="run two busy-loop processes meanwhile")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="extract() keyword as in bench_extract.py, e.g. --set min_weight=0 (repeatable)")
     args = p.parse_args(argv)
+    from bench_extract import _parse_set, extract_kwargs
+
+    options = _parse_set(args.set)
     if not (DATA / "firepit_562k_sh0.ply").is_file():
         print(f"bench_speed: real scenes not found in {DATA}; set SEED2GS_DATA. Skipped.")
         return 0
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
           f"NUMBA_NUM_THREADS={os.environ.get('NUMBA_NUM_THREADS', 'default')}, load average {_load():.1f}")
+    print(f"extract options: {options or 'defaults'}")
     busy = _busy_load(2) if args.competing_load else []
     try:
         scene, truth, cam, seed, up, first = _problem(args.views)
@@ -265,7 +274,8 @@ def main(argv=None) -> int:
               f"{'with' if busy else 'without'} a competing 2-process busy loop")
         rows = []
         for k in range(args.repeat):
-            rows.append(run_once(scene, truth, cam, seed, up, args.views, args.method, not args.no_accuracy))
+            rows.append(run_once(scene, truth, cam, seed, up, args.views, args.method, not args.no_accuracy,
+                                 extract_kwargs(options)))
             _print_row(k, rows[-1])
     finally:
         for b in busy:

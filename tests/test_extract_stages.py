@@ -344,9 +344,10 @@ def test_q_unchanged_from_before_issue_9(syn, name, label, kw):
     seed = (build_operator(syn.scene, cam).W @ truth.astype(np.float32)).reshape(cam.image_shape) > 0.5
     # Pinned to the options of before issue 10 (up="level", no graph
     # regulariser; issue 10 made "auto" and smoothness 1 with the model-free
-    # tracker the defaults), so that this still proves the issue-9 refactor
-    # left q unchanged.
-    ex = extract(syn.scene, cam, seed, n_views=6, progress=False, up="level", smoothness=0.0, **kw)
+    # tracker the defaults) and of before min_weight=0.01 (exact operators),
+    # so that this still proves the issue-9 refactor left q unchanged.
+    ex = extract(syn.scene, cam, seed, n_views=6, progress=False, up="level", smoothness=0.0, min_weight=0.0,
+                 **kw)
     q0 = ref[f"q_{name}"]
     # Bit-identical on the machine that made the file; other BLAS builds may
     # differ in the last bits of an L-BFGS-B solve, never in the selection.
