@@ -115,3 +115,20 @@ def test_keep_islands_reaches_the_settings(files, capsys):
     rep_path = d / "isl" / "report.json"
     assert cli.main(["extract", "--from-report", str(rep_path), "--keep-islands", "-o", str(d / "isl_rep")]) == 2
     assert "cannot be combined with --keep-islands" in capsys.readouterr().err
+
+
+def test_no_support_background_reaches_the_settings(files, capsys):
+    d, _ = files
+    assert _extract(d, d / "nsb", "--no-support-background", "--up", "level") == 0, capsys.readouterr().err
+    rep = json.loads((d / "nsb" / "report.json").read_text())
+    assert rep["settings"]["support_background"] is False
+    assert rep["resolved"]["support"] == {"used": False, "reason": "support_background is off"}
+    assert _extract(d, d / "sb_default", "--up", "level") == 0, capsys.readouterr().err
+    rep = json.loads((d / "sb_default" / "report.json").read_text())
+    # "level" is a heuristic axis: the support rule waits for a trusted one
+    assert rep["settings"]["support_background"] is True and rep["resolved"]["support"]["used"] is False
+    assert "not trusted" in rep["resolved"]["support"]["reason"]
+    rep_path = d / "nsb" / "report.json"
+    assert cli.main(["extract", "--from-report", str(rep_path), "--no-support-background", "-o",
+                     str(d / "nsb_rep")]) == 2
+    assert "cannot be combined with --no-support-background" in capsys.readouterr().err

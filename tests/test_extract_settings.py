@@ -19,15 +19,17 @@ DEFAULTS_BEFORE = {
     "method": "weighted_bce", "n_views": 24, "a_max_deg": 60.0, "gamma": 1.0, "skip_deg": 5.0,
     "profile": "linear", "max_elevation_deg": 85.0, "orbit_scale": 0.5, "max_view_pixels": 40_000,
     "max_reference_pixels": 1_000_000, "roi_margin": 2.0, "zoom_margin": 2.0, "up": "level",
-    "min_weight": 0.01, "cull": True, "cull_far": 4.0, "min_evidence": 0.05, "threshold": None,
+    "min_weight": 0.0, "cull": True, "cull_far": 4.0, "min_evidence": 0.05, "threshold": None,
     "lift_options": None, "solver_options": None, "mode": "classic", "progress": None}
 
 # Issue 10 (measured on benchmarks/bench_up_axis.py and bench_extract.py):
 # the orbit axis is estimated ("auto"), a point prompt returns the object, and
 # smoothness=None turns the graph regulariser on for the model-free tracker
-# (resolved["smoothness"]). New options come after the old ones.
-DEFAULTS = {**DEFAULTS_BEFORE, "up": "auto", "point_mode": "object", "smoothness": None, "completion": None,
-            "graph_options": None, "seed_connected": True}
+# (resolved["smoothness"]); the orbit operators drop weights below 0.01 and
+# the model-free tracker labels the support surface background. New options
+# come after the old ones.
+DEFAULTS = {**DEFAULTS_BEFORE, "up": "auto", "min_weight": 0.01, "point_mode": "object", "smoothness": None,
+            "completion": None, "graph_options": None, "seed_connected": True, "support_background": True}
 
 
 def test_defaults_are_those_of_the_old_extract_but_issue_10s():
@@ -76,6 +78,7 @@ def test_defaults_are_those_of_the_old_extract_but_issue_10s():
     ("smoothness", "1", "smoothness must be a number or None"),
     ("completion", "both", "completion must be None, 'reference' or 'tracked'"),
     ("seed_connected", 1, "seed_connected must be True or False"),
+    ("support_background", "yes", "support_background must be True or False"),
     ("graph_options", {"kk": 3}, r"object_graph has no option\(s\) \['kk'\]"),
     ("graph_options", {"k": 0}, r"graph_options k must be in 1\.\.256"),
     ("graph_options", {"k": 10 ** 6}, r"graph_options k must be in 1\.\.256"),
@@ -191,7 +194,7 @@ def test_extract_settings_and_overrides(tiny):
     assert ExtractSettings.from_dict(rep["settings"]) == ex.settings
     assert set(rep["resolved"]) == {"view_scale", "reference_scale", "up", "up_method", "up_confidence",
                                     "threshold", "solver_options", "n_weak_evidence", "n_disconnected", "smoothness", "tracker",
-                                    "grounder"}
+                                    "grounder", "support"}
     assert rep["resolved"]["smoothness"] == 1.0  # None: on with the model-free tracker
     assert rep["up"]["axis"] == rep["resolved"]["up"] and rep["up"]["method"] == rep["resolved"]["up_method"]
     assert rep["resolved"]["tracker"] == "GeometricTracker" and rep["resolved"]["grounder"] is None

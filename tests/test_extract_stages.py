@@ -69,14 +69,17 @@ def staged(syn, setup):
     lift = ex_mod.lift_seed(syn.scene, ref, s.lift_options)
     bar = Counter()
     orbits = ex_mod.orbit_views(r, cam, ref, lift, s, bar)
-    labelled = ex_mod.track_clips(GeometricTracker(), orbits, ref.seed)
+    surface, support_info = ex_mod.support_band(syn.scene, lift, orbits, s, GeometricTracker())
+    tracker = GeometricTracker() if surface is None else GeometricTracker().with_support_plane(surface.axis,
+                                                                                                surface.point)
+    labelled = ex_mod.track_clips(tracker, orbits, ref.seed)
     graph = ex_mod.evidence_graph(syn.scene, lift, s, ex_mod.MODEL_FREE_SMOOTHNESS)  # smoothness=None resolved
     masks = ex_mod.complete_masks(graph, labelled, lift, ref, s.completion)
     stack = ex_mod.stack_operators(labelled, syn.scene)
     sel = ex_mod.solve_selection(stack, masks, lift, s, graph=graph, smoothness=ex_mod.MODEL_FREE_SMOOTHNESS,
                                  scene=syn.scene)
     return SimpleNamespace(settings=s, ref_img=ref_img, seed=seed2, info=info, ref=ref, lift=lift, bar=bar,
-                           orbits=orbits, labelled=labelled, stack=stack, sel=sel, renderer=r, graph=graph,
+                           orbits=orbits, support_info=support_info, labelled=labelled, stack=stack, sel=sel, renderer=r, graph=graph,
                            masks=masks)
 
 
@@ -333,6 +336,7 @@ def test_extract_runs_the_stages(syn, setup, staged):
         np.testing.assert_array_equal(v.world_to_camera, f.camera.world_to_camera)
         assert v.image_shape == f.camera.image_shape
     assert ex.resolved["n_weak_evidence"] == staged.sel.n_weak_evidence
+    assert ex.resolved["support"] == staged.support_info
     assert set(ex.seconds) == set(ex_mod.STAGES) and all(v >= 0 for v in ex.seconds.values())
 
 

@@ -26,7 +26,8 @@ __all__ = ["register", "write_outputs", "settings_from_args", "seed_summary_line
 #: Options that set ExtractSettings (None on the command line = not given).
 _SETTING_FLAGS = {"method": "--method", "views": "--views", "orbit_scale": "--orbit-scale",
                   "threshold": "--threshold", "up": "--up", "option": "--option", "point_mode": "--point-mode",
-                  "smoothness": "--smoothness", "completion": "--completion", "keep_islands": "--keep-islands"}
+                  "smoothness": "--smoothness", "completion": "--completion", "keep_islands": "--keep-islands",
+                  "no_support_background": "--no-support-background"}
 _PROMPT_FLAGS = {"mask": "--mask", "box": "--box", "point": "--point", "prompt": "--prompt",
                  "negative": "--negative", "camera": "--camera", "cameras": "--cameras"}
 
@@ -86,6 +87,9 @@ def register(subparsers) -> None:
                    help="keep parts of the selection apart from the seeded object (by default islands holding "
                         "at least 0.5%% as many Gaussians as the object are left out: background the masks "
                         "brought in)")
+    p.add_argument("--no-support-background", action="store_true",
+                   help="do not label the surface the object rests on as background in the orbit views (by "
+                        "default the model-free tracker does, where the orbit axis is trusted)")
     p.add_argument("--format", choices=("ply", "splat"), default=None, help="object/remainder format (default ply)")
     p.add_argument("--no-progress", action="store_true",
                    help="no progress bars (they are shown only when stderr is a terminal)")
@@ -242,6 +246,7 @@ def settings_from_args(args):
              "threshold": args.threshold, "up": _up(args.up), "point_mode": args.point_mode,
              "smoothness": args.smoothness, "completion": args.completion,
              "seed_connected": False if getattr(args, "keep_islands", False) else None,
+             "support_background": False if getattr(args, "no_support_background", False) else None,
              "solver_options": parse_options(args.option, method) if args.option else None}
     flags = {"n_views": "--views", "orbit_scale": "--orbit-scale", "threshold": "--threshold", "up": "--up",
              "method": "--method", "solver_options": "--option", "point_mode": "--point-mode",

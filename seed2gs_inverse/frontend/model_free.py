@@ -29,6 +29,27 @@ For frame ``k`` and each pixel ``p`` with rendered alpha above ``alpha_min``:
    flat clip when the spiral is tracked): a surface hidden for a few frames
    behind an occluder gets its label back from a view that saw it.
 
+**The support surface (``support_plane``).** An object rests on something,
+and at the contact line (table legs in grass, the shadowed ground between
+them) copies and fills can carry the object's label onto the support; the
+next view copies the error and grows it. Given the support band
+:math:`\{x : n \cdot (x - x_s) \le 0\}` (``support_plane = (n, x_s)``,
+from :func:`~seed2gs_inverse.pipeline.support.support_surface`), a pixel of
+frame ``k`` >= 1 whose surface point ``X`` lies in the band and whose surface
+faces along ``n``,
+
+.. math::
+
+    n \cdot (X - x_s) \le 0 \quad\text{and}\quad |n \cdot \nu(p)| \ge
+    \text{support\_alignment},
+
+with :math:`\nu` the unit normal of the rendered surface (the cross product
+of the world points' differences between the pixel's horizontal and its
+vertical neighbours), is labelled 0, like empty space, unless the warp from
+the seed frame labelled it 1 (what the reference saw of the object stays
+object). The object's own walls near the ground face sideways and keep their
+labels.
+
 Frames are labelled in the order of :meth:`GeometricTracker._order`: always
 the frame nearest to one already labelled, so a closed orbit is walked from
 both sides of the reference.
@@ -112,6 +133,27 @@ def _pixel_rays(camera) -> np.ndarray:
     return rays
 
 
+def _world_points(camera, depth: np.ndarray, where=None) -> np.ndarray:
+    """World points of the pixels (all (H, W, 3), or (M, 3) at the bool mask ``where``) at rendered ``depth``."""
+    pc = _pixel_rays(camera)
+    d = np.asarray(depth, np.float64)
+    pc = pc[where] * d[where][:, None] if where is not None else pc * d[..., None]
+    return (pc - camera.translation) @ camera.rotation  # R^T (p - t)
+
+
+def _on_support(frame, normal: np.ndarray, point: np.ndarray, alignment: float) -> np.ndarray:
+    """(H, W) bool: surface points in the support band that face along ``normal`` (module docstring)."""
+    world = _world_points(frame.camera, frame.depth)
+    dx = np.zeros_like(world)
+    dy = np.zeros_like(world)
+    dx[:, 1:-1] = world[:, 2:] - world[:, :-2]
+    dy[1:-1] = world[2:] - world[:-2]
+    nu = np.cross(dx, dy)
+    norm = np.linalg.norm(nu, axis=-1)
+    facing = np.abs(nu @ normal) >= alignment * np.maximum(norm, 1e-30)
+    return (np.asarray(frame.depth) > 0) & ((world - point) @ normal <= 0.0) & facing & (norm > 0)
+
+
 def _core(labels: np.ndarray, band: int) -> np.ndarray:
     """Labels with a band of ``band`` px on each side of every 0/1 boundary set to NaN."""
     import cv2
@@ -160,8 +202,7 @@ def warp_labels(dst, src, src_labels: np.ndarray, *, alpha_min: float = 0.5,
     out = np.full((h, w), np.nan)
     if not valid.any():
         return out
-    pc = _pixel_rays(cam)[valid] * d[valid][:, None]
-    world = (pc - cam.translation) @ cam.rotation  # R^T (p - t)
+    world = _world_points(cam, d, valid)
     uv, z = scam.project(world)
     ok = np.isfinite(uv).all(axis=1) & (z > scam.near)
     px = np.floor(np.where(ok, uv[:, 0], -1)).astype(np.int64)
@@ -252,6 +293,16 @@ class GeometricTracker:
         docstring): fill errors at contact lines no longer drift around the
         orbit. Use with ``fill_passes=2``. False (default): copied fill
         decisions count as observed.
+    support_plane : (normal, point) or None
+        The support band :math:`n \\cdot (x - x_s) \\le 0` under the object
+        (module docstring): its pixels that face along ``normal`` are
+        labelled 0 in every frame but the seed's. None (default): no such
+        rule. :func:`~seed2gs_inverse.pipeline.extract` passes the band of
+        :func:`~seed2gs_inverse.pipeline.support.support_surface` to the
+        model-free tracker (``ExtractSettings.support_background``).
+    support_alignment : float
+        :math:`|n \\cdot \\nu|` a support pixel needs, in (0, 1] (0.8: the
+        surface within about 37 degrees of level).
     fill_passes : int
         Passes of the fill per view (module docstring), >= 1.
         Measured on benchmarks/bench_extract.py (13 cases, mean held-out
@@ -270,7 +321,7 @@ class GeometricTracker:
                  fill_radius: float = 0.1, fill_sigma_color: float = 0.15, decisive: float = 0.2,
                  min_support: float = 0.02, max_sources: int = 4, boundary_band: int = 0,
                  color_tol: float | None = 0.15, fill_depth_jump: float = 0.03, refill: bool = False,
-                 fill_passes: int = 1):
+                 fill_passes: int = 1, support_plane=None, support_alignment: float = 0.8):
         if not 0 < alpha_min < 1:
             raise ValidationError(f"alpha_min must be in (0, 1), got {alpha_min!r}")
         if not depth_tol > 0:
@@ -296,6 +347,10 @@ class GeometricTracker:
         if isinstance(fill_passes, bool) or int(fill_passes) != fill_passes or fill_passes < 1:
             raise ValidationError(f"fill_passes must be an integer >= 1, got {fill_passes!r}")
         self.fill_passes = int(fill_passes)
+        if not 0 < support_alignment <= 1:
+            raise ValidationError(f"support_alignment must be in (0, 1], got {support_alignment!r}")
+        self.support_alignment = float(support_alignment)
+        self.support_plane = self._plane(support_plane)
         # id(frame) -> (weak reference to the frame, (H, W) bool: label filled,
         # not observed) for the masks this tracker returned (module docstring).
         self._filled = {}
@@ -347,6 +402,7 @@ class GeometricTracker:
             dist = [np.linalg.norm(g.camera.center - f.camera.center) for g, _ in cands]
             order = np.argsort(dist, kind="stable")[: max(self.max_sources - 1, 0)]
             lab = np.full(f.camera.image_shape, np.nan)
+            seen_as_object = None  # the seed frame's 1 labels: never overruled by the support rule
             for src, src_mask in [(frames[0], seed)] + [cands[i] for i in order]:
                 src_mask = _core(src_mask, self.boundary_band)
                 todo = np.isnan(lab)
@@ -355,9 +411,14 @@ class GeometricTracker:
                 w = warp_labels(f, src, src_mask, alpha_min=self.alpha_min, depth_tol=self.depth_tol,
                                 color_tol=self.color_tol)
                 lab[todo] = w[todo]
+                if seen_as_object is None:
+                    seen_as_object = w == 1
             copied_fill = (lab > 0) & (lab < 1)
             lab = np.where(np.isnan(lab), lab, (lab > 0.5).astype(np.float64))
             empty = np.asarray(f.alpha) < self.alpha_min
+            if self.support_plane is not None:
+                on = _on_support(f, *self.support_plane, self.support_alignment)
+                empty |= on if seen_as_object is None else on & ~seen_as_object
             lab[empty] = 0.0
             copied_fill &= ~empty
             observed = ~np.isnan(lab) & ~copied_fill
@@ -382,6 +443,29 @@ class GeometricTracker:
                     pass
             done.append(k)
         return masks
+
+    @staticmethod
+    def _plane(plane):
+        if plane is None:
+            return None
+        try:
+            n, x = (np.asarray(v, dtype=np.float64).reshape(-1) for v in plane)
+        except (TypeError, ValueError):
+            n = x = None
+        if (n is None or n.shape != (3,) or x.shape != (3,) or not np.all(np.isfinite(n))
+                or not np.all(np.isfinite(x)) or np.linalg.norm(n) == 0):
+            raise ValidationError(f"support_plane must be (normal, point), two finite 3-vectors with a non-zero "
+                                  f"normal, or None; got {plane!r}")
+        return n / np.linalg.norm(n), x
+
+    def with_support_plane(self, normal, point) -> "GeometricTracker":
+        """A copy of this tracker with ``support_plane=(normal, point)`` (this one is left as it is)."""
+        import copy
+
+        out = copy.copy(self)
+        out.support_plane = self._plane((normal, point))
+        out._filled = {}
+        return out
 
     def _filled_mask(self, frame):
         """The filled-label mask this tracker recorded for ``frame`` (None: unknown, all observed)."""

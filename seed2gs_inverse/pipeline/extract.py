@@ -11,6 +11,8 @@ outputs, so it can be run, tested and timed on its own::
     orbit_views        orbit axis (orbit_axis: support plane, ...)
                        then VAAS: flat orbit + visibility-adaptive
                        ascending spiral, each frame with its W(c)  -> OrbitViews
+    support_band       the support surface under the object, for
+                       the model-free tracker                      -> (SupportSurface or None, report)
     track_clips        the tracker propagates m* over both clips   -> list of (ClipFrame, mask)
     evidence_graph     Gaussian kNN graph around the object (when
                        smoothness > 0 or completion is on)         -> sparse (N, N) or None
@@ -44,7 +46,8 @@ from .vaas import ClipFrame, VAASPlan, estimate_up, run_vaas
 
 __all__ = ["Extraction", "extract", "Renderer", "ExtractSettings", "EXTRACT_DEFAULTS", "SOLVER_DEFAULTS", "STAGES",
            "MODEL_FREE_SMOOTHNESS", "ReferenceView", "OrbitViews", "Selection", "render_reference",
-           "seed_from_prompt", "reference_view", "lift_seed", "orbit_axis", "orbit_views", "track_clips",
+           "seed_from_prompt", "reference_view", "lift_seed", "orbit_axis", "orbit_views", "support_band",
+           "track_clips",
            "evidence_graph", "complete_masks", "stack_operators", "solve_selection"]
 
 #: Defaults of :func:`extract` beyond the VAAS ones (those of :class:`ExtractSettings`).
@@ -104,7 +107,9 @@ class Extraction:
         ``tracker``, ``grounder`` (class names), ``n_weak_evidence``
         (Gaussians without real evidence: reset to the prior by
         ``min_evidence``, or decided by the regulariser), ``n_disconnected``
-        (above the threshold in islands apart from G0, set to 0) and ``smoothness``
+        (above the threshold in islands apart from G0, set to 0), ``support``
+        (the support surface the model-free tracker labelled background,
+        :func:`support_band`) and ``smoothness``
         (the regulariser's lambda used, after ``None`` was resolved).
     up : dict
         The orbit axis (:func:`orbit_axis`): ``axis``, ``method`` (how it
@@ -561,6 +566,40 @@ def orbit_views(renderer: Renderer, camera: Camera, ref: ReferenceView, lift: Se
     return OrbitViews(plan, flat, spiral, view_scale, up, up_info)
 
 
+def support_band(scene: GaussianScene, lift: SeedLift, orbits: OrbitViews, settings: ExtractSettings,
+                 tracker=None) -> tuple:
+    """Stage 5b: the support surface under the object for the model-free tracker's ``support_plane``.
+
+    :func:`~.support.support_surface` about the orbit axis, when
+    ``settings.support_background`` is on, ``tracker`` is a
+    :class:`~seed2gs_inverse.frontend.model_free.GeometricTracker` without a
+    ``support_plane`` of its own (any other tracker: None) and the axis is
+    trusted (the user's vector, or an estimate with confidence >=
+    :data:`~.up_axis.WEAK_CONFIDENCE`). Returns ``(surface or None, report)``
+    with ``report`` the JSON-ready ``resolved["support"]``: the surface's
+    fields and ``used: True``, or ``used: False`` and the reason.
+    """
+    from ..frontend.model_free import GeometricTracker
+    from .support import SUPPORT_DEFAULTS, support_surface
+    from .up_axis import WEAK_CONFIDENCE
+
+    info = orbits.up_info or {}
+    if not settings.support_background:
+        reason = "support_background is off"
+    elif not isinstance(tracker, GeometricTracker):
+        reason = "not the model-free tracker"
+    elif tracker.support_plane is not None:
+        reason = "the tracker has its own support_plane"
+    elif info.get("method") != "user" and (info.get("confidence") or 0.0) < WEAK_CONFIDENCE:
+        reason = f"the orbit axis is not trusted (method {info.get('method')}, confidence {info.get('confidence')})"
+    else:
+        surface = support_surface(scene, lift.support, lift.center, lift.radius, orbits.up, **SUPPORT_DEFAULTS)
+        if surface is not None:
+            return surface, {"used": True, **surface.summary()}
+        reason = "no level surface around the object"
+    return None, {"used": False, "reason": reason}
+
+
 def track_clips(tracker, orbits: OrbitViews, seed: np.ndarray, progress: _Progress | None = None) -> list:
     """Stage 6: the tracker propagates ``seed`` (frame 0) along each clip.
 
@@ -793,6 +832,9 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
         orbits = orbit_views(renderer, camera, ref, lift, s, bar, up_cameras=up_cameras)
     timer.move("vaas", "operators", renderer.operator_seconds - before)
     with timer("tracking"), _Progress("tracking", progress, total=len(orbits.clips())) as bar:
+        surface, support_info = support_band(scene, lift, orbits, s, tracker)
+        if surface is not None:
+            tracker = tracker.with_support_plane(surface.axis, surface.point)
         labelled = track_clips(tracker, orbits, ref.seed, bar)
         # model-free evidence for surfaces no labelled view saw (pipeline/completion.py)
         graph = evidence_graph(scene, lift, s, smoothness)
@@ -807,6 +849,7 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
                 "solver_options": {k: v for k, v in s.solver_kwargs().items()
                                    if isinstance(v, (int, float, str, bool))},
                 "n_weak_evidence": sel.n_weak_evidence, "n_disconnected": sel.n_disconnected,
+                "support": support_info,
                 "smoothness": smoothness, "tracker": type(tracker).__name__,
                 "grounder": None if grounder is None else type(grounder).__name__}
     return Extraction(scene, sel.q, sel.selected, sel.threshold, seed, prompt_info, camera, reference, lift,

@@ -263,6 +263,19 @@ class ExtractSettings:
         after it) select a mostly hidden background surface under the
         object, apart from it. The count is ``resolved["n_disconnected"]``.
         False: the solver's selection as it is.
+    support_background : bool
+        The model-free tracker labels the support surface under the object
+        background in every orbit view (default True): pixels in the band
+        of :func:`~seed2gs_inverse.pipeline.support.support_surface` (the
+        level of the flat, level splats around the object's footprint)
+        whose rendered surface is level, unless the reference saw them as
+        object (``GeometricTracker(support_plane=)``). Without it, labels
+        copied and filled across the contact line (table legs in grass,
+        the shadowed ground between them) grew around the orbit, and the
+        ground under a table was selected. Used only when the orbit axis
+        is trusted (given as a vector, or estimated with confidence >= 0.5)
+        and the annulus shows a level; ``resolved["support"]`` says whether
+        and why not. Other trackers (SAM2) are unaffected.
     graph_options : mapping (read-only)
         Keywords of :func:`~seed2gs_inverse.pipeline.completion.object_graph`
         (``k`` in 1..256, ``sigma_color``, ``sigma_normal`` (positive or
@@ -297,6 +310,7 @@ class ExtractSettings:
     completion: str | None = None
     graph_options: Mapping = field(default_factory=dict)
     seed_connected: bool = True
+    support_background: bool = True
 
     def __post_init__(self):
         from ..solvers import available_methods, check_method_options
@@ -354,9 +368,10 @@ class ExtractSettings:
         if self.completion not in COMPLETIONS:
             raise ValidationError(f"completion must be None, 'reference' or 'tracked', got {self.completion!r}")
         set_("graph_options", _graph_options(self.graph_options))
-        if not isinstance(self.seed_connected, (bool, np.bool_)):
-            raise ValidationError(f"seed_connected must be True or False, got {self.seed_connected!r}")
-        set_("seed_connected", bool(self.seed_connected))
+        for name in ("seed_connected", "support_background"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ValidationError(f"{name} must be True or False, got {getattr(self, name)!r}")
+            set_(name, bool(getattr(self, name)))
 
     # -- derived -------------------------------------------------------------
     def solver_kwargs(self) -> dict:

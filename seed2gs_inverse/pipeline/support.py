@@ -1,0 +1,152 @@
+r"""The support surface under the object: the level the object rests on (issue 10).
+
+An object rests on something (a lawn, a table, a patio). In the orbit views
+the model-free tracker copies labels along rendered depth and fills revealed
+pixels from image neighbours; at the contact line (table legs standing in
+grass, the shadowed ground between them) both can carry the object's label
+onto the support, and the error then grows from view to view around the
+orbit. The support is easy to recognise geometrically instead: a surface at
+the support's level that faces along the orbit axis. :func:`support_surface`
+finds that level, and the tracker labels such pixels background
+(:class:`~seed2gs_inverse.frontend.model_free.GeometricTracker`,
+``support_plane``).
+
+The level
+---------
+With the orbit axis :math:`u` (unit, world up), the lift's centre :math:`o`
+and radius :math:`R`, every Gaussian mean :math:`x_i` has a height and a
+horizontal distance
+
+.. math::
+
+    h_i = u \cdot (x_i - o), \qquad r_i = \| x_i - o - h_i u \|.
+
+The support's splats are taken in an annulus around the object's footprint,
+where the support shows and the object does not: Gaussians outside G0 with
+``inner`` :math:`R \le r_i \le` ``outer`` :math:`R`, :math:`|h_i| \le 2R`,
+opacity above ``min_opacity``, flat (smallest scale below 0.3 times the
+middle one) and facing along the axis (:math:`|n_i \cdot u| \ge`
+``min_alignment``, :math:`n_i` the axis of the smallest scale). Vertical
+clutter (grass blades, fences) fails the last test. The level is their
+median height :math:`\hat h` and its spread the normalised median absolute
+deviation :math:`s = 1.4826\, \mathrm{med}_i |h_i - \hat h|`; the support
+band reaches up to
+
+.. math::
+
+    t = \hat h + \max(\text{margin}\, R,\; 2 s),
+
+and :attr:`SupportSurface.point` is :math:`o + t u`. Fewer than
+``min_splats`` such Gaussians: no support surface (None), and the tracker
+works as before.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ValidationError
+
+__all__ = ["SupportSurface", "support_surface", "SUPPORT_DEFAULTS"]
+
+#: Keywords of :func:`support_surface` (measured on benchmarks/bench_extract.py, see ExtractSettings).
+SUPPORT_DEFAULTS = {"inner": 1.0, "outer": 2.0, "min_alignment": 0.9, "min_opacity": 0.3, "min_splats": 20,
+                    "margin": 0.05}
+
+
+@dataclass(frozen=True)
+class SupportSurface:
+    """The support under the object: the band ``axis . (x - point) <= 0`` (module docstring).
+
+    Attributes
+    ----------
+    axis : (3,) float64
+        Unit world up (the orbit axis).
+    point : (3,) float64
+        A point on the top of the support band, :math:`o + t u`.
+    level : float
+        :math:`\\hat h`, the median height of the support's splats above the lift's centre.
+    spread : float
+        :math:`s`, their robust spread (normalised MAD).
+    n_splats : int
+        How many splats the level came from.
+    """
+
+    axis: np.ndarray
+    point: np.ndarray
+    level: float
+    spread: float
+    n_splats: int
+
+    def summary(self) -> dict:
+        """JSON-ready fields (``report.json``)."""
+        return {"axis": [float(v) for v in self.axis], "point": [float(v) for v in self.point],
+                "level": float(self.level), "spread": float(self.spread), "n_splats": int(self.n_splats)}
+
+
+def support_surface(scene, support, center, radius: float, axis, *, inner: float = 1.0, outer: float = 2.0,
+                    min_alignment: float = 0.9, min_opacity: float = 0.3, min_splats: int = 20,
+                    margin: float = 0.05) -> SupportSurface | None:
+    """The support surface under the object, or None where no level shows (module docstring).
+
+    Parameters
+    ----------
+    scene : GaussianScene
+    support : (N,) bool
+        G0, the seed lift's support (left out: it is the object).
+    center : (3,) float
+        The lift's centre :math:`o`.
+    radius : float
+        The lift's radius :math:`R` (> 0).
+    axis : (3,) float
+        World up (normalised here).
+    inner, outer : float
+        The annulus, in :math:`R` (0 <= inner < outer).
+    min_alignment : float
+        :math:`|n_i \\cdot u|` a support splat needs, in (0, 1].
+    min_opacity : float
+        Nearly transparent splats are left out.
+    min_splats : int
+        Fewer support splats than this: None.
+    margin : float
+        The band reaches at least ``margin`` :math:`R` above the level.
+
+    Returns
+    -------
+    SupportSurface or None
+    """
+    from .up_axis import _flat_normals
+
+    u = np.asarray(axis, dtype=np.float64).reshape(-1)
+    if u.shape != (3,) or not np.all(np.isfinite(u)) or np.linalg.norm(u) == 0:
+        raise ValidationError(f"support_surface: axis must be a non-zero finite 3-vector, got {axis!r}")
+    u = u / np.linalg.norm(u)
+    o = np.asarray(center, dtype=np.float64).reshape(-1)
+    if o.shape != (3,) or not np.all(np.isfinite(o)):
+        raise ValidationError(f"support_surface: center must be a finite 3-vector, got {center!r}")
+    if not (np.isfinite(radius) and radius > 0):
+        raise ValidationError(f"support_surface: radius must be positive, got {radius!r}")
+    g0 = np.asarray(support, dtype=bool).reshape(-1)
+    if g0.shape != (len(scene),):
+        raise ValidationError(f"support_surface: support has {g0.size} entries, the scene {len(scene)} Gaussians")
+    if not 0 <= inner < outer:
+        raise ValidationError(f"support_surface: need 0 <= inner < outer, got {inner}, {outer}")
+    if not 0 < min_alignment <= 1:
+        raise ValidationError(f"support_surface: min_alignment must lie in (0, 1], got {min_alignment}")
+    rel = scene.means.astype(np.float64) - o
+    h = rel @ u
+    r = np.linalg.norm(rel - h[:, None] * u, axis=1)
+    idx = np.flatnonzero(~g0 & (r >= inner * radius) & (r <= outer * radius) & (np.abs(h) <= 2.0 * radius)
+                         & (np.asarray(scene.opacities) > min_opacity))
+    if idx.size < min_splats:
+        return None
+    normals, flat = _flat_normals(scene, idx)
+    level_h = h[idx[flat & (np.abs(normals @ u) >= min_alignment)]]
+    if level_h.size < min_splats:
+        return None
+    level = float(np.median(level_h))
+    spread = 1.4826 * float(np.median(np.abs(level_h - level)))
+    top = level + max(margin * radius, 2.0 * spread)
+    return SupportSurface(u, o + top * u, level, spread, int(level_h.size))
