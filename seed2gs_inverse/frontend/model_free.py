@@ -306,15 +306,13 @@ class GeometricTracker:
     fill_passes : int
         Passes of the fill per view (module docstring), >= 1.
         Measured on benchmarks/bench_extract.py (13 cases, mean held-out
-        mIoU / mBIoU) with the seed-connected selection of ``extract``:
-        1 pass 0.957 / 0.868 without refill, ``refill=True,
-        fill_passes=2`` 0.965 / 0.889 (worst case 0.863 -> 0.887, same
-        seconds per extraction). Before that selection: 1 pass with refill
-        0.934 / 0.817; 2 passes without refill 0.954 / 0.856; 3 passes
-        0.949 / 0.839 without, 0.954 / 0.862 with. ``refill=True,
-        fill_passes=2`` is not the default because it loses on the back
-        views of the plush scenes of tests/test_unseen_surfaces.py (a back
-        view of the test's scene falls below its 0.9 bound).
+        mIoU / mBIoU) with the defaults of ``extract`` (``min_weight``
+        0.01, the support rule): 1 pass without refill 0.973 / 0.913,
+        ``refill=True, fill_passes=2`` 0.970 / 0.905 (worst case 0.925 vs
+        0.924). Before the support rule refill won (CHANGELOG, issue 10):
+        it was the first remedy for the errors at contact lines that the
+        support rule now stops; it also loses on a back view of the plush
+        scene of tests/test_unseen_surfaces.py (below its 0.9 bound).
     """
 
     def __init__(self, alpha_min: float = 0.5, depth_tol: float = 0.01, fill: bool = True,
