@@ -40,6 +40,12 @@ def test_warp_plane_translation_shifts_by_disparity():
     expect = np.where(src_x < 40, ((src_x >= 10) & (src_x < 20)).astype(float), np.nan)
     np.testing.assert_array_equal(out[0], expect)
     assert np.isnan(out[:, -3:]).all()  # those points are outside the source view
+    # pixels=: the same labels at the asked pixels, NaN elsewhere
+    ask = np.zeros((30, 40), bool)
+    ask[::3, 5:30] = True
+    part = warp_labels(dst, src, lab, pixels=ask)
+    np.testing.assert_array_equal(part[ask], out[ask])
+    assert np.isnan(part[~ask]).all()
 
 
 def test_warp_z_test_marks_occluded_points_unknown():

@@ -169,7 +169,8 @@ def _core(labels: np.ndarray, band: int) -> np.ndarray:
 
 
 def warp_labels(dst, src, src_labels: np.ndarray, *, alpha_min: float = 0.5,
-                depth_tol: float = 0.01, color_tol: float | None = None, max_step: float = 0.1) -> np.ndarray:
+                depth_tol: float = 0.01, color_tol: float | None = None, max_step: float = 0.1,
+                pixels=None) -> np.ndarray:
     """Backward-warp labels of frame ``src`` into frame ``dst`` through rendered depth.
 
     Parameters
@@ -187,6 +188,9 @@ def warp_labels(dst, src, src_labels: np.ndarray, *, alpha_min: float = 0.5,
         when the two pixels' colours differ by at most this much in every
         channel. It separates surfaces that meet at equal depth (an object
         standing on the ground), which the z-test cannot.
+    pixels : (H, W) bool, optional
+        Warp only these ``dst`` pixels (the others are NaN): the tracker
+        asks each further source only for the pixels still unknown.
 
     Returns
     -------
@@ -199,6 +203,8 @@ def warp_labels(dst, src, src_labels: np.ndarray, *, alpha_min: float = 0.5,
     sh, sw = scam.image_shape
     d = np.asarray(dst.depth, np.float64)
     valid = (np.asarray(dst.alpha) >= alpha_min) & (d > 0)
+    if pixels is not None:
+        valid &= np.asarray(pixels, dtype=bool)
     out = np.full((h, w), np.nan)
     if not valid.any():
         return out
@@ -407,7 +413,7 @@ class GeometricTracker:
                 if not todo.any():
                     break
                 w = warp_labels(f, src, src_mask, alpha_min=self.alpha_min, depth_tol=self.depth_tol,
-                                color_tol=self.color_tol)
+                                color_tol=self.color_tol, pixels=todo)
                 lab[todo] = w[todo]
                 if seen_as_object is None:
                     seen_as_object = w == 1
