@@ -61,7 +61,7 @@ def test_extract_mask_writes_all_outputs(files, capsys):
 
     assert ExtractSettings.from_dict(rep["settings"]) == ExtractSettings(n_views=8, progress=False)
     assert rep["resolved"]["threshold"] == 0.5 and rep["resolved"]["tracker"] == "GeometricTracker"
-    assert rep["resolved"]["solver_options"] == {"max_iter": 30} and rep["resolved"]["view_scale"] == 0.5
+    assert rep["resolved"]["solver_options"] == {"max_iter": 20} and rep["resolved"]["view_scale"] == 0.5
     sel = q > 0.5
     truth = files["truth"]
     assert (sel & truth).sum() / sel.sum() > 0.9 and (sel & truth).sum() / truth.sum() > 0.8

@@ -41,7 +41,7 @@ def test_defaults_are_those_of_the_old_extract_but_issue_10s():
             assert dict(got) == {}, name  # None meant "no options"
         else:
             assert got == want and type(got) is type(want), name
-    assert s.solver_kwargs() == SOLVER_DEFAULTS["weighted_bce"] == {"max_iter": 30}
+    assert s.solver_kwargs() == SOLVER_DEFAULTS["weighted_bce"] == {"max_iter": 20}
     assert ExtractSettings(method="voting").solver_kwargs() == {}
     assert ExtractSettings(solver_options={"max_iter": 5}).solver_kwargs() == {"max_iter": 5}
 

@@ -23,6 +23,7 @@ import pytest
 from seed2gs_inverse import Camera, ValidationError
 from seed2gs_inverse.frontend.base import Tracker
 from seed2gs_inverse.frontend.model_free import GeometricTracker
+from seed2gs_inverse.pipeline.settings import SOLVER_DEFAULTS
 from seed2gs_inverse.frontend.sam2 import SAM2VideoTracker
 from seed2gs_inverse.operators import scene_fingerprint
 from seed2gs_inverse.raster import build_operator, render
@@ -261,7 +262,8 @@ def test_solve_selection_equals_the_old_evidence_reset(syn, staged):
     masks = [m for _, m in staged.labelled]
     off = staged.settings.replace(seed_connected=False)  # the solver's selection as it is
     sel = ex_mod.solve_selection(staged.stack, masks, staged.lift, off)  # smoothness 0: off
-    raw = solve(staged.stack, masks, method="weighted_bce", init=staged.lift.support, max_iter=30)
+    raw = solve(staged.stack, masks, method="weighted_bce", init=staged.lift.support,
+                **SOLVER_DEFAULTS["weighted_bce"])
     weak = _evidence(syn, staged.labelled) < 0.05
     assert 0 < weak.sum() < len(weak)
     want = np.asarray(raw.q, np.float32).copy()
@@ -281,7 +283,8 @@ def test_solve_selection_with_the_graph_regulariser(syn, staged):
     """
     assert staged.graph is not None and staged.graph.nnz > 0
     assert staged.masks is not None and len(staged.masks) == len(staged.labelled)
-    raw = solve(staged.stack, staged.masks, method="weighted_bce", init=staged.lift.support, max_iter=30)
+    raw = solve(staged.stack, staged.masks, method="weighted_bce", init=staged.lift.support,
+                **SOLVER_DEFAULTS["weighted_bce"])
     e = _evidence(syn, staged.labelled)
     e[e < 0.05] = 0.0
     p = staged.lift.support.astype(np.float64)
@@ -348,10 +351,10 @@ def test_q_unchanged_from_before_issue_9(syn, name, label, kw):
     seed = (build_operator(syn.scene, cam).W @ truth.astype(np.float32)).reshape(cam.image_shape) > 0.5
     # Pinned to the options of before issue 10 (up="level", no graph
     # regulariser; issue 10 made "auto" and smoothness 1 with the model-free
-    # tracker the defaults) and of before min_weight=0.01 (exact operators),
-    # so that this still proves the issue-9 refactor left q unchanged.
+    # tracker the defaults) and of before min_weight=0.01 (exact operators) and
+    # max_iter=20, so that this still proves the issue-9 refactor left q unchanged.
     ex = extract(syn.scene, cam, seed, n_views=6, progress=False, up="level", smoothness=0.0, min_weight=0.0,
-                 **kw)
+                 solver_options={"max_iter": 30} if name == "weighted_bce" else None, **kw)
     q0 = ref[f"q_{name}"]
     # Bit-identical on the machine that made the file; other BLAS builds may
     # differ in the last bits of an L-BFGS-B solve, never in the selection.
