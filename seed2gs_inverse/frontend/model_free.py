@@ -312,8 +312,9 @@ class GeometricTracker:
     fill_passes : int
         Passes of the fill per view (module docstring), >= 1.
         Measured on benchmarks/bench_extract.py (13 cases, mean held-out
-        mIoU / mBIoU) with the defaults of ``extract`` (``min_weight``
-        0.01, the support rule): 1 pass without refill 0.973 / 0.913,
+        mIoU / mBIoU) with the defaults of ``extract`` when the support
+        rule landed (``min_weight`` 0.01, weighted_bce ``max_iter`` 30):
+        1 pass without refill 0.973 / 0.913,
         ``refill=True, fill_passes=2`` 0.970 / 0.905 (worst case 0.925 vs
         0.924). Before the support rule refill won (CHANGELOG, issue 10):
         it was the first remedy for the errors at contact lines that the
