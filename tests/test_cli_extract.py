@@ -218,3 +218,23 @@ def test_progress_bars_only_on_a_terminal(files, capsys, tmp_path, monkeypatch):
     assert "solve (weighted_bce)" in err and "loss" in err and "VAAS views" in err
     assert _run(args + ["-o", tmp_path / "quiet", "--no-progress"]) == 0
     assert "loss" not in capsys.readouterr().err
+
+
+def test_from_report_of_an_older_run_keeps_its_behaviour(files, capsys, tmp_path):
+    """A report written before an option existed, or before a solver default changed, replays as it ran."""
+    d = files["dir"]
+    first, again = tmp_path / "first", tmp_path / "again"
+    assert _run(["extract", d / "scene.ply", "--camera", f"{d / 'cameras.json'}:0", "--mask", d / "mask.png",
+                 "--views", 3, "--up", "camera", "-o", first]) == 0
+    rep = json.loads((first / "report.json").read_text())
+    assert rep["resolved"]["solver_options"] == {"max_iter": 20} and rep["settings"]["solver_options"] == {}
+    # as an older toolkit wrote it: no seed_connected / support_background, weighted_bce ran 30 iterations
+    del rep["settings"]["seed_connected"], rep["settings"]["support_background"]
+    rep["resolved"]["solver_options"] = {"max_iter": 30}
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps(rep))
+    assert _run(["extract", "--from-report", old, "-o", again]) == 0, capsys.readouterr().err
+    rep2 = json.loads((again / "report.json").read_text())
+    assert rep2["settings"]["seed_connected"] is False and rep2["settings"]["support_background"] is False
+    assert rep2["settings"]["solver_options"] == {"max_iter": 30}
+    assert rep2["resolved"]["solver_options"] == {"max_iter": 30}

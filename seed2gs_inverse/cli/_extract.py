@@ -291,10 +291,27 @@ def _up_cameras(path, where: str):
     return read_cameras(path)
 
 
+#: Options added after reports were first written, with the value that keeps
+#: the behaviour from before them (a report without the option replays so).
+_ADDED_OPTIONS = {"seed_connected": False, "support_background": False}
+
+
+def _recorded_settings(rep: dict, progress: bool):
+    """The settings of a recorded run as it ran: options the report predates are off, and solver
+    options whose defaults changed since (``resolved.solver_options``) are pinned."""
+    from ..pipeline import ExtractSettings
+
+    settings = ExtractSettings.from_dict({**_ADDED_OPTIONS, **rep["settings"], "progress": progress})
+    ran = (rep.get("resolved") or {}).get("solver_options")
+    now = {k: v for k, v in settings.solver_kwargs().items() if isinstance(v, (int, float, str, bool))}
+    if isinstance(ran, dict) and ran != now:
+        settings = settings.replace(solver_options={**ran, **settings.solver_options})
+    return settings
+
+
 def _from_report(args):
     """(scene path, camera, camera spec, prompt, settings, models path, format, run) of a recorded run."""
     from ..camera import Camera
-    from ..pipeline import ExtractSettings
 
     given = [flag for name, flag in {**_SETTING_FLAGS, **_PROMPT_FLAGS}.items()
              if getattr(args, name, None) not in (None, [], False)]
@@ -310,7 +327,7 @@ def _from_report(args):
     except (KeyError, TypeError) as exc:
         raise FormatError(f"{where}: run.scene/run.camera incomplete ({exc})") from None
     prompt = _prompt_from_record(run.get("prompt"), where)
-    settings = ExtractSettings.from_dict({**rep["settings"], "progress": progress_enabled(args.no_progress)})
+    settings = _recorded_settings(rep, progress_enabled(args.no_progress))
     fmt = args.format or run.get("format", "ply")
     return scene_path, camera, spec, prompt, settings, args.models or run.get("models"), fmt, run
 
