@@ -348,7 +348,8 @@ def _built_stack():
 def test_stack_passes_bit_identical_to_the_stacked_matrix(rng, monkeypatch, direct):
     """Products run view by view (no stacked copy) yet equal the stacked matrix's passes bit for bit.
 
-    ``direct=False`` forces the public per-view fallback (used when scipy lacks its private kernels):
+    The adjoint sums two runs of views (see ``_passes``): it equals the stacked pass over
+    each run's rows, added. ``direct=False`` forces the public per-view fallback (used when scipy lacks its private kernels):
     the forward pass stays bit-identical (row by row), the adjoint sums per view (close, not equal).
     """
     from seed2gs_inverse.operators import _passes
@@ -364,8 +365,12 @@ def test_stack_passes_bit_identical_to_the_stacked_matrix(rng, monkeypatch, dire
     assert fwd.dtype == adj.dtype == np.float32
     np.testing.assert_array_equal(fwd, A @ q)
     if direct:
-        np.testing.assert_array_equal(adj, stack.stacked_transpose() @ r)
-        np.testing.assert_array_equal(stack.T @ r, stack.stacked_transpose() @ r)
+        # the adjoint: the stacked matrix's pass over each of the two runs of views, then their sum
+        first, second = _passes._halves([v.W for v in stack])
+        cut = int(stack.row_offsets()[second.start])
+        want = A[:cut].T @ r[:cut] + A[cut:].T @ r[cut:]
+        np.testing.assert_array_equal(adj, want)
+        np.testing.assert_array_equal(stack.T @ r, want)
     np.testing.assert_allclose(adj, A.T.astype(np.float64) @ r.astype(np.float64), rtol=1e-5)
     # float64 vectors accumulate in float64, as scipy does for the stacked matrix
     np.testing.assert_array_equal(stack.matvec(q.astype(np.float64)), A @ q.astype(np.float64))
@@ -386,3 +391,55 @@ def test_solve_makes_no_stacked_copy(rng):
     for m in available_methods():
         solve(stack, masks, method=m)
     assert stack._stacked is None and stack._stacked_T is None
+
+
+def test_stack_passes_are_the_same_on_one_thread_or_two(rng, monkeypatch):
+    """The passes' results do not depend on the threads (Dask workers run one): bit for bit."""
+    from seed2gs_inverse.operators import _passes
+
+    stack = _built_stack()
+    q = rng.random(stack.n_gaussians).astype(np.float32)
+    r = rng.random(stack.shape[0]).astype(np.float32)
+    first, second = _passes._halves([v.W for v in stack])
+    assert len(first) and len(second)
+    got = {}
+    for threads in (1, 2):
+        monkeypatch.setattr(_passes, "_threads", lambda t=threads: t)
+        monkeypatch.setattr(_passes, "PARALLEL_MIN_NNZ", 0)  # the small test stack goes parallel too
+        got[threads] = (stack.matvec(q), stack.rmatvec(r))
+    np.testing.assert_array_equal(got[1][0], got[2][0])
+    np.testing.assert_array_equal(got[1][1], got[2][1])
+    assert _passes._pool is not None  # the two-thread run used the pool
+    monkeypatch.undo()
+    monkeypatch.setenv("NUMBA_NUM_THREADS", "1")  # as batch_client sets it in each worker
+    assert _passes._threads() == 1
+    monkeypatch.setenv("NUMBA_NUM_THREADS", "2")
+    assert _passes._threads() == 2
+
+
+def _parallel_pass_in_child(conn, stack):
+    conn.send(stack.rmatvec(np.ones(stack.shape[0], np.float32)))  # the patched module came with the fork
+
+
+def test_a_forked_child_starts_its_own_pass_thread(rng, monkeypatch):
+    """After a fork the parent's pool thread does not exist in the child: the child must not wait on it."""
+    import multiprocessing as mp
+
+    from seed2gs_inverse.operators import _passes
+
+    monkeypatch.setattr(_passes, "_threads", lambda: 2)
+    monkeypatch.setattr(_passes, "PARALLEL_MIN_NNZ", 0)
+    stack = _built_stack()
+    want = stack.rmatvec(np.ones(stack.shape[0], np.float32))
+    assert _passes._pool is not None
+    ctx = mp.get_context("fork")
+    parent, child = ctx.Pipe()
+    p = ctx.Process(target=_parallel_pass_in_child, args=(child, stack))  # forked: nothing pickled
+    p.start()
+    try:
+        assert parent.poll(30), "the child's pass hung"
+        np.testing.assert_array_equal(parent.recv(), want)
+    finally:
+        p.join(5)
+        if p.is_alive():
+            p.kill()

@@ -5,10 +5,20 @@
 vectors both call scipy's own CSR kernels (``csr_matvec``: ``y += W x`` row
 by row; ``csc_matvec`` on the arrays of ``W(c)`` read as ``W(c)^T`` in CSC:
 ``y[col] += w r_row``), the same loops scipy runs for ``W @ x`` and
-``W.T @ r``. Row after row, view after view, is exactly the order of the
-stacked matrix's pass, so the results are bit-identical to the passes over
-``OperatorStack.stacked()`` while no weight is copied (a stacked copy of
-the firepit's 47 views is 0.46 GB and 1.3-1.9 s of page faults).
+``W.T @ r``, row after row, view after view, as the stacked matrix's pass
+does, while no weight is copied (a stacked copy of the firepit's 47 views
+is 0.46 GB and 1.3-1.9 s of page faults).
+
+The views are cut into two runs of consecutive views with about equal
+non-zeros (:func:`_halves`), and two threads run one run each where two
+cores are available (scipy's kernels release the GIL; on the firepit +
+unicorn stack of benchmarks/bench_speed.py ``A q`` took 7.2 ms instead of
+12.9-13.3 ms and ``A^T r`` 7.9 ms instead of 14.4-14.8 ms, load 1.4-1.6). The forward pass writes disjoint rows, so it is the same either way.
+The adjoint accumulates each run into its own (N,) vector and adds the two,
+``(sum over run 0) + (sum over run 1)``, on one thread or two alike: the
+result never depends on the number of threads (a Dask worker with one
+thread gives the same ``q`` as a two-thread run), and within each run it is
+bit-identical to the stacked matrix's pass over that run's rows.
 
 Other dtypes (float64 right-hand sides, which make scipy accumulate in
 float64), blocks of vectors, and a scipy without the private kernels take
@@ -17,6 +27,9 @@ adjoint).
 """
 
 from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -28,6 +41,52 @@ except ImportError:  # pragma: no cover - depends on the scipy build
     _st, _KERNELS = None, False
 
 __all__ = ["forward", "adjoint"]
+
+#: Below this many non-zeros a pass runs on the calling thread alone (a
+#: thread hand-off costs more than it saves).
+PARALLEL_MIN_NNZ = 1_000_000
+_pool = None
+
+
+def _forget_pool() -> None:
+    global _pool
+    _pool = None
+
+
+# A forked child has none of the parent's threads: it must start its own pool.
+os.register_at_fork(after_in_child=_forget_pool)
+
+
+def _threads() -> int:
+    """Threads for the passes: 2 unless one core (``NUMBA_NUM_THREADS``, as Dask workers set it, or the CPU count)."""
+    env = os.environ.get("NUMBA_NUM_THREADS", "").strip()
+    n = int(env) if env.isdigit() and int(env) >= 1 else (os.cpu_count() or 1)
+    return 2 if n >= 2 else 1
+
+
+def _halves(mats) -> tuple:
+    """Two runs of consecutive view indices with about equal non-zeros (the second empty for one view)."""
+    nnz = np.cumsum([W.nnz for W in mats])
+    if len(mats) < 2:
+        return range(len(mats)), range(len(mats), len(mats))
+    cut = int(np.clip(np.searchsorted(nnz, nnz[-1] / 2.0) + 1, 1, len(mats) - 1))
+    return range(0, cut), range(cut, len(mats))
+
+
+def _run_both(fn, halves, nnz: int) -> None:
+    """``fn(0)`` and ``fn(1)`` (one per run of ``halves``), on two threads when it pays."""
+    global _pool
+    if _threads() < 2 or nnz < PARALLEL_MIN_NNZ or not len(halves[1]):
+        fn(0)
+        fn(1)
+        return
+    if _pool is None:
+        _pool = ThreadPoolExecutor(1, thread_name_prefix="seed2gs-pass")
+    other = _pool.submit(fn, 1)
+    try:
+        fn(0)
+    finally:
+        other.result()
 
 
 def _direct(W, v) -> bool:
@@ -44,22 +103,34 @@ def forward(mats, offsets, n_cols: int, x: np.ndarray) -> np.ndarray:
     """
     dtype = np.result_type(np.float32, x.dtype)
     out = np.zeros((int(offsets[-1]),) + x.shape[1:], dtype=dtype)
-    for W, lo, hi in zip(mats, offsets[:-1], offsets[1:]):
-        if _direct(W, x):
-            _st.csr_matvec(W.shape[0], n_cols, W.indptr, W.indices, W.data, x, out[lo:hi])
-        else:
-            out[lo:hi] = W @ x
+    halves = _halves(mats)
+
+    def run(k):
+        for i in halves[k]:
+            W, lo, hi = mats[i], offsets[i], offsets[i + 1]
+            if _direct(W, x):
+                _st.csr_matvec(W.shape[0], n_cols, W.indptr, W.indices, W.data, x, out[lo:hi])
+            else:
+                out[lo:hi] = W @ x
+
+    _run_both(run, halves, sum(W.nnz for W in mats))
     return out
 
 
 def adjoint(mats, offsets, n_cols: int, y: np.ndarray) -> np.ndarray:
     """``sum_c W(c)^T y_c``: (N,) for ``y`` (P,), or (N, K) for ``y`` (P, K)."""
     dtype = np.result_type(np.float32, y.dtype)
-    out = np.zeros((n_cols,) + y.shape[1:], dtype=dtype)
-    for W, lo, hi in zip(mats, offsets[:-1], offsets[1:]):
-        yc = y[lo:hi]
-        if _direct(W, yc):
-            _st.csc_matvec(n_cols, W.shape[0], W.indptr, W.indices, W.data, yc, out)
-        else:
-            out += W.T @ yc
-    return out
+    halves = _halves(mats)
+    out = [np.zeros((n_cols,) + y.shape[1:], dtype=dtype) for _ in halves]
+
+    def run(k):
+        acc = out[k]
+        for i in halves[k]:
+            W, yc = mats[i], y[offsets[i]:offsets[i + 1]]
+            if _direct(W, yc):
+                _st.csc_matvec(n_cols, W.shape[0], W.indptr, W.indices, W.data, yc, acc)
+            else:
+                acc += W.T @ yc
+
+    _run_both(run, halves, sum(W.nnz for W in mats))
+    return np.add(out[0], out[1], out=out[0])

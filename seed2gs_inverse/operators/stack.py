@@ -130,7 +130,9 @@ class OperatorStack(LinearOperator):
 
         The stack's own products (``@``, ``matvec``, ``rmatvec``, which the
         solvers use) never build it: they run view by view over the views'
-        matrices, with bit-identical results. Call this only where one
+        matrices (the forward pass bit-identical to this matrix's, the
+        adjoint summed over two runs of views, see ``_passes``, which only
+        rounds differently). Call this only where one
         scipy matrix is needed (it costs a second copy of every weight).
         """
         if self._stacked is None:
@@ -167,8 +169,8 @@ class OperatorStack(LinearOperator):
                                   f"got {y.shape}")
         return super().rmatvec(y)
 
-    # View by view over the views' own matrices (no stacked copy; bit-identical to the stacked
-    # passes, see ._passes).
+    # View by view over the views' own matrices, on two threads where two cores are free (no
+    # stacked copy; the same results on any number of threads, see ._passes).
     def _mats(self):
         return [v.W for v in self.views]
 
