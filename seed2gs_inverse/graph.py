@@ -40,6 +40,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
+from ._threads import n_threads
 from .errors import ValidationError
 from .scene import GaussianScene, quat_to_rotmat
 from .sh import SH_C0
@@ -124,7 +125,7 @@ def gaussian_graph(scene: GaussianScene, k: int = 10, *, subset=None, sigma_colo
     if kk < 1:
         return sp.csr_matrix((n, n), dtype=np.float64)
     x = scene.means[idx].astype(np.float64)
-    dist, nb = cKDTree(x).query(x, k=kk + 1)
+    dist, nb = cKDTree(x).query(x, k=kk + 1, workers=n_threads())  # independent queries: any thread count
     dist, nb = dist[:, 1:], nb[:, 1:]  # drop self
     # Self-tuning scale: distance to the k-th neighbour (floored so that
     # coincident means do not divide by zero).

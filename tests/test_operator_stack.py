@@ -403,18 +403,20 @@ def test_stack_passes_are_the_same_on_one_thread_or_two(rng, monkeypatch):
     first, second = _passes._halves([v.W for v in stack])
     assert len(first) and len(second)
     got = {}
+    from seed2gs_inverse import _threads
+
     for threads in (1, 2):
-        monkeypatch.setattr(_passes, "_threads", lambda t=threads: t)
+        monkeypatch.setattr(_threads, "n_threads", lambda t=threads: t)
         monkeypatch.setattr(_passes, "PARALLEL_MIN_NNZ", 0)  # the small test stack goes parallel too
         got[threads] = (stack.matvec(q), stack.rmatvec(r))
     np.testing.assert_array_equal(got[1][0], got[2][0])
     np.testing.assert_array_equal(got[1][1], got[2][1])
-    assert _passes._pool is not None  # the two-thread run used the pool
+    assert _threads._pool is not None  # the two-thread run used the pool
     monkeypatch.undo()
     monkeypatch.setenv("NUMBA_NUM_THREADS", "1")  # as batch_client sets it in each worker
-    assert _passes._threads() == 1
+    assert _threads.n_threads() == 1
     monkeypatch.setenv("NUMBA_NUM_THREADS", "2")
-    assert _passes._threads() == 2
+    assert _threads.n_threads() == 2
 
 
 def _parallel_pass_in_child(conn, stack):
@@ -425,13 +427,14 @@ def test_a_forked_child_starts_its_own_pass_thread(rng, monkeypatch):
     """After a fork the parent's pool thread does not exist in the child: the child must not wait on it."""
     import multiprocessing as mp
 
+    from seed2gs_inverse import _threads
     from seed2gs_inverse.operators import _passes
 
-    monkeypatch.setattr(_passes, "_threads", lambda: 2)
+    monkeypatch.setattr(_threads, "n_threads", lambda: 2)
     monkeypatch.setattr(_passes, "PARALLEL_MIN_NNZ", 0)
     stack = _built_stack()
     want = stack.rmatvec(np.ones(stack.shape[0], np.float32))
-    assert _passes._pool is not None
+    assert _threads._pool is not None
     ctx = mp.get_context("fork")
     parent, child = ctx.Pipe()
     p = ctx.Process(target=_parallel_pass_in_child, args=(child, stack))  # forked: nothing pickled

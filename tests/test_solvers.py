@@ -439,6 +439,33 @@ def test_bce_pixel_kernel_matches_numpy_formula(rng, normalize, dtype):
     assert np.all(g[~inside] == 0) and np.all(g[w == 0] == 0) and np.any(g != 0)
 
 
+def test_bce_halves_on_two_threads_match_the_formula_and_one_thread(rng, monkeypatch):
+    """Above PARALLEL_MIN_PIXELS the two halves run on two threads: same loss and gradient as one thread,
+    and as the formula."""
+    from seed2gs_inverse import _threads
+    from seed2gs_inverse.solvers import _bce
+
+    n, eps = 2 * _bce.PARALLEL_MIN_PIXELS + 11, 1e-4
+    pred = rng.uniform(-0.01, 1.01, n).astype(np.float32)
+    y = rng.random(n)
+    y[::3] = 1.0
+    y[1::3] = 0.0
+    w = rng.uniform(0.1, 2.0, n)
+    w[::7] = 0.0
+    got = {}
+    for threads in (1, 2):
+        monkeypatch.setattr(_threads, "n_threads", lambda t=threads: t)
+        loss, g = _bce.PixelBCE(y, np.empty(0), eps, np.float32).loss_grad(pred, w)
+        got[threads] = (loss, g.copy())
+    assert got[1][0] == got[2][0]
+    np.testing.assert_array_equal(got[1][1], got[2][1])
+    p = np.clip(pred.astype(np.float64), eps, 1 - eps)
+    ref = float(np.sum(w * -(y * np.log(p) + (1 - y) * np.log(1 - p))))
+    assert got[2][0] == pytest.approx(ref, rel=1e-12)
+    inside = (pred > eps) & (pred < 1 - eps)
+    np.testing.assert_allclose(got[2][1], np.where(inside, w * (p - y) / (p * (1 - p)), 0.0), rtol=1e-6)
+
+
 def test_lbfgs_finds_known_minimisers():
     from collections import deque
 

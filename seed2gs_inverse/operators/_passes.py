@@ -11,7 +11,8 @@ is 0.46 GB and 1.3-1.9 s of page faults).
 
 The views are cut into two runs of consecutive views with about equal
 non-zeros (:func:`_halves`), and two threads run one run each where two
-cores are available (scipy's kernels release the GIL; on the firepit +
+cores are available (:mod:`seed2gs_inverse._threads`; scipy's kernels
+release the GIL; on the firepit +
 unicorn stack of benchmarks/bench_speed.py ``A q`` took 7.2 ms instead of
 12.9-13.3 ms and ``A^T r`` 7.9 ms instead of 14.4-14.8 ms, load 1.4-1.6). The forward pass writes disjoint rows, so it is the same either way.
 The adjoint accumulates each run into its own (N,) vector and adds the two,
@@ -28,10 +29,9 @@ adjoint).
 
 from __future__ import annotations
 
-import os
-from concurrent.futures import ThreadPoolExecutor
-
 import numpy as np
+
+from .. import _threads
 
 try:  # scipy's compiled CSR/CSC kernels; private, hence the public fallback below
     from scipy.sparse import _sparsetools as _st
@@ -45,23 +45,6 @@ __all__ = ["forward", "adjoint"]
 #: Below this many non-zeros a pass runs on the calling thread alone (a
 #: thread hand-off costs more than it saves).
 PARALLEL_MIN_NNZ = 1_000_000
-_pool = None
-
-
-def _forget_pool() -> None:
-    global _pool
-    _pool = None
-
-
-# A forked child has none of the parent's threads: it must start its own pool.
-os.register_at_fork(after_in_child=_forget_pool)
-
-
-def _threads() -> int:
-    """Threads for the passes: 2 unless one core (``NUMBA_NUM_THREADS``, as Dask workers set it, or the CPU count)."""
-    env = os.environ.get("NUMBA_NUM_THREADS", "").strip()
-    n = int(env) if env.isdigit() and int(env) >= 1 else (os.cpu_count() or 1)
-    return 2 if n >= 2 else 1
 
 
 def _halves(mats) -> tuple:
@@ -71,22 +54,6 @@ def _halves(mats) -> tuple:
         return range(len(mats)), range(len(mats), len(mats))
     cut = int(np.clip(np.searchsorted(nnz, nnz[-1] / 2.0) + 1, 1, len(mats) - 1))
     return range(0, cut), range(cut, len(mats))
-
-
-def _run_both(fn, halves, nnz: int) -> None:
-    """``fn(0)`` and ``fn(1)`` (one per run of ``halves``), on two threads when it pays."""
-    global _pool
-    if _threads() < 2 or nnz < PARALLEL_MIN_NNZ or not len(halves[1]):
-        fn(0)
-        fn(1)
-        return
-    if _pool is None:
-        _pool = ThreadPoolExecutor(1, thread_name_prefix="seed2gs-pass")
-    other = _pool.submit(fn, 1)
-    try:
-        fn(0)
-    finally:
-        other.result()
 
 
 def _direct(W, v) -> bool:
@@ -113,7 +80,7 @@ def forward(mats, offsets, n_cols: int, x: np.ndarray) -> np.ndarray:
             else:
                 out[lo:hi] = W @ x
 
-    _run_both(run, halves, sum(W.nnz for W in mats))
+    _threads.run_both(run, sum(W.nnz for W in mats) >= PARALLEL_MIN_NNZ and len(halves[1]) > 0)
     return out
 
 
@@ -132,5 +99,5 @@ def adjoint(mats, offsets, n_cols: int, y: np.ndarray) -> np.ndarray:
             else:
                 acc += W.T @ yc
 
-    _run_both(run, halves, sum(W.nnz for W in mats))
+    _threads.run_both(run, sum(W.nnz for W in mats) >= PARALLEL_MIN_NNZ and len(halves[1]) > 0)
     return np.add(out[0], out[1], out=out[0])

@@ -17,6 +17,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from .._threads import n_threads
 from ..errors import ValidationError
 
 __all__ = ["SeedLift", "seed_lift", "seed_connected", "ISLAND_FRACTION"]
@@ -324,7 +325,7 @@ def _components(points: np.ndarray, k: int, link_factor: float) -> tuple[np.ndar
         return np.zeros(1, np.int64), 1
     k = int(min(max(k, 1), m - 1))
     tree = cKDTree(points)
-    dist, nbr = tree.query(points, k=k + 1)
+    dist, nbr = tree.query(points, k=k + 1, workers=n_threads())
     dist, nbr = dist[:, 1:], nbr[:, 1:]
     ref = dist[:, min(3, k - 1)]
     cutoff = link_factor * float(np.median(ref))
