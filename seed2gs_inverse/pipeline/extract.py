@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._threads import run_both
 from ..camera import Camera
 from ..errors import ValidationError
 from ..scene import GaussianScene
@@ -835,9 +836,19 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
         surface, support_info = support_band(scene, lift, orbits, s, tracker)
         if surface is not None:
             tracker = tracker.with_support_plane(surface.axis, surface.point)
-        labelled = track_clips(tracker, orbits, ref.seed, bar)
-        # model-free evidence for surfaces no labelled view saw (pipeline/completion.py)
-        graph = evidence_graph(scene, lift, s, smoothness)
+        # The evidence graph (model-free evidence for surfaces no labelled view
+        # saw, pipeline/completion.py) needs only the lift: it is built on a
+        # second thread while the tracker runs on this one.
+        out = {}
+
+        def work(k):
+            if k == 0:
+                out["labelled"] = track_clips(tracker, orbits, ref.seed, bar)
+            else:
+                out["graph"] = evidence_graph(scene, lift, s, smoothness)
+
+        run_both(work)
+        labelled, graph = out["labelled"], out["graph"]
         masks = complete_masks(graph, labelled, lift, ref, s.completion, filler)
     with timer("solve"), _Progress(f"solve ({s.method})", progress) as bar:
         stack = stack_operators(labelled, scene)
