@@ -6,7 +6,8 @@ Where the jobs run (``client``):
     an embedded :class:`distributed.LocalCluster` sized to this machine:
     one worker process per core (at most one per job), one task thread per
     worker, and ``NUMBA_NUM_THREADS`` = cores / workers in each worker so
-    that the rasterizer's parallel loops do not oversubscribe the cores
+    that the rasterizer's parallel loops (and the two-thread numpy/scipy
+    parts, :mod:`seed2gs_inverse._threads`) do not oversubscribe the cores
     (BLAS is held to one thread inside ``solve()``; a ``NUMBA_NUM_THREADS``
     set in this environment caps the per-worker value). ``n_workers``
     overrides the count.
