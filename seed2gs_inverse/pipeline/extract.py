@@ -48,8 +48,7 @@ from .vaas import ClipFrame, VAASPlan, estimate_up, run_vaas
 __all__ = ["Extraction", "extract", "Renderer", "ExtractSettings", "EXTRACT_DEFAULTS", "SOLVER_DEFAULTS", "STAGES",
            "MODEL_FREE_SMOOTHNESS", "ReferenceView", "OrbitViews", "Selection", "render_reference",
            "seed_from_prompt", "reference_view", "lift_seed", "orbit_axis", "orbit_views", "support_band",
-           "track_clips",
-           "evidence_graph", "complete_masks", "stack_operators", "solve_selection"]
+           "track_clips", "evidence_graph", "complete_masks", "stack_operators", "solve_selection"]
 
 #: Defaults of :func:`extract` beyond the VAAS ones (those of :class:`ExtractSettings`).
 EXTRACT_DEFAULTS = {k: getattr(ExtractSettings, k) for k in (
