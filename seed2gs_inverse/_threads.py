@@ -10,11 +10,13 @@ so batch workers never oversubscribe their core.
 from __future__ import annotations
 
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 
 __all__ = ["n_threads", "run_both"]
 
 _pool = None
+_inside = threading.local()  # .active: this thread is the pool's, running a second half
 
 
 def _forget_pool() -> None:
@@ -37,16 +39,25 @@ def run_both(fn, parallel: bool = True) -> None:
     """``fn(0)`` and ``fn(1)``: on two threads when ``parallel`` and :func:`n_threads` allow, else in turn.
 
     ``fn`` must give the same results either way (work on disjoint data);
-    its exceptions propagate.
+    its exceptions propagate. Called from within a second half (nested) it
+    runs in turn: the pool's one thread is busy with the caller.
     """
     global _pool
-    if not parallel or n_threads() < 2:
+    if not parallel or n_threads() < 2 or getattr(_inside, "active", False):
         fn(0)
         fn(1)
         return
     if _pool is None:
         _pool = ThreadPoolExecutor(1, thread_name_prefix="seed2gs")
-    other = _pool.submit(fn, 1)
+
+    def second():
+        _inside.active = True
+        try:
+            fn(1)
+        finally:
+            _inside.active = False
+
+    other = _pool.submit(second)
     try:
         fn(0)
     finally:

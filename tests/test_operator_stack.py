@@ -446,3 +446,27 @@ def test_a_forked_child_starts_its_own_pass_thread(rng, monkeypatch):
         p.join(5)
         if p.is_alive():
             p.kill()
+
+
+def test_run_both_nested_in_a_second_half_runs_in_turn(monkeypatch):
+    """A second half that itself splits work must not wait on the pool's one (busy) thread."""
+    from seed2gs_inverse import _threads
+
+    monkeypatch.setattr(_threads, "n_threads", lambda: 2)
+    done = []
+
+    def inner(k):
+        done.append(("inner", k))
+
+    def outer(k):
+        if k == 1:
+            _threads.run_both(inner)  # would deadlock if it queued behind itself
+        done.append(("outer", k))
+
+    import threading
+
+    t = threading.Thread(target=_threads.run_both, args=(outer,), daemon=True)
+    t.start()
+    t.join(30)
+    assert not t.is_alive(), "nested run_both hung"
+    assert sorted(done) == [("inner", 0), ("inner", 1), ("outer", 0), ("outer", 1)]
