@@ -117,6 +117,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..errors import ValidationError
+from ..geometry import unit_vector
 
 __all__ = ["GeometricTracker", "warp_labels"]
 
@@ -454,14 +455,14 @@ class GeometricTracker:
         if plane is None:
             return None
         try:
-            n, x = (np.asarray(v, dtype=np.float64).reshape(-1) for v in plane)
+            normal, point = plane
+            x = np.asarray(point, dtype=np.float64)
         except (TypeError, ValueError):
-            n = x = None
-        if (n is None or n.shape != (3,) or x.shape != (3,) or not np.all(np.isfinite(n))
-                or not np.all(np.isfinite(x)) or np.linalg.norm(n) == 0):
-            raise ValidationError(f"support_plane must be (normal, point), two finite 3-vectors with a non-zero "
-                                  f"normal, or None; got {plane!r}")
-        return n / np.linalg.norm(n), x
+            x = None
+        if x is None or x.shape != (3,) or not np.all(np.isfinite(x)):
+            raise ValidationError(f"support_plane must be (normal, point) with a finite 3-vector point, or None; "
+                                  f"got {plane!r}")
+        return unit_vector("support_plane normal", normal), x
 
     def with_support_plane(self, normal, point) -> "GeometricTracker":
         """A copy of this tracker with ``support_plane=(normal, point)`` (this one is left as it is)."""

@@ -48,6 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ValidationError
+from ..geometry import unit_vector
 
 __all__ = ["SupportSurface", "support_surface", "SUPPORT_DEFAULTS"]
 
@@ -119,10 +120,7 @@ def support_surface(scene, support, center, radius: float, axis, *, inner: float
     """
     from .up_axis import _flat_normals
 
-    u = np.asarray(axis, dtype=np.float64).reshape(-1)
-    if u.shape != (3,) or not np.all(np.isfinite(u)) or np.linalg.norm(u) == 0:
-        raise ValidationError(f"support_surface: axis must be a non-zero finite 3-vector, got {axis!r}")
-    u = u / np.linalg.norm(u)
+    u = unit_vector("support_surface axis", axis)
     o = np.asarray(center, dtype=np.float64).reshape(-1)
     if o.shape != (3,) or not np.all(np.isfinite(o)):
         raise ValidationError(f"support_surface: center must be a finite 3-vector, got {center!r}")
