@@ -245,6 +245,45 @@ def test_weighted_bce_loss_matches_direct_sum(rng, binary):
     assert obj.loss_grad_q(q, omega)[0] == pytest.approx(total / Z, rel=1e-10)
 
 
+
+@pytest.mark.parametrize("normalize", [False, True])
+@pytest.mark.parametrize("lost_view", [None, 0, 1, 2])
+def test_weighted_bce_residuals_match_direct_sums_also_after_q_changes_in_place(rng, normalize, lost_view):
+    """D_c is the s-weighted mean BCE of view c's usable pixels (brute force from the formula; 0 for a
+    view without any). The objective reuses its last evaluation for an equal q: changing the caller's
+    q in place must not."""
+    prob = _float64_problem(rng)
+    if lost_view is not None:
+        prob.known[prob.view_rows(lost_view)] = False
+    eps = 1e-4
+    obj = BCEObjective(prob, normalize=normalize, alpha_min=1e-3, eps=eps)
+    A = prob.A.toarray()
+
+    def direct(q):
+        D = np.zeros(prob.n_views)
+        for c in range(prob.n_views):
+            num = den = 0.0
+            for u in range(prob.offsets[c], prob.offsets[c + 1]):
+                a = float(prob.alpha[u])  # the rendered opacity, as the solver sees it (float32)
+                if not prob.known[u] or a < 1e-3:
+                    continue
+                p = min(max(A[u] @ q / (a if normalize else 1.0), eps), 1 - eps)
+                y = float(prob.y[u])
+                s = a if normalize else 1.0
+                num += s * -(y * np.log(p) + (1 - y) * np.log(1 - p))
+                den += s
+            D[c] = num / den if den > 0 else 0.0
+        return D
+
+    q = rng.random(prob.n_gaussians)
+    np.testing.assert_allclose(obj.residuals(q), direct(q), rtol=1e-12)
+    if lost_view is not None:
+        assert obj.residuals(q)[lost_view] == 0 and np.all(np.delete(obj.residuals(q), lost_view) > 0)
+    np.testing.assert_allclose(obj.residuals(q), direct(q), rtol=1e-12)  # the reused evaluation
+    q[::2] = rng.random(q[::2].size)  # in place, as the solver updates its q
+    np.testing.assert_allclose(obj.residuals(q), direct(q), rtol=1e-12)
+    assert np.any(obj.residuals(q) != direct(q * 0.5))
+
 def test_view_weights_equal_eq6():
     D = np.array([0.10, 0.12, 0.11, 0.50, 0.09, 0.13, 0.30])
     r_min, lam = 0.2, 0.5
@@ -387,6 +426,31 @@ def test_register_a_new_method(rng, monkeypatch):
         method_options("no_such_method")
 
 
+
+def test_methods_run_with_one_blas_thread_and_the_limit_is_lifted_after(rng, monkeypatch):
+    """Solvers call BLAS on (N,) vectors every iteration: one BLAS thread while a method runs, so
+    OpenBLAS's spinning workers never compete with the two pass threads; the caller's setting after."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from seed2gs_inverse.solvers import _common
+
+    monkeypatch.setattr(_common, "_METHODS", dict(_common._METHODS))
+    seen = []
+
+    def probe(problem):
+        seen.append([lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"])
+        return MethodResult(q=np.zeros(problem.n_gaussians))
+
+    register_method("blas_probe", probe)
+    mats, masks = _random_problem(rng)
+    with threadpool_limits(limits=2, user_api="blas"):
+        before = [lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"]
+        for _ in range(2):
+            solve(mats, masks, method="blas_probe")
+        after = [lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"]
+    assert seen and all(n == [1] * len(before) for n in seen) and before
+    assert after == before
+
 def test_method_options_list_every_builtin_option():
     import inspect
 
@@ -455,7 +519,10 @@ def test_bce_halves_on_two_threads_match_the_formula_and_one_thread(rng, monkeyp
     got = {}
     for threads in (1, 2):
         monkeypatch.setattr(_threads, "n_threads", lambda t=threads: t)
-        loss, g = _bce.PixelBCE(y, np.empty(0), eps, np.float32).loss_grad(pred, w)
+        rows = np.flatnonzero(w)
+        pixels = _bce.PixelBCE(rows, y[rows], w[rows], np.empty(0), eps, n, np.float32)
+        pixels.evaluate(pred)
+        loss, g = pixels.loss_grad(np.ones(1))  # one view of weight 1: w_u = s_u
         got[threads] = (loss, g.copy())
     assert got[1][0] == got[2][0]
     np.testing.assert_array_equal(got[1][1], got[2][1])

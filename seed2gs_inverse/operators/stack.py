@@ -58,6 +58,7 @@ class OperatorStack(LinearOperator):
         self._stacked = None
         self._stacked_T = None
         self._column_sums = None
+        self._row_sums = None
         self._offsets = None
 
     # -- container protocol ---------------------------------------------------
@@ -99,8 +100,14 @@ class OperatorStack(LinearOperator):
         return self._offsets
 
     def row_sums(self) -> np.ndarray:
-        """(sum of pixels,) float32 ``W 1`` of every view, concatenated: the rendered alpha of each row."""
-        return np.concatenate([np.asarray(v.W.sum(axis=1), dtype=np.float32).ravel() for v in self.views])
+        """(sum of pixels,) float32 ``A 1``: the rendered alpha of each row (read-only; cached).
+
+        One forward pass (float32 sums, row by row); cached like :meth:`column_sums`.
+        """
+        if self._row_sums is None:
+            self._row_sums = self._matvec(np.ones(self.n_gaussians, np.float32))
+            self._row_sums.setflags(write=False)
+        return self._row_sums
 
     def observed(self) -> np.ndarray:
         """Bool (N,): Gaussians with a nonzero weight in any view."""

@@ -30,7 +30,7 @@ import time
 
 import numpy as np
 import scipy.sparse as sp
-from threadpoolctl import threadpool_limits
+from threadpoolctl import ThreadpoolController
 
 from ..errors import ValidationError
 from ._common import (MethodResult, Problem, SolveResult, available_methods, check_options, get_method,
@@ -48,6 +48,18 @@ __all__ = ["solve", "available_methods", "register_method", "get_method", "metho
 #: error up front instead of a run that never ends.
 COUNT_LIMITS = {"max_iter": 100_000, "inner_iters": 100_000, "maxcor": 1_000, "power_iters": 10_000,
                 "budget": 1_000_000}
+
+
+_controller = None
+
+
+def _one_blas_thread():
+    """A context with BLAS limited to one thread (the libraries are inspected once per process:
+    ``threadpool_limits`` inspects them on every call, 0.7 ms)."""
+    global _controller
+    if _controller is None:
+        _controller = ThreadpoolController()
+    return _controller.limit(limits=1, user_api="blas")
 
 
 def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidence: float = 0.0,
@@ -115,7 +127,7 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
     # OpenBLAS beside Numba's threads spends more on thread start-up than on
     # the work (measured: 51 ms vs 0.5 ms per L-BFGS-B iteration at N = 40k
     # on 2 cores).
-    with threadpool_limits(limits=1, user_api="blas"), reporting(progress):
+    with _one_blas_thread(), reporting(progress):
         t_method = time.perf_counter()
         out = fn(problem, **options)
         t_method = time.perf_counter() - t_method
@@ -137,7 +149,7 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
         # One BLAS thread here too: the factorisation's dense kernels round
         # differently with more threads, and q must not depend on the machine's
         # thread settings (a Dask worker runs with one BLAS thread).
-        with threadpool_limits(limits=1, user_api="blas"):
+        with _one_blas_thread():
             q = laplacian_smooth(q, np.where(weak, 0.0, problem.known_weight), graph, smoothness,
                                  prior=problem.prior).astype(np.float32)
     else:

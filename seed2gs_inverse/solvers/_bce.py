@@ -1,14 +1,22 @@
 """Per-pixel part of the weighted-BCE objective in numpy (no Numba: solvers never need it).
 
-The work is restricted to the pixels with a nonzero weight, ordered once per
-weight vector so that the targets 1, 0 and soft form three contiguous blocks:
-binary targets then need one logarithm each and every step is an in-place
-ufunc on preallocated buffers (``out=``), with no pixel-sized temporaries.
-Those pixels are cut into two halves, each with its own blocks and buffers,
-evaluated on two threads where two cores are free (numpy's ufuncs release
-the GIL; :mod:`seed2gs_inverse._threads`); the loss is the sum of the two
-halves' sums on one thread or two alike, so it never depends on the thread
-count.
+The work is restricted to the usable pixels (the support: known, bright
+enough), fixed once per objective and given as indices. A binary target needs one logarithm
+and one division: with ``r_u = p_u`` where ``y_u = 1`` and ``r_u = 1 - p_u``
+where ``y_u = 0`` (``r = sigma p + (1 - y)``, ``sigma = 2y - 1``),
+
+    BCE_u = -log r_u,    dBCE_u/dp_u = -sigma_u / r_u,
+
+so an evaluation is a handful of in-place ufuncs over the support (on
+preallocated buffers, ``out=``); the few soft targets (``0 < y < 1``) are
+redone with the full formula on their own indices. The per-pixel BCE does
+not depend on the pixel weights ``w``, so one evaluation at a prediction
+serves both the loss of any ``w`` and the per-view residuals.
+
+The support is cut into two halves, each with its own buffers, evaluated on
+two threads where two cores are free (numpy's ufuncs release the GIL;
+:mod:`seed2gs_inverse._threads`); every sum is the sum of the two halves'
+sums on one thread or two alike, so nothing depends on the thread count.
 """
 
 from __future__ import annotations
@@ -20,72 +28,75 @@ from .._threads import run_both
 __all__ = ["PixelBCE", "bce_pixels"]
 
 
-#: Below this many evidence pixels the halves run on the calling thread alone.
+#: Below this many usable pixels the halves run on the calling thread alone.
 PARALLEL_MIN_PIXELS = 200_000
 
 
-class _Rows:
-    """The pixels ``rows`` of one weight vector ``w`` (w != 0), ordered targets 1 | 0 | soft, and buffers.
+class _Half:
+    """One half of the support: its pixels ``rows`` (ascending), constants and buffers.
 
-    ``g``, ``bce``: full-length outputs shared by the halves of one weight
-    vector (each writes only its own rows).
+    After :meth:`evaluate`, ``nb`` holds ``-BCE`` (the log-likelihood) of each pixel.
     """
 
-    def __init__(self, rows, w, y, inv_alpha, g, bce):
-        yr = y[rows]
-        one, zero = yr == 1.0, yr == 0.0
-        order = np.concatenate([np.flatnonzero(one), np.flatnonzero(zero), np.flatnonzero(~(one | zero))])
-        self.rows = rows[order]
-        self.n1, self.n10 = int(one.sum()), int(one.sum() + zero.sum())
-        self.y = y[self.rows]
-        self.w = np.asarray(w, dtype=np.float64)[self.rows]
-        self.inv = inv_alpha[self.rows] if inv_alpha.size else None
-        m = self.rows.size
-        self.p, self.t, self.d, self.b = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
-        self.out_lo, self.out_hi = np.empty(m, bool), np.empty(m, bool)
-        self.g, self.bce = g, bce
+    def __init__(self, rows, yr, s, inv_alpha, views, n_views):
+        self.rows = rows
+        binary = (yr == 0.0) | (yr == 1.0)
+        # r = sigma p + (1 - y) for binary targets; r = p for soft ones (redone below)
+        self.sigma = np.where(binary, 2.0 * yr - 1.0, 1.0)
+        self.shift = np.where(binary, 1.0 - yr, 0.0)
+        self.soft = np.flatnonzero(~binary)
+        self.y_soft = yr[self.soft]
+        self.s = s
+        self.inv = inv_alpha if inv_alpha.size else None
+        self.views = views
+        # views are non-decreasing along the rows: view c is rows[bounds[c]:bounds[c + 1]]
+        bounds = np.searchsorted(self.views, np.arange(n_views + 1))
+        self.nonempty = bounds[1:] > bounds[:-1]
+        self.starts = bounds[:-1][self.nonempty]
+        m = rows.size
+        self.p = np.empty(m, np.float32)
+        self.r, self.rc, self.nb, self.g = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
+        self.inside = np.empty(m, bool)
+        self.w = self.c = None  # pixel weights and -sigma w, per view weights (set_weights)
 
-    @staticmethod
-    def halves(w, y, inv_alpha, dtype) -> tuple:
-        """The two halves of ``w``'s pixels, sharing full-length outputs zero outside them."""
-        rows = np.flatnonzero(w)
-        g, bce = np.zeros(w.size, dtype), np.zeros(w.size)
-        cut = rows.size // 2
-        return tuple(_Rows(part, w, y, inv_alpha, g, bce) for part in (rows[:cut], rows[cut:]))
+    def set_weights(self, omega) -> None:
+        """``w_u = omega[view(u)] s_u`` and ``c_u = -sigma_u w_u`` (the gradient's numerator)."""
+        self.w = omega[self.views] * self.s
+        self.c = -self.sigma * self.w
+        if self.soft.size:
+            self.c[self.soft] = self.w[self.soft]
 
     def evaluate(self, pred, eps: float) -> None:
-        """Fill ``b`` (BCE of ``rows``) and ``g`` at ``rows`` for the prediction ``pred`` (P,)."""
-        p, t, d, b = self.p, self.t, self.d, self.b
-        p[:] = np.asarray(pred).reshape(-1)[self.rows]
+        """``nb`` (-BCE), ``rc`` (clipped ``r``) and ``inside`` (not clipped) at the prediction ``pred`` (P,)."""
+        if self.p.dtype != pred.dtype:
+            self.p = np.empty(self.rows.size, pred.dtype)
+        np.take(pred, self.rows, out=self.p)
+        r, rc = self.r, self.rc
         if self.inv is not None:
-            np.multiply(p, self.inv, out=p)
-        np.less_equal(p, eps, out=self.out_lo)
-        np.greater_equal(p, 1.0 - eps, out=self.out_hi)
-        np.logical_or(self.out_lo, self.out_hi, out=self.out_lo)  # outside (eps, 1 - eps): no gradient
-        np.clip(p, eps, 1.0 - eps, out=p)
-        n1, n10 = self.n1, self.n10
-        # y = 1: -log p;  y = 0: -log1p(-p);  soft: -(y log p + (1 - y) log1p(-p)).
-        np.log(p[:n1], out=b[:n1])
-        np.negative(p[n1:], out=t[n1:])
-        np.log1p(t[n1:], out=t[n1:])
-        np.copyto(b[n1:n10], t[n1:n10])
-        if n10 < p.size:
-            ys = self.y[n10:]
-            np.log(p[n10:], out=d[n10:])
-            np.multiply(ys, d[n10:], out=d[n10:])
-            np.multiply(1.0 - ys, t[n10:], out=t[n10:])
-            np.add(d[n10:], t[n10:], out=b[n10:])
-        np.negative(b, out=b)
-        # g = w (p - y) / (p (1 - p)) [/ a], 0 where clipped.
-        np.subtract(p, self.y, out=t)
-        np.multiply(self.w, t, out=t)
-        np.subtract(1.0, p, out=d)
-        np.multiply(p, d, out=d)
-        np.divide(t, d, out=t)
+            np.multiply(self.p, self.inv, out=r)
+            np.multiply(r, self.sigma, out=r)
+        else:
+            np.multiply(self.p, self.sigma, out=r)
+        np.add(r, self.shift, out=r)
+        # clipping r to [eps, 1 - eps] is clipping p; the gradient is 0 where it clips
+        np.clip(r, eps, 1.0 - eps, out=rc)
+        np.equal(rc, r, out=self.inside)
+        np.log(rc, out=self.nb)
+        if self.soft.size:
+            p, y = rc[self.soft], self.y_soft
+            self.nb[self.soft] = y * np.log(p) + (1.0 - y) * np.log1p(-p)
+
+    def gradient(self) -> np.ndarray:
+        """``w dBCE/dpred`` at ``rows`` (0 where clipped), in the buffer ``g``."""
+        g, rc = self.g, self.rc
+        np.divide(self.c, rc, out=g)  # -sigma w / r: w (p - y) / (p (1 - p)) for binary y
+        if self.soft.size:
+            p = rc[self.soft]
+            g[self.soft] = self.c[self.soft] * (p - self.y_soft) / (p * (1.0 - p))
+        np.multiply(g, self.inside, out=g)
         if self.inv is not None:
-            np.multiply(t, self.inv, out=t)
-        t[self.out_lo] = 0.0
-        self.g[self.rows] = t
+            np.multiply(g, self.inv, out=g)
+        return g
 
 
 class PixelBCE:
@@ -98,72 +109,105 @@ class PixelBCE:
         g_u = w_u \\frac{p_u - y_u}{p_u (1 - p_u)} \\frac{[\\epsilon < p_u < 1 - \\epsilon]}{a_u},
 
     with ``a_u = 1 / inv_alpha_u`` (``a_u = 1`` when ``inv_alpha`` is
-    empty); ``b_u = g_u = 0`` where ``w_u = 0`` (pixels without evidence).
-    ``sum_u b_u w_u`` is the loss and ``A^T g`` its gradient in ``q``.
-    For ``y_u = 1`` only ``-log p_u`` and for ``y_u = 0`` only
-    ``-log1p(-p_u)`` is evaluated.
+    empty) and pixel weights ``w_u = omega_{c(u)} s_u`` (``c(u)`` the view
+    of pixel ``u``), on the usable pixels ``s_u != 0`` (``b_u = g_u = 0``
+    elsewhere). ``sum_u w_u b_u`` is the loss and ``A^T g`` its gradient in
+    ``q``.
+
+    Use: :meth:`evaluate` at a prediction, then any of :meth:`loss_grad`
+    (for view weights ``omega``), :meth:`bce` and :meth:`view_sums`, which
+    read that evaluation.
 
     Parameters
     ----------
-    y : (P,) float64
+    rows : (M,) int
+        The usable pixels, ascending; everything else is given at them.
+    y : (M,) float
         Targets in [0, 1].
-    inv_alpha : (P,) float64, or (0,) for the literal ``p = A q``
+    s : (M,) float
+        Pixel weights.
+    inv_alpha : (M,) float, or (0,) for the literal ``p = A q``
     eps : float
         Clip, in (0, 0.5).
+    n_pixels : int
+        ``P``, the length of predictions and of ``g``.
     dtype : numpy dtype
         Dtype of ``g`` (that of ``A``, for the adjoint product).
+    views : (M,) int, optional
+        View index of every usable pixel, non-decreasing (default: all in view 0).
+    n_views : int, default 1
 
     Notes
     -----
-    The returned arrays are buffers owned by this object (one pair per
-    weight vector, for the last two weight vectors seen): valid until the
-    next call with the same ``w``.
+    The returned ``g`` is a buffer owned by this object, valid until the
+    next :meth:`loss_grad`.
     """
 
-    def __init__(self, y, inv_alpha, eps: float, dtype=np.float64):
-        self.y = np.asarray(y, dtype=np.float64)
-        self.inv_alpha = np.asarray(inv_alpha, dtype=np.float64)
+    def __init__(self, rows, y, s, inv_alpha, eps: float, n_pixels: int, dtype=np.float64, views=None,
+                 n_views: int = 1):
+        rows = np.asarray(rows)
+        y = np.asarray(y, dtype=np.float64)
+        s = np.asarray(s, dtype=np.float64)
+        inv_alpha = np.asarray(inv_alpha, dtype=np.float64)
+        views = np.zeros(rows.size, np.intp) if views is None else np.asarray(views)
         self.eps = float(eps)
-        self.dtype = np.dtype(dtype)
-        self._cache = {}  # id(w) -> (w, halves); w is kept alive so the id stays unique
+        self.n_views = int(n_views)
+        cut = rows.size // 2
+        self.halves = tuple(
+            _Half(rows[part], y[part], s[part], inv_alpha[part] if inv_alpha.size else inv_alpha, views[part],
+                  self.n_views) for part in (slice(0, cut), slice(cut, rows.size)))
+        self.parallel = rows.size >= PARALLEL_MIN_PIXELS
+        self.g = np.zeros(int(n_pixels), dtype)  # zero outside the usable pixels, for ever
+        self._omega = None
 
-    def _rows(self, w) -> tuple:
-        hit = self._cache.get(id(w))
-        if hit is not None and hit[0] is w:
-            return hit[1]
-        if len(self._cache) >= 2:
-            self._cache.pop(next(iter(self._cache)))
-        parts = _Rows.halves(w, self.y, self.inv_alpha, self.dtype)
-        self._cache[id(w)] = (w, parts)
-        return parts
+    def evaluate(self, pred) -> None:
+        """Evaluate the per-pixel BCE at the prediction ``pred = A q`` (P,)."""
+        pred = np.asarray(pred).reshape(-1)
+        run_both(lambda k: self.halves[k].evaluate(pred, self.eps), self.parallel)
 
-    def __call__(self, pred, w) -> tuple:
-        """``(b (P,) float64, g (P,) dtype)`` at the prediction ``pred = A q`` (P,) and weights ``w`` (P,)."""
-        parts = self._evaluate(pred, w)
-        for r in parts:
-            r.bce[r.rows] = r.b
-        return parts[0].bce, parts[0].g
+    def loss_grad(self, omega) -> tuple:
+        """``(sum_u w_u b_u, g (P,) dtype)`` at the last evaluation, for the view weights ``omega`` (n_views,)."""
+        omega = np.asarray(omega, dtype=np.float64)
+        if self._omega is None or not np.array_equal(omega, self._omega):  # once per L-BFGS run
+            for h in self.halves:
+                h.set_weights(omega)
+            self._omega = omega.copy()
 
-    def loss_grad(self, pred, w) -> tuple:
-        """``(sum_u w_u b_u, g (P,) dtype)``: the loss without the per-pixel BCE written out.
+        def half(k):
+            h = self.halves[k]
+            self.g[h.rows] = h.gradient()
 
-        The loss is summed over the pixels with ``w_u != 0`` only (the others
-        contribute 0), which saves a scatter and a dot product over all P
-        pixels per evaluation.
-        """
-        parts = self._evaluate(pred, w)
-        return float(np.dot(parts[0].w, parts[0].b)) + float(np.dot(parts[1].w, parts[1].b)), parts[0].g
+        run_both(half, self.parallel)
+        first, second = self.halves
+        return -(float(np.dot(first.w, first.nb)) + float(np.dot(second.w, second.nb))), self.g
 
-    def _evaluate(self, pred, w) -> tuple:
-        """Both halves of ``w``'s pixels evaluated at ``pred`` (their ``b``, and ``g`` at all P)."""
-        parts = self._rows(w)
-        run_both(lambda k: parts[k].evaluate(pred, self.eps),
-                 parts[0].rows.size + parts[1].rows.size >= PARALLEL_MIN_PIXELS)
-        return parts
+    def bce(self) -> np.ndarray:
+        """(P,) float64: the BCE of every usable pixel at the last evaluation, 0 elsewhere (a new array)."""
+        out = np.zeros(self.g.size)
+        for h in self.halves:
+            out[h.rows] = -h.nb
+        return out
+
+    def view_sums(self) -> np.ndarray:
+        """(n_views,) float64: ``sum_u s_u b_u`` over each view's usable pixels, at the last evaluation."""
+        out = np.zeros(self.n_views)
+        for h in self.halves:
+            if h.starts.size:
+                out[h.nonempty] -= np.add.reduceat(h.s * h.nb, h.starts)
+        return out
 
 
 def bce_pixels(pred, y, w, inv_alpha, eps) -> tuple:
-    """:class:`PixelBCE` for one call: ``(b (P,) float64, g (P,) of pred's dtype)`` (fresh arrays)."""
-    pred = np.asarray(pred)
-    bce, g = PixelBCE(y, inv_alpha, eps, pred.dtype)(pred, np.asarray(w, dtype=np.float64))
-    return bce.copy(), g.copy()
+    """:class:`PixelBCE` for one call: ``(b (P,) float64, g (P,) of pred's dtype)`` (fresh arrays).
+
+    The usable pixels are ``w != 0``.
+    """
+    pred = np.asarray(pred).reshape(-1)
+    w = np.asarray(w, dtype=np.float64)
+    inv_alpha = np.asarray(inv_alpha, dtype=np.float64)
+    rows = np.flatnonzero(w)
+    pixels = PixelBCE(rows, np.asarray(y)[rows], w[rows], inv_alpha[rows] if inv_alpha.size else inv_alpha, eps,
+                      pred.size, pred.dtype)
+    pixels.evaluate(pred)
+    g = pixels.loss_grad(np.ones(1))[1].copy()
+    return pixels.bce(), g

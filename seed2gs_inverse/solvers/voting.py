@@ -7,8 +7,9 @@ Every view votes for every Gaussian with its compositing weights. With
     A0_i = sum_c sum_{u in K(c)} W(c)[u, i] (1 - Y(c)_u)    (background votes)
 
 ``A1 = A^T (k y)`` is one transposed pass over the stacked operator (``k``
-the known-pixel indicator); ``A0 = A^T k - A1`` reuses the known weight
-every solve computes to find the observed Gaussians. FlashSplat normalises the pair per Gaussian,
+the known-pixel indicator; the problem's ``y`` is already 0 at unknown
+pixels, so the pass takes ``y`` itself); ``A0 = A^T k - A1`` reuses the
+known weight every solve computes to find the observed Gaussians. FlashSplat normalises the pair per Gaussian,
 ``[Â0, Â1] = [A0, A1] / ||[A0, A1]||_2``, and labels a Gaussian foreground
 when
 
@@ -37,9 +38,14 @@ __all__ = ["voting", "vote_counts", "bias_to_threshold"]
 
 def vote_counts(problem: Problem) -> tuple:
     """``(A0, A1)`` float64 (N,) background and foreground votes (one transposed pass)."""
-    a1 = np.asarray(problem.AT @ (problem.y * problem.known), dtype=np.float64)
+    a1 = _foreground_votes(problem)
     # y in [0, 1], so A0 >= 0 up to float32 rounding of the two passes
     return np.maximum(problem.known_weight - a1, 0.0), a1
+
+
+def _foreground_votes(problem: Problem) -> np.ndarray:
+    """``A1 = A^T (k y)`` float64 (N,); ``problem.y`` is 0 at unknown pixels, so ``A^T y``."""
+    return np.asarray(problem.AT @ problem.y, dtype=np.float64)
 
 
 def bias_to_threshold(bias: float) -> float:
@@ -67,10 +73,10 @@ def voting(problem: Problem, *, bias: float = 0.0) -> MethodResult:
     tau(bias)`` and ``info`` holding the normalised votes' range.
     """
     tau = bias_to_threshold(bias)
-    a0, a1 = vote_counts(problem)
-    total = a0 + a1
-    with np.errstate(invalid="ignore", divide="ignore"):
-        q = np.where(total > 0, a1 / total, 0.0)
+    a1 = _foreground_votes(problem)
+    # A0 + A1 = max(A^T k - A1, 0) + A1 = max(A^T k, A1), without forming A0
+    total = np.maximum(problem.known_weight, a1)
+    q = np.divide(a1, total, out=np.zeros_like(a1), where=total > 0)
     return MethodResult(q=q, threshold=tau, iterations=0,
                         info={"bias": float(bias), "total_votes": float(total.sum())})
 

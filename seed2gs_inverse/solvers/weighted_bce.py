@@ -31,8 +31,10 @@ Gradient (chain rule through the clip; per-pixel work in float64):
     dL/dl = q (1 - q) * A^T g,   g_u = dL/dPhat_u / alpha_u (normalize) or dL/dPhat_u,
 
 one pass of ``A`` and one of ``A^T`` per evaluation (scipy) with the
-per-pixel work between them in numpy, on the weighted pixels only
-(:class:`~seed2gs_inverse.solvers._bce.PixelBCE`).
+per-pixel work between them in numpy, on the usable pixels only
+(:class:`~seed2gs_inverse.solvers._bce.PixelBCE`). The view residuals
+``D_c`` reuse the evaluation at the same ``q`` (the start's, and the last
+one of each inner run), so reweighting costs no extra pass.
 
 View weights (Eq. 6). ``D_c`` is the running residual of view ``c``, the
 weighted mean BCE of its pixels at the current ``q`` (exponential moving
@@ -79,6 +81,7 @@ gradients.
 
 from __future__ import annotations
 
+import time
 from collections import deque
 
 import numpy as np
@@ -121,8 +124,10 @@ class BCEObjective:
 
     Attributes
     ----------
-    s : (P,) float64
-        Pixel weights ``s_u`` (0 at unknown and low-alpha pixels).
+    rows : (M,) int64
+        The usable pixels: known, with ``alpha >= alpha_min``.
+    s : (M,) float64
+        Their weights ``s_u`` (the others weigh 0).
     evidence : (N,) bool
         Gaussians with weight on at least one usable pixel (``s_u > 0``);
         the loss does not depend on the others.
@@ -133,49 +138,56 @@ class BCEObjective:
     def __init__(self, problem: Problem, normalize: bool = False, alpha_min: float = 1e-3, eps: float = 1e-4):
         self.A, self.AT = problem.A, problem.AT
         self.dtype = self.A.dtype
-        alpha = problem.alpha.astype(np.float64)
+        alpha = problem.alpha  # float32, the stack's cached row sums
         use = problem.known & (alpha >= alpha_min)
-        # an empty inv_alpha selects the literal prediction p = A q in the kernel
-        self.inv_alpha = np.where(use, 1.0 / np.where(use, alpha, 1.0), 1.0) if normalize else np.empty(0)
-        self.s = np.where(use, alpha if normalize else 1.0, 0.0)
-        self.y = problem.y.astype(np.float64)
-        self.binary = bool(np.all((self.y == 0) | (self.y == 1)))
+        # Everything per pixel lives on the usable pixels only (no P-sized float64 arrays).
+        self.rows = np.flatnonzero(use)
+        alpha_rows = alpha[self.rows].astype(np.float64)
+        self.s = alpha_rows if normalize else np.ones(self.rows.size)
+        self.binary = bool(np.all((problem.y == 0) | (problem.y == 1) | ~problem.known))
         self.eps = eps
         self.problem = problem
         self.Z = max(float(self.s.sum()), 1e-30)
-        self.s_view = problem.per_view_sum(self.s)
-        self.pixel_view = problem.view_of_rows()
+        views = np.searchsorted(problem.offsets, self.rows, side="right") - 1
+        self.s_view = np.bincount(views, weights=self.s, minlength=problem.n_views)
         self.evidence = np.asarray(self.AT @ use.astype(self.dtype)).ravel() > 0
-        self._w_key, self._w = None, None
-        self._pixels = PixelBCE(self.y, self.inv_alpha, eps, self.dtype)
+        # an empty inv_alpha selects the literal prediction p = A q
+        self._pixels = PixelBCE(self.rows, problem.y[self.rows], self.s, 1.0 / alpha_rows if normalize else np.empty(0),
+                                eps, problem.y.size, self.dtype, views=views, n_views=problem.n_views)
+        self._q_last = None
 
-    def _forward(self, q: np.ndarray, w: np.ndarray) -> tuple:
-        """(loss ``sum_u w_u BCE_u``, pixel gradient ``g`` (P,) in A's dtype) at ``q`` (N,)."""
-        pred = self.A @ np.asarray(q, dtype=self.dtype)
-        return self._pixels.loss_grad(pred, w)
+    def _evaluate(self, q: np.ndarray) -> None:
+        """The per-pixel BCE at ``q`` (N,): one pass ``A q``, skipped when ``q`` is where it was last evaluated.
+
+        The residuals of the start (and after each inner run) are taken at
+        the point the optimiser evaluates next (or just evaluated), so each
+        outer step saves a pass.
+        """
+        q = np.array(q, dtype=self.dtype)  # a copy: callers update their q in place
+        if self._q_last is not None and np.array_equal(q, self._q_last):
+            return
+        self._pixels.evaluate(self.A @ q)
+        self._q_last = q
+
+    def _forward(self, q: np.ndarray, omega: np.ndarray) -> tuple:
+        """(loss ``sum_u omega_c s_u BCE_u / Z``, pixel gradient ``g`` (P,) in A's dtype) at ``q`` (N,)."""
+        self._evaluate(q)
+        return self._pixels.loss_grad(np.asarray(omega, dtype=np.float64) / self.Z)
 
     def pixel_bce(self, q: np.ndarray) -> np.ndarray:
         """BCE of every usable pixel (P,) at ``q`` (N,); 0 at the others."""
-        pred = self.A @ np.asarray(q, dtype=self.dtype)
-        return self._pixels(pred, self.s)[0].copy()
+        self._evaluate(q)
+        return self._pixels.bce()
 
     def residuals(self, q: np.ndarray) -> np.ndarray:
         """``D_c``: weighted mean BCE of each view (V,) at ``q``; 0 for a view with no usable pixel."""
-        num = self.problem.per_view_sum(self.s * self.pixel_bce(q))
+        self._evaluate(q)
+        num = self._pixels.view_sums()
         return np.divide(num, self.s_view, out=np.zeros_like(num), where=self.s_view > 0)
-
-    def _pixel_weights(self, omega: np.ndarray) -> np.ndarray:
-        """``omega_c s_u / Z`` per pixel, cached while omega stays the same (a whole L-BFGS run)."""
-        omega = np.asarray(omega, dtype=np.float64)
-        key = omega.tobytes()
-        if key != self._w_key:
-            self._w = omega[self.pixel_view] * self.s / self.Z
-            self._w_key = key
-        return self._w
 
     def loss_grad_q(self, q: np.ndarray, omega: np.ndarray) -> tuple:
         """``(L, dL/dq)`` at ``q`` (N,) with view weights ``omega`` (V,)."""
-        loss, g = self._forward(q, self._pixel_weights(omega))
+        loss, g = self._forward(q, omega)
         return loss, np.asarray(self.AT @ g, dtype=np.float64).ravel()
 
     def loss_grad_rows(self, x: np.ndarray, rows: np.ndarray, q_full: np.ndarray, omega: np.ndarray) -> tuple:
@@ -188,7 +200,7 @@ class BCEObjective:
         """
         qr = expit(x)
         q_full[rows] = qr
-        loss, g = self._forward(q_full, self._pixel_weights(omega))
+        loss, g = self._forward(q_full, omega)
         gq = (self.AT @ g)[rows]
         return loss, qr * (1.0 - qr) * gq
 
@@ -199,7 +211,7 @@ class BCEObjective:
         only (the optimised ones); by default all N.
         """
         q = expit(logits)
-        loss, g = self._forward(q, self._pixel_weights(omega))
+        loss, g = self._forward(q, omega)
         gq = self.AT @ g
         if rows is not None:
             q, gq = q[rows], gq[rows]
@@ -361,7 +373,9 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
     ``history`` (one record per outer step: ``loss``, ``iterations``,
     ``weights``, ``residuals``), ``observed`` ((N,) bool, the Gaussians with
     weight on a usable pixel; :func:`solve` gives the others the prior) and
-    ``info`` (function evaluations, convergence message). Without any usable
+    ``info`` (``function_evaluations``, the convergence ``message``,
+    ``outer_steps`` and ``seconds_setup``: the objective, the start and the
+    first view weights, before the first iteration). Without any usable
     pixel (every known pixel has ``alpha < alpha_min``) nothing is fitted:
     ``q`` is the prior and every view weight 0.
     """
@@ -386,6 +400,7 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
         raise ValidationError(f"weighted_bce: stable_tol must lie in [0, 1), got {stable_tol}")
     if optimizer not in ("scipy", "lbfgs"):
         raise ValidationError(f"weighted_bce: optimizer must be 'scipy' or 'lbfgs', got {optimizer!r}")
+    t_start = time.perf_counter()
     obj = BCEObjective(problem, normalize=normalize, alpha_min=alpha_min, eps=eps)
     V = problem.n_views
     # Views without a usable pixel (lost masks, or nothing above alpha_min) take no part in the
@@ -396,7 +411,8 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
         return MethodResult(q=problem.prior.copy(), iterations=0, view_weights=np.zeros(V), history=[],
                             observed=obj.evidence,
                             info={"function_evaluations": 0, "message": "no usable pixel (every known pixel has "
-                                     f"alpha < alpha_min = {alpha_min:g})", "outer_steps": 0})
+                                     f"alpha < alpha_min = {alpha_min:g})", "outer_steps": 0,
+                                  "seconds_setup": time.perf_counter() - t_start})
     if start == "vote" or (start == "auto" and not problem.init_given):
         # The vote is the closed-form answer of the same evidence: most Gaussians start on the
         # side they end on, so the selection settles in a few iterations instead of dozens.
@@ -441,6 +457,7 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
 
     D = obj.residuals(q_of(x))
     omega = weights_of(D)
+    t_setup = time.perf_counter() - t_start
     history, total, message = [], 0, ""
     # The curvature pairs carry over between outer steps: a reweighting changes the loss only
     # mildly, and a fresh memory would restart each step with a short steepest-descent step.
@@ -492,7 +509,8 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
             break
     return MethodResult(q=q_of(x), iterations=total, view_weights=omega, history=history,
                         observed=obj.evidence,
-                        info={"function_evaluations": nfev[0], "message": message, "outer_steps": len(history)})
+                        info={"function_evaluations": nfev[0], "message": message, "outer_steps": len(history),
+                              "seconds_setup": t_setup})
 
 
 register_method("weighted_bce", weighted_bce)
