@@ -38,7 +38,7 @@ class _Half:
     After :meth:`evaluate`, ``nb`` holds ``-BCE`` (the log-likelihood) of each pixel.
     """
 
-    def __init__(self, rows, yr, s, inv_alpha, views, n_views):
+    def __init__(self, rows, yr, s, inv_alpha, views, n_views, dtype):
         self.rows = rows
         binary = (yr == 0.0) | (yr == 1.0)
         # r = sigma p + (1 - y) for binary targets; r = p for soft ones (redone below)
@@ -55,7 +55,8 @@ class _Half:
         self.starts = bounds[:-1][self.nonempty]
         m = rows.size
         self.p = np.empty(m, np.float32)
-        self.r, self.rc, self.nb, self.g = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
+        self.r, self.rc, self.nb = np.empty(m), np.empty(m), np.empty(m)
+        self.g = np.empty(m, dtype)  # computed in float64, stored in the adjoint's dtype
         self.inside = np.empty(m, bool)
         self.w = self.c = None  # pixel weights and -sigma w, per view weights (set_weights)
 
@@ -155,29 +156,47 @@ class PixelBCE:
         cut = rows.size // 2
         self.halves = tuple(
             _Half(rows[part], y[part], s[part], inv_alpha[part] if inv_alpha.size else inv_alpha, views[part],
-                  self.n_views) for part in (slice(0, cut), slice(cut, rows.size)))
+                  self.n_views, dtype) for part in (slice(0, cut), slice(cut, rows.size)))
         self.parallel = rows.size >= PARALLEL_MIN_PIXELS
         self.g = np.zeros(int(n_pixels), dtype)  # zero outside the usable pixels, for ever
         self._omega = None
+        self._g_ready = False  # g holds the gradient of the last evaluation for the view weights _omega
 
-    def evaluate(self, pred) -> None:
-        """Evaluate the per-pixel BCE at the prediction ``pred = A q`` (P,)."""
-        pred = np.asarray(pred).reshape(-1)
-        run_both(lambda k: self.halves[k].evaluate(pred, self.eps), self.parallel)
-
-    def loss_grad(self, omega) -> tuple:
-        """``(sum_u w_u b_u, g (P,) dtype)`` at the last evaluation, for the view weights ``omega`` (n_views,)."""
+    def _set_weights(self, omega) -> None:
         omega = np.asarray(omega, dtype=np.float64)
         if self._omega is None or not np.array_equal(omega, self._omega):  # once per L-BFGS run
             for h in self.halves:
                 h.set_weights(omega)
             self._omega = omega.copy()
+            self._g_ready = False
 
+    def _run(self, pred, gradient: bool) -> None:
         def half(k):
             h = self.halves[k]
-            self.g[h.rows] = h.gradient()
+            if pred is not None:
+                h.evaluate(pred, self.eps)
+            if gradient:
+                self.g[h.rows] = h.gradient()
 
         run_both(half, self.parallel)
+
+    def evaluate(self, pred, omega=None) -> None:
+        """Evaluate the per-pixel BCE at the prediction ``pred = A q`` (P,).
+
+        With ``omega`` also the gradient for those view weights, in the
+        same pass over the pixels (what :meth:`loss_grad` then returns).
+        """
+        if omega is not None:
+            self._set_weights(omega)
+        self._run(np.asarray(pred).reshape(-1), omega is not None)
+        self._g_ready = omega is not None
+
+    def loss_grad(self, omega) -> tuple:
+        """``(sum_u w_u b_u, g (P,) dtype)`` at the last evaluation, for the view weights ``omega`` (n_views,)."""
+        self._set_weights(omega)
+        if not self._g_ready:
+            self._run(None, True)
+            self._g_ready = True
         first, second = self.halves
         return -(float(np.dot(first.w, first.nb)) + float(np.dot(second.w, second.nb))), self.g
 

@@ -156,23 +156,25 @@ class BCEObjective:
                                 eps, problem.y.size, self.dtype, views=views, n_views=problem.n_views)
         self._q_last = None
 
-    def _evaluate(self, q: np.ndarray) -> None:
-        """The per-pixel BCE at ``q`` (N,): one pass ``A q``, skipped when ``q`` is where it was last evaluated.
+    def _evaluate(self, q: np.ndarray, weights=None) -> None:
+        """The per-pixel BCE at ``q`` (N,), and the pixel gradient for ``weights`` (``omega / Z``) if given.
 
-        The residuals of the start (and after each inner run) are taken at
+        One pass ``A q``, skipped when ``q`` is where it was last evaluated:
+        the residuals of the start (and after each inner run) are taken at
         the point the optimiser evaluates next (or just evaluated), so each
         outer step saves a pass.
         """
         q = np.array(q, dtype=self.dtype)  # a copy: callers update their q in place
         if self._q_last is not None and np.array_equal(q, self._q_last):
             return
-        self._pixels.evaluate(self.A @ q)
+        self._pixels.evaluate(self.A @ q, weights)
         self._q_last = q
 
     def _forward(self, q: np.ndarray, omega: np.ndarray) -> tuple:
         """(loss ``sum_u omega_c s_u BCE_u / Z``, pixel gradient ``g`` (P,) in A's dtype) at ``q`` (N,)."""
-        self._evaluate(q)
-        return self._pixels.loss_grad(np.asarray(omega, dtype=np.float64) / self.Z)
+        w = np.asarray(omega, dtype=np.float64) / self.Z
+        self._evaluate(q, w)
+        return self._pixels.loss_grad(w)
 
     def pixel_bce(self, q: np.ndarray) -> np.ndarray:
         """BCE of every usable pixel (P,) at ``q`` (N,); 0 at the others."""
@@ -421,15 +423,15 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
         q0 = np.full(problem.n_gaussians, 0.5)
     else:
         q0 = problem.prior
-    logits = _logit(np.clip(q0, init_clip, 1.0 - init_clip))
-    # Only the logits of Gaussians with evidence move; the loss does not depend on the others.
-    x = logits[rows].copy()
+    # q of every Gaussian. Only the logits x of the Gaussians with evidence (rows) move: the
+    # others have no weight on a usable pixel, so neither the loss nor the result (solve gives
+    # them the prior) depends on their q.
+    q_full = np.clip(q0, init_clip, 1.0 - init_clip)
+    x = _logit(q_full[rows])
+    q_full[rows] = expit(x)  # as every evaluation computes it, so the start's residuals are reused
     nfev = [0]
-    # q of every Gaussian, updated only at ``rows`` (the others' q never changes).
-    q_full = expit(logits)
 
     def q_of(xo):
-        logits[rows] = xo
         q_full[rows] = expit(xo)
         return q_full.copy()
 
