@@ -54,8 +54,8 @@ _controller = None
 
 
 def _one_blas_thread():
-    """A context with BLAS limited to one thread (the libraries are inspected once per process:
-    ``threadpool_limits`` inspects them on every call, 0.7 ms)."""
+    """A context with BLAS limited to one thread (the libraries are inspected once per process;
+    ``threadpool_limits`` inspects them on every call)."""
     global _controller
     if _controller is None:
         _controller = ThreadpoolController()
