@@ -6,8 +6,17 @@ and 4 prompts (mask, box, point, box) on a procedural scene written to a
 temporary folder, run three ways in the same process:
 
 1. sequentially in this process (``extract_many(jobs, "sequential")``, no Dask),
-2. on an embedded ``LocalCluster`` with 1 worker,
-3. on an embedded ``LocalCluster`` with 2 workers.
+2. on an embedded ``LocalCluster`` with 1 worker (as many threads as cores,
+   like the sequential run: Dask's own overhead),
+3. on an embedded ``LocalCluster`` with 1 worker of one thread (what each
+   of 2 workers gets on 2 cores),
+4. on an embedded ``LocalCluster`` with 2 workers.
+
+The sequential run already uses both cores (the rasterizer's parallel
+loops, the two-thread sparse passes), so 2 one-thread workers can beat it
+at most by ``2 x (sequential wall) / (one-thread worker's wall)``; the
+summary prints that bound next to the measured speed-up, and the 2-worker
+speed-up over the one-thread worker (how the cluster itself scales).
 
 Before each timed run one tiny job warms the workers (imports, Numba's
 cached kernels); cluster start and warm-up are printed apart. Printed per
@@ -92,12 +101,13 @@ def make_jobs(tmp: Path, views: int, n_per_object: int):
     return jobs, warm, len(s.scene)
 
 
-def run_mode(label, jobs, warm, out: Path, n_workers):
+def run_mode(label, jobs, warm, out: Path, n_workers, threads=None):
     from seed2gs_inverse.batch import batch_client, extract_many
 
     print(f"\n== {label}  [{_load()}]", flush=True)
     t0 = time.perf_counter()
-    with batch_client("sequential" if n_workers is None else None, n_workers=n_workers) as c:
+    with batch_client("sequential" if n_workers is None else None, n_workers=n_workers,
+                      threads_per_worker=threads) as c:
         t_start = time.perf_counter() - t0
         where = "sequential" if c is None else c
         t0 = time.perf_counter()
@@ -145,7 +155,7 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--views", type=int, default=12, help="views per VAAS clip (default 12)")
     p.add_argument("--n-per-object", type=int, default=3000, help="procedural scene size (default 3000)")
-    p.add_argument("--modes", default="seq,1,2", help="which runs: seq, 1, 2 (default all)")
+    p.add_argument("--modes", default="seq,1,1t,2", help="which runs: seq, 1, 1t, 2 (default all)")
     args = p.parse_args(argv)
     if not (DATA / "firepit_562k_sh0.ply").is_file():
         print(f"bench_batch: real scenes not found in {DATA}; set SEED2GS_DATA. Skipped.")
@@ -161,8 +171,9 @@ def main(argv=None) -> int:
         runs = {}
         for m in modes:
             label = {"seq": "sequential (this process, no Dask)", "1": "LocalCluster, 1 worker",
-                     "2": "LocalCluster, 2 workers"}[m]
-            runs[m] = run_mode(label, jobs, warm, tmp / f"out_{m}", None if m == "seq" else int(m))
+                     "1t": "LocalCluster, 1 worker of one thread", "2": "LocalCluster, 2 workers"}[m]
+            runs[m] = run_mode(label, jobs, warm, tmp / f"out_{m}", None if m == "seq" else int(m[0]),
+                               1 if m == "1t" else None)
         print("\n== summary")
         base = runs.get("seq")
         for m, r in runs.items():
@@ -176,6 +187,12 @@ def main(argv=None) -> int:
                 what = "Dask overhead" if r["n_workers"] == 1 else "Dask overhead + idle workers"
                 line += f", {what} {(r['wall'] * r['n_workers'] - r['busy']) / len(jobs):.2f} s/job"
             print(line)
+        if "1t" in runs and "2" in runs:
+            one, two = runs["1t"]["wall"], runs["2"]["wall"]
+            print(f"   2 workers over one one-thread worker: x{one / two:.2f} (2 at most)")
+            if base is not None:
+                print(f"   bound on 2 one-thread workers over sequential: 2 x {base['wall']:.1f} s / {one:.1f} s = "
+                      f"x{2 * base['wall'] / one:.2f} (the sequential run's own two threads take the rest)")
         print(f"[{_load()}]")
     return 0
 

@@ -222,6 +222,18 @@ def test_embedded_cluster_sizes_numba_threads(dask_client):
     assert set(env.values()) == {(str(want), "PASSIVE")}
 
 
+
+def test_threads_per_worker_sets_the_workers_threads_and_is_checked():
+    from seed2gs_inverse.batch import batch_client
+
+    with batch_client(None, n_workers=1, threads_per_worker=3) as c:
+        env = c.run(lambda: os.environ.get("NUMBA_NUM_THREADS"))
+    assert list(env.values()) == ["3"]
+    for bad in (0, -1, 1.5, True, "2"):
+        with pytest.raises(ValidationError, match="threads_per_worker"):
+            with batch_client(None, n_workers=1, threads_per_worker=bad):
+                pass
+
 def test_cli_batch_on_a_scheduler_address(tiny, dask_client, tmp_path, capsys):
     from seed2gs_inverse.cli import main
 

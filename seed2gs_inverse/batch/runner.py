@@ -18,7 +18,9 @@ Where the jobs run (``client``):
     one job after the other in this process, without Dask (debugging,
     and the baseline of ``benchmarks/bench_batch.py``).
 
-Jobs are submitted grouped by scene, and each worker process keeps the
+Jobs are submitted grouped by scene, one more each time one finishes (no
+more in flight than the cluster has worker threads, so no worker idles
+while another holds queued jobs), and each worker process keeps the
 scenes it read (:mod:`.worker`), so a scene is read once per worker, not
 once per job. With an output directory every job writes its folder
 atomically (as ``seed2gs extract -o`` does) and the runner keeps
@@ -69,13 +71,16 @@ def _has_dashboard() -> bool:
 
 
 @contextmanager
-def batch_client(client=None, n_workers: int | None = None, n_jobs: int | None = None):
+def batch_client(client=None, n_workers: int | None = None, n_jobs: int | None = None,
+                 threads_per_worker: int | None = None):
     """Yield a :class:`distributed.Client` for a batch (see the module docstring).
 
     ``client`` None starts an embedded ``LocalCluster`` (closed on exit) of
-    ``n_workers`` processes (default: one per core, at most ``n_jobs``); a
-    scheduler address connects to it (the connection is closed on exit); a
-    ``Client`` is used as is. ``"sequential"`` yields None.
+    ``n_workers`` processes (default: one per core, at most ``n_jobs``),
+    each with ``NUMBA_NUM_THREADS`` = ``threads_per_worker`` (default: cores
+    // workers, capped by a ``NUMBA_NUM_THREADS`` set here); a scheduler
+    address connects to it (the connection is closed on exit); a ``Client``
+    is used as is. ``"sequential"`` yields None.
     """
     if isinstance(client, str) and client == "sequential":
         yield None
@@ -110,10 +115,15 @@ def batch_client(client=None, n_workers: int | None = None, n_jobs: int | None =
     n_workers = int(n_workers)
     if n_workers < 1:
         raise ValidationError(f"n_workers must be >= 1, got {n_workers}")
-    threads = max(1, cores // n_workers)
-    user_cap = os.environ.get("NUMBA_NUM_THREADS", "").strip()
-    if user_cap.isdigit() and int(user_cap) >= 1:
-        threads = min(threads, int(user_cap))
+    if threads_per_worker is None:
+        threads = max(1, cores // n_workers)
+        user_cap = os.environ.get("NUMBA_NUM_THREADS", "").strip()
+        if user_cap.isdigit() and int(user_cap) >= 1:
+            threads = min(threads, int(user_cap))
+    elif isinstance(threads_per_worker, bool) or not isinstance(threads_per_worker, int) or threads_per_worker < 1:
+        raise ValidationError(f"threads_per_worker must be a whole number >= 1, got {threads_per_worker!r}")
+    else:
+        threads = threads_per_worker
     env = {"NUMBA_NUM_THREADS": str(threads), "OMP_NUM_THREADS": str(threads),
            "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
            # Numba's OpenMP threads must not spin between parallel regions
@@ -121,9 +131,9 @@ def batch_client(client=None, n_workers: int | None = None, n_jobs: int | None =
            "OMP_WAIT_POLICY": "PASSIVE"}
     # A dead worker fails its task at once (KilledWorker); extract_many then
     # retries it exactly once itself, the same way as on an external cluster.
-    # One task per worker thread at a time (saturation 1.0): a job queued
-    # behind a dying one is not counted as a victim, and jobs keep their
-    # scene-grouped order.
+    # One task per worker thread at a time (saturation 1.0; extract_many also
+    # keeps no more jobs in flight than there are threads, on any cluster):
+    # no job waits behind a dying one to be counted as its victim.
     # Dask's MALLOC_TRIM_THRESHOLD_ for worker processes also freezes glibc's
     # mmap threshold at 128 KiB, so every large numpy temporary of the solver
     # is mapped and zeroed afresh, and the solve stage was slower in a worker
@@ -221,8 +231,9 @@ def _counts(results) -> dict:
 # ---------------------------------------------------------------------------
 # the runner
 # ---------------------------------------------------------------------------
-def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None, resume: bool = True,
-                 progress: bool | None = None, retries: int = 1, log=None) -> list[JobResult]:
+def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None,
+                 threads_per_worker: int | None = None, resume: bool = True, progress: bool | None = None,
+                 retries: int = 1, log=None) -> list[JobResult]:
     """Run many extractions, on a Dask cluster or in this process.
 
     Parameters
@@ -238,6 +249,9 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
         keeps each job's ``q`` in its result.
     n_workers : int, optional
         Worker processes of the embedded cluster.
+    threads_per_worker : int, optional
+        Numba (and numpy/scipy pass) threads per worker of the embedded
+        cluster; default: the cores shared out, so nothing oversubscribes.
     resume : bool
         Skip jobs already done in ``output`` (same description); False runs
         every job again, replacing its folder.
@@ -313,7 +327,8 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
 
         bar = tqdm(total=len(jobs), initial=len(results), desc="jobs", unit="job", file=sys.stderr)
     try:
-        with batch_client(client, n_workers=n_workers, n_jobs=len(todo)) as c:
+        with batch_client(client, n_workers=n_workers, n_jobs=len(todo),
+                          threads_per_worker=threads_per_worker) as c:
             if c is None:
                 meta["where"] = "sequential"
                 try:
@@ -336,8 +351,19 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
 
 
 def _run_on_dask(client, todo, out, retries, record) -> None:
-    """Submit every job, collect results as they finish, resubmit jobs of dead workers."""
+    """Run the jobs with at most one in flight per worker thread; collect results, resubmit jobs of dead workers.
+
+    Dask places a task that is not part of a large group on a worker as soon
+    as it arrives, by an estimate of its duration; extraction jobs take from
+    one second to a minute, so a worker could sit idle while another held
+    queued jobs behind a long one (``benchmarks/bench_batch.py``: one of two
+    workers idle for 6.8 s of a 28 s batch). Submitting the next job only
+    when one finishes keeps every thread busy until the queue is empty, in
+    the jobs' (scene-grouped) order; the window follows the cluster's
+    current thread count.
+    """
     import uuid
+    from collections import deque
 
     from distributed import as_completed
 
@@ -346,10 +372,22 @@ def _run_on_dask(client, todo, out, retries, record) -> None:
         return client.submit(run_job, job, None if out is None else str(out), attempt, key=key,
                              pure=False, retries=0)
 
+    def threads() -> int:
+        return max(1, sum(w.get("nthreads", 1) for w in client.scheduler_info()["workers"].values()))
+
+    waiting = deque((job, 1) for job in todo)
     futures = {}
-    for job in todo:
-        futures[submit(job, 1)] = (job, 1)
-    ac = as_completed(list(futures))
+    ac = as_completed()
+
+    def fill():
+        window = threads()
+        while waiting and len(futures) < window:
+            job, attempt = waiting.popleft()
+            fut = submit(job, attempt)
+            futures[fut] = (job, attempt)
+            ac.add(fut)
+
+    fill()
     for fut in ac:
         job, attempt = futures.pop(fut)
         if fut.status == "finished":
@@ -360,9 +398,9 @@ def _run_on_dask(client, todo, out, retries, record) -> None:
             # connection to it was lost.
             exc = fut.exception()
             if attempt <= retries:
-                new = submit(job, attempt + 1)
-                futures[new] = (job, attempt + 1)
-                ac.add(new)
+                waiting.appendleft((job, attempt + 1))
+                fut.release()
+                fill()
                 continue
             res = JobResult(name=job.name, status="failed", scene=job.scene, fingerprint=job.fingerprint(),
                             camera=job.to_dict()["camera"], prompt=job.to_dict()["prompt"],
@@ -371,3 +409,4 @@ def _run_on_dask(client, todo, out, retries, record) -> None:
                                   f"{attempt} time(s) ({str(exc).strip().splitlines()[0] if str(exc).strip() else ''})")
         fut.release()
         record(res)
+        fill()
