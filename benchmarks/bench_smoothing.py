@@ -16,7 +16,7 @@ average at the start and the end.
 
 Usage::
 
-    python benchmarks/bench_smoothing.py [--regions 1,2,3]
+    python benchmarks/bench_smoothing.py [--regions 1,2,3] [--rtol 1e-6,1e-5]
 """
 
 from __future__ import annotations
@@ -37,6 +37,7 @@ import bench_speed  # noqa: E402 - the scene and the load figure of bench_speed
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--regions", default="1,2,3", help="graph region multipliers of the default region")
+    p.add_argument("--rtol", default="1e-6", help="CG relative tolerances to compare (comma-separated)")
     args = p.parse_args(argv)
     if not (bench_speed.DATA / "firepit_562k_sh0.ply").is_file():
         print(f"bench_smoothing: real scenes not found in {bench_speed.DATA}; set SEED2GS_DATA. Skipped.")
@@ -66,12 +67,15 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         exact = laplacian_smooth(q_hat, e, g, lam, prior, solver="direct")
         t_direct = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        cg = laplacian_smooth(q_hat, e, g, lam, prior, solver="cg")
-        t_cg = time.perf_counter() - t0
-        flips = int(((cg > 0.5) != (exact > 0.5)).sum())
+        cells = []
+        for rtol in [float(r) for r in args.rtol.split(",")]:
+            t0 = time.perf_counter()
+            cg = laplacian_smooth(q_hat, e, g, lam, prior, solver="cg", rtol=rtol)
+            t_cg = time.perf_counter() - t0
+            flips = int(((cg > 0.5) != (exact > 0.5)).sum())
+            cells.append(f"cg rtol {rtol:g} {t_cg:.2f} s ({t_cg / t_direct:.1f}x direct, {flips} labels differ)")
         print(f"region x{mult:g}: {n} coupled unknowns, {g.nnz} edges | direct {t_direct:.2f} s | "
-              f"cg {t_cg:.2f} s ({t_cg / t_direct:.1f}x direct, {flips} labels differ) | load {bench_speed._load():.1f}")
+              + " | ".join(cells) + f" | load {bench_speed._load():.1f}")
         sys.stdout.flush()
     return 0
 
