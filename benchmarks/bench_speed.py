@@ -297,7 +297,8 @@ def main(argv=None) -> int:
     print(f"  weighted_bce {med['ms_per_iter']:.1f} ms/it = {med['iter_over_two']:.2f} x two passes "
           f"({1e3 * med['two_passes_s']:.1f} ms) [aim <= 1.5], {med['iterations']:.0f} it, {med['nfev']:.0f} evals, "
           f"set-up {med['setup_ms']:.0f} ms, then {med['feval_over_two']:.2f} x two passes per evaluation; "
-          f"voting {med['voting_over_adj']:.2f} x one A^T pass [aim <= 1.2] (solve() {1e3 * med['voting_solve_s']:.1f} ms); "
+          f"voting {med['voting_over_adj']:.2f} x one A^T pass [aim <= 1.2] "
+          f"(solve() {1e3 * med['voting_solve_s']:.1f} ms); "
           f"peak RSS {med['peak_rss_gb']:.2f} GB "
           f"[aim <= 2]" + (f"; held-out mIoU {med['miou']:.3f} mBIoU {med['mbiou']:.3f} 3D IoU {med['iou3d']:.3f}"
                            if "miou" in med else ""))

@@ -256,8 +256,8 @@ class Problem:
         return self.A[self.view_rows(c)]
 
     def view_of_rows(self) -> np.ndarray:
-        """(P,) int32: view index of each row."""
-        return np.repeat(np.arange(self.n_views, dtype=np.int32), np.diff(self.offsets))
+        """(P,) int: view index of each row."""
+        return np.repeat(np.arange(self.n_views), np.diff(self.offsets))
 
     def per_view_sum(self, values) -> np.ndarray:
         """Sum a per-pixel (P,) array within each view -> (V,) float64."""

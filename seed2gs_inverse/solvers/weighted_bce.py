@@ -151,9 +151,9 @@ class BCEObjective:
         views = np.searchsorted(problem.offsets, self.rows, side="right") - 1
         self.s_view = np.bincount(views, weights=self.s, minlength=problem.n_views)
         self.evidence = np.asarray(self.AT @ use.astype(self.dtype)).ravel() > 0
-        # an empty inv_alpha selects the literal prediction p = A q
-        self._pixels = PixelBCE(self.rows, problem.y[self.rows], self.s, 1.0 / alpha_rows if normalize else np.empty(0),
-                                eps, problem.y.size, self.dtype, views=views, n_views=problem.n_views)
+        inv_alpha = 1.0 / alpha_rows if normalize else np.empty(0)  # empty: the literal prediction p = A q
+        self._pixels = PixelBCE(self.rows, problem.y[self.rows], self.s, inv_alpha, eps, problem.y.size, self.dtype,
+                                views=views, n_views=problem.n_views)
         self._q_last = None
 
     def _evaluate(self, q: np.ndarray, weights=None) -> None:
