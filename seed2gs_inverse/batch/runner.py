@@ -373,7 +373,7 @@ def _run_on_dask(client, todo, out, retries, record) -> None:
                              pure=False, retries=0)
 
     def threads() -> int:
-        return max(1, sum(w.get("nthreads", 1) for w in client.scheduler_info()["workers"].values()))
+        return max(1, sum(client.nthreads().values()))
 
     waiting = deque((job, 1) for job in todo)
     futures = {}
