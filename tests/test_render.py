@@ -275,3 +275,33 @@ def test_cold_cache_detected_without_compiling(tmp_path):
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "False"
     assert not any(tmp_path.rglob("*.nbc"))  # reading the cache state compiled nothing
+
+
+@pytest.mark.parametrize("preset", [None, "ACTIVE"])
+def test_openmp_waiters_sleep_unless_the_user_chose(preset):
+    """Importing the rasterizer makes OpenMP threads that wait at the end of a parallel loop sleep
+    (OMP_WAIT_POLICY=PASSIVE) before the runtime loads; a policy the user set is kept, and the
+    kernels run either way."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+    if preset is not None:
+        env["OMP_WAIT_POLICY"] = preset
+    env["PYTHONPATH"] = str(Path(__file__).resolve().parents[1]) + os.pathsep + os.environ.get("PYTHONPATH", "")
+    code = ("import json, os, numpy as np\n"
+            "from seed2gs_inverse.raster import render\n"
+            "from seed2gs_inverse.camera import Camera\n"
+            "from seed2gs_inverse.scene import GaussianScene\n"
+            "rng = np.random.default_rng(0)\n"
+            "s = GaussianScene(rng.normal(size=(50, 3)) + [0, 0, 5], np.tile([1.0, 0, 0, 0], (50, 1)),\n"
+            "                  np.full((50, 3), -3.0), np.zeros(50), rng.normal(size=(50, 1, 3)))\n"
+            "r = render(s, Camera.from_fov(32, 24, 60.0))\n"
+            "print(json.dumps([os.environ.get('OMP_WAIT_POLICY'), float(r.alpha.max())]))\n")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    policy, alpha = json.loads(out.stdout.strip().splitlines()[-1])
+    assert policy == (preset or "PASSIVE") and alpha > 0

@@ -29,12 +29,22 @@ Arguments are packed in the NamedTuples below. See
 from __future__ import annotations
 
 import math
+import os
 from typing import NamedTuple
 
-import numpy as np
-from numba import get_num_threads, njit, prange, types
-from numba.core import cgutils
-from numba.extending import intrinsic
+# OpenMP threads (Numba's "omp" threading layer) that finish a parallel loop
+# early sleep instead of spinning: a spinning waiter takes the core from the
+# thread it waits for whenever other work shares the cores, and every view
+# runs several parallel loops (benchmarks/bench_speed.py --competing-load
+# prints the operators stage beside other work). A value the user set is
+# kept; it is read when the OpenMP runtime loads, at the first parallel
+# kernel, so it has no effect if another library loaded OpenMP before.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import numpy as np  # noqa: E402
+from numba import get_num_threads, njit, prange, types  # noqa: E402
+from numba.core import cgutils  # noqa: E402
+from numba.extending import intrinsic  # noqa: E402
 
 from ..sh import SH_C0, SH_C1, SH_C2, SH_C3
 
