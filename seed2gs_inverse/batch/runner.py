@@ -356,8 +356,9 @@ def _run_on_dask(client, todo, out, retries, record) -> None:
     Dask places a task that is not part of a large group on a worker as soon
     as it arrives, by an estimate of its duration; extraction jobs take from
     one second to a minute, so a worker could sit idle while another held
-    queued jobs behind a long one (``benchmarks/bench_batch.py``: one of two
-    workers idle for 6.8 s of a 28 s batch). Submitting the next job only
+    queued jobs behind a long one (``benchmarks/bench_batch.py``: 2 workers
+    took 28.0 s for 47.3 s of task time, 1.08 s per job idle or in overhead).
+    Submitting the next job only
     when one finishes keeps every thread busy until the queue is empty, in
     the jobs' (scene-grouped) order; the window follows the cluster's
     current thread count.
