@@ -358,10 +358,9 @@ def _run_on_dask(client, todo, out, retries, record) -> None:
     one second to a minute, so a worker could sit idle while another held
     queued jobs behind a long one (``benchmarks/bench_batch.py``: 2 workers
     took 28.0 s for 47.3 s of task time, 1.08 s per job idle or in overhead).
-    Submitting the next job only
-    when one finishes keeps every thread busy until the queue is empty, in
-    the jobs' (scene-grouped) order; the window follows the cluster's
-    current thread count.
+    Submitting the next job only when one finishes keeps every thread busy
+    until the queue is empty, in the jobs' (scene-grouped) order; the window
+    follows the cluster's current thread count.
     """
     import uuid
     from collections import deque
