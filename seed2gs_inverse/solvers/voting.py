@@ -73,12 +73,14 @@ def voting(problem: Problem, *, bias: float = 0.0) -> MethodResult:
     tau(bias)`` and ``info`` holding the normalised votes' range.
     """
     tau = bias_to_threshold(bias)
-    a1 = _foreground_votes(problem)
-    # A0 + A1 = max(A^T k - A1, 0) + A1 = max(A^T k, A1), without forming A0
-    total = np.maximum(problem.known_weight, a1)
-    q = np.divide(a1, total, out=np.zeros_like(a1), where=total > 0)
-    return MethodResult(q=q, threshold=tau, iterations=0,
-                        info={"bias": float(bias), "total_votes": float(total.sum())})
+    a1 = problem.AT @ problem.y  # float32 (N,): A^T (k y), y being 0 at unknown pixels
+    # A0 + A1 = max(A^T k - A1, 0) + A1 = max(A^T k, A1), without forming A0; computed in place
+    # into q (float64), as the vote itself is one pass and the rest should cost little beside it
+    q = np.maximum(problem.known_weight, a1)
+    total_votes = float(q.sum())
+    np.maximum(q, np.finfo(np.float64).tiny, out=q)  # where A0 + A1 = 0, A1 = 0 and q = 0
+    np.divide(a1, q, out=q)
+    return MethodResult(q=q, threshold=tau, iterations=0, info={"bias": float(bias), "total_votes": total_votes})
 
 
 register_method("voting", voting)
