@@ -18,11 +18,11 @@ Where the jobs run (``client``):
     one job after the other in this process, without Dask (debugging,
     and the baseline of ``benchmarks/bench_batch.py``).
 
-Jobs are submitted grouped by scene, one more each time one finishes (no
-more in flight than the cluster has worker threads, so no worker idles
-while another holds queued jobs), and each worker process keeps the
-scenes it read (:mod:`.worker`), so a scene is read once per worker, not
-once per job. With an output directory every job writes its folder
+Jobs are submitted grouped by scene, all at once as one task group that
+the scheduler hands out from its own queue as threads come free (so no
+worker idles while another holds queued jobs), and each worker process
+keeps the scenes it read (:mod:`.worker`), so a scene is read once per
+worker, not once per job. With an output directory every job writes its folder
 atomically (as ``seed2gs extract -o`` does) and the runner keeps
 ``summary.csv`` / ``summary.json`` up to date after every job (each
 rewritten atomically), so an interrupted batch leaves a consistent record.
@@ -131,9 +131,9 @@ def batch_client(client=None, n_workers: int | None = None, n_jobs: int | None =
            "OMP_WAIT_POLICY": "PASSIVE"}
     # A dead worker fails its task at once (KilledWorker); extract_many then
     # retries it exactly once itself, the same way as on an external cluster.
-    # One task per worker thread at a time (saturation 1.0; extract_many also
-    # keeps no more jobs in flight than there are threads, on any cluster):
-    # no job waits behind a dying one to be counted as its victim.
+    # One task per worker thread at a time (saturation 1.0, with the jobs
+    # submitted as one group the scheduler queues itself): no job waits
+    # behind a dying one to be counted as its victim.
     # Dask's MALLOC_TRIM_THRESHOLD_ for worker processes also freezes glibc's
     # mmap threshold at 128 KiB, so every large numpy temporary of the solver
     # is mapped and zeroed afresh, and the solve stage was slower in a worker
@@ -351,43 +351,34 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
 
 
 def _run_on_dask(client, todo, out, retries, record) -> None:
-    """Run the jobs with at most one in flight per worker thread; collect results, resubmit jobs of dead workers.
+    """Submit every job at once as one task group; collect results as they finish, resubmit jobs of dead workers.
 
-    Dask places a task that is not part of a large group on a worker as soon
-    as it arrives, by an estimate of its duration; extraction jobs take from
-    one second to a minute, so a worker could sit idle while another held
+    Dask places a task on a worker as soon as it arrives, by an estimate of
+    its duration, unless it belongs to a large group of tasks without
+    dependencies ("root-ish": more tasks than twice the cluster's threads),
+    which the scheduler keeps in its own queue and hands out, in submission
+    order, as threads come free. Extraction jobs take from a second to a
+    minute, so placing them early let a worker sit idle while another held
     queued jobs behind a long one (``benchmarks/bench_batch.py``: 2 workers
-    took 28.0 s for 47.3 s of task time, 1.08 s per job idle or in overhead).
-    Submitting the next job only when one finishes keeps every thread busy
-    until the queue is empty, in the jobs' (scene-grouped) order; the window
-    follows the cluster's current thread count.
+    took 28.0 s for 47.3 s of task time, 1.08 s per job idle or in
+    overhead). So every job's key starts with the same name
+    (``("seed2gs-extract", job name, attempt, token)``) and all are
+    submitted in one call: one group from the start. The scheduler sees
+    the whole batch, so an adaptive cluster scales to it.
     """
     import uuid
-    from collections import deque
 
     from distributed import as_completed
 
-    def submit(job, attempt):
-        key = f"seed2gs-extract-{job.name}-{attempt}-{uuid.uuid4().hex[:8]}"
-        return client.submit(run_job, job, None if out is None else str(out), attempt, key=key,
-                             pure=False, retries=0)
+    where = None if out is None else str(out)
 
-    def threads() -> int:
-        return max(1, sum(client.nthreads().values()))
+    def key(job, attempt):
+        return ("seed2gs-extract", job.name, attempt, uuid.uuid4().hex[:8])
 
-    waiting = deque((job, 1) for job in todo)
-    futures = {}
-    ac = as_completed()
-
-    def fill():
-        window = threads()
-        while waiting and len(futures) < window:
-            job, attempt = waiting.popleft()
-            fut = submit(job, attempt)
-            futures[fut] = (job, attempt)
-            ac.add(fut)
-
-    fill()
+    first = client.map(run_job, todo, [where] * len(todo), [1] * len(todo), key=[key(j, 1) for j in todo],
+                       pure=False, retries=0)
+    futures = {f: (job, 1) for f, job in zip(first, todo)}
+    ac = as_completed(first)
     for fut in ac:
         job, attempt = futures.pop(fut)
         if fut.status == "finished":
@@ -398,9 +389,11 @@ def _run_on_dask(client, todo, out, retries, record) -> None:
             # connection to it was lost.
             exc = fut.exception()
             if attempt <= retries:
-                waiting.appendleft((job, attempt + 1))
+                new = client.submit(run_job, job, where, attempt + 1, key=key(job, attempt + 1), pure=False,
+                                    retries=0)
+                futures[new] = (job, attempt + 1)
+                ac.add(new)
                 fut.release()
-                fill()
                 continue
             res = JobResult(name=job.name, status="failed", scene=job.scene, fingerprint=job.fingerprint(),
                             camera=job.to_dict()["camera"], prompt=job.to_dict()["prompt"],
@@ -409,4 +402,3 @@ def _run_on_dask(client, todo, out, retries, record) -> None:
                                   f"{attempt} time(s) ({str(exc).strip().splitlines()[0] if str(exc).strip() else ''})")
         fut.release()
         record(res)
-        fill()
