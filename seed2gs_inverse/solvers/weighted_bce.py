@@ -67,9 +67,10 @@ after ``max_iter`` iterations in total. Two optimisers (``optimizer``):
 ``"lbfgs"``
     The unconstrained L-BFGS below (two-loop recursion, Armijo
     backtracking) whose curvature pairs carry over between reweighting
-    steps. On the firepit + unicorn benchmark (611k Gaussians, 32 views) it
-    costs 104 ms per iteration against scipy's 129 ms (2.4x and 3.0x two
-    sparse passes, same run), with the same held-out 2D mIoU (+-0.002) but
+    steps. On the firepit + unicorn stack of ``benchmarks/bench_solvers.py``
+    (611k Gaussians, 32 views; load 1.3-1.5) it costs 66.6 ms per iteration
+    of its own time against scipy's 83.2 ms (2.42x and 3.03x two sparse
+    passes, same run), with the same held-out 2D mIoU (+-0.002) but
     0.01-0.04 lower 3D IoU on noisy masks at the same iteration budget.
 The start is the prior ``q0`` from ``init`` or, without ``init``, the
 closed-form vote (``start="vote"``, one extra transposed pass; it gives
