@@ -85,6 +85,22 @@ def test_extract_many_matches_sequential_extract_bit_for_bit(tiny, dask_client, 
     assert mem[0].outdir is None and np.array_equal(mem[0].q, results[0].load_q())
 
 
+def test_a_batch_is_one_task_group_named_by_job(tiny, dask_client):
+    """The jobs go to the scheduler as one task group (which it queues itself once the group outgrows
+    the cluster), each key still naming its job."""
+    from dask.utils import key_split
+    from distributed import get_task_stream
+
+    jobs = _jobs(tiny)
+    with get_task_stream(dask_client) as ts:
+        res = extract_many(jobs, dask_client, progress=False)
+    assert all(r.status == "done" for r in res), [r.error for r in res]
+    keys = [t["key"] for t in ts.data]
+    assert len(keys) == len(jobs)
+    assert {key_split(k) for k in keys} == {"seed2gs-extract"}
+    assert sorted(k[1] for k in keys) == sorted(j.name for j in jobs)
+
+
 def test_summary_files_and_recorded_failures(tiny, dask_client, tmp_path):
     d = tiny["dir"]
     jobs = [Job("missing-scene", d / "nope.ply", f"{d}/a_cams.json", sgi.BoxPrompt(tiny["a"]["box"]), OPTS),
