@@ -29,7 +29,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -60,15 +59,6 @@ def _sweep(indptr, indices, data, q, rows, sigma, shift, c, eps, out, rcs):
             g = np.float32(c[k] / rc)
             for j in range(lo, hi):
                 out[indices[j]] += data[j] * g
-
-
-def _median(fn, repeat):
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
 
 
 def main(argv=None) -> int:
@@ -138,15 +128,15 @@ def main(argv=None) -> int:
         loss_ref, grad_ref = obj.loss_grad_q(q, omega)
         obj._q_last = None
         loss_f, grad_f = fused()
-        t_fwd = _median(lambda: stack.matvec(q32), args.repeat)
-        t_adj = _median(lambda: stack.rmatvec(r), args.repeat)
+        t_fwd = bench_speed._median_time(lambda: stack.matvec(q32), args.repeat)
+        t_adj = bench_speed._median_time(lambda: stack.rmatvec(r), args.repeat)
 
         def today():
             obj._q_last = None  # no reuse: a fresh point each time, as in the optimiser
             return obj.loss_grad_q(q, omega)
 
-        t_today = _median(today, args.repeat)
-        t_fused = _median(fused, args.repeat)
+        t_today = bench_speed._median_time(today, args.repeat)
+        t_fused = bench_speed._median_time(fused, args.repeat)
     two = t_fwd + t_adj
     err_g = float(np.abs(grad_f - grad_ref).max() / max(np.abs(grad_ref).max(), 1e-300))
     print(f"stack: {views} views, {stack.shape[0]:,} pixels x {n:,} Gaussians, nnz {stack.nnz:,}; "
