@@ -144,7 +144,7 @@ def main(argv=None) -> int:
     print(f"two passes: A q {1e3 * t_fwd:.2f} ms + A^T r {1e3 * t_adj:.2f} ms = {1e3 * two:.2f} ms")
     print(f"today's evaluation (passes + numpy BCE): {1e3 * t_today:.2f} ms = {t_today / two:.2f}x two passes")
     print(f"fused sweep (two threads): {1e3 * t_fused:.2f} ms = {t_fused / two:.2f}x two passes "
-          f"({t_today / t_fused:.2f}x faster than today's)")
+          f"({t_fused / t_today:.2f}x the time of today's)")
     print(f"agreement: loss rel. error {abs(loss_f - loss_ref) / abs(loss_ref):.1e}, gradient max rel. error "
           f"{err_g:.1e}")
     print(f"load average at the end {bench_speed._load():.1f}")
