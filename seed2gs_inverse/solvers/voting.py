@@ -38,14 +38,9 @@ __all__ = ["voting", "vote_counts", "bias_to_threshold"]
 
 def vote_counts(problem: Problem) -> tuple:
     """``(A0, A1)`` float64 (N,) background and foreground votes (one transposed pass)."""
-    a1 = _foreground_votes(problem)
+    a1 = np.asarray(problem.AT @ problem.y, dtype=np.float64)  # y is 0 at unknown pixels: A^T (k y)
     # y in [0, 1], so A0 >= 0 up to float32 rounding of the two passes
     return np.maximum(problem.known_weight - a1, 0.0), a1
-
-
-def _foreground_votes(problem: Problem) -> np.ndarray:
-    """``A1 = A^T (k y)`` float64 (N,); ``problem.y`` is 0 at unknown pixels, so ``A^T y``."""
-    return np.asarray(problem.AT @ problem.y, dtype=np.float64)
 
 
 def bias_to_threshold(bias: float) -> float:
