@@ -72,13 +72,11 @@ def main(argv=None) -> int:
 
     from seed2gs_inverse import _threads
     from seed2gs_inverse.operators import _passes
-    from seed2gs_inverse.pipeline import extract
     from seed2gs_inverse.solvers._common import prepare
     from seed2gs_inverse.solvers.weighted_bce import BCEObjective
 
     print(f"machine: {os.cpu_count()} CPUs, load average {bench_speed._load():.1f}")
-    scene, truth, cam, seed, up, _ = bench_speed._problem(24)
-    ex = extract(scene, cam, seed, n_views=24, progress=False)
+    scene, ex = bench_speed.default_extraction(24)
     stack, masks = ex.operators, ex.masks
     problem = prepare(stack, masks, ex.lift.support)
     obj = BCEObjective(problem)

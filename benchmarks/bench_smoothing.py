@@ -43,13 +43,11 @@ def main(argv=None) -> int:
         print(f"bench_smoothing: real scenes not found in {bench_speed.DATA}; set SEED2GS_DATA. Skipped.")
         return 0
     from seed2gs_inverse.graph import graph_laplacian
-    from seed2gs_inverse.pipeline import extract
     from seed2gs_inverse.pipeline.completion import GRAPH_DEFAULTS, object_graph
     from seed2gs_inverse.solvers import laplacian_smooth, solve
 
     print(f"machine: {os.cpu_count()} CPUs, load average {bench_speed._load():.1f}")
-    scene, truth, cam, seed, up, _ = bench_speed._problem(24)
-    ex = extract(scene, cam, seed, n_views=24, progress=False)
+    scene, ex = bench_speed.default_extraction(24)
     stack, masks = ex.operators, ex.masks
     lam = float(ex.result.info["smoothness"])
     # q_hat: the same solve without the regulariser; e: summed weight on known pixels.

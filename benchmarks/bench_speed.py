@@ -179,6 +179,15 @@ def _problem(views_arg):
     return scene, truth, cam, seed, up, first
 
 
+def default_extraction(views: int = 24):
+    """``(scene, extraction)``: the firepit + unicorn scene of :func:`_problem` and its extraction with
+    default settings (for benchmarks of the later stages on a real stack)."""
+    from seed2gs_inverse.pipeline import extract
+
+    scene, _, cam, seed, _, _ = _problem(views)
+    return scene, extract(scene, cam, seed, n_views=views, progress=False)
+
+
 def _accuracy(scene, truth, up, cam, selected):
     from seed2gs_inverse.metrics import boundary_iou, iou, membership_scores
     from seed2gs_inverse.raster import build_operator
