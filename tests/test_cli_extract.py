@@ -160,6 +160,11 @@ def test_from_report_repeats_the_run(files, capsys, tmp_path):
 
     assert run["camera"]["camera"] == json.loads(json.dumps(read_camera(f"{d / 'cameras.json'}:0").to_dict()))
     assert run["prompt"]["kind"] == "box" and run["prompt"]["box"] == box
+    # the process's peak memory, as the kernel counts it (the extraction holds the scene and its operators)
+    import resource
+
+    assert 0 < run["peak_rss_mb"] <= resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    assert f"peak memory {run['peak_rss_mb'] / 1024:.2f} GB" in out
     assert rep["settings"]["n_views"] == 4 and rep["settings"]["up"] == "camera"
     assert rep["settings"]["solver_options"] == {"max_iter": 12}
     assert np.allclose(run["axis"], files["cam"].up)  # --up camera: the orbit axis is the image up

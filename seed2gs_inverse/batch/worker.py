@@ -17,7 +17,6 @@ models configuration (ONNX sessions) is likewise opened once per process
 from __future__ import annotations
 
 import os
-import resource
 import sys
 import threading
 import time
@@ -27,6 +26,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from .._memory import peak_rss_mb
 
 __all__ = ["JobResult", "run_job", "job_models", "scene_cache_info", "clear_scene_cache", "SCENE_CACHE_SIZE"]
 
@@ -69,7 +70,7 @@ class JobResult:
     attempts : int
         1, or 2 when the job was retried after its worker died.
     peak_rss_mb : float
-        Peak resident memory of the worker process so far (MiB).
+        Peak resident memory of the worker process so far (MiB; NaN where the platform does not say).
     outdir : str or None
         The job's folder (None without an output directory).
     fingerprint : str
@@ -289,5 +290,6 @@ def run_job(job, output=None, attempt: int = 1) -> JobResult:
             traceback.print_exc(file=sys.stderr)
     res.seconds = seconds
     res.total_seconds = time.perf_counter() - t_start
-    res.peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    peak = peak_rss_mb()
+    res.peak_rss_mb = float("nan") if peak is None else peak
     return res

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from .._atomic import atomic_path
+from .._memory import peak_rss_mb
 from ..errors import FormatError, ValidationError
 from ._common import DEFAULT_VIEWS, add_method_arguments, check_output, parse_options, progress_enabled
 
@@ -394,6 +395,7 @@ def run(args) -> int:
                                                           "n_cameras": len(up_cameras)},
         "seeds": {"grabcut_opencv_rng": GRABCUT_SEED},
         "numba_threads": _numba_threads(),
+        "peak_rss_mb": peak_rss_mb(),  # of this process: reading the scene and the extraction
     }
     write_outputs(ex, out, fmt, force=args.force, run_info=run_info)
     from ..pipeline.report import seed_summary
@@ -401,7 +403,9 @@ def run(args) -> int:
     s = ex.seconds
     print(f"extracted {int(ex.selected.sum())} of {len(scene)} Gaussians -> {out}/object.{fmt} "
           f"({len(ex.views)} views, {ex.total_seconds:.1f} s: "
-          + ", ".join(f"{k} {v:.2f}" for k, v in s.items()) + ")")
+          + ", ".join(f"{k} {v:.2f}" for k, v in s.items())
+          + ("" if run_info["peak_rss_mb"] is None else f"; peak memory {run_info['peak_rss_mb'] / 1024:.2f} GB")
+          + ")")
     print(seed_summary_line(seed_summary(ex)))
     if models is None:  # with models, SAM2 would have tracked even a mask/box/point seed
         print("note: no models configured; the seed was tracked by the model-free tracker",
