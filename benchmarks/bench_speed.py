@@ -13,7 +13,9 @@ same run and on the same machine state:
   seconds over its iterations: the set-up, i.e. the objective, the start
   and the first view weights, included) and per function evaluation
   against two passes, the set-up apart, its iteration and evaluation
-  counts (the graph regulariser that ``solve`` runs after the method is
+  counts, and its time per iteration split into the sparse products inside
+  the solve, the per-pixel work, the set-up and the rest (L-BFGS-B's own
+  work and the glue), each in units of two passes (the graph regulariser that ``solve`` runs after the method is
   printed apart); voting's own seconds against one transposed pass, and
   the whole ``solve()`` call (validating the masks and the known weight
   ``A^T k`` that every method shares) beside it;
@@ -237,6 +239,14 @@ def run_once(scene, truth, cam, seed, up, views: int, method: str, accuracy: boo
            "feval_over_two": (res.info["seconds_method"] - res.info.get("seconds_setup", float("nan")))
            / max(nfev, 1) / two,
            "iter_over_two": res.info["seconds_method"] / it / two,
+           # the method's seconds after the set-up, split: sparse products, per-pixel work, the rest
+           # (L-BFGS-B's own work, the reweighting, glue), each per iteration and in units of two passes
+           **{f"{part}_over_two": float(sec) / it / two for part, sec in (
+               ("passes", res.info.get("seconds_passes", np.nan)),
+               ("pixels", res.info.get("seconds_pixels", np.nan)),
+               ("setup", res.info.get("seconds_setup", np.nan)),
+               ("rest", res.info["seconds_method"] - res.info.get("seconds_setup", np.nan)
+                - res.info.get("seconds_passes", np.nan) - res.info.get("seconds_pixels", np.nan)))},
            "voting_s": float(vote.info["seconds_method"]), "voting_solve_s": float(vote.seconds),
            "voting_over_adj": float(vote.info["seconds_method"]) / adj,
            "peak_rss_gb": peak, "peak_is_extraction_only": reset_ok, "load_start": load0,
@@ -245,6 +255,12 @@ def run_once(scene, truth, cam, seed, up, views: int, method: str, accuracy: boo
         row["miou"], row["mbiou"], row["iou3d"] = _accuracy(scene, truth, up, cam, ex.selected)
     row["load_end"] = _load()
     return row
+
+
+def _split(r) -> str:
+    """weighted_bce's seconds per iteration by part, in units of two passes of the same run."""
+    return ("passes {passes_over_two:.2f} + per-pixel {pixels_over_two:.2f} + set-up {setup_over_two:.2f} "
+            "+ optimiser and rest {rest_over_two:.2f}".format(**r))
 
 
 def _print_row(k, r):
@@ -257,7 +273,7 @@ def _print_row(k, r):
           f"A^T r {1e3 * r['adjoint_s']:.1f} ms | weighted_bce {r['iterations']} it, {r['nfev']} evals, "
           f"{r['method_s']:.2f} s (+ regulariser {r['smoothing_s']:.2f} s), {r['ms_per_iter']:.1f} ms/it = "
           f"{r['iter_over_two']:.2f} x two passes (set-up {r['setup_ms']:.0f} ms; after it "
-          f"{r['feval_over_two']:.2f} x two passes per evaluation) | voting {1e3 * r['voting_s']:.1f} ms = "
+          f"{r['feval_over_two']:.2f} x two passes per evaluation) = {_split(r)} | voting {1e3 * r['voting_s']:.1f} ms = "
           f"{r['voting_over_adj']:.2f} x one A^T pass (solve() {1e3 * r['voting_solve_s']:.1f} ms)")
     print(f"  peak RSS {'of the extraction' if r['peak_is_extraction_only'] else 'of the process'} "
           f"{r['peak_rss_gb']:.2f} GB | selected {r['selected']}{acc} | load {r['load_start']:.1f} -> "
@@ -306,6 +322,7 @@ def main(argv=None) -> int:
     print(f"  weighted_bce {med['ms_per_iter']:.1f} ms/it = {med['iter_over_two']:.2f} x two passes "
           f"({1e3 * med['two_passes_s']:.1f} ms) [aim <= 1.5], {med['iterations']:.0f} it, {med['nfev']:.0f} evals, "
           f"set-up {med['setup_ms']:.0f} ms, then {med['feval_over_two']:.2f} x two passes per evaluation; "
+          f"per iteration {_split(med)}; "
           f"voting {med['voting_over_adj']:.2f} x one A^T pass [aim <= 1.2] "
           f"(solve() {1e3 * med['voting_solve_s']:.1f} ms); "
           f"peak RSS {med['peak_rss_gb']:.2f} GB "

@@ -595,6 +595,32 @@ def test_weighted_bce_gaussians_seen_only_by_faint_pixels_keep_the_prior(rng):
     assert np.all(r.q[evidence] != np.float32(0.3))  # the others moved
 
 
+def test_weighted_bce_times_its_passes_and_pixel_work_apart(rng, monkeypatch):
+    """info splits the method's seconds: set-up, sparse products, per-pixel work, the rest (the optimiser)."""
+    import time
+
+    from seed2gs_inverse.operators import _passes
+
+    delay = 0.004
+    calls = {"forward": 0, "adjoint": 0}
+    for name in calls:  # every product of the stack sleeps: the passes' share is known from below
+        def slow(*args, _f=getattr(_passes, name), _name=name):
+            calls[_name] += 1
+            time.sleep(delay)
+            return _f(*args)
+        monkeypatch.setattr(_passes, name, slow)
+    mats, masks = _random_problem(rng)
+    r = solve(mats, masks, method="weighted_bce", max_iter=15)
+    info = r.info
+    assert r.iterations > 0 and info["function_evaluations"] > 0
+    # after the set-up: one adjoint per evaluation, and a forward pass for each new q
+    assert info["seconds_passes"] >= delay * info["function_evaluations"]
+    assert 0 < info["seconds_pixels"] < info["seconds_passes"]
+    parts = info["seconds_setup"] + info["seconds_passes"] + info["seconds_pixels"]
+    assert parts <= info["seconds_method"]
+    assert calls["adjoint"] >= info["function_evaluations"] and calls["forward"] >= 1
+
+
 def test_weighted_bce_accepts_numpy_integer_options(rng):
     mats, masks = _random_problem(rng)
     r = solve(mats, masks, method="weighted_bce", maxcor=np.int64(3), inner_iters=np.int32(10), max_iter=40)

@@ -134,6 +134,9 @@ class BCEObjective:
         the loss does not depend on the others.
     binary : bool
         Whether every known target is 0 or 1.
+    seconds : dict
+        Wall seconds spent so far in the sparse products (``"passes"``: ``A q``
+        and ``A^T g``) and in the per-pixel work (``"pixels"``).
     """
 
     def __init__(self, problem: Problem, normalize: bool = False, alpha_min: float = 1e-3, eps: float = 1e-4):
@@ -156,6 +159,16 @@ class BCEObjective:
         self._pixels = PixelBCE(self.rows, problem.y[self.rows], self.s, inv_alpha, eps, problem.y.size, self.dtype,
                                 views=views, n_views=problem.n_views)
         self._q_last = None
+        self.seconds = {"passes": 0.0, "pixels": 0.0}
+
+    def _timed(self, part: str, fn, *args):
+        t0 = time.perf_counter()
+        out = fn(*args)
+        self.seconds[part] += time.perf_counter() - t0
+        return out
+
+    def _adjoint(self, g: np.ndarray) -> np.ndarray:
+        return self._timed("passes", self.AT.__matmul__, g)
 
     def _evaluate(self, q: np.ndarray, weights=None) -> None:
         """The per-pixel BCE at ``q`` (N,), and the pixel gradient for ``weights`` (``omega / Z``) if given.
@@ -168,14 +181,15 @@ class BCEObjective:
         q = np.array(q, dtype=self.dtype)  # a copy: callers update their q in place
         if self._q_last is not None and np.array_equal(q, self._q_last):
             return
-        self._pixels.evaluate(self.A @ q, weights)
+        pred = self._timed("passes", self.A.__matmul__, q)
+        self._timed("pixels", self._pixels.evaluate, pred, weights)
         self._q_last = q
 
     def _forward(self, q: np.ndarray, omega: np.ndarray) -> tuple:
         """(loss ``sum_u omega_c s_u BCE_u / Z``, pixel gradient ``g`` (P,) in A's dtype) at ``q`` (N,)."""
         w = np.asarray(omega, dtype=np.float64) / self.Z
         self._evaluate(q, w)
-        return self._pixels.loss_grad(w)
+        return self._timed("pixels", self._pixels.loss_grad, w)
 
     def pixel_bce(self, q: np.ndarray) -> np.ndarray:
         """BCE of every usable pixel (P,) at ``q`` (N,); 0 at the others."""
@@ -191,7 +205,7 @@ class BCEObjective:
     def loss_grad_q(self, q: np.ndarray, omega: np.ndarray) -> tuple:
         """``(L, dL/dq)`` at ``q`` (N,) with view weights ``omega`` (V,)."""
         loss, g = self._forward(q, omega)
-        return loss, np.asarray(self.AT @ g, dtype=np.float64).ravel()
+        return loss, np.asarray(self._adjoint(g), dtype=np.float64).ravel()
 
     def loss_grad_rows(self, x: np.ndarray, rows: np.ndarray, q_full: np.ndarray, omega: np.ndarray) -> tuple:
         """``(L, dL/dx)`` for the logits ``x`` of the Gaussians ``rows`` only.
@@ -204,7 +218,7 @@ class BCEObjective:
         qr = expit(x)
         q_full[rows] = qr
         loss, g = self._forward(q_full, omega)
-        gq = (self.AT @ g)[rows]
+        gq = self._adjoint(g)[rows]
         return loss, qr * (1.0 - qr) * gq
 
     def loss_grad_logits(self, logits: np.ndarray, omega: np.ndarray, rows=None) -> tuple:
@@ -215,7 +229,7 @@ class BCEObjective:
         """
         q = expit(logits)
         loss, g = self._forward(q, omega)
-        gq = self.AT @ g
+        gq = self._adjoint(g)
         if rows is not None:
             q, gq = q[rows], gq[rows]
         return loss, q * (1.0 - q) * gq
@@ -377,8 +391,11 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
     ``weights``, ``residuals``), ``observed`` ((N,) bool, the Gaussians with
     weight on a usable pixel; :func:`solve` gives the others the prior) and
     ``info`` (``function_evaluations``, the convergence ``message``,
-    ``outer_steps`` and ``seconds_setup``: the objective, the start and the
-    first view weights, before the first iteration). Without any usable
+    ``outer_steps``, ``seconds_setup``: the objective, the start and the
+    first view weights, before the first iteration, and after it
+    ``seconds_passes`` and ``seconds_pixels``: the sparse products and the
+    per-pixel work of the evaluations; the rest of the method's time is the
+    optimiser's own and the reweighting). Without any usable
     pixel (every known pixel has ``alpha < alpha_min``) nothing is fitted:
     ``q`` is the prior and every view weight 0.
     """
@@ -415,7 +432,8 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
                             observed=obj.evidence,
                             info={"function_evaluations": 0, "message": "no usable pixel (every known pixel has "
                                      f"alpha < alpha_min = {alpha_min:g})", "outer_steps": 0,
-                                  "seconds_setup": time.perf_counter() - t_start})
+                                  "seconds_setup": time.perf_counter() - t_start, "seconds_passes": 0.0,
+                                  "seconds_pixels": 0.0})
     if start == "vote" or (start == "auto" and not problem.init_given):
         # The vote is the closed-form answer of the same evidence: most Gaussians start on the
         # side they end on, so the selection settles in a few iterations instead of dozens.
@@ -461,6 +479,7 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
     D = obj.residuals(q_of(x))
     omega = weights_of(D)
     t_setup = time.perf_counter() - t_start
+    setup_parts = dict(obj.seconds)
     history, total, message = [], 0, ""
     # The curvature pairs carry over between outer steps: a reweighting changes the loss only
     # mildly, and a fresh memory would restart each step with a short steepest-descent step.
@@ -513,7 +532,9 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
     return MethodResult(q=q_of(x), iterations=total, view_weights=omega, history=history,
                         observed=obj.evidence,
                         info={"function_evaluations": nfev[0], "message": message, "outer_steps": len(history),
-                              "seconds_setup": t_setup})
+                              "seconds_setup": t_setup,
+                              "seconds_passes": obj.seconds["passes"] - setup_parts["passes"],
+                              "seconds_pixels": obj.seconds["pixels"] - setup_parts["pixels"]})
 
 
 register_method("weighted_bce", weighted_bce)
