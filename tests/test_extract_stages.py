@@ -358,9 +358,11 @@ def test_q_unchanged_from_before_issue_9(syn, name, label, kw):
                  solver_options={"max_iter": 30} if name == "weighted_bce" else None, **kw)
     q0 = ref[f"q_{name}"]
     # Since the stack's adjoint adds two runs of views (operators/_passes.py)
-    # its float32 sums round differently, and 30 L-BFGS-B iterations carry
-    # that to about 1e-4 in q (other BLAS builds, too); never in the selection.
-    assert float(np.abs(ex.q - q0).max()) <= 2e-4
+    # its float32 sums round differently, and since the per-pixel BCE of
+    # binary targets runs in float32 (solvers/_bce.py) its terms do too; 30
+    # L-BFGS-B iterations carry that to about 1e-4 in q (3.6e-4 on one
+    # Gaussian; other BLAS builds, too), never into the selection.
+    assert float(np.abs(ex.q - q0).max()) <= 5e-4
     clear = np.abs(q0 - 0.5) > 1e-3
     np.testing.assert_array_equal(ex.selected[clear], (q0 > 0.5)[clear])
     assert ex.resolved["n_weak_evidence"] == int(ref[f"n_weak_{name}"])

@@ -493,13 +493,22 @@ def test_bce_pixel_kernel_matches_numpy_formula(rng, normalize, dtype):
     inv_alpha = 1.0 / alpha if normalize else np.empty(0)
     bce, g = bce_pixels(pred, y, w, inv_alpha, eps)
     assert bce.dtype == np.float64 and g.dtype == dtype
+    # binary targets are computed in the prediction's dtype: p = pred * (1 / alpha), each factor and the
+    # product rounded to it, clipped at the dtype's nearest values to eps and 1 - eps; soft targets in
+    # float64 (the formula, in float64)
+    binary = (y == 0) | (y == 1)
     p = pred.astype(np.float64) / (alpha if normalize else 1.0)
-    inside = (p > eps) & (p < 1 - eps)
-    p = np.clip(p, eps, 1 - eps)
-    ref_bce = np.where(w > 0, -(y * np.log(p) + (1 - y) * np.log(1 - p)), 0.0)
+    p_dtype = (pred * (1.0 / alpha).astype(dtype)).astype(np.float64) if normalize else pred.astype(np.float64)
+    p = np.where(binary, p_dtype, p)
+    lo = np.where(binary, float(dtype(eps)), eps)
+    hi = np.where(binary, float(dtype(1 - eps)), 1 - eps)
+    inside = (p > lo) & (p < hi)
+    p = np.clip(p, lo, hi)
+    ref_bce = np.where(w > 0, -(y * np.log(p) + (1 - y) * np.log1p(-p)), 0.0)
     ref_g = np.where(inside, w * (p - y) / (p * (1 - p)), 0.0) / (alpha if normalize else 1.0)
-    np.testing.assert_allclose(bce, ref_bce, rtol=1e-12, atol=0)
-    np.testing.assert_allclose(g, ref_g, rtol=1e-12 if dtype == np.float64 else 1e-6, atol=0)
+    tol = 1e-12 if dtype == np.float64 else 1e-6
+    np.testing.assert_allclose(bce, ref_bce, rtol=tol, atol=0)
+    np.testing.assert_allclose(g, ref_g, rtol=tol, atol=0)
     assert np.all(g[~inside] == 0) and np.all(g[w == 0] == 0) and np.any(g != 0)
 
 
@@ -526,10 +535,12 @@ def test_bce_halves_on_two_threads_match_the_formula_and_one_thread(rng, monkeyp
         got[threads] = (loss, g.copy())
     assert got[1][0] == got[2][0]
     np.testing.assert_array_equal(got[1][1], got[2][1])
-    p = np.clip(pred.astype(np.float64), eps, 1 - eps)
-    ref = float(np.sum(w * -(y * np.log(p) + (1 - y) * np.log(1 - p))))
-    assert got[2][0] == pytest.approx(ref, rel=1e-12)
-    inside = (pred > eps) & (pred < 1 - eps)
+    lo, hi = float(np.float32(eps)), float(np.float32(1 - eps))  # binary targets: float32 arithmetic
+    p64 = pred.astype(np.float64)
+    p = np.where((y == 0) | (y == 1), np.clip(p64, lo, hi), np.clip(p64, eps, 1 - eps))
+    ref = float(np.sum(w * -(y * np.log(p) + (1 - y) * np.log1p(-p))))
+    assert got[2][0] == pytest.approx(ref, rel=1e-7)  # float32 terms, summed in float64
+    inside = np.where((y == 0) | (y == 1), (pred > lo) & (pred < hi), (pred > eps) & (pred < 1 - eps))
     np.testing.assert_allclose(got[2][1], np.where(inside, w * (p - y) / (p * (1 - p)), 0.0), rtol=1e-6)
 
 

@@ -1,22 +1,28 @@
 """Per-pixel part of the weighted-BCE objective in numpy (no Numba: solvers never need it).
 
 The work is restricted to the usable pixels (the support: known, bright
-enough), fixed once per objective and given as indices. A binary target needs one logarithm
-and one division: with ``r_u = p_u`` where ``y_u = 1`` and ``r_u = 1 - p_u``
-where ``y_u = 0`` (``r = sigma p + (1 - y)``, ``sigma = 2y - 1``),
+enough), fixed once per objective and given as indices, and grouped by
+target: ``y = 1``, ``y = 0`` and the few soft targets ``0 < y < 1``. A
+binary group needs one logarithm and one division per pixel,
 
-    BCE_u = -log r_u,    dBCE_u/dp_u = -sigma_u / r_u,
+    y = 1:  BCE = -log p,          dBCE/dp = -1 / p,
+    y = 0:  BCE = -log1p(-p),      dBCE/dp = 1 / (1 - p),
 
-so an evaluation is a handful of in-place ufuncs over the support (on
-preallocated buffers, ``out=``); the few soft targets (``0 < y < 1``) are
-redone with the full formula on their own indices. The per-pixel BCE does
-not depend on the pixel weights ``w``, so one evaluation at a prediction
-serves both the loss of any ``w`` and the per-view residuals.
+so an evaluation is a handful of in-place ufuncs over each group (on
+preallocated buffers, ``out=``); soft targets take the full formula. The
+arithmetic runs in the prediction's dtype (float32 in the solver, whose
+prediction ``A q`` is float32 already: ``log1p`` keeps ``-log(1 - p)``
+accurate to float32 rounding for small ``p``, as precise as ``p`` itself),
+soft targets in float64; sums (the loss, the per-view residuals) accumulate
+in float64. The per-pixel BCE does not depend on the pixel weights ``w``,
+so one evaluation at a prediction serves both the loss of any ``w`` and the
+per-view residuals.
 
-The support is cut into two halves, each with its own buffers, evaluated on
-two threads where two cores are free (numpy's ufuncs release the GIL;
-:mod:`seed2gs_inverse._threads`); every sum is the sum of the two halves'
-sums on one thread or two alike, so nothing depends on the thread count.
+The support is cut into two halves, each with its own groups and buffers,
+evaluated on two threads where two cores are free (numpy's ufuncs release
+the GIL; :mod:`seed2gs_inverse._threads`); every sum is taken group by
+group in a fixed order on one thread or two alike, so nothing depends on
+the thread count.
 """
 
 from __future__ import annotations
@@ -32,72 +38,79 @@ __all__ = ["PixelBCE", "bce_pixels"]
 PARALLEL_MIN_PIXELS = 200_000
 
 
-class _Half:
-    """One half of the support: its pixels ``rows`` (ascending), constants and buffers.
+class _Group:
+    """Usable pixels ``rows`` (ascending) with one kind of target: ``"one"``, ``"zero"`` or ``"soft"``.
 
     After :meth:`evaluate`, ``nb`` holds ``-BCE`` (the log-likelihood) of each pixel.
     """
 
-    def __init__(self, rows, yr, s, inv_alpha, views, n_views, dtype):
-        self.rows = rows
-        binary = (yr == 0.0) | (yr == 1.0)
-        # r = sigma p + (1 - y) for binary targets; r = p for soft ones (redone below)
-        self.sigma = np.where(binary, 2.0 * yr - 1.0, 1.0)
-        self.shift = np.where(binary, 1.0 - yr, 0.0)
-        self.soft = np.flatnonzero(~binary)
-        self.y_soft = yr[self.soft]
-        self.s = s
-        self.inv = inv_alpha if inv_alpha.size else None
-        self.views = views
-        # views are non-decreasing along the rows: view c is rows[bounds[c]:bounds[c + 1]]
-        bounds = np.searchsorted(self.views, np.arange(n_views + 1))
-        self.nonempty = bounds[1:] > bounds[:-1]
+    def __init__(self, kind, rows, y, s, inv_alpha, offsets, dtype):
+        self.kind, self.rows, self.s = kind, rows, s  # s None: every pixel weight is 1
+        self.dtype = np.dtype(np.float64 if kind == "soft" else dtype)
+        self.y = y.astype(np.float64) if kind == "soft" else None
+        self.inv = inv_alpha.astype(self.dtype) if inv_alpha is not None else None
+        # view c (pixels offsets[c]:offsets[c + 1]) is rows[bounds[c]:bounds[c + 1]]: rows ascend
+        bounds = np.searchsorted(rows, offsets)
+        self.counts = np.diff(bounds)
+        self.nonempty = self.counts > 0
         self.starts = bounds[:-1][self.nonempty]
         m = rows.size
-        self.p = np.empty(m, np.float32)
-        self.r, self.rc, self.nb = np.empty(m), np.empty(m), np.empty(m)
-        self.g = np.empty(m, dtype)  # computed in float64, stored in the adjoint's dtype
+        self.taken = np.empty(m, dtype)  # the prediction at rows, in its own dtype
+        self.pc, self.nb, self.g = (np.empty(m, self.dtype) for _ in range(3))
+        self.om = np.empty(m, self.dtype) if kind == "zero" else None  # 1 - p
+        self.raw = np.empty(m, self.dtype) if self.inv is not None else None  # pred / alpha, before the clip
         self.inside = np.empty(m, bool)
-        self.w = self.c = None  # pixel weights and -sigma w, per view weights (set_weights)
+        self.w = self.c = None  # pixel weights (float64) and the gradient's numerator (set_weights)
 
     def set_weights(self, omega) -> None:
-        """``w_u = omega[view(u)] s_u`` and ``c_u = -sigma_u w_u`` (the gradient's numerator)."""
-        self.w = omega[self.views] * self.s
-        self.c = -self.sigma * self.w
-        if self.soft.size:
-            self.c[self.soft] = self.w[self.soft]
+        """``w_u = omega[view(u)] s_u`` and ``c``: ``-w`` (y = 1), ``w`` (y = 0, soft)."""
+        self.w = np.repeat(omega, self.counts)
+        if self.s is not None:
+            self.w *= self.s
+        self.c = (-self.w if self.kind == "one" else self.w).astype(self.dtype)
 
     def evaluate(self, pred, eps: float) -> None:
-        """``nb`` (-BCE), ``rc`` (clipped ``r``) and ``inside`` (not clipped) at the prediction ``pred`` (P,)."""
-        if self.p.dtype != pred.dtype:
-            self.p = np.empty(self.rows.size, pred.dtype)
-        np.take(pred, self.rows, out=self.p)
-        r, rc = self.r, self.rc
+        """``nb`` (-BCE), ``pc`` (clipped ``p``) and ``inside`` (not clipped) at the prediction ``pred`` (P,)."""
+        if self.taken.dtype != pred.dtype:
+            self.taken = np.empty(self.rows.size, pred.dtype)
+        p = np.take(pred, self.rows, out=self.taken, mode="wrap")  # rows are valid: no bounds check
         if self.inv is not None:
-            np.multiply(self.p, self.inv, out=r)
-            np.multiply(r, self.sigma, out=r)
+            p = np.multiply(p, self.inv, out=self.raw)
+        elif p.dtype != self.dtype:
+            p = p.astype(self.dtype)
+        pc, nb = self.pc, self.nb
+        # the gradient is 0 where the clip to [eps, 1 - eps] is active
+        np.clip(p, eps, 1.0 - eps, out=pc)
+        np.equal(pc, p, out=self.inside)
+        if self.kind == "one":
+            np.log(pc, out=nb)
+        elif self.kind == "zero":
+            np.negative(pc, out=self.om)
+            np.log1p(self.om, out=nb)
+            np.add(self.om, 1.0, out=self.om)  # 1 + (-p) == 1 - p exactly
         else:
-            np.multiply(self.p, self.sigma, out=r)
-        np.add(r, self.shift, out=r)
-        # clipping r to [eps, 1 - eps] is clipping p; the gradient is 0 where it clips
-        np.clip(r, eps, 1.0 - eps, out=rc)
-        np.equal(rc, r, out=self.inside)
-        np.log(rc, out=self.nb)
-        if self.soft.size:
-            p, y = rc[self.soft], self.y_soft
-            self.nb[self.soft] = y * np.log(p) + (1.0 - y) * np.log1p(-p)
+            nb[:] = self.y * np.log(pc) + (1.0 - self.y) * np.log1p(-pc)
 
     def gradient(self) -> np.ndarray:
         """``w dBCE/dpred`` at ``rows`` (0 where clipped), in the buffer ``g``."""
-        g, rc = self.g, self.rc
-        np.divide(self.c, rc, out=g)  # -sigma w / r: w (p - y) / (p (1 - p)) for binary y
-        if self.soft.size:
-            p = rc[self.soft]
-            g[self.soft] = self.c[self.soft] * (p - self.y_soft) / (p * (1.0 - p))
+        g, pc = self.g, self.pc
+        if self.kind == "one":
+            np.divide(self.c, pc, out=g)
+        elif self.kind == "zero":
+            np.divide(self.c, self.om, out=g)
+        else:
+            g[:] = self.c * (pc - self.y) / (pc * (1.0 - pc))
         np.multiply(g, self.inside, out=g)
         if self.inv is not None:
             np.multiply(g, self.inv, out=g)
         return g
+
+
+def _groups(rows, y, s, inv_alpha, offsets, dtype) -> list:
+    """The non-empty target groups of one half of the support."""
+    kinds = (("one", y == 1), ("zero", y == 0), ("soft", (y != 0) & (y != 1)))
+    return [_Group(kind, rows[m], y[m], None if s is None else s[m], None if inv_alpha is None else inv_alpha[m],
+                   offsets, dtype) for kind, m in kinds if m.any()]
 
 
 class PixelBCE:
@@ -113,7 +126,7 @@ class PixelBCE:
     empty) and pixel weights ``w_u = omega_{c(u)} s_u`` (``c(u)`` the view
     of pixel ``u``), on the usable pixels ``s_u != 0`` (``b_u = g_u = 0``
     elsewhere). ``sum_u w_u b_u`` is the loss and ``A^T g`` its gradient in
-    ``q``.
+    ``q``. Binary targets are computed in ``dtype``, soft ones in float64.
 
     Use: :meth:`evaluate` at a prediction, then any of :meth:`loss_grad`
     (for view weights ``omega``), :meth:`bce` and :meth:`view_sums`, which
@@ -125,18 +138,19 @@ class PixelBCE:
         The usable pixels, ascending; everything else is given at them.
     y : (M,) float
         Targets in [0, 1].
-    s : (M,) float
-        Pixel weights.
+    s : (M,) float, or None
+        Pixel weights (None: all 1).
     inv_alpha : (M,) float, or (0,) for the literal ``p = A q``
     eps : float
         Clip, in (0, 0.5).
     n_pixels : int
         ``P``, the length of predictions and of ``g``.
     dtype : numpy dtype
-        Dtype of ``g`` (that of ``A``, for the adjoint product).
-    views : (M,) int, optional
-        View index of every usable pixel, non-decreasing (default: all in view 0).
-    n_views : int, default 1
+        Dtype of the predictions, of the per-pixel arithmetic and of ``g``
+        (that of ``A``, for the adjoint product).
+    offsets : (V+1,) int, optional
+        The views' pixel ranges: view ``c`` is pixels ``offsets[c]:offsets[c+1]``
+        (default: one view of all ``n_pixels``).
 
     Notes
     -----
@@ -144,19 +158,21 @@ class PixelBCE:
     next :meth:`loss_grad`.
     """
 
-    def __init__(self, rows, y, s, inv_alpha, eps: float, n_pixels: int, dtype=np.float64, views=None,
-                 n_views: int = 1):
+    def __init__(self, rows, y, s, inv_alpha, eps: float, n_pixels: int, dtype=np.float64, offsets=None):
         rows = np.asarray(rows)
-        y = np.asarray(y, dtype=np.float64)
-        s = np.asarray(s, dtype=np.float64)
+        y = np.asarray(y)
+        s = None if s is None else np.asarray(s, dtype=np.float64)
         inv_alpha = np.asarray(inv_alpha, dtype=np.float64)
-        views = np.zeros(rows.size, np.intp) if views is None else np.asarray(views)
+        inv_alpha = inv_alpha if inv_alpha.size else None
+        offsets = np.array([0, n_pixels]) if offsets is None else np.asarray(offsets)
         self.eps = float(eps)
-        self.n_views = int(n_views)
+        self.n_views = offsets.size - 1
         cut = rows.size // 2
         self.halves = tuple(
-            _Half(rows[part], y[part], s[part], inv_alpha[part] if inv_alpha.size else inv_alpha, views[part],
-                  self.n_views, dtype) for part in (slice(0, cut), slice(cut, rows.size)))
+            _groups(rows[part], y[part], None if s is None else s[part],
+                    None if inv_alpha is None else inv_alpha[part], offsets, dtype)
+            for part in (slice(0, cut), slice(cut, rows.size)))
+        self.groups = self.halves[0] + self.halves[1]  # the fixed order of every sum
         self.parallel = rows.size >= PARALLEL_MIN_PIXELS
         self.g = np.zeros(int(n_pixels), dtype)  # zero outside the usable pixels, for ever
         self._omega = None
@@ -165,18 +181,18 @@ class PixelBCE:
     def _set_weights(self, omega) -> None:
         omega = np.asarray(omega, dtype=np.float64)
         if self._omega is None or not np.array_equal(omega, self._omega):  # once per L-BFGS run
-            for h in self.halves:
-                h.set_weights(omega)
+            for grp in self.groups:
+                grp.set_weights(omega)
             self._omega = omega.copy()
             self._g_ready = False
 
     def _run(self, pred, gradient: bool) -> None:
         def half(k):
-            h = self.halves[k]
-            if pred is not None:
-                h.evaluate(pred, self.eps)
-            if gradient:
-                self.g[h.rows] = h.gradient()
+            for grp in self.halves[k]:
+                if pred is not None:
+                    grp.evaluate(pred, self.eps)
+                if gradient:
+                    self.g[grp.rows] = grp.gradient()
 
         run_both(half, self.parallel)
 
@@ -197,22 +213,22 @@ class PixelBCE:
         if not self._g_ready:
             self._run(None, True)
             self._g_ready = True
-        first, second = self.halves
-        return -(float(np.dot(first.w, first.nb)) + float(np.dot(second.w, second.nb))), self.g
+        return -sum(float(np.dot(grp.w, grp.nb)) for grp in self.groups), self.g
 
     def bce(self) -> np.ndarray:
         """(P,) float64: the BCE of every usable pixel at the last evaluation, 0 elsewhere (a new array)."""
         out = np.zeros(self.g.size)
-        for h in self.halves:
-            out[h.rows] = -h.nb
+        for grp in self.groups:
+            out[grp.rows] = -grp.nb
         return out
 
     def view_sums(self) -> np.ndarray:
         """(n_views,) float64: ``sum_u s_u b_u`` over each view's usable pixels, at the last evaluation."""
         out = np.zeros(self.n_views)
-        for h in self.halves:
-            if h.starts.size:
-                out[h.nonempty] -= np.add.reduceat(h.s * h.nb, h.starts)
+        for grp in self.groups:
+            if grp.starts.size:
+                out[grp.nonempty] -= np.add.reduceat(grp.nb if grp.s is None else grp.s * grp.nb, grp.starts,
+                                                     dtype=np.float64)
         return out
 
 

@@ -127,8 +127,9 @@ class BCEObjective:
     ----------
     rows : (M,) int64
         The usable pixels: known, with ``alpha >= alpha_min``.
-    s : (M,) float64
-        Their weights ``s_u`` (the others weigh 0).
+    s : (M,) float64, or None
+        Their weights ``s_u`` (the others weigh 0); None for the literal
+        prediction, whose weights are all 1.
     evidence : (N,) bool
         Gaussians with weight on at least one usable pixel (``s_u > 0``);
         the loss does not depend on the others.
@@ -146,18 +147,23 @@ class BCEObjective:
         use = problem.known & (alpha >= alpha_min)
         # Everything per pixel lives on the usable pixels only (no P-sized float64 arrays).
         self.rows = np.flatnonzero(use)
-        alpha_rows = alpha[self.rows].astype(np.float64)
-        self.s = alpha_rows if normalize else np.ones(self.rows.size)
+        counts = np.diff(np.searchsorted(self.rows, problem.offsets))  # usable pixels per view
+        if normalize:
+            alpha_rows = alpha[self.rows].astype(np.float64)
+            self.s = alpha_rows
+            self.s_view = np.bincount(np.repeat(np.arange(problem.n_views), counts), weights=self.s,
+                                      minlength=problem.n_views)
+            inv_alpha = 1.0 / alpha_rows
+        else:
+            self.s, self.s_view = None, counts.astype(np.float64)
+            inv_alpha = np.empty(0)  # the literal prediction p = A q
         self.binary = bool(np.all((problem.y == 0) | (problem.y == 1) | ~problem.known))
         self.eps = eps
         self.problem = problem
-        self.Z = max(float(self.s.sum()), 1e-30)
-        views = np.searchsorted(problem.offsets, self.rows, side="right") - 1
-        self.s_view = np.bincount(views, weights=self.s, minlength=problem.n_views)
+        self.Z = max(float(self.s_view.sum()), 1e-30)
         self.evidence = np.asarray(self.AT @ use.astype(self.dtype)).ravel() > 0
-        inv_alpha = 1.0 / alpha_rows if normalize else np.empty(0)  # empty: the literal prediction p = A q
         self._pixels = PixelBCE(self.rows, problem.y[self.rows], self.s, inv_alpha, eps, problem.y.size, self.dtype,
-                                views=views, n_views=problem.n_views)
+                                offsets=problem.offsets)
         self._q_last = None
         self.seconds = {"passes": 0.0, "pixels": 0.0}
 
@@ -445,8 +451,9 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
     # q of every Gaussian. Only the logits x of the Gaussians with evidence (rows) move: the
     # others have no weight on a usable pixel, so neither the loss nor the result (solve gives
     # them the prior) depends on their q.
-    q_full = np.clip(q0, init_clip, 1.0 - init_clip)
-    x = _logit(q_full[rows])
+    q_start = np.clip(q0, init_clip, 1.0 - init_clip)
+    x = _logit(q_start[rows])
+    q_full = q_start.astype(obj.dtype)  # in A's dtype: the products take it without a conversion
     q_full[rows] = expit(x)  # as every evaluation computes it, so the start's residuals are reused
     nfev = [0]
 
