@@ -61,6 +61,7 @@ class _Group:
         self.raw = np.empty(m, self.dtype) if self.inv is not None else None  # pred / alpha, before the clip
         self.inside = np.empty(m, bool)
         self.w = self.c = None  # pixel weights (float64) and the gradient's numerator (set_weights)
+        self.loss = 0.0  # sum_u w_u nb_u, with the gradient
 
     def set_weights(self, omega) -> None:
         """``w_u = omega[view(u)] s_u`` and ``c``: ``-w`` (y = 1), ``w`` (y = 0, soft)."""
@@ -193,6 +194,7 @@ class PixelBCE:
                     grp.evaluate(pred, self.eps)
                 if gradient:
                     self.g[grp.rows] = grp.gradient()
+                    grp.loss = float(np.dot(grp.w, grp.nb))  # float64 sum, on this group's thread
 
         run_both(half, self.parallel)
 
@@ -213,7 +215,7 @@ class PixelBCE:
         if not self._g_ready:
             self._run(None, True)
             self._g_ready = True
-        return -sum(float(np.dot(grp.w, grp.nb)) for grp in self.groups), self.g
+        return -sum(grp.loss for grp in self.groups), self.g
 
     def bce(self) -> np.ndarray:
         """(P,) float64: the BCE of every usable pixel at the last evaluation, 0 elsewhere (a new array)."""

@@ -25,7 +25,7 @@ constant to the loss and inflate the view residuals without any gradient.
 On the solver tests' scenes (masks ``W t > 0.5``) the literal form recovers
 held-out masks better (mIoU 0.994-1.0 vs 0.989-0.992).
 
-Gradient (chain rule through the clip; per-pixel work in float64):
+Gradient (chain rule through the clip; per-pixel work in A's dtype, sums in float64):
 
     dL/dPhat_u = omega_c s_u / Z * (p_u - Y_u) / (p_u (1 - p_u))   (0 where clipped)
     dL/dl = q (1 - q) * A^T g,   g_u = dL/dPhat_u / alpha_u (normalize) or dL/dPhat_u,
