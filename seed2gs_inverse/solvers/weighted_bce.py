@@ -149,11 +149,10 @@ class BCEObjective:
         self.rows = np.flatnonzero(use)
         counts = np.diff(np.searchsorted(self.rows, problem.offsets))  # usable pixels per view
         if normalize:
-            alpha_rows = alpha[self.rows].astype(np.float64)
-            self.s = alpha_rows
+            self.s = alpha[self.rows].astype(np.float64)
             self.s_view = np.bincount(np.repeat(np.arange(problem.n_views), counts), weights=self.s,
                                       minlength=problem.n_views)
-            inv_alpha = 1.0 / alpha_rows
+            inv_alpha = 1.0 / self.s
         else:
             self.s, self.s_view = None, counts.astype(np.float64)
             inv_alpha = np.empty(0)  # the literal prediction p = A q
