@@ -68,10 +68,11 @@ after ``max_iter`` iterations in total. Two optimisers (``optimizer``):
     The unconstrained L-BFGS below (two-loop recursion, Armijo
     backtracking) whose curvature pairs carry over between reweighting
     steps. On the firepit + unicorn stack of ``benchmarks/bench_solvers.py``
-    (611k Gaussians, 32 views; load 1.3-1.5) it costs 66.6 ms per iteration
-    of its own time against scipy's 83.2 ms (2.42x and 3.03x two sparse
+    (611k Gaussians, 32 views; load 1.6) it costs 56.8 ms per iteration
+    of its own time against scipy's 67.7 ms (2.49x and 2.97x two sparse
     passes, same run), with the same held-out 2D mIoU (+-0.002) but
-    0.01-0.04 lower 3D IoU on noisy masks at the same iteration budget.
+    0.01-0.04 lower 3D IoU on noisy masks at the same iteration budget
+    (measured before the per-pixel work moved to float32).
 The start is the prior ``q0`` from ``init`` or, without ``init``, the
 closed-form vote (``start="vote"``, one extra transposed pass; it gives
 Gaussians with little evidence the vote's side instead of a coin flip at
