@@ -98,7 +98,7 @@ def main(argv=None) -> int:
         rows = obj.rows[lo:hi]
         yr = y[rows]
         sigma = 2.0 * yr - 1.0
-        w = omega[v] * obj.s[lo:hi] / obj.Z
+        w = omega[v] * (1.0 if obj.s is None else obj.s[lo:hi]) / obj.Z  # s None: unit pixel weights
         per_view.append(((rows - offsets[v]).astype(np.int64), sigma, 1.0 - yr, -sigma * w))
     mats = [vw.W for vw in stack.views]
     halves = _passes._halves(mats)
