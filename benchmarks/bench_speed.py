@@ -15,8 +15,8 @@ same run and on the same machine state:
   against two passes, the set-up apart, its iteration and evaluation
   counts, and its time per iteration split into the sparse products inside
   the solve, the per-pixel work, the set-up and the rest (L-BFGS-B's own
-  work and the glue), each in units of two passes (the graph regulariser that ``solve`` runs after the method is
-  printed apart); voting's own seconds against one transposed pass, and
+  work and the glue), each in units of two passes (the graph regulariser
+  that ``solve`` runs after the method is printed apart); voting's own seconds against one transposed pass, and
   the whole ``solve()`` call (validating the masks and the known weight
   ``A^T k`` that every method shares) beside it;
 * the peak resident memory of the extraction (``VmHWM`` reset before it
@@ -273,7 +273,8 @@ def _print_row(k, r):
           f"A^T r {1e3 * r['adjoint_s']:.1f} ms | weighted_bce {r['iterations']} it, {r['nfev']} evals, "
           f"{r['method_s']:.2f} s (+ regulariser {r['smoothing_s']:.2f} s), {r['ms_per_iter']:.1f} ms/it = "
           f"{r['iter_over_two']:.2f} x two passes (set-up {r['setup_ms']:.0f} ms; after it "
-          f"{r['feval_over_two']:.2f} x two passes per evaluation) = {_split(r)} | voting {1e3 * r['voting_s']:.1f} ms = "
+          f"{r['feval_over_two']:.2f} x two passes per evaluation) = {_split(r)} | "
+          f"voting {1e3 * r['voting_s']:.1f} ms = "
           f"{r['voting_over_adj']:.2f} x one A^T pass (solve() {1e3 * r['voting_solve_s']:.1f} ms)")
     print(f"  peak RSS {'of the extraction' if r['peak_is_extraction_only'] else 'of the process'} "
           f"{r['peak_rss_gb']:.2f} GB | selected {r['selected']}{acc} | load {r['load_start']:.1f} -> "
