@@ -16,9 +16,10 @@ same run and on the same machine state:
   counts, and its time per iteration split into the sparse products inside
   the solve, the per-pixel work, the set-up and the rest (L-BFGS-B's own
   work and the glue), each in units of two passes (the graph regulariser
-  that ``solve`` runs after the method is printed apart); voting's own seconds against one transposed pass, and
-  the whole ``solve()`` call (validating the masks and the known weight
-  ``A^T k`` that every method shares) beside it;
+  that ``solve`` runs after the method is printed apart); voting's own
+  seconds against one transposed pass, and the whole ``solve()`` call
+  (validating the masks and the known weight ``A^T k`` that every method
+  shares) beside it;
 * the peak resident memory of the extraction (``VmHWM`` reset before it
   through ``/proc/self/clear_refs`` where Linux allows, else the process
   peak from ``getrusage``);
