@@ -22,7 +22,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from pathlib import Path
@@ -40,15 +39,14 @@ def main(argv=None) -> int:
     p.add_argument("--rtol", default="1e-5,1e-6",
                    help="CG relative tolerances to compare (comma-separated; 1e-5 is laplacian_smooth's default)")
     args = p.parse_args(argv)
-    if not (bench_speed.DATA / "firepit_562k_sh0.ply").is_file():
-        print(f"bench_smoothing: real scenes not found in {bench_speed.DATA}; set SEED2GS_DATA. Skipped.")
-        return 0
     from seed2gs_inverse.graph import graph_laplacian
     from seed2gs_inverse.pipeline.completion import GRAPH_DEFAULTS, object_graph
     from seed2gs_inverse.solvers import laplacian_smooth, solve
 
-    print(f"machine: {os.cpu_count()} CPUs, load average {bench_speed._load():.1f}")
-    scene, ex = bench_speed.default_extraction(24)
+    extraction = bench_speed.default_extraction("bench_smoothing")
+    if extraction is None:
+        return 0
+    scene, ex = extraction
     stack, masks = ex.operators, ex.masks
     lam = float(ex.result.info["smoothness"])
     # q_hat: the same solve without the regulariser; e: summed weight on known pixels.

@@ -182,11 +182,17 @@ def _problem(views_arg):
     return scene, truth, cam, seed, up, first
 
 
-def default_extraction(views: int = 24):
+def default_extraction(name: str, views: int = 24):
     """``(scene, extraction)``: the firepit + unicorn scene of :func:`_problem` and its extraction with
-    default settings (for benchmarks of the later stages on a real stack)."""
+    default settings, for benchmarks of the later stages on a real stack (``name``, the benchmark, heads
+    the messages). Prints the machine line first; without the real scenes it prints that the benchmark
+    is skipped and returns None."""
     from seed2gs_inverse.pipeline import extract
 
+    if not (DATA / "firepit_562k_sh0.ply").is_file():
+        print(f"{name}: real scenes not found in {DATA}; set SEED2GS_DATA. Skipped.")
+        return None
+    print(f"machine: {os.cpu_count()} CPUs, load average {_load():.1f}")
     scene, _, cam, seed, _, _ = _problem(views)
     return scene, extract(scene, cam, seed, n_views=views, progress=False)
 
