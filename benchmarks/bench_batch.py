@@ -10,7 +10,9 @@ temporary folder, run three ways in the same process:
    like the sequential run: Dask's own overhead),
 3. on an embedded ``LocalCluster`` with 1 worker of one thread (what each
    of 2 workers gets on 2 cores),
-4. on an embedded ``LocalCluster`` with 2 workers.
+4. on an embedded ``LocalCluster`` with 2 workers,
+5. (``--modes ...,2x2``) on 2 workers of two threads each: oversubscribed,
+   so that one worker's single-threaded phases leave its core to the other.
 
 The sequential run already uses both cores (the rasterizer's parallel
 loops, the two-thread sparse passes), so 2 one-thread workers can beat it
@@ -155,8 +157,19 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--views", type=int, default=12, help="views per VAAS clip (default 12)")
     p.add_argument("--n-per-object", type=int, default=3000, help="procedural scene size (default 3000)")
-    p.add_argument("--modes", default="seq,1,1t,2", help="which runs: seq, 1, 1t, 2 (default all)")
+    p.add_argument("--modes", default="seq,1,1t,2",
+                   help="which runs: seq, 1, 1t, 2, and 2x2 (2 workers of two threads each, not run by default); "
+                        "default seq,1,1t,2")
     args = p.parse_args(argv)
+    modes = [m.strip() for m in args.modes.split(",")]
+    known = {"seq": ("sequential (this process, no Dask)", None, None),
+             "1": ("LocalCluster, 1 worker", 1, None),
+             "1t": ("LocalCluster, 1 worker of one thread", 1, 1),
+             "2": ("LocalCluster, 2 workers", 2, None),
+             "2x2": ("LocalCluster, 2 workers of two threads each (oversubscribed)", 2, 2)}
+    unknown = [m for m in modes if m not in known]
+    if unknown:
+        p.error(f"unknown mode(s) {unknown}; choose from {', '.join(known)}")
     if not (DATA / "firepit_562k_sh0.ply").is_file():
         print(f"bench_batch: real scenes not found in {DATA}; set SEED2GS_DATA. Skipped.")
         return 0
@@ -167,13 +180,10 @@ def main(argv=None) -> int:
         jobs, warm, n_proc = make_jobs(tmp, args.views, args.n_per_object)
         print(f"8 jobs: 4 on firepit (561,997 Gaussians, 960x540 overview), 4 on a procedural scene "
               f"({n_proc} Gaussians, 640x480); {args.views} views per clip")
-        modes = [m.strip() for m in args.modes.split(",")]
         runs = {}
         for m in modes:
-            label = {"seq": "sequential (this process, no Dask)", "1": "LocalCluster, 1 worker",
-                     "1t": "LocalCluster, 1 worker of one thread", "2": "LocalCluster, 2 workers"}[m]
-            runs[m] = run_mode(label, jobs, warm, tmp / f"out_{m}", None if m == "seq" else int(m[0]),
-                               1 if m == "1t" else None)
+            label, n_workers, threads = known[m]
+            runs[m] = run_mode(label, jobs, warm, tmp / f"out_{m}", n_workers, threads)
         print("\n== summary")
         base = runs.get("seq")
         for m, r in runs.items():

@@ -110,6 +110,7 @@ def test_summary_files_and_recorded_failures(tiny, dask_client, tmp_path):
     st = {r.name: r for r in results}
     assert st["missing-scene"].status == "failed"
     assert "FileNotFoundError" in st["missing-scene"].error and "nope.ply" in st["missing-scene"].error
+    assert "scene file not found" in st["missing-scene"].error
     assert st["box-outside"].status == "failed"
     assert "ValidationError" in st["box-outside"].error and "outside" in st["box-outside"].error
     assert st["a-mask"].status == st["b-box"].status == "done"
@@ -226,6 +227,119 @@ def test_job_and_runner_arguments_are_validated(tiny):
                                    "options": {"progress": True}}]})
 
 
+def test_output_folders_no_batch_wrote_are_refused_and_kept(tiny, tmp_path):
+    res = tmp_path / "res"
+    (res / "a-mask").mkdir(parents=True)
+    (res / "a-mask" / "mine.txt").write_text("keep")
+    job = _jobs(tiny)[0]
+    for resume in (True, False):
+        with pytest.raises(ValidationError, match=r"a-mask, which no earlier batch there wrote"):
+            extract_many([job], "sequential", output=res, progress=False, resume=resume)
+    assert (res / "a-mask" / "mine.txt").read_text() == "keep"
+    assert sorted(p.name for p in res.iterdir()) == ["a-mask"]
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "summary.json").write_text('{"results": []}')
+    with pytest.raises(ValidationError, match="not the summary of a seed2gs batch"):
+        extract_many([job], "sequential", output=other, progress=False)
+    assert (other / "summary.json").read_text() == '{"results": []}'
+
+
+def test_summary_keeps_earlier_jobs_and_a_failed_rerun_leaves_no_folder(tiny, tmp_path):
+    jobs = _jobs(tiny)[:2]
+    res = tmp_path / "res"
+    extract_many(jobs[:1], "sequential", output=res, progress=False)
+    extract_many(jobs[1:], "sequential", output=res, progress=False)
+
+    def listed():
+        return [(j["name"], j["status"]) for j in json.loads((res / "summary.json").read_text())["jobs"]]
+
+    assert listed() == [("b-box", "done"), ("a-mask", "done")]
+    assert [r.resumed for r in extract_many(jobs, "sequential", output=res, progress=False)] == [True, True]
+    # resume=False replaces the folders the batch wrote
+    rerun = extract_many(jobs[:1], "sequential", output=res, progress=False, resume=False)
+    assert rerun[0].status == "done" and not rerun[0].resumed
+    # A re-run that fails takes the earlier result of that name away: the folders are what the summary
+    # lists as done.
+    bad = Job("a-mask", jobs[0].scene, jobs[0].camera, sgi.BoxPrompt([500, 500, 600, 600]), OPTS)
+    r, = extract_many([bad], "sequential", output=res, progress=False)
+    assert r.status == "failed" and r.outdir is None
+    assert not (res / "a-mask").exists()
+    assert listed() == [("a-mask", "failed"), ("b-box", "done")]
+    assert sorted(p.name for p in res.iterdir() if not p.name.startswith(".")) == ["b-box", "summary.csv",
+                                                                                   "summary.json"]
+
+
+def test_resume_runs_a_job_again_when_an_input_file_changed(tiny, tmp_path):
+    import cv2
+
+    mask = tmp_path / "m.png"
+    m = tiny["a"]["mask"].astype(np.uint8) * 255
+    cv2.imwrite(str(mask), m)
+    job = Job("m", tiny["dir"] / "a.ply", f"{tiny['dir']}/a_cams.json", sgi.MaskPrompt(str(mask)), OPTS)
+    res = tmp_path / "res"
+    assert extract_many([job], "sequential", output=res, progress=False)[0].status == "done"
+    assert extract_many([job], "sequential", output=res, progress=False)[0].resumed
+    cv2.imwrite(str(mask), np.roll(m, 1, axis=1))  # the same path, another mask
+    st = mask.stat()
+    os.utime(mask, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    again = extract_many([job], "sequential", output=res, progress=False)[0]
+    assert again.status == "done" and not again.resumed
+
+
+def test_job_paths_become_absolute_and_values_are_checked_up_front(tiny, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    j = Job("x", "s.ply", "c.json:ref", sgi.MaskPrompt("m.png"), models="models.toml")
+    assert j.scene == str(tmp_path / "s.ply") and j.camera == f"{tmp_path / 'c.json'}:ref"
+    assert j.prompt.mask == str(tmp_path / "m.png") and j.models == str(tmp_path / "models.toml")
+    box = sgi.BoxPrompt([0, 0, 4, 4])
+    for kwargs, words in (({"options": {"n_views": "four"}}, "job 'x': options: n_views"),
+                          ({"options": {"method": "nosuch"}}, "unknown solver method 'nosuch'"),
+                          ({"prompt": sgi.TextPrompt("cup")}, "text prompt needs 'models'"),
+                          ({"prompt": sgi.BoxPrompt([46, 35, 32, 22])}, "need x0 < x1"),
+                          ({"name": "summary.json"}, "taken by the batch")):
+        args = {"name": "x", "scene": "s.ply", "camera": "c.json", "prompt": box, **kwargs}
+        with pytest.raises(ValidationError, match=words):
+            Job(**args)
+    p = tmp_path / "jobs.toml"
+    p.write_text('[[jobs]]\nname="x"\nscene="s.ply"\ncamera="c.json"\nbox=[0,0,5,5]\noptions={n_views=1}')
+    with pytest.raises(ValidationError) as exc:
+        read_jobs(p)
+    assert str(exc.value).startswith(f"{p}: job 'x' (jobs[0]): options: n_views") and "job 'x': job" not in str(
+        exc.value)
+    job = _jobs(tiny)[0]
+    with pytest.raises(ValidationError, match="n_workers must be"):
+        extract_many([job], "sequential", n_workers=0)
+    with pytest.raises(ValidationError, match="does not go with"):
+        extract_many([job], "sequential", n_workers=2)
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="needs Linux's /proc")
+def test_an_output_that_cannot_be_written_fails_before_any_job(tiny, tmp_path):
+    with pytest.raises(ValidationError, match=r"output /proc/seed2gs-res: cannot write in /proc"):
+        extract_many([_jobs(tiny)[0]], "sequential", output="/proc/seed2gs-res", progress=False)
+
+
+def test_a_script_without_a_main_guard_gets_told_how_to_fix_it(tiny, tmp_path):
+    """Embedded workers start by importing the user's script; one that calls extract_many at its top
+    level must fail with the fix in the message, not with a screen of Dask tracebacks only."""
+    import subprocess
+    import sys
+
+    job = _jobs(tiny)[0]
+    script = tmp_path / "unguarded.py"
+    script.write_text(
+        "import seed2gs_inverse as sgi\n"
+        f"job = sgi.Job('x', {job.scene!r}, {job.camera!r}, sgi.BoxPrompt({tiny['a']['box']!r}), {OPTS!r})\n"
+        "sgi.extract_many([job], n_workers=1, progress=False)\n")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    run = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=240, env=env,
+                         cwd=tmp_path)
+    assert run.returncode != 0
+    assert "ValidationError: could not start the embedded Dask workers" in run.stderr
+    assert "if __name__ == \"__main__\":" in run.stderr
+
+
 def test_embedded_cluster_sizes_numba_threads(dask_client):
     info = dask_client.scheduler_info()["workers"]
     assert len(info) == 2 and all(w["nthreads"] == 1 for w in info.values())
@@ -305,4 +419,6 @@ def test_killed_worker_job_is_retried_once(tiny, dask_client, tmp_path):
     assert len(list(always.glob("killed-*"))) == 2  # tried twice, not more
     assert r2.status == "failed" and r2.attempts == 2 and "worker died" in r2.error
     summary = json.loads((tmp_path / "res" / "summary.json").read_text())
-    assert [(j["name"], j["status"], j["attempts"]) for j in summary["jobs"]] == [("dies-twice", "failed", 2)]
+    # this run's job first, then the earlier run's, which the summary keeps
+    assert [(j["name"], j["status"], j["attempts"]) for j in summary["jobs"]] == [("dies-twice", "failed", 2),
+                                                                                 ("dies-once", "done", 2)]

@@ -131,3 +131,40 @@ def test_eval_layout_errors(dataset, tmp_path):
     finally:
         (bad / "sphere.png").unlink()
         bad.rmdir()
+
+
+def test_eval_layout_warnings_and_the_oracle_seed_of_empty_masks(dataset, tmp_path):
+    import shutil
+
+    import cv2
+
+    from seed2gs_inverse.evaluation import read_lerf_mask
+
+    root, _ = dataset
+    data = tmp_path / "data"
+    shutil.copytree(root / "data", data)
+    blocks = data / "blocks" / "test_mask"
+    frames = sorted(p.name for p in blocks.iterdir())
+    # A scene folder without test_mask/ is named, not skipped in silence.
+    (data / "shelf" / "test_mask").rename(data / "shelf" / "test_masks")
+    with pytest.warns(UserWarning, match="skipping shelf: no test_mask"):
+        scenes = read_lerf_mask(data, root / "scenes")
+    assert [s.name for s in scenes] == ["blocks"]
+    # Query names that differ only in case are two objects to the protocol: said so.
+    (blocks / frames[1] / "sphere.png").rename(blocks / frames[1] / "Sphere.png")
+    with pytest.warns(UserWarning, match="'Sphere' and 'sphere' differ only in case"):
+        read_lerf_mask(data, root / "scenes", scenes=["blocks"])
+    (blocks / frames[1] / "Sphere.png").rename(blocks / frames[1] / "sphere.png")
+    # The oracle seed comes from the first frame whose mask marks the object.
+    first = blocks / frames[0] / "sphere.png"
+    shape = cv2.imread(str(first), cv2.IMREAD_GRAYSCALE).shape
+    cv2.imwrite(str(first), np.zeros(shape, np.uint8))
+    sc, = read_lerf_mask(data, root / "scenes", scenes=["blocks"])
+    assert sc.seed_frame("sphere") == frames[1]
+    for f in frames:
+        cv2.imwrite(str(blocks / f / "sphere.png"), np.zeros(shape, np.uint8))
+    sc, = read_lerf_mask(data, root / "scenes", scenes=["blocks"])
+    with pytest.raises(ValidationError, match=r"every ground-truth mask of 'sphere' is empty \(.*sphere\.png"):
+        sc.seed_frame("sphere")
+    with pytest.raises(ValidationError, match="is itself a scene"):
+        read_lerf_mask(data / "blocks", root / "scenes")

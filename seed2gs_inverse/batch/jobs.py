@@ -43,8 +43,8 @@ system), so relative paths are made absolute against the jobs file.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
-import inspect
 import json
 import os
 import re
@@ -68,30 +68,23 @@ _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
 _FORMATS = ("ply", "splat")
 # extract() keywords a job may not set: the runner owns them.
 _RESERVED = {"progress", "grounder", "tracker", "settings"}
+# Names of the runner's own files in the results directory, which no job folder may take.
+_RESERVED_NAMES = {"summary.json", "summary.csv"}
 
 
 def extract_option_names() -> tuple:
     """Names that a job's ``options`` table may hold: the keyword options of ``extract()``.
 
-    Taken from ``ExtractSettings`` when the pipeline has it, else from the
-    signature of :func:`~seed2gs_inverse.pipeline.extract`, so the list never
-    goes stale; ``progress`` (the runner's) is left out.
+    Taken from ``ExtractSettings``, so the list never goes stale;
+    ``progress`` (the runner's) is left out.
     """
-    try:
-        from dataclasses import fields
+    from ..pipeline.settings import ExtractSettings
 
-        from ..pipeline.settings import ExtractSettings  # the settings object, when present
-        names = [f.name for f in fields(ExtractSettings)]
-    except ImportError:
-        from ..pipeline import extract
-
-        params = inspect.signature(extract).parameters.values()
-        names = [p.name for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
-                 and p.name not in ("scene", "camera", "prompt")]
-    return tuple(n for n in names if n not in _RESERVED)
+    return tuple(n for n in ExtractSettings.names() if n not in _RESERVED)
 
 
 def _check_options(options, where: str) -> dict:
+    """The options as a dict, once their names and values are known to be ones ``extract()`` accepts."""
     if not isinstance(options, Mapping):
         raise ValidationError(f"{where}: 'options' must be a table of extract() keywords, "
                               f"got {type(options).__name__}")
@@ -100,6 +93,12 @@ def _check_options(options, where: str) -> dict:
     if unknown:
         raise ValidationError(f"{where}: unknown option(s) {', '.join(map(repr, unknown))}; "
                               f"valid options: {', '.join(valid)}")
+    from ..pipeline.settings import ExtractSettings
+
+    try:  # the values too, here, rather than on a worker after the cluster started
+        ExtractSettings().replace(**options)
+    except ValidationError as exc:
+        raise ValidationError(f"{where}: options: {exc}") from None
     return dict(options)
 
 
@@ -172,27 +171,44 @@ class Job:
     figure: bool = True
 
     def __post_init__(self):
+        from ..frontend.prompts import BoxPrompt, MaskPrompt, TextPrompt
+
         if not isinstance(self.name, str) or not _NAME.match(self.name):
             raise ValidationError(
                 f"job name {self.name!r} is not a valid folder name: use 1-128 letters, digits, "
                 f"'.', '_' or '-', starting with a letter or digit")
         where = f"job {self.name!r}"
+        if self.name.lower() in _RESERVED_NAMES:
+            raise ValidationError(f"{where}: the name is taken by the batch's own {self.name.lower()}; "
+                                  f"choose another")
         if not isinstance(self.scene, (str, os.PathLike)) or not os.fspath(self.scene):
             raise ValidationError(f"{where}: 'scene' must be a file path, got {self.scene!r}")
-        object.__setattr__(self, "scene", os.fspath(self.scene))
+        # Paths become absolute here, against this process's directory: the job may run in a
+        # worker started elsewhere (a shared file system has the same absolute paths).
+        object.__setattr__(self, "scene", os.path.abspath(os.fspath(self.scene)))
         if not isinstance(self.camera, (str, os.PathLike, Camera, Mapping)):
             raise ValidationError(f"{where}: 'camera' must be 'FILE[:NAME]', a Camera or a look-at table, "
                                   f"got {type(self.camera).__name__}")
         if isinstance(self.camera, Mapping):
             _look_at(self.camera, where)  # validate now, not on the worker
+        elif not isinstance(self.camera, Camera):
+            object.__setattr__(self, "camera", _resolve_camera(Path.cwd(), os.fspath(self.camera)))
         _prompt_spec(self.prompt)
+        if isinstance(self.prompt, MaskPrompt) and isinstance(self.prompt.mask, (str, os.PathLike)):
+            object.__setattr__(self, "prompt", dataclasses.replace(
+                self.prompt, mask=os.path.abspath(os.fspath(self.prompt.mask))))
+        if isinstance(self.prompt, BoxPrompt):
+            _check_box(self.prompt.box, where)
         object.__setattr__(self, "options", _check_options(self.options, where))
         if self.format not in _FORMATS:
             raise ValidationError(f"{where}: format must be one of {', '.join(_FORMATS)}, got {self.format!r}")
         if not isinstance(self.figure, bool):
             raise ValidationError(f"{where}: figure must be true or false, got {self.figure!r}")
         if self.models is not None:
-            object.__setattr__(self, "models", os.fspath(self.models))
+            object.__setattr__(self, "models", os.path.abspath(os.fspath(self.models)))
+        elif isinstance(self.prompt, TextPrompt):
+            raise ValidationError(f"{where}: a text prompt needs 'models' (a models configuration with a "
+                                  f"grounder, see docs/models.md); or give a mask, box or point prompt")
 
     # -- what the worker needs ------------------------------------------------
     def extract_kwargs(self) -> dict:
@@ -219,10 +235,27 @@ class Job:
                 "prompt": _prompt_spec(self.prompt), "options": _jsonable(self.options),
                 "models": self.models, "format": self.format, "figure": self.figure}
 
+    def input_files(self) -> dict:
+        """The files the job reads, by role: ``scene``, ``camera`` (unless the camera is
+        given in full), ``mask`` (a mask prompt's image) and ``models``."""
+        from ..frontend.prompts import MaskPrompt
+
+        files = {"scene": self.scene}
+        if isinstance(self.camera, str):
+            files["camera"] = _camera_file(self.camera)
+        if isinstance(self.prompt, MaskPrompt) and isinstance(self.prompt.mask, (str, os.PathLike)):
+            files["mask"] = os.fspath(self.prompt.mask)
+        if self.models is not None:
+            files["models"] = self.models
+        return files
+
     def fingerprint(self) -> str:
-        """SHA-256 of :meth:`to_dict` and the models file's content: resume re-runs a job
-        whose description changed, or whose models configuration was edited in place."""
+        """SHA-256 of :meth:`to_dict`, the size and modification time of each of
+        :meth:`input_files` and the models file's content: resume re-runs a job whose
+        description changed, whose input files were replaced, or whose models configuration
+        was edited in place."""
         d = self.to_dict()
+        d["inputs"] = {role: _stamp(f) for role, f in self.input_files().items() if role != "models"}
         if self.models is not None:
             try:
                 with open(self.models, "rb") as fh:
@@ -231,6 +264,34 @@ class Job:
                 d["models_sha256"] = None  # the job fails on it and is re-run next time
         text = json.dumps(d, sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def _stamp(path: str):
+    """``[size, mtime_ns]`` of a file, None when it cannot be read (the job fails on it and runs again)."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return [st.st_size, st.st_mtime_ns]
+
+
+def _camera_file(spec: str) -> str:
+    """The file of a camera spec ``FILE[:NAME|INDEX]``."""
+    if os.path.exists(spec) or ":" not in spec:
+        return spec
+    return spec.rsplit(":", 1)[0]
+
+
+def _check_box(box, where: str) -> None:
+    try:
+        b = np.asarray(box, dtype=np.float64).ravel()
+    except (TypeError, ValueError):
+        b = np.empty(0)
+    if b.shape != (4,) or not np.all(np.isfinite(b)):
+        raise ValidationError(f"{where}: 'box' must be 4 finite numbers [x0, y0, x1, y1], got {box!r}")
+    if not (b[0] < b[2] and b[1] < b[3]):
+        raise ValidationError(f"{where}: box {b.tolist()} is empty: need x0 < x1 and y0 < y1 "
+                              f"([left, top, right, bottom] in pixels)")
 
 
 def _jsonable(value):
@@ -414,7 +475,10 @@ def jobs_from_table(table: Mapping, base=".", source: str = "jobs") -> list[Job]
                             format=merged.get("format", "ply"), figure=merged.get("figure", True)))
         except ValidationError as exc:
             msg = str(exc)
-            raise ValidationError(msg if msg.startswith(source) else f"{where}: {msg}") from None
+            if not msg.startswith(source):  # Job's own messages start with "job 'name': "
+                own = f"job {name!r}: "
+                msg = f"{where}: {msg[len(own):] if msg.startswith(own) else msg}"
+            raise ValidationError(msg) from None
     return jobs
 
 

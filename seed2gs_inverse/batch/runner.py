@@ -40,6 +40,7 @@ import csv
 import io
 import json
 import logging
+import multiprocessing
 import os
 import sys
 import time
@@ -50,7 +51,7 @@ from ..errors import ValidationError
 from .jobs import Job, read_jobs
 from .worker import JobResult, clear_scene_cache, run_job
 
-__all__ = ["extract_many", "batch_client", "SUMMARY_COLUMNS"]
+__all__ = ["extract_many", "batch_client", "check_output_dir", "SUMMARY_COLUMNS"]
 
 #: Columns of ``summary.csv`` (per-stage seconds follow as ``seconds_<stage>``).
 SUMMARY_COLUMNS = ("name", "status", "n_gaussians", "n_selected", "n_views", "total_seconds", "worker",
@@ -68,6 +69,11 @@ def _has_dashboard() -> bool:
     except ImportError:
         return False
     return True
+
+
+_SPAWN_HINT = ("Worker processes start by importing the script that started them, so a script that calls "
+               "extract_many at its top level starts the batch again in every worker: put that code under "
+               "'if __name__ == \"__main__\":', or run with client=\"sequential\"")
 
 
 @contextmanager
@@ -142,9 +148,15 @@ def batch_client(client=None, n_workers: int | None = None, n_jobs: int | None =
                           "distributed.scheduler.worker-saturation": 1.0,
                           "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
                           "distributed.worker.daemon": False}):
-        cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
-                               dashboard_address=":0",  # a free port: never "8787 is in use"
-                               silence_logs=logging.ERROR, env=env)
+        if getattr(multiprocessing.current_process(), "_inheriting", False):
+            raise ValidationError(_SPAWN_HINT)  # a worker process re-importing the user's script
+        try:
+            cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
+                                   dashboard_address=":0",  # a free port: never "8787 is in use"
+                                   silence_logs=logging.ERROR, env=env)
+        except RuntimeError as exc:
+            reason = str(exc).rstrip(".")
+            raise ValidationError(f"could not start the embedded Dask workers ({reason}). {_SPAWN_HINT}") from exc
         try:
             c = Client(cluster)
             try:
@@ -192,15 +204,62 @@ def _as_jobs(jobs) -> list[Job]:
 # summary files
 # ---------------------------------------------------------------------------
 def _read_summary(output: Path) -> dict:
-    """Previous summary entries by job name ({} when none or unreadable)."""
+    """Entries of the batch summary in ``output`` by job name ({} when there is none).
+
+    Every folder a batch wrote has its entry there, so these are the folders the
+    runner may replace. A ``summary.json`` that is not a batch summary is an error:
+    the directory is someone else's.
+    """
     p = output / "summary.json"
-    if not p.is_file():
+    if not p.exists():
         return {}
     try:
         doc = json.loads(p.read_text("utf-8"))
-        return {d["name"]: d for d in doc.get("jobs", []) if isinstance(d, dict) and "name" in d}
-    except (ValueError, KeyError, AttributeError, TypeError):
-        return {}  # a damaged summary only costs re-running the jobs
+        entries = doc["jobs"]
+        return {d["name"]: d for d in entries if isinstance(d, dict) and isinstance(d.get("name"), str)}
+    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as exc:
+        raise ValidationError(f"{p} is not the summary of a seed2gs batch ({type(exc).__name__}: {exc}); "
+                              f"choose another output directory, or move that file away") from None
+
+
+def check_output_dir(path, what: str = "output") -> Path:
+    """``path`` as a Path once a directory can be written there; else a ValidationError naming it.
+
+    The parent must exist (nothing is created above the output), an existing
+    ``path`` must be a directory, and a file can be created in it (or in its
+    parent, when it does not exist yet): checked by creating and removing a
+    probe file, so that ``/proc/x`` or a read-only mount fails before any work.
+    """
+    import errno
+    import tempfile
+
+    out = Path(os.fspath(path))
+    if not str(path):
+        raise ValidationError(f"{what}: the path is empty")
+    if out.exists() and not out.is_dir():
+        raise ValidationError(f"{what} {out} exists and is not a directory")
+    parent = out.resolve().parent
+    if not parent.is_dir():
+        raise ValidationError(f"{what} {out}: the directory {parent} does not exist (create it first)")
+    where = out if out.is_dir() else parent
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".seed2gs-write-check.", dir=where)
+    except OSError as exc:
+        reason = exc.strerror or errno.errorcode.get(exc.errno, type(exc).__name__)
+        raise ValidationError(f"{what} {out}: cannot write in {where} ({reason})") from None
+    os.close(fd)
+    os.unlink(probe)
+    return out
+
+
+def _remove_folder(path: Path) -> None:
+    """Take a job folder out of the results at once (a rename), then delete it."""
+    import shutil
+    import tempfile
+
+    old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent))
+    os.replace(path, old / "previous")
+    shutil.rmtree(old, ignore_errors=True)
 
 
 def _write_summary(output: Path, results: list, meta: dict) -> None:
@@ -246,7 +305,13 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
     output : path, optional
         Results directory (created if its parent exists): one folder per
         job plus ``summary.csv`` / ``summary.json``. None writes nothing and
-        keeps each job's ``q`` in its result.
+        keeps each job's ``q`` in its result. The summary keeps the entries
+        of earlier runs' jobs that this run does not name. A folder is only
+        replaced when the summary lists it (a batch wrote it): an existing
+        ``output/<name>`` that it does not list is an error, as is a
+        ``summary.json`` that is not a batch's. A job that fails leaves no
+        folder (one from an earlier run of that name is removed), so the
+        folders are exactly the jobs the summary lists as done.
     n_workers : int, optional
         Worker processes of the embedded cluster.
     threads_per_worker : int, optional
@@ -273,6 +338,11 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
     jobs = _as_jobs(jobs)
     if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
         raise ValidationError(f"retries must be a whole number >= 0, got {retries!r}")
+    if n_workers is not None and (isinstance(n_workers, bool) or not isinstance(n_workers, int) or n_workers < 1):
+        raise ValidationError(f"n_workers must be a whole number >= 1, got {n_workers!r}")
+    if n_workers is not None and client is not None:
+        raise ValidationError("n_workers sizes the embedded cluster; it does not go with a client, "
+                              "a scheduler address or 'sequential'")
     if progress is None:
         progress = bool(getattr(sys.stderr, "isatty", lambda: False)())
     if log is None:
@@ -281,16 +351,21 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
                 print(msg, file=sys.stderr)
 
     out = None
-    previous = {}
+    owned = {}  # summary entries of earlier runs: the folders the batch wrote
+    created = False
     if output is not None:
-        out = Path(output)
-        if out.exists() and not out.is_dir():
-            raise ValidationError(f"output {out} exists and is not a directory")
-        if not out.resolve().parent.is_dir():
-            raise ValidationError(f"cannot create {out}: parent directory {out.resolve().parent} does not exist")
-        out.mkdir(exist_ok=True)
+        out = check_output_dir(output)
+        created = not out.exists()
         out = out.resolve()  # workers may run elsewhere: give them an absolute path
-        previous = _read_summary(out) if resume else {}
+        owned = _read_summary(out)
+        foreign = [j.name for j in jobs if j.name not in owned and (out / j.name).exists()]
+        if foreign:
+            raise ValidationError(
+                f"output {out} already holds {', '.join(foreign)}, which no earlier batch there wrote "
+                f"(not in its summary.json): move {'it' if len(foreign) == 1 else 'them'} away, rename the "
+                f"job{'' if len(foreign) == 1 else 's'}, or choose another output directory")
+        out.mkdir(exist_ok=True)
+    previous = owned if resume else {}
 
     results: dict = {}
     todo = []
@@ -303,6 +378,8 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
             results[job.name] = r
         else:
             todo.append(job)
+    names = {j.name for j in jobs}
+    kept = [JobResult.from_dict(d) for n, d in owned.items() if n not in names]  # jobs this run does not name
     # Grouped by scene, first-seen order: each worker then meets each scene once.
     order = {}
     for job in todo:
@@ -310,6 +387,9 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
     todo.sort(key=lambda j: order[j.scene])
 
     meta = {"n_jobs": len(jobs), "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "where": None}
+
+    def summary():
+        _write_summary(out, [results[j.name] for j in jobs if j.name in results] + kept, meta)
 
     def record(res: JobResult):
         results[res.name] = res
@@ -319,7 +399,9 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
             if n_failed:
                 bar.set_postfix(failed=n_failed)
         if out is not None:
-            _write_summary(out, [results[j.name] for j in jobs if j.name in results], meta)
+            if res.status != "done" and (out / res.name).is_dir() and res.name in owned:
+                _remove_folder(out / res.name)  # an earlier run's result for another description
+            summary()
 
     bar = None
     if progress:
@@ -342,11 +424,16 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
                 if link:
                     log(f"Dask dashboard: {link}")
                 _run_on_dask(c, todo, out, retries, record)
+    except BaseException:
+        # Nothing ran (no cluster, no scheduler): leave no empty results directory behind.
+        if created and out is not None and not any(out.iterdir()):
+            out.rmdir()
+        raise
     finally:
         if bar is not None:
             bar.close()
     if out is not None and not todo:
-        _write_summary(out, [results[j.name] for j in jobs], meta)
+        summary()
     return [results[j.name] for j in jobs]
 
 

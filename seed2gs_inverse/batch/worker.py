@@ -224,10 +224,12 @@ def job_models(path):
         return _models[key]
 
 
-def _error_text(exc: BaseException) -> str:
+def _error_text(exc: BaseException, job=None) -> str:
     msg = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
     if isinstance(exc, FileNotFoundError) and exc.filename:
-        msg = f"no such file: {exc.filename}"
+        roles = {} if job is None else {f: role for role, f in job.input_files().items()}
+        role = roles.get(os.fspath(exc.filename))
+        msg = f"{role} file not found: {exc.filename}" if role else f"no such file: {exc.filename}"
     return f"{type(exc).__name__}: {msg}" if msg else type(exc).__name__
 
 
@@ -285,7 +287,7 @@ def run_job(job, output=None, attempt: int = 1) -> JobResult:
         seconds["write"] = time.perf_counter() - t0
         res.status = "done"
     except Exception as exc:  # noqa: BLE001 - every job error is recorded, none stops the batch
-        res.error = _error_text(exc)
+        res.error = _error_text(exc, job)
         if os.environ.get("SEED2GS_BATCH_TRACEBACK"):
             traceback.print_exc(file=sys.stderr)
     res.seconds = seconds

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 from ._batch import add_cluster_arguments, client_from_args
 
@@ -27,7 +28,11 @@ def _add_arguments(q, name: str) -> None:
                            "test frame; the file is checked before anything runs")
     q.add_argument("--only", nargs="+", metavar="SCENE", default=None, help="evaluate only these scenes")
     q.add_argument("--views", type=int, default=None, help="views per VAAS clip (default: extract's, 24)")
-    q.add_argument("--method", default=None, help="solver (default: extract's, weighted_bce)")
+    from ..solvers import available_methods
+
+    methods = available_methods()
+    q.add_argument("--method", default=None, choices=methods, metavar="METHOD",
+                   help=f"solver: {', '.join(methods)} (default: extract's, weighted_bce)")
     add_cluster_arguments(q)
     q.add_argument("--no-resume", action="store_true", help="extract every query again")
     q.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -77,7 +82,7 @@ def run_eval(args) -> int:
         print(f"{s['scene']:<20} {100 * s['miou']:7.1f} {100 * s['mbiou']:7.1f}  {s['n_queries']}"
               + (f" ({s['n_failed']} failed)" if s["n_failed"] else ""))
     o = report["overall"]
-    print(f"{'overall':<20} {100 * o['miou']:7.1f} {100 * o['mbiou']:7.1f}  -> {args.output}/per_query.csv")
+    print(f"{'overall':<20} {100 * o['miou']:7.1f} {100 * o['mbiou']:7.1f}  -> {Path(args.output) / 'per_query.csv'}")
     for name, err in report["failed"].items():
         print(f"  failed {name}: {err}", file=sys.stderr)
     return 1 if report["failed"] else 0

@@ -41,6 +41,7 @@ import io
 import json
 import os
 import re
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -83,13 +84,26 @@ class LerfScene:
     cameras: dict
     gt: dict = field(default_factory=dict)
     gt_threshold: int = 128
+    _seeds: dict = field(default_factory=dict, repr=False, compare=False)
 
     def seed_frame(self, query: str) -> str:
-        """The first frame that has a ground-truth mask of ``query``."""
-        for f in self.frames:
-            if (f, query) in self.gt:
-                return f
-        raise ValidationError(f"scene {self.name}: no frame has a mask of {query!r}")
+        """The first frame whose ground-truth mask of ``query`` marks the object (not empty).
+
+        Raises
+        ------
+        ValidationError
+            No frame has a mask of ``query``, or every one is empty (the files are named).
+        """
+        if query not in self._seeds:
+            have = [f for f in self.frames if (f, query) in self.gt]
+            if not have:
+                raise ValidationError(f"scene {self.name}: no frame has a mask of {query!r}")
+            self._seeds[query] = next((f for f in have if self.read_gt(f, query).any()), None)
+            if self._seeds[query] is None:
+                files = ", ".join(str(self.gt[(f, query)]) for f in have[:3]) + (" ..." if len(have) > 3 else "")
+                raise ValidationError(f"scene {self.name}: every ground-truth mask of {query!r} is empty "
+                                      f"({files}); the oracle seed needs a frame that marks the object")
+        return self._seeds[query]
 
     def reference_frame(self, query: str, oracle_seed: bool) -> str:
         """Where ``query`` is extracted from: :meth:`seed_frame` for the oracle seed,
@@ -185,13 +199,21 @@ def _scene_names(data_dir: Path, scenes_dir: Path, scenes, marker: str, layout: 
         if not d.is_dir():
             raise ValidationError(f"{what} {d} is not a directory")
     names = sorted(p.name for p in data_dir.iterdir() if (p / marker).exists())
+    if scenes is None and names:
+        skipped = sorted(p.name for p in data_dir.iterdir()
+                         if p.is_dir() and not p.name.startswith(".") and p.name not in names)
+        if skipped:
+            warnings.warn(f"{data_dir}: skipping {', '.join(skipped)}: no {marker} (not a {layout} scene)",
+                          stacklevel=3)
     if scenes is not None:
         missing = sorted(set(scenes) - set(names))
         if missing:
             raise ValidationError(f"{data_dir}: no scene(s) {missing} with {marker}; found {names}")
         names = [n for n in names if n in set(scenes)]
     if not names:
-        raise ValidationError(f"{data_dir}: no {layout} found")
+        hint = (f"; {data_dir} is itself a scene: give the folder that holds it"
+                if (data_dir / marker).exists() else "")
+        raise ValidationError(f"{data_dir}: no {layout} found{hint}")
     return names
 
 
@@ -242,6 +264,13 @@ def read_lerf_mask(data_dir, scenes_dir, scenes=None) -> list:
                 raise ValidationError(f"{where}: masks of one frame differ in size: {shapes}")
             cameras[f] = _at_size(_frame_camera(f, cams, test, where), next(iter(shapes.values())), where)
         frames = [f for f in frames if f in cameras]
+        by_case = {}
+        for q in sorted(queries):
+            by_case.setdefault(q.casefold(), []).append(q)
+        for same in (v for v in by_case.values() if len(v) > 1):
+            warnings.warn(f"{root / 'test_mask'}: queries {' and '.join(map(repr, same))} differ only in case "
+                          f"and are scored as different objects; if they are one, rename the mask files",
+                          stacklevel=2)
         out.append(LerfScene(name, _scene_file(scenes_dir, name), frames, sorted(queries), cameras, gt))
     return out
 
@@ -409,12 +438,9 @@ def evaluate_lerf_mask(data_dir, scenes_dir, output, *, oracle_seed: bool | None
 
 
 def _check_output(output) -> Path:
-    out = Path(output)
-    if not out.resolve().parent.is_dir():
-        raise ValidationError(f"cannot create {out}: parent directory {out.resolve().parent} does not exist")
-    if out.exists() and not out.is_dir():
-        raise ValidationError(f"output {out} exists and is not a directory")
-    return out
+    from ..batch.runner import check_output_dir
+
+    return check_output_dir(output)
 
 
 def evaluate_scenes(dataset, output, *, oracle_seed: bool | None = None, models=None, options=None,
