@@ -147,6 +147,10 @@ def atomic_path(target, directory: bool = False):
     """
     target = Path(target)
     parent = target.parent if str(target.parent) else Path(".")
+    if not parent.is_dir():  # say so with the caller's path, not with a temporary name inside it
+        from .errors import ValidationError
+
+        raise ValidationError(f"{target}: the directory {parent} does not exist (create it first)")
     clean_stale_temps(target)
     prefix = _temp_prefix(target.name)
     if directory:
@@ -163,16 +167,24 @@ def atomic_path(target, directory: bool = False):
         os.chmod(tmp, mode & ~_umask())
         if directory and target.exists():
             old = Path(tempfile.mkdtemp(prefix=prefix, suffix=".old", dir=parent))
-            os.replace(target, old / "previous")
+            try:
+                os.replace(target, old / "previous")
+            except BaseException:
+                old.rmdir()  # still empty: the target stays where it was
+                raise
             os.replace(tmp, target)
             shutil.rmtree(old, ignore_errors=True)
         else:
             os.replace(tmp, target)
-    except BaseException:
+    except BaseException as exc:
         if directory:
             shutil.rmtree(tmp, ignore_errors=True)
         elif tmp.exists():
             tmp.unlink()
+        if isinstance(exc, OSError) and exc.errno is not None and (
+                exc.filename is None or os.fspath(exc.filename).startswith(os.fspath(tmp))):
+            # a full disk or a refused rename: name what was being written, not its temporary
+            raise OSError(exc.errno, f"{exc.strerror or exc} while writing {target}") from exc
         raise
 
 

@@ -158,3 +158,36 @@ def test_old_directory_kept_when_it_holds_the_only_copy(tmp_path):
     target.mkdir()
     with pytest.warns(UserWarning):
         assert _atomic.clean_stale_temps(target) == [old_dir]
+
+
+def test_errors_name_the_target_not_its_temporary(tmp_path, monkeypatch):
+    import errno
+
+    from seed2gs_inverse.errors import ValidationError
+
+    with pytest.raises(ValidationError, match=r"x\.ply: the directory .*nodir does not exist"):
+        with atomic_path(tmp_path / "nodir" / "x.ply"):
+            pass
+    target = tmp_path / "out.bin"
+    with pytest.raises(OSError) as exc:
+        with atomic_path(target) as tmp:
+            raise OSError(errno.ENOSPC, "No space left on device", str(tmp))  # what a full disk raises
+    assert exc.value.errno == errno.ENOSPC and str(target) in str(exc.value) and ".tmp" not in str(exc.value)
+    assert list(tmp_path.iterdir()) == []
+    # A directory that cannot be moved aside (here: a rename refused) stays, and no '.old' is left.
+    (tmp_path / "d").mkdir()
+    (tmp_path / "d" / "keep").write_text("x")
+    real = os.replace
+
+    def refuse(src, dst):
+        if os.fspath(src) == os.fspath(tmp_path / "d"):
+            raise OSError(errno.EBUSY, "Device or resource busy", os.fspath(src))
+        return real(src, dst)
+
+    monkeypatch.setattr(_atomic.os, "replace", refuse)
+    with pytest.raises(OSError, match="busy"):
+        with atomic_path(tmp_path / "d", directory=True) as tmp:
+            (tmp / "new").write_text("y")
+    monkeypatch.undo()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d"]
+    assert (tmp_path / "d" / "keep").read_text() == "x"

@@ -296,12 +296,16 @@ def test_job_paths_become_absolute_and_values_are_checked_up_front(tiny, tmp_pat
     for kwargs, words in (({"options": {"n_views": "four"}}, "job 'x': options: n_views"),
                           ({"options": {"method": "nosuch"}}, "unknown solver method 'nosuch'"),
                           ({"prompt": sgi.TextPrompt("cup")}, "text prompt needs 'models'"),
-                          ({"prompt": sgi.BoxPrompt([46, 35, 32, 22])}, "need x0 < x1"),
                           ({"name": "summary.json"}, "taken by the batch")):
         args = {"name": "x", "scene": "s.ply", "camera": "c.json", "prompt": box, **kwargs}
         with pytest.raises(ValidationError, match=words):
             Job(**args)
+    with pytest.raises(ValidationError, match="need x0 < x1"):  # a prompt is checked when made
+        sgi.BoxPrompt([46, 35, 32, 22])
     p = tmp_path / "jobs.toml"
+    p.write_text('[[jobs]]\nname="x"\nscene="s.ply"\ncamera="c.json"\nbox=[46,35,32,22]')
+    with pytest.raises(ValidationError, match=r"job 'x' \(jobs\[0\]\): box .* is empty"):
+        read_jobs(p)
     p.write_text('[[jobs]]\nname="x"\nscene="s.ply"\ncamera="c.json"\nbox=[0,0,5,5]\noptions={n_views=1}')
     with pytest.raises(ValidationError) as exc:
         read_jobs(p)

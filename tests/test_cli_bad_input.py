@@ -42,6 +42,8 @@ def files(tmp_path_factory):
     np.save(d / "truth.npy", syn.labels == 2)
     (d / "afile").write_text("not a directory")
     (d / "exists").mkdir()
+    (d / "userdir").mkdir()
+    (d / "userdir" / "mine.txt").write_text("keep")
     (d / "exists.ply").write_bytes(b"")
     (d / "exists.png").write_bytes(b"")
     (d / "exists.npy").write_bytes(b"")
@@ -52,6 +54,8 @@ def files(tmp_path_factory):
     (d / "garbage.ply").write_bytes(b"ply\nformat nonsense\n")
     (d / "not_a_report.json").write_text(json.dumps({"n_selected": 3}))
     (d / "text.png").write_text("not an image")
+    np.save(d / "objects.npy", np.array([{"a": 1}], dtype=object), allow_pickle=True)  # a pickle inside
+    np.save(d / "short.npy", np.ones(3, bool))
     return d
 
 
@@ -72,6 +76,13 @@ BAD = [
     (EXTRACT + ["-o", "{d}/no/such/dir/out"], "the directory {d}/no/such/dir does not exist"),
     (EXTRACT + ["-o", "{d}/exists"], "-o {d}/exists exists; use --force"),
     (EXTRACT + ["-o", "{d}/exists.ply", "--force"], "exists and is not a directory"),
+    # --force replaces an earlier output, never a folder of the user's files or the working directory
+    (EXTRACT + ["-o", "{d}/userdir", "--force"], "-o {d}/userdir exists and is not an earlier output of this "
+                                                 "command (no report.json)"),
+    (EXTRACT + ["-o", ".", "--force"], "-o . is the current directory or holds it"),
+    (["compare", "{d}/ops", "{d}/masks", "--truth", "{d}/truth.npy", "-o", "{d}/userdir", "--force"],
+     "no comparison.json"),
+    (["demo", "-o", "{d}/userdir", "--force"], "no report.json"),
     (["extract", "{d}/scene.ply", "--camera", "{d}/cameras.json", "--mask", "{d}/nomask.png", "-o", "{d}/o"],
      "--mask {d}/nomask.png: no such file"),
     (["extract", "{d}/scene.ply", "--camera", "{d}/cameras.json", "--mask", "{d}/text.png", "-o", "{d}/o"],
@@ -96,6 +107,12 @@ BAD = [
     (EXTRACT + ["--option", "max_iterations=3", "-o", "{d}/o"], "has no option(s) ['max_iterations']"),
     (EXTRACT + ["--option", "max_iter=1000000000", "-o", "{d}/o"], "max_iter must be in 1..100,000"),
     (EXTRACT + ["--option", "oops", "-o", "{d}/o"], "--option must look like NAME=VALUE"),
+    (EXTRACT + ["--option", "lam=null", "-o", "{d}/o"], "option lam must be a finite number, got None"),
+    (EXTRACT + ["--option", "reweight=\"no\"", "-o", "{d}/o"], "option reweight must be true or false"),
+    (["solve", "{d}/ops", "{d}/masks", "--option", "ftol=-1", "-o", "{d}/q.npy"],
+     "ftol must be a finite number >= 0"),
+    (["solve", "{d}/ops", "{d}/masks", "--method", "least_squares", "--option", "tol=1e400", "-o", "{d}/q.npy"],
+     "option tol must be a finite number, got inf"),
     (EXTRACT + ["--frobnicate", "-o", "{d}/o"], "unrecognized arguments: --frobnicate"),
     (["extract", "{d}/scene.ply", "--camera", "{d}/cameras.json", "-o", "{d}/o"], "give a prompt"),
     (["extract", "{d}/scene.ply", "--mask", "{d}/mask.png", "-o", "{d}/o"], "--camera FILE[:NAME|INDEX]"),
@@ -138,6 +155,10 @@ BAD = [
     (["compare", "{d}/ops", "{d}/masks", "--truth", "{d}/truth.npy", "--methods", "voting,nope"],
      "--methods: unknown method 'nope'"),
     (["compare", "{d}/ops", "{d}/masks", "--truth", "{d}/truth.npy", "-o", "{d}/exists"], "exists; use --force"),
+    (["compare", "{d}/ops", "{d}/masks", "--truth", "{d}/mask.png"], "mask.png: not a .npy file"),
+    (["compare", "{d}/ops", "{d}/masks", "--truth", "{d}/objects.npy"], "objects.npy: holds Python objects"),
+    (["compare", "{d}/ops", "{d}/masks", "--truth", "{d}/short.npy"], "3 labels in shape (3,)"),
+    (["compare", "{d}/ops", "{d}/masks", "--truth", "{d}/truth.npy", "--holdout-every", 1], "--holdout-every 1:"),
     (["operators", "build", "{d}/scene.ply", "--cameras", "{d}/cameras.json", "-o", "/proc/ops"],
      "cannot write in /proc"),
     (["operators", "build", "{d}/scene.ply", "--cameras", "{d}/cameras.json", "-o", "{d}/exists"],

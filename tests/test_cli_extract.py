@@ -243,3 +243,22 @@ def test_from_report_of_an_older_run_keeps_its_behaviour(files, capsys, tmp_path
     assert rep2["settings"]["seed_connected"] is False and rep2["settings"]["support_background"] is False
     assert rep2["settings"]["solver_options"] == {"max_iter": 30}
     assert rep2["resolved"]["solver_options"] == {"max_iter": 30}
+
+
+def test_an_empty_selection_is_said_and_splat_outputs_skip_empty_parts(files, capsys, tmp_path):
+    """Nothing selected: the run still writes q.npy and report.json, warns instead of calling the object
+    invisible, and leaves out the .splat of the empty part (an empty .splat cannot be read back)."""
+    from seed2gs_inverse.io import read_scene
+
+    d = files["dir"]
+    out = tmp_path / "empty"
+    rc = _run(["extract", d / "scene.ply", "--camera", f"{d / 'cameras.json'}:0", "--mask", d / "mask.png",
+               "-o", out, "--views", 4, "--threshold", 0.99999999, "--format", "splat", "--no-progress"])
+    err = capsys.readouterr().err
+    assert rc == 0, err
+    assert "nothing was selected" in err and "lower --threshold" in err
+    assert "object is empty (0 Gaussians): object.splat is not written" in err
+    assert sorted(p.name for p in out.iterdir()) == ["q.npy", "remainder.splat", "report.json", "report.png"]
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["outputs"] == {"object": None, "remainder": "remainder.splat", "q": "q.npy"}
+    assert rep["n_selected"] == 0 and len(read_scene(out / "remainder.splat")) == len(files["syn"].scene)

@@ -746,3 +746,34 @@ def test_weighted_bce_start_and_stability_options_are_validated(rng):
     for bad in ({"start": "random"}, {"stable_iters": -1}, {"stable_iters": 1.5}, {"stable_tol": 1.0}):
         with pytest.raises(ValidationError, match="weighted_bce"):
             solve(mats, masks, method="weighted_bce", **bad)
+
+
+@pytest.mark.parametrize("method, bad", [
+    ("weighted_bce", {"lam": None}), ("weighted_bce", {"r_min": "abc"}), ("weighted_bce", {"eps": [1]}),
+    ("weighted_bce", {"alpha_min": float("inf")}), ("weighted_bce", {"alpha_min": 1.0}),
+    ("weighted_bce", {"ftol": -1.0}), ("weighted_bce", {"gtol": float("nan")}), ("weighted_bce", {"weight_tol": -1}),
+    ("weighted_bce", {"reweight": "no"}), ("weighted_bce", {"normalize": 1}), ("weighted_bce", {"max_iter": 2.0}),
+    ("least_squares", {"tol": None}), ("least_squares", {"tol": -1.0}), ("least_squares", {"power_iters": 0}),
+    ("least_squares", {"algorithm": 3}),
+    ("beta_bernoulli", {"a0": None}), ("beta_bernoulli", {"b0": 0}), ("beta_bernoulli", {"budget": 2.5}),
+    ("voting", {"bias": None}), ("voting", {"bias": True}), ("voting", {"bias": 1.0}),
+])
+def test_option_values_are_checked_before_any_work(rng, method, bad):
+    """Every option value a method cannot take is a ValidationError naming it, from the up-front check that
+    solve(), ExtractSettings and the CLI share: never a TypeError from inside the method."""
+    from seed2gs_inverse.pipeline.settings import ExtractSettings
+    from seed2gs_inverse.solvers import check_method_options
+
+    name = next(iter(bad))
+    with pytest.raises(ValidationError, match=name):
+        check_method_options(method, bad)
+    with pytest.raises(ValidationError, match=name):
+        ExtractSettings(method=method, solver_options=bad)
+    mats, masks = _random_problem(rng)
+    with pytest.raises(ValidationError, match=name):
+        solve(mats, masks, method=method, **bad)
+    # the method checks its own arguments the same way when called directly
+    from seed2gs_inverse.solvers import get_method, prepare
+
+    with pytest.raises(ValidationError, match=name):
+        get_method(method)(prepare(mats, masks), **bad)

@@ -171,7 +171,7 @@ class Job:
     figure: bool = True
 
     def __post_init__(self):
-        from ..frontend.prompts import BoxPrompt, MaskPrompt, TextPrompt
+        from ..frontend.prompts import MaskPrompt, TextPrompt
 
         if not isinstance(self.name, str) or not _NAME.match(self.name):
             raise ValidationError(
@@ -197,8 +197,6 @@ class Job:
         if isinstance(self.prompt, MaskPrompt) and isinstance(self.prompt.mask, (str, os.PathLike)):
             object.__setattr__(self, "prompt", dataclasses.replace(
                 self.prompt, mask=os.path.abspath(os.fspath(self.prompt.mask))))
-        if isinstance(self.prompt, BoxPrompt):
-            _check_box(self.prompt.box, where)
         object.__setattr__(self, "options", _check_options(self.options, where))
         if self.format not in _FORMATS:
             raise ValidationError(f"{where}: format must be one of {', '.join(_FORMATS)}, got {self.format!r}")
@@ -280,18 +278,6 @@ def _camera_file(spec: str) -> str:
     if os.path.exists(spec) or ":" not in spec:
         return spec
     return spec.rsplit(":", 1)[0]
-
-
-def _check_box(box, where: str) -> None:
-    try:
-        b = np.asarray(box, dtype=np.float64).ravel()
-    except (TypeError, ValueError):
-        b = np.empty(0)
-    if b.shape != (4,) or not np.all(np.isfinite(b)):
-        raise ValidationError(f"{where}: 'box' must be 4 finite numbers [x0, y0, x1, y1], got {box!r}")
-    if not (b[0] < b[2] and b[1] < b[3]):
-        raise ValidationError(f"{where}: box {b.tolist()} is empty: need x0 < x1 and y0 < y1 "
-                              f"([left, top, right, bottom] in pixels)")
 
 
 def _jsonable(value):

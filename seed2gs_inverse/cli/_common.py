@@ -39,7 +39,7 @@ def _default_views() -> int:
 DEFAULT_VIEWS = _default_views()
 
 
-def check_output(path, option: str, *, directory: bool = False, force: bool = False) -> Path:
+def check_output(path, option: str, *, directory: bool = False, force: bool = False, marker: str | None = None) -> Path:
     """``path`` as a Path once it is known that the command can write it; else a ValidationError.
 
     Called before any expensive work, so that a typo fails at once and the
@@ -50,7 +50,12 @@ def check_output(path, option: str, *, directory: bool = False, force: bool = Fa
     * a file can be created in it (``-o /proc/x`` fails here, not after
       the whole pipeline), checked by creating and removing a probe file;
     * an existing ``path`` is replaced only with ``force`` (the same rule for
-      every command), and only by the same kind (file or directory).
+      every command), and only by the same kind (file or directory);
+    * a directory is never replaced when it is the current directory or
+      holds it, nor, when the command names its ``marker`` file (the file
+      every output of the command holds, e.g. ``report.json``), when it is
+      neither empty nor an earlier output: ``--force`` replaces the
+      command's own output, never a folder of the user's files.
     """
     p = Path(os.fspath(path))
     if not str(path):
@@ -77,6 +82,15 @@ def check_output(path, option: str, *, directory: bool = False, force: bool = Fa
             raise ValidationError(f"{option} {path} is a directory; give a file name")
         if not force:
             raise ValidationError(f"{option} {path} exists; use --force to replace it")
+        if directory:
+            target, here = p.resolve(), Path.cwd().resolve()
+            if target == here or target in here.parents:
+                raise ValidationError(f"{option} {path} is the current directory or holds it; "
+                                      f"give a new directory")
+            if marker is not None and any(p.iterdir()) and not (p / marker).is_file():
+                raise ValidationError(f"{option} {path} exists and is not an earlier output of this command "
+                                      f"(no {marker}); --force only replaces those: remove it yourself or "
+                                      f"choose another path")
     return p
 
 

@@ -13,6 +13,7 @@ import hashlib
 import json
 import os
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -204,14 +205,22 @@ def write_outputs(extraction, outdir, fmt: str = "ply", force: bool = False, fig
     from ..io import write_scene
     from ..pipeline.report import seed_summary
 
-    out = check_output(outdir, "-o", directory=True, force=force)
+    out = check_output(outdir, "-o", directory=True, force=force, marker="report.json")
     with atomic_path(out, directory=True) as tmp:
-        write_scene(tmp / f"object.{fmt}", extraction.object_scene())
-        write_scene(tmp / f"remainder.{fmt}", extraction.remainder_scene())
+        outputs = {}
+        for part, subset in (("object", extraction.object_scene()), ("remainder", extraction.remainder_scene())):
+            if len(subset) == 0 and fmt == "splat":
+                # .splat has no header: an empty file could not be read back as a scene
+                warnings.warn(f"the {part} is empty (0 Gaussians): {part}.splat is not written "
+                              f"(report.json's outputs say so); q.npy and report.json are", stacklevel=2)
+                outputs[part] = None
+                continue
+            write_scene(tmp / f"{part}.{fmt}", subset)
+            outputs[part] = f"{part}.{fmt}"
         np.save(tmp / "q.npy", np.asarray(extraction.q, np.float32), allow_pickle=False)
         report = extraction.report()
         report["seed"] = seed_summary(extraction)
-        report["outputs"] = {"object": f"object.{fmt}", "remainder": f"remainder.{fmt}", "q": "q.npy"}
+        report["outputs"] = {**outputs, "q": "q.npy"}
         if run_info is not None:
             report["run"] = run_info
         with open(tmp / "report.json", "w") as fh:
@@ -341,7 +350,7 @@ def run(args) -> int:
     from ..pipeline import extract
 
     # Everything cheap first: outputs, settings, inputs; the expensive work last.
-    out = check_output(args.output, "-o", directory=True, force=args.force)
+    out = check_output(args.output, "-o", directory=True, force=args.force, marker="report.json")
     recorded = None
     if args.from_report is not None:
         scene_path, camera, spec, prompt, settings, models_path, fmt, recorded = _from_report(args)
@@ -406,7 +415,11 @@ def run(args) -> int:
           + ", ".join(f"{k} {v:.2f}" for k, v in s.items())
           + ("" if run_info["peak_rss_mb"] is None else f"; peak memory {run_info['peak_rss_mb'] / 1024:.2f} GB")
           + ")")
-    print(seed_summary_line(seed_summary(ex)))
+    if int(ex.selected.sum()) == 0:
+        print(f"warning: nothing was selected (the largest q is {float(np.max(ex.q, initial=0.0)):.3f}, the "
+              f"threshold {ex.threshold:.3f}): lower --threshold, or check the seed in report.png", file=sys.stderr)
+    else:
+        print(seed_summary_line(seed_summary(ex)))
     if models is None:  # with models, SAM2 would have tracked even a mask/box/point seed
         print("note: no models configured; the seed was tracked by the model-free tracker",
               file=sys.stderr)

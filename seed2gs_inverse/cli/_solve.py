@@ -57,9 +57,22 @@ def register(subparsers) -> None:
 
 
 def _load_npy(path: Path) -> np.ndarray:
+    """A numeric array from a ``.npy`` file; never unpickles (numpy's own message would suggest it)."""
+    try:
+        with open(path, "rb") as fh:
+            magic = fh.read(6)
+    except OSError as exc:
+        raise FormatError(f"{path}: cannot read it ({exc.strerror or exc})") from None
+    if magic != b"\x93NUMPY":
+        raise FormatError(f"{path}: not a .npy file (write the array with numpy.save)")
     try:
         return np.load(path, allow_pickle=False)
-    except (ValueError, OSError, EOFError) as exc:
+    except ValueError as exc:
+        if "allow_pickle" in str(exc):
+            raise FormatError(f"{path}: holds Python objects, which are never loaded; save a numeric or "
+                              f"boolean array") from None
+        raise FormatError(f"{path}: not a readable .npy array ({exc})") from None
+    except (OSError, EOFError) as exc:
         raise FormatError(f"{path}: not a readable .npy array ({exc})") from None
 
 
@@ -96,10 +109,10 @@ def solve_command(args) -> int:
 
 
 def compare_command(args) -> int:
-    from ..compare import compare
+    from ..compare import compare, holdout_views
     from ..io import read_masks
     from ..operators import OperatorStack
-    from .._atomic import write_files
+    from .._atomic import atomic_path
     from ..solvers import available_methods
 
     methods = [m.strip() for m in args.methods.split(",") if m.strip()] if args.methods else None
@@ -109,15 +122,22 @@ def compare_command(args) -> int:
     if methods is not None and not methods:
         raise ValidationError("--methods: give at least one method")
     if args.output:
-        check_output(args.output, "-o", directory=True, force=args.force)  # DIR itself is created at the end
-    stack = OperatorStack.load(args.operators, mmap=True)
-    masks = read_masks(args.masks, len(stack), stack.image_shapes)
+        check_output(args.output, "-o", directory=True, force=args.force, marker="comparison.json")  # DIR is written at the end
     truth = _load_npy(Path(args.truth))
     if truth.dtype != bool:
         if truth.dtype.kind in "ui" and truth.size and set(np.unique(truth).tolist()) <= {0, 1}:
             truth = truth.astype(bool)
         else:
             raise ValidationError(f"{args.truth}: truth labels must be bool (or 0/1 integers), got {truth.dtype}")
+    stack = OperatorStack.load(args.operators, mmap=True)
+    if truth.shape != (stack.n_gaussians,):
+        raise ValidationError(f"--truth {args.truth}: {truth.size:,} labels in shape {truth.shape}, the operators' "
+                              f"scene has {stack.n_gaussians:,} Gaussians; give one label per Gaussian")
+    try:  # before any solve
+        holdout_views(len(stack), args.holdout_every)
+    except ValidationError as exc:
+        raise ValidationError(f"--holdout-every {args.holdout_every}: {exc}") from None
+    masks = read_masks(args.masks, len(stack), stack.image_shapes)
     print(f"comparing {', '.join(methods) if methods else 'every method'} on {len(stack)} views ...",
           file=sys.stderr, flush=True)
     with _CompareBar(progress_enabled(args.no_progress), len(methods or available_methods())) as bar:
@@ -126,12 +146,12 @@ def compare_command(args) -> int:
     print(result.format())
     if args.output:
         d = Path(args.output)
-        d.mkdir(exist_ok=True)
         png = io.BytesIO()
         result.plot(png)
-        write_files([(d / "comparison.csv", result.to_csv().encode()),
-                    (d / "comparison.json", result.to_json().encode()),
-                    (d / "comparison.png", png.getvalue())])
+        with atomic_path(d, directory=True) as tmp:  # all or nothing; --force replaces the earlier report
+            (tmp / "comparison.csv").write_bytes(result.to_csv().encode())
+            (tmp / "comparison.json").write_bytes(result.to_json().encode())
+            (tmp / "comparison.png").write_bytes(png.getvalue())
         print(f"wrote {d / 'comparison.csv'}, {d / 'comparison.json'}, {d / 'comparison.png'}")
     return 0
 

@@ -176,16 +176,24 @@ class BoxPrompt:
     iterations: int = 5
     alpha_min: float = 0.05
 
+    def __post_init__(self):
+        # checked when made (a batch job's box fails before any cluster starts), not only when used
+        try:
+            b = np.asarray(self.box, dtype=np.float64)
+        except (TypeError, ValueError):
+            b = np.empty(0)
+        if b.shape != (4,) or not np.all(np.isfinite(b)):
+            raise ValidationError(f"box must be 4 finite numbers x0 y0 x1 y1, got {self.box!r}")
+        if b[2] <= b[0] or b[3] <= b[1]:
+            raise ValidationError(f"box {b.tolist()} is empty: need x0 < x1 and y0 < y1 "
+                                  f"([left, top, right, bottom] in pixels)")
+
     def to_mask(self, image: np.ndarray, alpha: np.ndarray | None = None, **_) -> np.ndarray:
         import cv2
 
         h, w = np.asarray(image).shape[:2]
         b = np.asarray(self.box, dtype=np.float64)
-        if b.shape != (4,) or not np.all(np.isfinite(b)):
-            raise ValidationError(f"box must be 4 finite numbers x0 y0 x1 y1, got {self.box!r}")
         x0, y0, x1, y1 = b
-        if x1 <= x0 or y1 <= y0:
-            raise ValidationError(f"box {b.tolist()} is empty: need x0 < x1 and y0 < y1")
         ix0, iy0 = int(np.clip(np.floor(x0), 0, w)), int(np.clip(np.floor(y0), 0, h))
         ix1, iy1 = int(np.clip(np.ceil(x1), 0, w)), int(np.clip(np.ceil(y1), 0, h))
         if ix1 - ix0 < 2 or iy1 - iy0 < 2:

@@ -228,8 +228,10 @@ def finish_scene(path, means, quats, log_scales, opacity_logits, sh, extra=None,
             what += f"; and {len(problems) - 6} more fields"
         if not drop_nonfinite:
             raise fail(path, f"{nbad} of {n} Gaussians are invalid: {what}. Fix the file, or "
-                             f"read with drop_nonfinite=True (CLI: --drop-nonfinite) to drop "
-                             f"those Gaussians")
+                             f"read with drop_nonfinite=True to drop those Gaussians (on the command "
+                             f"line: seed2gs convert --drop-nonfinite IN OUT writes a cleaned copy; the "
+                             f"Gaussians after a dropped one move up, so q and labels of the cleaned "
+                             f"copy index it, not this file)")
         warnings.warn(f"{os.fspath(path)}: dropped {nbad} of {n} invalid Gaussians: {what}",
                       stacklevel=3)
         keep = ~bad

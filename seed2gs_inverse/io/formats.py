@@ -154,8 +154,9 @@ def output_format(path) -> str:
     """
     name = Path(path).name.lower()
     if name.endswith(".compressed.ply") or name.endswith(".spz"):
-        raise ValidationError(f"{os.fspath(path)}: writing {Path(path).suffix} is not supported "
-                              f"(write .ply or .splat)")
+        kind = ".compressed.ply (PlayCanvas)" if name.endswith(".compressed.ply") else ".spz"
+        raise ValidationError(f"{os.fspath(path)}: writing {kind} is not supported (it is read only); "
+                              f"write .ply or .splat")
     if name.endswith(".ply"):
         return "ply"
     if name.endswith(".splat"):

@@ -33,8 +33,8 @@ import scipy.sparse as sp
 from threadpoolctl import ThreadpoolController
 
 from ..errors import ValidationError
-from ._common import (MethodResult, Problem, SolveResult, available_methods, check_options, get_method,
-                      method_options, prepare, register_method)
+from ._common import (MethodResult, Problem, SolveResult, available_methods, check_options, get_check,
+                      get_method, method_options, prepare, register_method)
 from . import beta_bernoulli, least_squares, voting, weighted_bce  # noqa: F401  (importing registers them)
 from ._progress import SolveProgress, reporting
 from .smoothing import harmonic_extension, laplacian_smooth
@@ -168,19 +168,47 @@ def check_method_options(method, options) -> object:
     """The method ``method``, after checking its name and ``options`` (a dict); raises ValidationError.
 
     The name must be a registered method, every option one the method takes
-    (the message lists them), and the count options (:data:`COUNT_LIMITS`)
-    within their bounds. Value checks beyond that are the method's own.
+    (the message lists them), each value of its default's kind (true/false
+    for a flag, a whole number for a count, a finite number for a real, a
+    string for a choice), the count options (:data:`COUNT_LIMITS`) within
+    their bounds, and the values acceptable to the method's registered
+    check (ranges, choices; :func:`register_method`).
     """
     if not isinstance(method, str):
         raise ValidationError(f"method must be a method name (str), got {method!r}; "
                               f"available: {', '.join(available_methods())}")
     fn = get_method(method)
     check_options(method, fn, options)
+    defaults = method_options(method)
+    for name, v in options.items():
+        _check_kind(method, name, v, defaults[name])
     for name, hi in COUNT_LIMITS.items():
         v = options.get(name)
         if isinstance(v, (int, np.integer)) and not isinstance(v, bool) and not 1 <= v <= hi:
             raise ValidationError(f"method '{method}': {name} must be in 1..{hi:,}, got {v!r}")
+    check = get_check(method)
+    if check is not None:
+        check({**defaults, **options})
     return fn
+
+
+def _check_kind(method: str, name: str, value, default) -> None:
+    """Raise unless ``value`` is of the kind of the option's ``default`` (None allowed where it is the default)."""
+    where = f"method '{method}': option {name}"
+    flag = isinstance(value, (bool, np.bool_))
+    if value is None and default is None:
+        return
+    if isinstance(default, bool):
+        if not flag:
+            raise ValidationError(f"{where} must be true or false, got {value!r}")
+    elif isinstance(default, (int, np.integer)) or (default is None and name in COUNT_LIMITS):
+        if flag or not isinstance(value, (int, np.integer)):
+            raise ValidationError(f"{where} must be a whole number, got {value!r}")
+    elif isinstance(default, float):
+        if flag or not isinstance(value, (int, float, np.integer, np.floating)) or not np.isfinite(value):
+            raise ValidationError(f"{where} must be a finite number, got {value!r}")
+    elif isinstance(default, str) and not isinstance(value, str):
+        raise ValidationError(f"{where} must be a string, got {value!r}")
 
 
 def _check_request(operators, method, min_evidence, progress, options, smoothness=0.0, graph=None):

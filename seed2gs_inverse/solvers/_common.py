@@ -20,12 +20,13 @@ import numpy as np
 from ..errors import ValidationError
 
 __all__ = ["Problem", "SolveResult", "MethodResult", "prepare", "normalize_mask", "prior_from_init",
-           "register_method", "available_methods", "get_method", "method_options"]
+           "register_method", "available_methods", "get_method", "method_options", "get_check"]
 
 _METHODS: dict = {}
+_CHECKS: dict = {}
 
 
-def register_method(name: str, fn) -> None:
+def register_method(name: str, fn, check=None) -> None:
     """Make ``fn`` available as ``solve(..., method=name)``.
 
     ``fn(problem, *, option=default, ...) -> MethodResult`` receives a
@@ -36,12 +37,27 @@ def register_method(name: str, fn) -> None:
     ``iterations``, ``history``, ``view_weights``, ``threshold``, ``info``
     and ``observed`` ((N,) bool, when the method used fewer views than
     given).
+
+    ``check(options)``, optional, receives every option by name (the
+    defaults with the caller's values over them) and raises a
+    ValidationError for values the method cannot take, so that
+    :func:`~seed2gs_inverse.solvers.check_method_options` (and with it
+    ``ExtractSettings`` and the CLI) rejects them before any work. The
+    method should call it on its own arguments too.
     """
     if not isinstance(name, str) or not name.isidentifier():
         raise ValidationError(f"method name must be an identifier string, got {name!r}")
     if not callable(fn):
         raise ValidationError(f"method '{name}': fn must be callable")
+    if check is not None and not callable(check):
+        raise ValidationError(f"method '{name}': check must be callable or None")
     _METHODS[name] = fn
+    _CHECKS[name] = check
+
+
+def get_check(name: str):
+    """The value check registered with method ``name`` (None when there is none)."""
+    return _CHECKS.get(name)
 
 
 def available_methods() -> list:
@@ -163,10 +179,10 @@ class SolveResult:
     info: dict = field(default_factory=dict)
 
     def selected(self, threshold: float | None = None) -> np.ndarray:
-        """Bool (N,): ``q > threshold`` (default: ``self.threshold``)."""
+        """Bool (N,): ``q > threshold`` (default: ``self.threshold``), the threshold in [0, 1)."""
         t = self.threshold if threshold is None else float(threshold)
-        if not np.isfinite(t):
-            raise ValidationError(f"threshold must be finite, got {threshold!r}")
+        if not (np.isfinite(t) and 0.0 <= t < 1.0):  # q lies in [0, 1]: beyond, all or nothing, silently
+            raise ValidationError(f"threshold must be in [0, 1), got {threshold!r}")
         return self.q > t
 
     def __repr__(self) -> str:

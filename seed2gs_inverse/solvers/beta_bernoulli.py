@@ -62,6 +62,20 @@ def _view_evidence(problem: Problem, c: int) -> tuple:
     return cols, succ[cols], total[cols]
 
 
+def _check(o: dict) -> None:
+    """Raise a ValidationError for option values beta_bernoulli cannot take (``o``: every option by name)."""
+    for name in ("a0", "b0"):
+        v = o[name]
+        if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not (
+                np.isfinite(v) and v > 0):
+            raise ValidationError(f"beta_bernoulli: {name} must be a positive finite number, got {v!r}")
+    if o["order"] not in ("given", "eig"):
+        raise ValidationError(f"beta_bernoulli: order must be 'given' or 'eig', got {o['order']!r}")
+    b = o["budget"]
+    if b is not None and (isinstance(b, bool) or not isinstance(b, (int, np.integer)) or b < 1):
+        raise ValidationError(f"beta_bernoulli: budget must be a positive integer or None, got {b!r}")
+
+
 def beta_bernoulli(problem: Problem, *, a0: float = 1.0, b0: float = 1.0, order: str = "given",
                    budget: int | None = None) -> MethodResult:
     """B3-Seg Beta posterior; see the module docstring.
@@ -83,17 +97,10 @@ def beta_bernoulli(problem: Problem, *, a0: float = 1.0, b0: float = 1.0, order:
     record per absorbed view (``view``, ``eig`` for the eig order,
     ``entropy`` the summed Beta entropy after it) and ``info["order"]``.
     """
+    _check(dict(a0=a0, b0=b0, order=order, budget=budget))
     a0, b0 = float(a0), float(b0)
-    if not (np.isfinite(a0) and np.isfinite(b0) and a0 > 0 and b0 > 0):
-        raise ValidationError(f"beta_bernoulli: a0 and b0 must be positive, got a0={a0}, b0={b0}")
-    if order not in ("given", "eig"):
-        raise ValidationError(f"beta_bernoulli: order must be 'given' or 'eig', got {order!r}")
     V = problem.n_views
-    if budget is None:
-        budget = V
-    if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)) or budget < 1:
-        raise ValidationError(f"beta_bernoulli: budget must be a positive integer, got {budget!r}")
-    budget = min(int(budget), V)
+    budget = V if budget is None else min(int(budget), V)
     n = problem.n_gaussians
     if order == "given" and budget == V:
         # All views in any order: the posterior needs only the two vote sums (one transposed pass).
@@ -141,4 +148,4 @@ def beta_bernoulli(problem: Problem, *, a0: float = 1.0, b0: float = 1.0, order:
                         observed=seen, info={"order": chosen, "budget": budget, "a0": a0, "b0": b0})
 
 
-register_method("beta_bernoulli", beta_bernoulli)
+register_method("beta_bernoulli", beta_bernoulli, check=_check)

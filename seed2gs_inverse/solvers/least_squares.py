@@ -50,6 +50,22 @@ def operator_norm_sq(A, AT, rows_weight, n_iter: int = 30, seed: int = 0) -> flo
     return lam
 
 
+def _check(o: dict) -> None:
+    """Raise a ValidationError for option values least_squares cannot take (``o``: every option by name)."""
+    if o["algorithm"] not in ("fista", "lsq_linear"):
+        raise ValidationError(f"least_squares: algorithm must be 'fista' or 'lsq_linear', got {o['algorithm']!r}")
+    for name in ("max_iter", "power_iters"):
+        v = o[name]
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+            raise ValidationError(f"least_squares: {name} must be a positive integer, got {v!r}")
+    tol = o["tol"]
+    if isinstance(tol, bool) or not isinstance(tol, (int, float, np.integer, np.floating)) or not (
+            np.isfinite(tol) and tol > 0):
+        raise ValidationError(f"least_squares: tol must be a positive finite number, got {tol!r}")
+    if o["target"] not in ("alpha", "mask"):
+        raise ValidationError(f"least_squares: target must be 'alpha' or 'mask', got {o['target']!r}")
+
+
 def least_squares(problem: Problem, *, target: str = "alpha", algorithm: str = "fista", max_iter: int = 500,
                   tol: float = 1e-4, power_iters: int = 30) -> MethodResult:
     """Box-constrained least squares; see the module docstring.
@@ -71,14 +87,7 @@ def least_squares(problem: Problem, *, target: str = "alpha", algorithm: str = "
     MethodResult with ``q``, ``iterations`` and ``history`` (FISTA: ``objective`` at the extrapolated point
     and ``step`` (max change) every iteration).
     """
-    if algorithm not in ("fista", "lsq_linear"):
-        raise ValidationError(f"least_squares: algorithm must be 'fista' or 'lsq_linear', got {algorithm!r}")
-    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
-        raise ValidationError(f"least_squares: max_iter must be a positive integer, got {max_iter!r}")
-    if not tol > 0:
-        raise ValidationError(f"least_squares: tol must be positive, got {tol}")
-    if target not in ("alpha", "mask"):
-        raise ValidationError(f"least_squares: target must be 'alpha' or 'mask', got {target!r}")
+    _check(dict(target=target, algorithm=algorithm, max_iter=max_iter, tol=tol, power_iters=power_iters))
     A, AT = problem.A, problem.AT
     rows = problem.known & (problem.alpha > 0)
     rhs = problem.y * problem.alpha if target == "alpha" else problem.y
@@ -122,4 +131,4 @@ def least_squares(problem: Problem, *, target: str = "alpha", algorithm: str = "
     return MethodResult(q=x, iterations=it, history=history, info={"lipschitz": L})
 
 
-register_method("least_squares", least_squares)
+register_method("least_squares", least_squares, check=_check)

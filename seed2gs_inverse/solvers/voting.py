@@ -45,7 +45,8 @@ def vote_counts(problem: Problem) -> tuple:
 
 def bias_to_threshold(bias: float) -> float:
     """The ``q`` threshold equivalent to FlashSplat's ``Â1 - Â0 > bias``, |bias| < 1."""
-    b = float(bias)
+    ok = not isinstance(bias, (bool, np.bool_)) and isinstance(bias, (int, float, np.integer, np.floating))
+    b = float(bias) if ok else np.nan
     if not (np.isfinite(b) and -1.0 < b < 1.0):
         raise ValidationError(f"voting: bias must lie in (-1, 1) (the normalised votes differ by at most 1), "
                               f"got {bias!r}")
@@ -78,4 +79,4 @@ def voting(problem: Problem, *, bias: float = 0.0) -> MethodResult:
     return MethodResult(q=q, threshold=tau, iterations=0, info={"bias": float(bias), "total_votes": total_votes})
 
 
-register_method("voting", voting)
+register_method("voting", voting, check=lambda o: bias_to_threshold(o["bias"]))

@@ -321,6 +321,40 @@ def _logit(p):
     return np.log(p) - np.log1p(-p)
 
 
+def _check(o: dict) -> None:
+    """Raise a ValidationError for option values weighted_bce cannot take (``o``: every option by name)."""
+    def real(name, lo, hi, lo_open=False, hi_open=False, what=None):
+        v = o[name]
+        ok = not isinstance(v, (bool, np.bool_)) and isinstance(v, (int, float, np.integer, np.floating))
+        ok = ok and np.isfinite(v) and (v > lo if lo_open else v >= lo) and (v < hi if hi_open else v <= hi)
+        if not ok:
+            raise ValidationError(f"weighted_bce: {name} must be {what}, got {v!r}")
+
+    real("r_min", 0.0, 1.0, what="in [0, 1]")
+    real("lam", 0.0, np.inf, lo_open=True, what="positive")
+    real("momentum", 0.0, 1.0, hi_open=True, what="in [0, 1)")
+    real("alpha_min", 0.0, 1.0, hi_open=True, what="in [0, 1)")
+    real("eps", 0.0, 0.5, lo_open=True, hi_open=True, what="in (0, 0.5)")
+    real("init_clip", 0.0, 0.5, lo_open=True, hi_open=True, what="in (0, 0.5)")
+    real("stable_tol", 0.0, 1.0, hi_open=True, what="in [0, 1)")
+    for name in ("weight_tol", "ftol", "gtol"):
+        real(name, 0.0, np.inf, what="a finite number >= 0")
+    for name in ("reweight", "normalize"):
+        if not isinstance(o[name], (bool, np.bool_)):
+            raise ValidationError(f"weighted_bce: {name} must be True or False, got {o[name]!r}")
+    for name in ("max_iter", "inner_iters", "maxcor"):
+        v = o[name]
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+            raise ValidationError(f"weighted_bce: {name} must be a positive integer, got {v!r}")
+    if o["start"] not in ("auto", "vote", "prior", "half"):
+        raise ValidationError(f"weighted_bce: start must be 'auto', 'vote', 'prior' or 'half', got {o['start']!r}")
+    v = o["stable_iters"]
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
+        raise ValidationError(f"weighted_bce: stable_iters must be a non-negative integer, got {v!r}")
+    if o["optimizer"] not in ("scipy", "lbfgs"):
+        raise ValidationError(f"weighted_bce: optimizer must be 'scipy' or 'lbfgs', got {o['optimizer']!r}")
+
+
 def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, momentum: float = 0.5,
                  reweight: bool = True, normalize: bool = False, alpha_min: float = 1e-3, eps: float = 1e-4,
                  max_iter: int = 200, inner_iters: int = 20, weight_tol: float = 1e-3, ftol: float = 1e-10,
@@ -405,27 +439,10 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
     pixel (every known pixel has ``alpha < alpha_min``) nothing is fitted:
     ``q`` is the prior and every view weight 0.
     """
-    if not 0.0 <= r_min <= 1.0:
-        raise ValidationError(f"weighted_bce: r_min must lie in [0, 1], got {r_min}")
-    if not lam > 0:
-        raise ValidationError(f"weighted_bce: lam must be positive, got {lam}")
-    if not 0.0 <= momentum < 1.0:
-        raise ValidationError(f"weighted_bce: momentum must lie in [0, 1), got {momentum}")
-    if not 0.0 < eps < 0.5:
-        raise ValidationError(f"weighted_bce: eps must lie in (0, 0.5), got {eps}")
-    if not 0.0 < init_clip < 0.5:
-        raise ValidationError(f"weighted_bce: init_clip must lie in (0, 0.5), got {init_clip}")
-    for name, v in (("max_iter", max_iter), ("inner_iters", inner_iters), ("maxcor", maxcor)):
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-            raise ValidationError(f"weighted_bce: {name} must be a positive integer, got {v!r}")
-    if start not in ("auto", "vote", "prior", "half"):
-        raise ValidationError(f"weighted_bce: start must be 'auto', 'vote', 'prior' or 'half', got {start!r}")
-    if isinstance(stable_iters, bool) or not isinstance(stable_iters, (int, np.integer)) or stable_iters < 0:
-        raise ValidationError(f"weighted_bce: stable_iters must be a non-negative integer, got {stable_iters!r}")
-    if not 0.0 <= stable_tol < 1.0:
-        raise ValidationError(f"weighted_bce: stable_tol must lie in [0, 1), got {stable_tol}")
-    if optimizer not in ("scipy", "lbfgs"):
-        raise ValidationError(f"weighted_bce: optimizer must be 'scipy' or 'lbfgs', got {optimizer!r}")
+    _check(dict(r_min=r_min, lam=lam, momentum=momentum, reweight=reweight, normalize=normalize,
+                alpha_min=alpha_min, eps=eps, max_iter=max_iter, inner_iters=inner_iters, weight_tol=weight_tol,
+                ftol=ftol, gtol=gtol, init_clip=init_clip, maxcor=maxcor, start=start, optimizer=optimizer,
+                stable_iters=stable_iters, stable_tol=stable_tol))
     t_start = time.perf_counter()
     obj = BCEObjective(problem, normalize=normalize, alpha_min=alpha_min, eps=eps)
     V = problem.n_views
@@ -544,4 +561,4 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
                               "seconds_pixels": obj.seconds["pixels"] - setup_parts["pixels"]})
 
 
-register_method("weighted_bce", weighted_bce)
+register_method("weighted_bce", weighted_bce, check=_check)
