@@ -97,6 +97,18 @@ def test_eval_lerf_mask_reproduces_the_known_scores(dataset, capsys):
     assert rc == 0
     assert json.loads((out / "jobs" / "summary.json").read_text())["counts"]["resumed"] == 3
     assert json.loads((out / "report.json").read_text())["overall"] == report["overall"]
+    # A run over one scene says that its report replaces a fuller one; the other scene's extractions
+    # stay listed, so the next full run still resumes all three.
+    capsys.readouterr()
+    rc = main(["eval", "lerf-mask", str(root / "data"), "--scenes", str(root / "scenes"), "-o", str(out),
+               "--oracle-seed", "--sequential", "--no-progress", "--only", "shelf", *OPTS])
+    assert rc == 0
+    assert "the report now covers shelf only; the earlier one also had blocks" in capsys.readouterr().err
+    assert len(json.loads((out / "jobs" / "summary.json").read_text())["jobs"]) == 3
+    rc = main(["eval", "lerf-mask", str(root / "data"), "--scenes", str(root / "scenes"), "-o", str(out),
+               "--oracle-seed", "--sequential", "--no-progress", *OPTS])
+    assert rc == 0
+    assert json.loads((out / "jobs" / "summary.json").read_text())["counts"]["resumed"] == 3
 
 
 def test_eval_on_the_dask_cluster_matches(dataset, dask_client, tmp_path):

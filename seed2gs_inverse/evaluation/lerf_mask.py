@@ -524,6 +524,15 @@ def evaluate_scenes(dataset, output, *, oracle_seed: bool | None = None, models=
                           "prediction": "W(c) s > 0.5 over the full scene (occlusion-aware)",
                           "boundary_dilation_ratio": 0.02, "options": dict(options or {})}
     report["protocol"].setdefault("gt", "grey > 128")
+    try:  # a report of fewer scenes replaces a fuller one: say so (the job folders all stay)
+        before = {d["scene"] for d in json.loads((out / "report.json").read_text("utf-8"))["scenes"]}
+    except (OSError, ValueError, KeyError, TypeError):
+        before = set()
+    dropped = sorted(before - {sc.name for sc in dataset})
+    if dropped:
+        warnings.warn(f"{out / 'report.json'}: the report now covers {', '.join(sc.name for sc in dataset)} only; "
+                      f"the earlier one also had {', '.join(dropped)} (their extractions stay in jobs/ and are "
+                      f"reused by a run over every scene)", stacklevel=2)
     files = [(out / "report.json", json.dumps(report, indent=1).encode("utf-8")),
              (out / "per_query.csv", _csv(report["queries"], list(QUERY_COLUMNS))),
              (out / "per_scene.csv", _csv(report["scenes"], ["scene", "miou", "mbiou", "n_queries",
