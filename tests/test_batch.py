@@ -268,6 +268,13 @@ def test_summary_keeps_earlier_jobs_and_a_failed_rerun_leaves_no_folder(tiny, tm
     assert listed() == [("a-mask", "failed"), ("b-box", "done")]
     assert sorted(p.name for p in res.iterdir() if not p.name.startswith(".")) == ["b-box", "summary.csv",
                                                                                    "summary.json"]
+    # A folder a worker finished after the runner was interrupted (no summary line) is the batch's: its
+    # report.json names the job, so the next run replaces it instead of refusing.
+    report = json.loads((res / "b-box" / "report.json").read_text())
+    assert report["batch"]["job"] == "b-box" and report["batch"]["fingerprint"] == jobs[1].fingerprint()
+    (res / "summary.json").unlink()
+    again = extract_many(jobs[1:], "sequential", output=res, progress=False)
+    assert again[0].status == "done" and not again[0].resumed
 
 
 def test_resume_runs_a_job_again_when_an_input_file_changed(tiny, tmp_path):

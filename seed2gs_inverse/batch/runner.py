@@ -222,6 +222,17 @@ def _read_summary(output: Path) -> dict:
                               f"choose another output directory, or move that file away") from None
 
 
+def _batch_folder(path: Path) -> bool:
+    """Whether ``path`` is a job folder a batch wrote (its report.json names the job), listed in the
+    summary or not (a worker may finish a job after an interrupted runner stopped recording)."""
+    try:
+        report = json.loads((path / "report.json").read_text("utf-8"))
+        return isinstance(report, dict) and isinstance(report.get("batch"), dict) and \
+            report["batch"].get("job") == path.name
+    except (OSError, UnicodeDecodeError, ValueError):
+        return False
+
+
 def check_output_dir(path, what: str = "output") -> Path:
     """``path`` as a Path once a directory can be written there; else a ValidationError naming it.
 
@@ -307,11 +318,12 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
         job plus ``summary.csv`` / ``summary.json``. None writes nothing and
         keeps each job's ``q`` in its result. The summary keeps the entries
         of earlier runs' jobs that this run does not name. A folder is only
-        replaced when the summary lists it (a batch wrote it): an existing
-        ``output/<name>`` that it does not list is an error, as is a
-        ``summary.json`` that is not a batch's. A job that fails leaves no
-        folder (one from an earlier run of that name is removed), so the
-        folders are exactly the jobs the summary lists as done.
+        replaced when a batch wrote it (the summary lists it, or its
+        ``report.json`` names the job: a worker may finish a job after an
+        interrupted runner stopped recording); any other existing
+        ``output/<name>`` is an error, as is a ``summary.json`` that is not
+        a batch's. A job that fails leaves no folder (one from an earlier
+        run of that name is removed).
     n_workers : int, optional
         Worker processes of the embedded cluster.
     threads_per_worker : int, optional
@@ -358,7 +370,8 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
         created = not out.exists()
         out = out.resolve()  # workers may run elsewhere: give them an absolute path
         owned = _read_summary(out)
-        foreign = [j.name for j in jobs if j.name not in owned and (out / j.name).exists()]
+        foreign = [j.name for j in jobs
+                   if j.name not in owned and (out / j.name).exists() and not _batch_folder(out / j.name)]
         if foreign:
             raise ValidationError(
                 f"output {out} already holds {', '.join(foreign)}, which no earlier batch there wrote "
@@ -399,7 +412,8 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
             if n_failed:
                 bar.set_postfix(failed=n_failed)
         if out is not None:
-            if res.status != "done" and (out / res.name).is_dir() and res.name in owned:
+            if res.status != "done" and (out / res.name).is_dir() and (
+                    res.name in owned or _batch_folder(out / res.name)):
                 _remove_folder(out / res.name)  # an earlier run's result for another description
             summary()
 

@@ -276,7 +276,8 @@ def run_job(job, output=None, attempt: int = 1) -> JobResult:
             from ..cli._extract import write_outputs
 
             outdir = Path(output) / job.name
-            write_outputs(ex, outdir, job.format, force=True, figure=job.figure)
+            write_outputs(ex, outdir, job.format, force=True, figure=job.figure,
+                          batch_info={"job": job.name, "fingerprint": res.fingerprint})
             if job.figure:
                 import matplotlib.pyplot as plt
 

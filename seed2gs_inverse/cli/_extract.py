@@ -195,12 +195,13 @@ def seed_summary_line(summary: dict) -> str:
 
 
 def write_outputs(extraction, outdir, fmt: str = "ply", force: bool = False, figure: bool = True,
-                  run_info: dict | None = None) -> Path:
+                  run_info: dict | None = None, batch_info: dict | None = None) -> Path:
     """Write object/remainder scenes, q.npy, report.json (and report.png) into ``outdir``.
 
     Everything goes to a temporary directory next to ``outdir`` that is
     renamed at the end, so a failure leaves no partial output. ``run_info``
-    becomes the report's ``run`` section (what ``--from-report`` reads).
+    becomes the report's ``run`` section (what ``--from-report`` reads),
+    ``batch_info`` its ``batch`` section (the batch job that wrote it).
     """
     from ..io import write_scene
     from ..pipeline.report import seed_summary
@@ -223,6 +224,8 @@ def write_outputs(extraction, outdir, fmt: str = "ply", force: bool = False, fig
         report["outputs"] = {**outputs, "q": "q.npy"}
         if run_info is not None:
             report["run"] = run_info
+        if batch_info is not None:
+            report["batch"] = batch_info
         with open(tmp / "report.json", "w") as fh:
             json.dump(report, fh, indent=2)
         if figure:
