@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from seed2gs_inverse.camera import Camera
-from seed2gs_inverse.compare import compare
+from seed2gs_inverse.comparison import compare
 from seed2gs_inverse.operators import OperatorStack
 from seed2gs_inverse.raster import build_operator
 from seed2gs_inverse.solvers import available_methods, solve

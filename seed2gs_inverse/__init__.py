@@ -38,7 +38,7 @@ _LAZY = {
                     "operators"),
     **dict.fromkeys(["solve", "available_methods", "SolveResult"], "solvers"),
     **dict.fromkeys(["iou", "boundary_iou", "membership_scores"], "metrics"),
-    **dict.fromkeys(["compare", "Comparison"], "compare"),
+    **dict.fromkeys(["compare", "Comparison"], "comparison"),  # not "compare": the module would shadow the function
     **dict.fromkeys(["MaskPrompt", "BoxPrompt", "PointPrompt", "TextPrompt"], "frontend.prompts"),
     **dict.fromkeys(["extract", "Extraction", "ExtractSettings", "seed_lift"], "pipeline"),
     **dict.fromkeys(["remove", "move", "duplicate", "recolour"], "edit"),

@@ -23,21 +23,9 @@ __all__ = ["selection_mask", "remove", "duplicate", "move", "recolour", "recolor
 
 def selection_mask(scene: GaussianScene, selected) -> np.ndarray:
     """Boolean (N,) mask of a selection given as a bool mask or integer indices."""
-    n = len(scene)
-    sel = np.asarray(selected)
-    if sel.dtype == bool:
-        if sel.shape != (n,):
-            raise ValidationError(f"selected has shape {sel.shape}; expected ({n},) for this scene")
-        return sel.copy()
-    if sel.dtype.kind in "iu" and sel.ndim == 1:
-        if sel.size and (sel.min() < 0 or sel.max() >= n):
-            raise ValidationError(f"selected indices must lie in [0, {n}), got range "
-                                  f"[{sel.min()}, {sel.max()}]")
-        out = np.zeros(n, bool)
-        out[sel] = True
-        return out
-    raise ValidationError(f"selected must be a bool mask of length {n} or 1-D integer indices, "
-                          f"got dtype {sel.dtype} shape {sel.shape}")
+    from ._selection import support_mask
+
+    return support_mask(selected, len(scene), "selected")
 
 
 def _replace(scene: GaussianScene, mask: np.ndarray, part: GaussianScene) -> GaussianScene:
@@ -55,12 +43,34 @@ def _replace(scene: GaussianScene, mask: np.ndarray, part: GaussianScene) -> Gau
     return GaussianScene(extra=extra, **arrays)
 
 
+def _vector(value, name: str, shape) -> np.ndarray:
+    """``value`` as a finite float64 array of ``shape`` (a tuple, or a list of accepted shapes)."""
+    try:
+        a = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        a = None
+    shapes = shape if isinstance(shape, list) else [shape]
+    if a is None or a.shape not in shapes or not np.all(np.isfinite(a)):
+        want = " or ".join("x".join(map(str, s)) if len(s) > 1 else f"{s[0]}-vector" for s in shapes)
+        raise ValidationError(f"{name} must be finite numbers of shape {want}, got {value!r}")
+    return a
+
+
+def _scale(scale) -> float:
+    if isinstance(scale, (bool, np.bool_)) or not isinstance(scale, (int, float, np.integer, np.floating)) or not (
+            np.isfinite(scale) and scale > 0):
+        raise ValidationError(f"scale must be a positive finite number, got {scale!r}")
+    return float(scale)
+
+
 def _rigid(rotation, translation, pivot):
-    rot = np.eye(3) if rotation is None else np.asarray(rotation, dtype=np.float64)
+    rot = np.eye(3) if rotation is None else _vector(rotation, "rotation", [(3, 3), (4,)])
     if rot.shape == (4,):  # w-first quaternion
         from .scene import quat_to_rotmat
 
-        rot = quat_to_rotmat(rot[None])[0]
+        if not np.linalg.norm(rot) > 0:
+            raise ValidationError("rotation: a quaternion must not be zero")
+        rot = quat_to_rotmat(rot[None])[0]  # (a 3x3 matrix is checked by GaussianScene.transformed)
     t = np.zeros(3) if translation is None else np.asarray(translation, dtype=np.float64)
     if t.shape != (3,) or not np.all(np.isfinite(t)):
         raise ValidationError(f"translation must be a finite 3-vector, got {translation!r}")
@@ -91,6 +101,7 @@ def move(scene: GaussianScene, selected, rotation=None, translation=None, pivot=
     if pivot is None:
         pivot = scene.means[mask].astype(np.float64).mean(axis=0)
     rot, t, p = _rigid(rotation, translation, pivot)
+    scale = _scale(scale)
     part = scene.subset(mask).transformed(rot, p + t - scale * (rot @ p), scale)
     return _replace(scene, mask, part)
 
@@ -137,6 +148,8 @@ def recolour(scene: GaussianScene, selected, rgb, keep_view_dependence: bool = F
         new = np.broadcast_to(new, (m, 3))
     if new.shape != (m, 3) or not np.all(np.isfinite(new)):
         raise ValidationError(f"recolour: rgb must be finite (3,) or ({m}, 3), got shape {new.shape}")
+    if new.min() < 0.0 or new.max() > 1.0:
+        raise ValidationError(f"recolour: rgb must lie in [0, 1], got values in [{new.min():.3g}, {new.max():.3g}]")
     sh = scene.sh.copy()  # scene arrays are read-only; the new scene validates the copy
     sh[mask, 0] = ((new - 0.5) / SH_C0).astype(np.float32)
     if not keep_view_dependence:

@@ -130,6 +130,8 @@ BAD = [
     (["render", "{d}/scene.ply", "--camera", "{d}/garbage.json", "-o", "{d}/r.png"], "garbage.json"),
     (["render", "{d}/scene.ply", "--look-at", "0,0,5", "0,0,0", "--up", "0,0,0", "-o", "{d}/r.png"],
      "--up 0,0,0: must be a non-zero direction"),
+    (["render", "{d}/scene.ply", "--camera", "{d}/cameras.json", "--size", "640x480", "--fov", 20, "-o",
+      "{d}/r.png"], "--size, --fov go with --look-at"),
     (["render", "{d}/scene.ply", "--camera", "{d}/cameras.json", "-o", "{d}/exists.png"],
      "-o {d}/exists.png exists; use --force"),
     (["render", "{d}/scene.ply", "--camera", "{d}/cameras.json", "-o", "/proc/r.png"],
@@ -164,6 +166,8 @@ BAD = [
     (["operators", "build", "{d}/scene.ply", "--cameras", "{d}/cameras.json", "-o", "{d}/exists"],
      "exists"),
     (["operators", "info", "{d}/afile"], "afile"),
+    (["operators", "build", "{d}/scene.ply", "--cameras", "{d}/cameras.json:0", "-o", "{d}/ops3"],
+     "every camera of a file is read: give the file alone"),
     # reports
     (["extract", "--from-report", "{d}/missing.json", "-o", "{d}/o"], "--from-report {d}/missing.json: no such file"),
     (["extract", "--from-report", "{d}/garbage.json", "-o", "{d}/o"], "not a JSON report"),

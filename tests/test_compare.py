@@ -12,7 +12,7 @@ from PIL import Image
 
 import seed2gs_inverse.cli as cli
 from _solver_scenes import blob_stack
-from seed2gs_inverse.compare import compare, holdout_views
+from seed2gs_inverse.comparison import compare, holdout_views
 from seed2gs_inverse.errors import ValidationError
 from seed2gs_inverse.metrics import boundary_iou, iou, membership_scores
 

@@ -123,10 +123,18 @@ def test_external_boxes_file_and_callable(d, tmp_path, img):
     assert got[0].score == 1.0 and got[0].label == "cup" and cb.source == "vlm"
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps([{"box": [1, 2, 3], "score": 0.5}]))
-    with pytest.raises(FormatError, match=r"bad.json\[0\]"):
-        ExternalBoxes(bad).detect(img, "cup")
+    with pytest.raises(FormatError, match=r"bad.json\[0\]"):  # entries are checked when the file is opened
+        ExternalBoxes(bad)
     with pytest.raises(FormatError, match="not found"):
         ExternalBoxes(tmp_path / "missing.json")
+    # A file without its own "coords" takes the configured convention (it was read as pixels whatever
+    # models.toml said); a convention that does not exist is refused at once.
+    plain = tmp_path / "plain.json"
+    plain.write_text(json.dumps({"boxes": [{"box": [100, 250, 400, 750]}]}))
+    np.testing.assert_allclose(ExternalBoxes(plain, coords="per-mille").detect(img, "cup")[0].box,
+                               [6.4, 12.0, 25.6, 36.0])
+    with pytest.raises(FormatError, match="coords must be one of"):
+        ExternalBoxes(plain, coords="percent")
 
 
 # ------------------------------------------------------------------ selector terms
@@ -271,6 +279,23 @@ def test_models_config_errors(d, tmp_path):
     with pytest.raises(FormatError, match="mask_model"):
         load_models(cfg(f"[sam2]\nencoder='{d['sam2_enc']}'\ndecoder='{d['sam2_dec']}'\n"
                         "[selector]\nmask_model='sam3'\n"))
+    # values the models would take as given and then never find anything with, checked at load
+    pair = f"[sam2]\nencoder='{d['sam2_enc']}'\ndecoder='{d['sam2_dec']}'\n"
+    gdino = f"[groundingdino]\nmodel='{d['gdino']}'\ntokenizer='{d['bert']}'\n"
+    with pytest.raises(FormatError, match=r"\[groundingdino\] box_threshold must be in \[0, 1\], got 5"):
+        load_models(cfg(pair + gdino + "box_threshold=5\n"))
+    with pytest.raises(FormatError, match=r"sources \['gdino'\] name no configured source; configured "
+                                          r"sources: groundingdino"):
+        load_models(cfg(pair + gdino + "[selector]\nsources=['groundingdino', 'gdino']\n"))
+    with pytest.raises(FormatError, match=r"providers \['FooProvider'\] not available"):
+        load_models(cfg(pair + "[onnxruntime]\nproviders=['FooProvider']\n"))
+    boxes = tmp_path / "boxes.json"
+    boxes.write_text(json.dumps({"boxes": [{"bx": [1, 2, 3, 4]}]}))
+    with pytest.raises(FormatError, match=r"boxes.json\[0\]"):
+        load_models(cfg(pair + f"[external]\nboxes='{boxes}'\n"))
+    boxes.write_text(json.dumps({"boxes": [[1, 2, 3, 4]]}))
+    with pytest.raises(FormatError, match="coords must be one of"):
+        load_models(cfg(pair + f"[external]\nboxes='{boxes}'\ncoords='percent'\n"))
 
 
 def test_resolve_models_argument_env_and_none(d, tmp_path, monkeypatch):

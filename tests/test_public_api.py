@@ -39,3 +39,20 @@ def test_operator_core_and_raster_names():
     assert {"get_method", "method_options", "MethodResult"} <= set(solvers.__all__)
     assert sgi.FrozenScene is raster.FrozenScene and sgi.as_stack is operators.as_stack
     assert sgi.Rendering is operators.Rendering and not hasattr(sgi, "frozen")
+
+
+def test_public_names_stay_themselves_after_every_submodule_is_imported():
+    """Importing a submodule binds its name on the package: a submodule named like a public function
+    (``seed2gs_inverse.compare`` once was) replaced that function by the module for everyone after it."""
+    import importlib
+    import pkgutil
+    import types
+
+    import seed2gs_inverse as sgi
+
+    for info in pkgutil.walk_packages(sgi.__path__, "seed2gs_inverse."):
+        if ".cli" in info.name or info.name.endswith("__main__"):
+            continue
+        importlib.import_module(info.name)
+    for name in sgi.__all__:
+        assert not isinstance(getattr(sgi, name), types.ModuleType), name

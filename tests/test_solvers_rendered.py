@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from seed2gs_inverse.compare import compare
+from seed2gs_inverse.comparison import compare
 from seed2gs_inverse.operators import OperatorStack, dottest
 from seed2gs_inverse.raster import build_operator
 from seed2gs_inverse.synthetic import make_scene, masks_from_labels

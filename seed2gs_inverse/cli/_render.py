@@ -32,12 +32,12 @@ def register(subparsers) -> None:
                      help="camera file (3DGS cameras.json, COLMAP, nerfstudio) and which camera")
     src.add_argument("--look-at", nargs=2, metavar=("EYE", "TARGET"),
                      help="camera position and the point it looks at, each 'x,y,z'")
-    p.add_argument("--up", default="0,-1,0", metavar="X,Y,Z",
+    p.add_argument("--up", default=None, metavar="X,Y,Z",
                    help="with --look-at: world direction shown upwards (default 0,-1,0, the "
                         "usual up of COLMAP-trained scenes; --up=-1,0,0 when it starts with a minus)")
-    p.add_argument("--fov", type=float, default=60.0, metavar="DEG",
+    p.add_argument("--fov", type=float, default=None, metavar="DEG",
                    help="with --look-at: vertical field of view in degrees (default 60)")
-    p.add_argument("--size", default="960x540", metavar="WxH",
+    p.add_argument("--size", default=None, metavar="WxH",
                    help="with --look-at: image size (default 960x540)")
     p.add_argument("--scale", type=float, default=1.0, metavar="F",
                    help="render at F times the camera's resolution (default 1)")
@@ -82,11 +82,16 @@ def _camera(args):
     if args.camera is not None:
         from ..io.cameras import read_camera
 
+        given = [f"--{k}" for k in ("size", "fov", "up") if getattr(args, k) is not None]
+        if given:  # they would be ignored: the camera file fixes size, field of view and orientation
+            raise ValidationError(f"{', '.join(given)} go with --look-at; with --camera the camera file gives "
+                                  f"them (--scale changes the resolution)")
         cam = read_camera(args.camera)
     else:
-        w, h = _size(args.size)
+        w, h = _size(args.size or "960x540")
         eye, target = (_triple("--look-at", v) for v in args.look_at)
-        cam = Camera.look_at(eye, target, parse_vector("--up", args.up), args.fov, w, h, name="look-at")
+        fov = 60.0 if args.fov is None else args.fov
+        cam = Camera.look_at(eye, target, parse_vector("--up", args.up or "0,-1,0"), fov, w, h, name="look-at")
     if args.near is not None:
         cam = Camera(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, cam.world_to_camera,
                      cam.name, args.near)

@@ -50,7 +50,8 @@ def register(subparsers) -> None:
                    help=f"comma-separated methods out of {', '.join(available_methods())} (default: all)")
     c.add_argument("--holdout-every", type=int, default=4, help="hold out every k-th view (0: none; default 4)")
     c.add_argument("-o", "--output", metavar="DIR", help="directory for comparison.{csv,json,png} (created)")
-    c.add_argument("--force", action="store_true", help="write into DIR even if it exists")
+    c.add_argument("--force", action="store_true",
+                   help="replace DIR when it is an earlier report of compare (a folder of other files is refused)")
     c.add_argument("--no-progress", action="store_true",
                    help="no progress bar (shown only when stderr is a terminal)")
     c.set_defaults(func=compare_command)
@@ -109,7 +110,7 @@ def solve_command(args) -> int:
 
 
 def compare_command(args) -> int:
-    from ..compare import compare, holdout_views
+    from ..comparison import compare, holdout_views
     from ..io import read_masks
     from ..operators import OperatorStack
     from .._atomic import atomic_path

@@ -183,6 +183,7 @@ def as_box(box, shape_hw, name: str = "box") -> np.ndarray:
     h, w = shape_hw
     b = np.array([np.clip(b[0], 0, w), np.clip(b[1], 0, h), np.clip(b[2], 0, w), np.clip(b[3], 0, h)])
     if b[2] <= b[0] or b[3] <= b[1]:
-        raise ValidationError(f"{name}: box {list(np.round(box, 2))} is empty inside the "
-                              f"{w}x{h} image; give x0 < x1 and y0 < y1 in pixels")
+        given = np.round(np.asarray(box, dtype=np.float64).reshape(-1), 2).tolist()
+        raise ValidationError(f"{name}: box {given} is empty inside the {w}x{h} image; give x0 < x1 and "
+                              f"y0 < y1 in pixels")
     return b

@@ -55,6 +55,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
+import numpy as np
+
 from ..errors import FormatError, ValidationError
 
 __all__ = ["ModelSet", "load_models", "resolve_models", "ENV_VAR", "NO_MODELS_NOTICE"]
@@ -79,6 +81,12 @@ _SCHEMA = {
                  "source_prior": dict, "compatibility": dict},
     "onnxruntime": {"providers": list},
 }
+# (section, key) -> (low, high) inclusive: probability thresholds and counts that the models would
+# otherwise take as given (box_threshold = 5 loads and then never finds anything)
+_RANGES = {("groundingdino", "box_threshold"): (0.0, 1.0), ("groundingdino", "text_threshold"): (0.0, 1.0),
+           ("groundingdino", "max_detections"): (1, 10_000), ("sam3", "threshold"): (0.0, 1.0),
+           ("owlvit", "threshold"): (0.0, 1.0), ("owlvit", "max_detections"): (1, 10_000),
+           ("sam2_video", "num_maskmem"): (1, 64), ("selector", "per_source"): (1, 100)}
 _REQUIRED = {"sam2": ("encoder", "decoder"), "sam": ("encoder", "decoder"),
              "sam2_video": ("image_encoder", "image_decoder", "memory_attention", "memory_encoder"),
              "groundingdino": ("model", "tokenizer"), "sam3": ("image_encoder", "decoder"),
@@ -116,6 +124,9 @@ def _sections(path: Path, data: dict) -> dict:
                 if isinstance(value, bool) or not isinstance(value, (int, float)) or (kind is int and not isinstance(value, int)):
                     raise FormatError(f"{path}: [{name}] {key} must be a{'n integer' if kind is int else ' number'}")
                 sec[key] = kind(value)
+                lo, hi = _RANGES.get((name, key), (-np.inf, np.inf))
+                if not (np.isfinite(sec[key]) and lo <= sec[key] <= hi):
+                    raise FormatError(f"{path}: [{name}] {key} must be in [{lo:g}, {hi:g}], got {value!r}")
             elif not isinstance(value, kind):
                 raise FormatError(f"{path}: [{name}] {key} must be a {kind.__name__}")
             else:
@@ -213,6 +224,14 @@ def load_models(path) -> ModelSet:
     path = Path(path)
     cfg = _sections(path, _read(path))
     prov = cfg.get("onnxruntime", {}).get("providers")
+    if prov is not None:
+        import onnxruntime
+
+        have = onnxruntime.get_available_providers()
+        missing = [p for p in prov if p not in have]
+        if missing or not prov:
+            raise FormatError(f"{path}: [onnxruntime] providers {missing or prov} not available in this "
+                              f"onnxruntime; available: {', '.join(have)}")
     ms = ModelSet(path=path, selector_options=dict(cfg.get("selector", {})))
     if "sam2" in cfg:
         ms.sam2 = SAM2ImagePredictor(providers=prov, **cfg["sam2"])
@@ -234,6 +253,16 @@ def load_models(path) -> ModelSet:
         raise FormatError(f"{path}: [selector] mask_model must be 'sam3', 'sam2' or 'sam', got {choice!r}")
     if choice is not None and getattr(ms, choice) is None:
         raise FormatError(f"{path}: [selector] mask_model = {choice!r} but [{choice}] is not configured")
+    wanted = ms.selector_options.get("sources")
+    if wanted is not None:
+        have = [d.source for d in (ms.external, ms.groundingdino, ms.owlvit) if d is not None]
+        if ms.sam3 is not None and ms.sam3.language is not None:
+            have.append("sam3_text")
+        unknown = [w for w in wanted if w not in have]
+        if unknown or not wanted:
+            raise FormatError(f"{path}: [selector] sources {unknown or wanted} "
+                              f"{'name no configured source' if unknown else 'is empty'}; configured sources: "
+                              f"{', '.join(have) or 'none'}")
     try:
         ms.grounder()  # validates selector options and the mask-model requirement now
     except ValidationError as exc:

@@ -72,17 +72,22 @@ class ExternalBoxes:
     name : str
         Source name used by the selector (``"vlm"``: the paper's Qwen3-VL cue).
     coords : str
-        Coordinate convention of a callable's boxes (files carry their own).
+        Coordinate convention of a callable's boxes, and of a file's when the
+        file names none (a file's own ``"coords"`` wins).
     """
 
     def __init__(self, source: Callable[..., Any] | str | Path, name: str = "vlm", coords: str = "pixels"):
         self.source = str(name)
+        if coords not in _SCALES:
+            raise FormatError(f"{name}: coords must be one of {sorted(_SCALES)}, got {coords!r}")
         self.coords = coords
         if callable(source):
             self._fn, self._file = source, None
         else:
             self._fn, self._file = None, Path(source)
-            self._load()  # fail early on a malformed file
+            # fail early on a malformed file: its entries too, in an image too large to clip any box
+            items, file_coords, _ = self._load()
+            parse_boxes(items, (2 ** 31, 2 ** 31), "", file_coords, str(self._file))
 
     def _load(self):
         try:
@@ -94,8 +99,8 @@ class ExternalBoxes:
         if isinstance(data, dict):
             if "boxes" not in data:
                 raise FormatError(f"{self._file}: expected a list of boxes or an object with 'boxes'")
-            return data["boxes"], data.get("coords", "pixels"), data.get("prompt")
-        return data, "pixels", None
+            return data["boxes"], data.get("coords", self.coords), data.get("prompt")
+        return data, self.coords, None
 
     def detect(self, image, prompt: str) -> list[Detection]:
         """The external boxes for ``prompt`` in pixel coordinates, best first."""

@@ -159,6 +159,9 @@ def read_cameras(path) -> list:
 def _read_cameras(p: Path) -> list:
     if p.is_dir():
         return _read_colmap_dir(p)
+    if not p.exists() and ":" in p.name and Path(str(p).rsplit(":", 1)[0]).exists():
+        raise fail(p, "no such file; FILE:NAME picks one camera where one is expected (--camera), but here "
+                      "every camera of a file is read: give the file alone")
     if p.name.lower() in ("cameras.txt", "images.txt", "cameras.bin", "images.bin"):
         return _read_colmap(p.parent, p.suffix.lower())
     if p.suffix.lower() != ".json":

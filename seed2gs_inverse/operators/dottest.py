@@ -55,7 +55,10 @@ def dottest(op, rtol: float = 1e-4, rng=None, raise_error: bool = True) -> bool:
     if isinstance(rtol, bool) or not isinstance(rtol, (int, float, np.integer, np.floating)) \
             or not np.isfinite(rtol) or rtol <= 0:
         raise ValidationError(f"dottest: rtol must be a positive number, got {rtol!r}")
-    rng = np.random.default_rng(rng)
+    try:
+        rng = np.random.default_rng(rng)
+    except (TypeError, ValueError):
+        raise ValidationError(f"dottest: rng must be a numpy Generator, a seed (int) or None, got {rng!r}") from None
     m, n = (int(s) for s in op.shape)
     x = rng.standard_normal(n)
     y = rng.standard_normal(m)

@@ -124,12 +124,12 @@ class OperatorStack(LinearOperator):
         return self._column_sums
 
     def subset(self, indices) -> "OperatorStack":
-        """A stack of the views ``indices`` (same fingerprint)."""
-        idx = [int(i) for i in np.atleast_1d(np.asarray(indices, dtype=np.int64))]
-        for i in idx:
-            if not -len(self) <= i < len(self):
-                raise ValidationError(f"view index {i} is out of range for a stack of {len(self)} views")
-        return OperatorStack([self.views[i] for i in idx], self.fingerprint)
+        """A stack of the views ``indices`` (integers, negative from the end, or a bool mask of length
+        ``len(self)``), with the same fingerprint."""
+        from .._selection import index_list
+
+        idx = index_list(indices, len(self), "view indices", negative=True)
+        return OperatorStack([self.views[int(i)] for i in idx], self.fingerprint)
 
     # -- linear algebra ------------------------------------------------------
     def stacked(self) -> sp.csr_matrix:

@@ -198,6 +198,10 @@ def load(directory, mmap: bool = True, scene=None) -> tuple:
             raise ValidationError(f"{d}: operators were built for {n} Gaussians but the scene has "
                                   f"{len(scene)}; rebuild the operators for this scene")
         fp = scene_fingerprint(scene)
+        if fingerprint is None:
+            raise ValidationError(f"{d}: the stack was saved without a scene fingerprint, so it cannot be "
+                                  f"checked against a scene; load it without scene=, or save it with "
+                                  f"OperatorStack(views, fingerprint=scene_fingerprint(scene))")
         if fingerprint != fp:
             raise ValidationError(f"{d}: scene fingerprint {fingerprint} does not match the given scene "
                                   f"({fp}); the operators belong to another scene")

@@ -331,18 +331,10 @@ def prior_from_init(init, n: int) -> np.ndarray:
     if init is None:
         return np.zeros(n)
     a = np.asarray(init)
-    if a.dtype == bool:
-        if a.shape != (n,):
-            raise ValidationError(f"init: a support mask must have shape ({n},), got {a.shape}")
-        return a.astype(np.float64)
-    if a.dtype.kind in "ui":
-        a = a.reshape(-1)
-        if a.size and (int(a.min()) < 0 or int(a.max()) >= n):
-            raise ValidationError(f"init: support indices must lie in [0, {n}), got range "
-                                  f"[{int(a.min())}, {int(a.max())}]")
-        out = np.zeros(n)
-        out[a] = 1.0
-        return out
+    if a.dtype == bool or a.dtype.kind in "ui":
+        from .._selection import support_mask
+
+        return support_mask(a.reshape(-1) if a.dtype != bool else a, n, "init").astype(np.float64)
     if a.dtype.kind == "f":
         if a.shape != (n,):
             raise ValidationError(f"init: a prior q must have shape ({n},), got {a.shape}")

@@ -146,8 +146,8 @@ def compare(operators, masks, truth, methods=None, holdout_every: int | None = 4
         Default: all :func:`~seed2gs_inverse.solvers.available_methods`.
     holdout_every : int or None, default 4
         Hold out every k-th view from fitting (see :func:`holdout_views`).
-    holdout : sequence of int, optional
-        Explicit held-out view indices (overrides ``holdout_every``).
+    holdout : sequence of int or bool (V,), optional
+        Explicit held-out views, as indices or a mask (overrides ``holdout_every``).
     init : optional
         Passed to every solver.
     options : dict, optional
@@ -177,19 +177,30 @@ def compare(operators, masks, truth, methods=None, holdout_every: int | None = 4
     t = np.asarray(truth)
     if t.dtype != bool or t.shape != (N,):
         raise ValidationError(f"truth must be a bool array of shape ({N},), got {t.dtype} {t.shape}")
+    if isinstance(methods, str):
+        raise ValidationError(f"methods must be a list of method names, got the string {methods!r}; "
+                              f"write [{methods!r}]")
     methods = list(available_methods() if methods is None else methods)
     if not methods:
         raise ValidationError("methods: give at least one method")
     for m in methods:
         if m not in available_methods():
             raise ValidationError(f"unknown method {m!r}; available: {', '.join(available_methods())}")
+    if len(set(methods)) != len(methods):
+        raise ValidationError(f"methods: each method once, got {methods}")
     options = dict(options or {})
+    stray = sorted(set(options) - set(methods))
+    if stray:
+        raise ValidationError(f"options: {stray} {'is' if len(stray) == 1 else 'are'} not among the compared "
+                              f"methods {methods}; options are keyed by method name")
+    if not (np.isfinite(render_threshold) and 0.0 <= render_threshold < 1.0):
+        raise ValidationError(f"render_threshold must be in [0, 1) (a rendered opacity), got {render_threshold!r}")
     if holdout is None:
         held = holdout_views(V, holdout_every)
     else:
-        held = np.unique(np.asarray(holdout, dtype=np.int64).reshape(-1))
-        if held.size and (held.min() < 0 or held.max() >= V):
-            raise ValidationError(f"holdout indices must lie in [0, {V})")
+        from ._selection import index_list
+
+        held = np.unique(index_list(holdout, V, "holdout"))
     train = np.setdiff1d(np.arange(V), held)
     if train.size == 0:
         raise ValidationError("every view is held out; keep at least one view for fitting")
