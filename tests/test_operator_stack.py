@@ -289,6 +289,9 @@ def _corruptions():
                                       _edit_manifest(d, lambda m: m["views"][0]["files"].update(
                                           rgb="view_000_rgb.npy"))), "rgb"),
         "link outside": (_link_outside, "outside the operator directory"),
+        "negative depth": (lambda d: (np.save(d / "view_000_depth.npy", np.full((6, 8), -1.0, np.float32)),
+                                      _edit_manifest(d, lambda m: m["views"][0]["files"].update(
+                                          depth="view_000_depth.npy"))), r"rendering 'depth' must lie in \[0, inf\]"),
     }
 
 

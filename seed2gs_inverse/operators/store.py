@@ -319,8 +319,16 @@ def _load_view(d: Path, mpath: Path, i: int, entry, n: int, mmap: bool) -> ViewO
                                   f"{want}, got {arr.dtype} {arr.shape}")
             if k != "n_contrib" and not np.all(np.isfinite(arr)):
                 raise FormatError(f"{d / files[k]} ({label}): rendering '{k}' holds non-finite values")
+            lo, hi = _RENDER_RANGES.get(k, (-np.inf, np.inf))
+            if arr.size and (float(arr.min()) < lo or float(arr.max()) > hi):
+                raise FormatError(f"{d / files[k]} ({label}): rendering '{k}' must lie in [{lo:g}, {hi:g}]")
         rendering = Rendering(**extra)
     return ViewOperator(W, camera, shape, rendering)
+
+
+#: What a rendering can hold: sums of non-negative weights, depths in front of the camera, counts. (No
+#: upper bound on alpha: a saved stack may hold operators other than the rasterizer's.)
+_RENDER_RANGES = {"alpha": (0.0, np.inf), "depth": (0.0, np.inf), "n_contrib": (0, np.inf)}
 
 
 def _has_duplicate_columns(indices, indptr, n: int) -> bool:
