@@ -26,7 +26,7 @@ import warnings
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["atomic_path", "write_files", "check_output_parent", "clean_stale_temps",
+__all__ = ["atomic_path", "write_files", "check_output_parent", "check_writable", "clean_stale_temps",
            "STALE_AGE_S"]
 
 #: A temporary whose creator cannot be checked (another host, or a name
@@ -201,6 +201,23 @@ def write_files(items) -> None:
         for path, payload in items:
             tmp = stack.enter_context(atomic_path(path))
             tmp.write_bytes(payload)
+
+
+def check_writable(directory, label: str) -> None:
+    """Raise a ValidationError ``"{label}: cannot write in {directory} (reason)"`` unless a file can be
+    created in ``directory`` (checked with a probe file, removed at once): ``/proc``, a read-only mount
+    or a missing permission fails here, before any work."""
+    import errno
+
+    from .errors import ValidationError
+
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".seed2gs-write-check.", dir=directory)
+    except OSError as exc:
+        reason = exc.strerror or errno.errorcode.get(exc.errno, type(exc).__name__)
+        raise ValidationError(f"{label}: cannot write in {directory} ({reason})") from None
+    os.close(fd)
+    os.unlink(probe)
 
 
 def check_output_parent(path, option: str) -> Path:

@@ -241,8 +241,7 @@ def check_output_dir(path, what: str = "output") -> Path:
     parent, when it does not exist yet): checked by creating and removing a
     probe file, so that ``/proc/x`` or a read-only mount fails before any work.
     """
-    import errno
-    import tempfile
+    from .._atomic import check_writable
 
     out = Path(os.fspath(path))
     if not str(path):
@@ -252,14 +251,7 @@ def check_output_dir(path, what: str = "output") -> Path:
     parent = out.resolve().parent
     if not parent.is_dir():
         raise ValidationError(f"{what} {out}: the directory {parent} does not exist (create it first)")
-    where = out if out.is_dir() else parent
-    try:
-        fd, probe = tempfile.mkstemp(prefix=".seed2gs-write-check.", dir=where)
-    except OSError as exc:
-        reason = exc.strerror or errno.errorcode.get(exc.errno, type(exc).__name__)
-        raise ValidationError(f"{what} {out}: cannot write in {where} ({reason})") from None
-    os.close(fd)
-    os.unlink(probe)
+    check_writable(out if out.is_dir() else parent, f"{what} {out}")
     return out
 
 

@@ -14,15 +14,14 @@ One grammar for every command (issue 12 item 13):
 
 from __future__ import annotations
 
-import errno
 import json
 import os
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from .._atomic import check_writable
 from ..errors import ValidationError
 
 __all__ = ["check_output", "parse_vector", "add_method_arguments", "parse_options", "progress_enabled",
@@ -68,13 +67,7 @@ def check_output(path, option: str, *, directory: bool = False, force: bool = Fa
         if probe.exists() and not probe.is_dir():
             raise ValidationError(f"{option} {path}: {probe} is a file, not a directory")
         raise ValidationError(f"{option} {path}: the directory {parent} does not exist (create it first)")
-    try:
-        fd, name = tempfile.mkstemp(prefix=".seed2gs-write-check.", dir=parent)
-    except OSError as exc:
-        reason = exc.strerror or errno.errorcode.get(exc.errno, type(exc).__name__)
-        raise ValidationError(f"{option} {path}: cannot write in {parent} ({reason})") from None
-    os.close(fd)
-    os.unlink(name)
+    check_writable(parent, f"{option} {path}")
     if p.exists() or p.is_symlink():
         if directory and not p.is_dir():
             raise ValidationError(f"{option} {path} exists and is not a directory")
