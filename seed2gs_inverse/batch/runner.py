@@ -71,8 +71,8 @@ def _has_dashboard() -> bool:
     return True
 
 
-_SPAWN_HINT = ("Worker processes start by importing the script that started them, so a script that calls "
-               "extract_many at its top level starts the batch again in every worker: put that code under "
+_SPAWN_HINT = ("If a script calls extract_many at its top level: worker processes start by importing the "
+               "script, so each would start the batch again; put that code under "
                "'if __name__ == \"__main__\":', or run with client=\"sequential\"")
 
 
