@@ -138,6 +138,17 @@ def test_demo_prints_scores(capsys):
     assert "Gaussians" in capsys.readouterr().out
 
 
+def test_demo_outputs_say_how_to_repeat_them(capsys, tmp_path):
+    out = tmp_path / "demo"
+    assert _run(["demo", "--object", "sphere", "--views", 4, "--size", 96, 72, "-o", out]) == 0
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["demo"] == {"seed": 0, "object": "sphere", "views": 4, "size": "96 72", "method": "weighted_bce"}
+    capsys.readouterr()
+    assert _run(["extract", "--from-report", out / "report.json", "-o", tmp_path / "again"]) == 2
+    err = capsys.readouterr().err
+    assert "written by seed2gs demo" in err and "seed2gs demo --seed 0 --object sphere --views 4 --size 96 72" in err
+
+
 def test_from_report_repeats_the_run(files, capsys, tmp_path):
     """report.json alone reproduces a run: --from-report gives the same q (issue 12 item 14)."""
     import seed2gs_inverse

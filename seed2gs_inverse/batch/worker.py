@@ -277,7 +277,7 @@ def run_job(job, output=None, attempt: int = 1) -> JobResult:
 
             outdir = Path(output) / job.name
             write_outputs(ex, outdir, job.format, force=True, figure=job.figure,
-                          batch_info={"job": job.name, "fingerprint": res.fingerprint})
+                          sections={"batch": {"job": job.name, "fingerprint": res.fingerprint}})
             if job.figure:
                 import matplotlib.pyplot as plt
 

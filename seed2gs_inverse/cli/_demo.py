@@ -27,7 +27,8 @@ def register(subparsers) -> None:
     add_method_arguments(p, options=False)
     p.add_argument("--summary", action="store_true", help="only print the scene summary")
     p.add_argument("-o", "--output", default=None, metavar="OUTDIR",
-                   help="also write the extraction outputs (as seed2gs extract) here")
+                   help="also write the extraction outputs (as seed2gs extract) here; report.json's demo "
+                        "section holds these arguments (--from-report does not apply: the scene is generated)")
     p.add_argument("--force", action="store_true", help="replace OUTDIR if it exists")
     p.set_defaults(func=run)
 
@@ -112,6 +113,8 @@ def run(args) -> int:
     if args.output:
         from ._extract import write_outputs
 
-        write_outputs(ex, args.output, force=args.force)
+        demo = {"seed": args.seed, "object": args.object, "views": args.views,
+                "size": f"{args.size[0]} {args.size[1]}", "method": args.method}
+        write_outputs(ex, args.output, force=args.force, sections={"demo": demo})
         print(f"wrote {args.output}/")
     return 0

@@ -195,13 +195,14 @@ def seed_summary_line(summary: dict) -> str:
 
 
 def write_outputs(extraction, outdir, fmt: str = "ply", force: bool = False, figure: bool = True,
-                  run_info: dict | None = None, batch_info: dict | None = None) -> Path:
+                  run_info: dict | None = None, sections: dict | None = None) -> Path:
     """Write object/remainder scenes, q.npy, report.json (and report.png) into ``outdir``.
 
     Everything goes to a temporary directory next to ``outdir`` that is
     renamed at the end, so a failure leaves no partial output. ``run_info``
-    becomes the report's ``run`` section (what ``--from-report`` reads),
-    ``batch_info`` its ``batch`` section (the batch job that wrote it).
+    becomes the report's ``run`` section (what ``--from-report`` reads);
+    ``sections`` adds sections of the writer's own (``batch``: the batch job;
+    ``demo``: the demo's arguments).
     """
     from ..io import write_scene
     from ..pipeline.report import seed_summary
@@ -224,8 +225,7 @@ def write_outputs(extraction, outdir, fmt: str = "ply", force: bool = False, fig
         report["outputs"] = {**outputs, "q": "q.npy"}
         if run_info is not None:
             report["run"] = run_info
-        if batch_info is not None:
-            report["batch"] = batch_info
+        report.update(sections or {})
         with open(tmp / "report.json", "w") as fh:
             json.dump(report, fh, indent=2)
         if figure:
@@ -287,6 +287,10 @@ def _read_report(path) -> dict:
     except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
         raise FormatError(f"--from-report {path}: not a JSON report ({type(exc).__name__})") from None
     run = rep.get("run") if isinstance(rep, dict) else None
+    if isinstance(rep, dict) and isinstance(rep.get("demo"), dict):
+        d = rep["demo"]
+        raise FormatError(f"--from-report {path}: written by seed2gs demo, whose scene is generated, not read; "
+                          f"repeat it with: seed2gs demo " + " ".join(f"--{k} {v}" for k, v in d.items()))
     if not isinstance(run, dict) or not isinstance(rep.get("settings"), dict):
         raise FormatError(f"--from-report {path}: no 'run' and 'settings' sections; only report.json files "
                           f"written by seed2gs extract can be repeated")
