@@ -433,3 +433,21 @@ def test_killed_worker_job_is_retried_once(tiny, dask_client, tmp_path):
     # this run's job first, then the earlier run's, which the summary keeps
     assert [(j["name"], j["status"], j["attempts"]) for j in summary["jobs"]] == [("dies-twice", "failed", 2),
                                                                                  ("dies-once", "done", 2)]
+
+
+def test_embedded_workers_leave_ctrl_c_to_the_runner():
+    """Ctrl-C reaches the whole process group; worker processes started by the embedded cluster ignore
+    it (one line, 'interrupted', instead of a traceback per worker), the runner closes the cluster."""
+    import subprocess
+    import sys
+
+    from seed2gs_inverse.batch.runner import _children_ignore_sigint
+
+    code = "import signal; print(signal.getsignal(signal.SIGINT) is signal.SIG_IGN)"
+    with _children_ignore_sigint():
+        inside = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True).stdout.strip()
+    outside = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True).stdout.strip()
+    assert (inside, outside) == ("True", "False")
+    import signal
+
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored here

@@ -151,20 +151,47 @@ def batch_client(client=None, n_workers: int | None = None, n_jobs: int | None =
         if getattr(multiprocessing.current_process(), "_inheriting", False):
             raise ValidationError(_SPAWN_HINT)  # a worker process re-importing the user's script
         try:
-            cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
-                                   dashboard_address=":0",  # a free port: never "8787 is in use"
-                                   silence_logs=logging.ERROR, env=env)
+            with _children_ignore_sigint():
+                cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
+                                       dashboard_address=":0",  # a free port: never "8787 is in use"
+                                       silence_logs=logging.ERROR, env=env)
         except RuntimeError as exc:
             reason = str(exc).rstrip(".")
             raise ValidationError(f"could not start the embedded Dask workers ({reason}). {_SPAWN_HINT}") from exc
+        dask_log = logging.getLogger("distributed")
+        level = dask_log.level
         try:
             c = Client(cluster)
             try:
                 yield c
+            except KeyboardInterrupt:
+                # Ctrl-C: the cluster is closed under running tasks; the nannies' reports of the
+                # cancelled work are expected, not errors worth a screen of tracebacks.
+                dask_log.setLevel(logging.CRITICAL)
+                raise
             finally:
                 c.close()
         finally:
             cluster.close()
+            dask_log.setLevel(level)
+
+
+@contextmanager
+def _children_ignore_sigint():
+    """Processes started inside ignore SIGINT (an ignored signal stays ignored across exec, and Python
+    keeps it so): Ctrl-C in a terminal reaches the whole process group, and only this process should
+    act on it, by closing the cluster. A no-op off the main thread (signals cannot be set there)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _dashboard(client) -> str | None:
