@@ -91,7 +91,10 @@ def _camera(args):
         w, h = _size(args.size or "960x540")
         eye, target = (_triple("--look-at", v) for v in args.look_at)
         fov = 60.0 if args.fov is None else args.fov
-        cam = Camera.look_at(eye, target, parse_vector("--up", args.up or "0,-1,0"), fov, w, h, name="look-at")
+        try:
+            cam = Camera.look_at(eye, target, parse_vector("--up", args.up or "0,-1,0"), fov, w, h, name="look-at")
+        except ValidationError as exc:
+            raise ValidationError(f"--look-at / --up / --fov: {str(exc).removeprefix('look_at: ')}") from None
     if args.near is not None:
         cam = Camera(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, cam.world_to_camera,
                      cam.name, args.near)

@@ -95,8 +95,16 @@ def solve_command(args) -> int:
         raise ValidationError(f"-o {args.output}: the output must be a .npy file")
     out = check_output(args.output, "-o", force=args.force)
     stack = OperatorStack.load(args.operators, mmap=True)
+    init = None
+    if args.init:
+        from ..solvers._common import prior_from_init
+
+        init = _load_npy(Path(args.init))
+        try:  # checked here so that the message names the option and file
+            prior_from_init(init, stack.n_gaussians)
+        except ValidationError as exc:
+            raise ValidationError(f"--init {args.init}: {str(exc).removeprefix('init: ')}") from None
     masks = read_masks(args.masks, len(stack), stack.image_shapes)
-    init = _load_npy(Path(args.init)) if args.init else None
     print(f"solving {len(stack)} views, {stack.n_gaussians:,} Gaussians with {args.method} ...",
           file=sys.stderr, flush=True)
     with SolveBar(args.method, progress_enabled(args.no_progress)) as bar:
