@@ -196,7 +196,9 @@ class GaussianScene:
     @property
     def opacities(self) -> np.ndarray:
         """Activated opacity ``sigmoid(opacity_logits)``, (N,) float32."""
-        return (1.0 / (1.0 + np.exp(-self.opacity_logits.astype(np.float64)))).astype(np.float32)
+        from scipy.special import expit  # no overflow warning for the -1e4 logits of pruned splats
+
+        return expit(self.opacity_logits.astype(np.float64)).astype(np.float32)
 
     @property
     def scales(self) -> np.ndarray:

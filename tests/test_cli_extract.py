@@ -267,7 +267,7 @@ def test_an_empty_selection_is_said_and_splat_outputs_skip_empty_parts(files, ca
                "-o", out, "--views", 4, "--threshold", 0.99999999, "--format", "splat", "--no-progress"])
     err = capsys.readouterr().err
     assert rc == 0, err
-    assert "nothing was selected" in err and "lower --threshold" in err
+    assert "warning: nothing was selected" in err and "lower the threshold" in err
     assert "object is empty (0 Gaussians): object.splat is not written" in err
     assert sorted(p.name for p in out.iterdir()) == ["q.npy", "remainder.splat", "report.json", "report.png"]
     rep = json.loads((out / "report.json").read_text())

@@ -194,7 +194,8 @@ def test_extract_settings_and_overrides(tiny):
     assert ExtractSettings.from_dict(rep["settings"]) == ex.settings
     assert set(rep["resolved"]) == {"view_scale", "reference_scale", "up", "up_method", "up_confidence",
                                     "threshold", "solver_options", "n_weak_evidence", "n_disconnected", "smoothness", "tracker",
-                                    "grounder", "support"}
+                                    "grounder", "support", "warnings"}
+    assert rep["resolved"]["warnings"] == []  # a sound extraction: nothing to warn about
     assert rep["resolved"]["smoothness"] == 1.0  # None: on with the model-free tracker
     assert rep["up"]["axis"] == rep["resolved"]["up"] and rep["up"]["method"] == rep["resolved"]["up_method"]
     assert rep["resolved"]["tracker"] == "GeometricTracker" and rep["resolved"]["grounder"] is None

@@ -93,6 +93,12 @@ def test_grow_object_stops_at_the_plane_and_at_gaps():
     # Without the plane the floor connects everything.
     sel2, _ = grow_object(scene, seeds, center=pts[1500:1520].mean(0), radius=2.0)
     assert sel2[:1500].mean() > 0.9
+    # A plane with most clicked Gaussians below it cuts through the click (a wrong fit): it is set aside
+    # instead of removing the seeds, which left nothing to grow from.
+    sel3, info3 = grow_object(scene, seeds, center=pts[1500:1520].mean(0), radius=2.0,
+                              plane=(np.array([0, 0, 1.0]), np.array([0, 0, 0.5]), 0.03))
+    assert info3["plane_rejected"] and sel3[seeds].all() and sel3[1500:2300].all()
+    assert "plane_rejected" not in info
 
 
 def test_validation(table_view):

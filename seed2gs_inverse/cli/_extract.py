@@ -422,10 +422,7 @@ def run(args) -> int:
           + ", ".join(f"{k} {v:.2f}" for k, v in s.items())
           + ("" if run_info["peak_rss_mb"] is None else f"; peak memory {run_info['peak_rss_mb'] / 1024:.2f} GB")
           + ")")
-    if int(ex.selected.sum()) == 0:
-        print(f"warning: nothing was selected (the largest q is {float(np.max(ex.q, initial=0.0)):.3f}, the "
-              f"threshold {ex.threshold:.3f}): lower --threshold, or check the seed in report.png", file=sys.stderr)
-    else:
+    if int(ex.selected.sum()):  # (an empty selection was warned about by extract)
         print(seed_summary_line(seed_summary(ex)))
     if models is None:  # with models, SAM2 would have tracked even a mask/box/point seed
         print("note: no models configured; the seed was tracked by the model-free tracker",

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import contextlib
 import sys
+import warnings
 import time
 from dataclasses import dataclass, field
 
@@ -769,6 +770,40 @@ def _trackers(tracker, settings: ExtractSettings):
     return tracker, filler, float(smoothness)
 
 
+#: Fewer Gaussians than this in G0: the seed rests on too little of the scene to orbit and label.
+MIN_SUPPORT = 10
+
+
+def result_warnings(ref: ReferenceView, lift: SeedLift, masks, stack, sel) -> list:
+    """What makes a finished extraction untrustworthy although every stage ran: one sentence each.
+
+    A seed that touches every border of the reference image (the object may
+    go on beyond the view; the lift and the orbit only know what is seen), a
+    lift of fewer than :data:`MIN_SUPPORT` Gaussians, orbit views without
+    any weight or without a single object pixel (the reference view alone
+    decided q), and an empty selection.
+    """
+    notes = []
+    seed = np.asarray(ref.seed, bool)
+    if seed.any() and seed[0].any() and seed[-1].any() and seed[:, 0].any() and seed[:, -1].any():
+        notes.append("the seed touches every border of the reference image: the object may extend beyond "
+                     "the view, and the orbit only covers what is seen; move the camera back")
+    if lift.n_support < MIN_SUPPORT:
+        notes.append(f"the seed lifted to only {lift.n_support} Gaussian(s) (G0): a seed smaller than the splats "
+                     f"it covers, or a camera very close to the surface; the orbit circles a tiny region")
+    orbit = range(1, len(stack))
+    if len(stack) > 1 and all(stack[i].W.nnz == 0 for i in orbit):
+        notes.append("the orbit views hold no weights (orbit_scale, zoom_margin or min_weight leave them "
+                     "empty): the reference view alone decided q")
+    elif len(masks) > 1 and not any(np.nansum(np.asarray(masks[i]) > 0.5) for i in orbit):
+        notes.append("the object was found in none of the orbit views (every tracked mask is background): "
+                     "q rests on the reference view; try completion='reference' or a larger seed")
+    if not np.any(sel.selected):
+        notes.append(f"nothing was selected (the largest q is {float(np.max(sel.q, initial=0.0)):.3f}, the "
+                     f"threshold {float(sel.threshold):.3f}): lower the threshold, or check the seed")
+    return notes
+
+
 def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker=None,
             settings: ExtractSettings | None = None, *, up_cameras=None, **overrides) -> Extraction:
     """Extract one object from a frozen 3DGS scene (Algorithm 1).
@@ -853,6 +888,9 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
         stack = stack_operators(labelled, scene)
         sel = solve_selection(stack, masks, lift, s, progress=bar.solve_callback, graph=graph,
                               smoothness=smoothness, scene=scene)
+    notes = result_warnings(ref, lift, masks, stack, sel)
+    for note in notes:
+        warnings.warn(note, stacklevel=2)
     resolved = {"view_scale": float(orbits.view_scale), "reference_scale": float(ref.scale),
                 "up": orbits.up.tolist(), "up_method": orbits.up_info.get("method"),
                 "up_confidence": orbits.up_info.get("confidence"), "threshold": float(sel.threshold),
@@ -861,7 +899,7 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
                 "n_weak_evidence": sel.n_weak_evidence, "n_disconnected": sel.n_disconnected,
                 "support": support_info,
                 "smoothness": smoothness, "tracker": type(tracker).__name__,
-                "grounder": None if grounder is None else type(grounder).__name__}
+                "grounder": None if grounder is None else type(grounder).__name__, "warnings": notes}
     return Extraction(scene, sel.q, sel.selected, sel.threshold, seed, prompt_info, camera, reference, lift,
                       orbits.plan, [f.camera for f, _ in labelled], [f.clip for f, _ in labelled], masks, stack,
                       sel.result, timer.seconds, s, resolved, orbits.up_info)

@@ -62,6 +62,7 @@ the growth yields nothing the patch itself is the mask.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -218,8 +219,14 @@ def grow_object(scene, seeds, *, center, radius: float, plane=None, blocked=None
     if plane is not None:
         pn, pp, band = plane
         pn = np.asarray(pn, float) / np.linalg.norm(pn)
-        node &= (means - np.asarray(pp, float)) @ pn >= float(band)
+        above = (means - np.asarray(pp, float)) @ pn >= float(band)
         info.update(plane_normal=pn.tolist(), plane_point=np.asarray(pp, float).tolist(), band=float(band))
+        # A support plane holds the object up: one that leaves most of the clicked Gaussians below it
+        # cuts through the click (a wrong fit), and would leave nothing to grow from.
+        if np.count_nonzero(above & seeds) >= 0.5 * np.count_nonzero(seeds):
+            node &= above
+        else:
+            info["plane_rejected"] = "it cuts through the clicked Gaussians"
     if blocked is not None:
         node &= ~np.asarray(blocked, bool)
     idx = np.flatnonzero(node)
@@ -387,6 +394,9 @@ def point_object_mask(scene, camera: Camera, points, labels=None, rendering=None
     fallback = not mask.any()
     if fallback:
         mask = patch.copy()
+        warnings.warn("point prompt: the click could not be grown to a whole object; the seed is the clicked "
+                      f"region alone ({int(patch.sum())} px). Click nearer the object's middle, or give a box "
+                      "or a mask", stacklevel=2)
     info = {"kind": "point", "mode": "object", "n_clicks": int(len(pts)), "patch_pixels": int(patch.sum()),
             "patch_sources": sources,
             "n_seeds": int(seeds.sum()), "support": plane_info, "growth": grow_info,

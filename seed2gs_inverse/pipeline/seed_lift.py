@@ -214,6 +214,12 @@ def seed_lift(scene, camera, mask, depth, W=None, *, eps_rel: float = 0.02, eps_
         typical = float(np.median(sigma[cand]))
         cand &= sigma <= max_size_ratio * typical
     if not cand.any():
+        if membership is not None and np.any((inside > 0) & depth_ok):
+            # Gaussians do render inside the seed, but mostly outside it: a seed smaller than the splats
+            raise ValidationError(
+                f"the seed mask ({int(m.sum())} px) is smaller than the footprint of the Gaussians that render "
+                f"inside it: none has {min_membership:.0%} of its weight in the seed (min_membership); give a "
+                f"larger seed (the whole object, or a box), or a camera closer to it")
         raise ValidationError(
             "the seed mask touches no Gaussian of the scene in the reference view (no Gaussian "
             "renders inside it at a consistent depth); check the mask, camera and scene match")

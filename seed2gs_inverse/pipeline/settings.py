@@ -109,8 +109,11 @@ def _up(value):
         u = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
         u = None
-    if u is None or u.shape != (3,) or not np.all(np.isfinite(u)) or np.linalg.norm(u) == 0:
+    if u is None or u.shape != (3,) or not np.all(np.isfinite(u)) or not np.any(u):
         raise ValidationError(f"up must be 'auto', 'level', 'camera' or a non-zero finite 3-vector, got {value!r}")
+    big = float(np.max(np.abs(u)))
+    if not 1e-100 < big < 1e100:  # a direction: rescaled where its length would under- or overflow later
+        u = u / big
     return tuple(float(x) for x in u)
 
 
