@@ -148,7 +148,8 @@ def recolour(scene: GaussianScene, selected, rgb, keep_view_dependence: bool = F
         new = np.broadcast_to(new, (m, 3))
     if new.shape != (m, 3) or not np.all(np.isfinite(new)):
         raise ValidationError(f"recolour: rgb must be finite (3,) or ({m}, 3), got shape {new.shape}")
-    if new.min() < 0.0 or new.max() > 1.0:
+    if not callable(rgb) and (new.min() < 0.0 or new.max() > 1.0):
+        # (a callable maps the current colours, which real scenes hold slightly outside [0, 1] too)
         raise ValidationError(f"recolour: rgb must lie in [0, 1], got values in [{new.min():.3g}, {new.max():.3g}]")
     sh = scene.sh.copy()  # scene arrays are read-only; the new scene validates the copy
     sh[mask, 0] = ((new - 0.5) / SH_C0).astype(np.float32)

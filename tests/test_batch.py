@@ -268,6 +268,12 @@ def test_summary_keeps_earlier_jobs_and_a_failed_rerun_leaves_no_folder(tiny, tm
     assert listed() == [("a-mask", "failed"), ("b-box", "done")]
     assert sorted(p.name for p in res.iterdir() if not p.name.startswith(".")) == ["b-box", "summary.csv",
                                                                                    "summary.json"]
+    # A folder made under the name of a job the summary lists as failed is the user's, not the batch's.
+    (res / "a-mask").mkdir()
+    (res / "a-mask" / "notes.txt").write_text("mine")
+    with pytest.raises(ValidationError, match="a-mask, which no earlier batch there wrote"):
+        extract_many(jobs[:1], "sequential", output=res, progress=False)
+    assert (res / "a-mask" / "notes.txt").read_text() == "mine"
     # A folder a worker finished after the runner was interrupted (no summary line) is the batch's: its
     # report.json names the job, so the next run replaces it instead of refusing.
     report = json.loads((res / "b-box" / "report.json").read_text())

@@ -94,3 +94,12 @@ def test_extreme_but_valid_inputs_stay_quiet_and_finite():
         warnings.simplefilter("error")
         op = dataclasses.replace(scene, opacity_logits=logits).opacities
     assert np.all(op[:3] == 0.0) and np.all(np.isfinite(op))
+
+
+def test_the_seed_size_message_only_when_membership_alone_failed(sphere):
+    scene, labels, info = sphere
+    cam = reference_camera(info)
+    with pytest.raises(sgi.ValidationError, match="touches no Gaussian") as exc:
+        sgi.extract(scene, cam, _object_mask(scene, labels, cam), n_views=4, up=tuple(info["up"]),
+                    progress=False, lift_options={"min_weight": 1e6})
+    assert "smaller than the footprint" not in str(exc.value)

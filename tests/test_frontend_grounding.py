@@ -133,7 +133,7 @@ def test_external_boxes_file_and_callable(d, tmp_path, img):
     plain.write_text(json.dumps({"boxes": [{"box": [100, 250, 400, 750]}]}))
     np.testing.assert_allclose(ExternalBoxes(plain, coords="per-mille").detect(img, "cup")[0].box,
                                [6.4, 12.0, 25.6, 36.0])
-    with pytest.raises(FormatError, match="coords must be one of"):
+    with pytest.raises(ValidationError, match="coords must be one of"):
         ExternalBoxes(plain, coords="percent")
 
 
@@ -285,8 +285,11 @@ def test_models_config_errors(d, tmp_path):
     with pytest.raises(FormatError, match=r"\[groundingdino\] box_threshold must be in \[0, 1\], got 5"):
         load_models(cfg(pair + gdino + "box_threshold=5\n"))
     with pytest.raises(FormatError, match=r"sources \['gdino'\] name no configured source; configured "
-                                          r"sources: groundingdino"):
+                                          r"sources: groundingdino, vlm"):
         load_models(cfg(pair + gdino + "[selector]\nsources=['groundingdino', 'gdino']\n"))
+    # "vlm" may come from Python (grounder(external=...)), so a configuration may name it
+    ms = load_models(cfg(pair + gdino + "[selector]\nsources=['vlm', 'groundingdino']\n"))
+    assert ms.grounder(external=lambda image, prompt: []).sources == {"vlm", "groundingdino"}
     with pytest.raises(FormatError, match=r"providers \['FooProvider'\] not available"):
         load_models(cfg(pair + "[onnxruntime]\nproviders=['FooProvider']\n"))
     boxes = tmp_path / "boxes.json"
@@ -294,7 +297,7 @@ def test_models_config_errors(d, tmp_path):
     with pytest.raises(FormatError, match=r"boxes.json\[0\]"):
         load_models(cfg(pair + f"[external]\nboxes='{boxes}'\n"))
     boxes.write_text(json.dumps({"boxes": [[1, 2, 3, 4]]}))
-    with pytest.raises(FormatError, match="coords must be one of"):
+    with pytest.raises(FormatError, match=r"m.toml: \[external\] coords must be one of"):
         load_models(cfg(pair + f"[external]\nboxes='{boxes}'\ncoords='percent'\n"))
 
 

@@ -90,3 +90,40 @@ def test_edit_and_dottest_arguments_give_validation_errors():
     stack, _ = _stack(np.random.default_rng(3))
     with pytest.raises(ValidationError, match="rng must be"):
         sgi.dottest(stack, rng="x")
+
+
+def test_option_checks_take_any_number_and_leave_unlisted_options_alone():
+    """Review findings: a Python int beyond float range gave a raw TypeError; a method that takes **kwargs
+    lost its extra options to a KeyError; an int default refused a fraction in a third-party method."""
+    from seed2gs_inverse.solvers import check_method_options, register_method
+    from seed2gs_inverse.solvers._common import MethodResult
+
+    assert check_method_options("weighted_bce", {"lam": 10 ** 20})  # large, but a valid temperature
+    for method, opts in (("weighted_bce", {"eps": 10 ** 400}), ("voting", {"bias": 10 ** 400}),
+                         ("beta_bernoulli", {"a0": 10 ** 400}), ("least_squares", {"tol": -10 ** 400})):
+        with pytest.raises(ValidationError, match=next(iter(opts))):
+            check_method_options(method, opts)
+
+    def mine(problem, *, scale=1, **extra):
+        return MethodResult(q=np.full(problem.n_gaussians, 0.5 * scale))
+
+    register_method("test_kwargs_method", mine)
+    rng = np.random.default_rng(4)
+    stack, masks = _stack(rng)
+    res = sgi.solve(stack, masks, method="test_kwargs_method", scale=0.5, anything="goes")
+    assert np.allclose(res.q[~res.unobserved], 0.25)
+
+
+def test_recolour_with_a_callable_takes_colours_slightly_out_of_range():
+    scene = make_scene(seed=0, n_per_object=20).scene
+    sel = np.zeros(len(scene), bool)
+    sel[:5] = True
+    out = sgi.recolour(scene, sel, lambda c: c * 0.8 - 1e-8)  # real scenes hold colours a hair below 0
+    assert np.all(np.isfinite(out.sh))
+
+
+def test_a_box_changed_after_it_was_made_is_checked_when_used():
+    p = sgi.BoxPrompt([1, 2, 30, 40])
+    p.box = [np.nan] * 4
+    with pytest.raises(ValidationError, match="4 finite numbers"):
+        p.to_mask(np.zeros((48, 64, 3), np.uint8))

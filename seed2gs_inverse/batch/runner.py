@@ -243,7 +243,9 @@ def _read_summary(output: Path) -> dict:
     try:
         doc = json.loads(p.read_text("utf-8"))
         entries = doc["jobs"]
-        return {d["name"]: d for d in entries if isinstance(d, dict) and isinstance(d.get("name"), str)}
+        # entries the runner can read back (a hand-edited line without them is dropped, not a crash)
+        return {d["name"]: d for d in entries if isinstance(d, dict) and isinstance(d.get("name"), str)
+                and d.get("status") in ("done", "failed")}
     except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as exc:
         raise ValidationError(f"{p} is not the summary of a seed2gs batch ({type(exc).__name__}: {exc}); "
                               f"choose another output directory, or move that file away") from None
@@ -258,6 +260,13 @@ def _batch_folder(path: Path) -> bool:
             report["batch"].get("job") == path.name
     except (OSError, UnicodeDecodeError, ValueError):
         return False
+
+
+def _ours(path: Path, summary: dict) -> bool:
+    """Whether the job folder ``path`` is the batch's to replace: the summary lists it as done (a failed
+    entry has no folder: one there now is someone else's), or its report.json names the job."""
+    entry = summary.get(path.name)
+    return (entry is not None and entry.get("status") == "done") or _batch_folder(path)
 
 
 def check_output_dir(path, what: str = "output") -> Path:
@@ -382,15 +391,14 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
                 print(msg, file=sys.stderr)
 
     out = None
-    owned = {}  # summary entries of earlier runs: the folders the batch wrote
+    owned = {}  # summary entries of earlier runs
     created = False
     if output is not None:
         out = check_output_dir(output)
         created = not out.exists()
         out = out.resolve()  # workers may run elsewhere: give them an absolute path
         owned = _read_summary(out)
-        foreign = [j.name for j in jobs
-                   if j.name not in owned and (out / j.name).exists() and not _batch_folder(out / j.name)]
+        foreign = [j.name for j in jobs if (out / j.name).exists() and not _ours(out / j.name, owned)]
         if foreign:
             raise ValidationError(
                 f"output {out} already holds {', '.join(foreign)}, which no earlier batch there wrote "
@@ -431,8 +439,7 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
             if n_failed:
                 bar.set_postfix(failed=n_failed)
         if out is not None:
-            if res.status != "done" and (out / res.name).is_dir() and (
-                    res.name in owned or _batch_folder(out / res.name)):
+            if res.status != "done" and (out / res.name).is_dir() and _ours(out / res.name, owned):
                 _remove_folder(out / res.name)  # an earlier run's result for another description
             summary()
 

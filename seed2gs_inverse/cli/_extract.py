@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import shlex
 import sys
 import warnings
 from pathlib import Path
@@ -290,11 +291,19 @@ def _read_report(path) -> dict:
     if isinstance(rep, dict) and isinstance(rep.get("demo"), dict):
         d = rep["demo"]
         raise FormatError(f"--from-report {path}: written by seed2gs demo, whose scene is generated, not read; "
-                          f"repeat it with: seed2gs demo " + " ".join(f"--{k} {v}" for k, v in d.items()))
+                          f"repeat it with: {_demo_command(d)}")
     if not isinstance(run, dict) or not isinstance(rep.get("settings"), dict):
         raise FormatError(f"--from-report {path}: no 'run' and 'settings' sections; only report.json files "
                           f"written by seed2gs extract can be repeated")
     return rep
+
+
+def _demo_command(args: dict) -> str:
+    """The ``seed2gs demo`` command line of a demo report's ``demo`` section (``size`` is "W H")."""
+    words = ["seed2gs", "demo"]
+    for k, v in args.items():
+        words += [f"--{k}", *(str(v).split() if k == "size" else [str(v)])]
+    return " ".join(shlex.quote(w) for w in words)
 
 
 def _up_cameras(path, where: str):

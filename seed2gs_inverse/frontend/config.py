@@ -81,6 +81,7 @@ _SCHEMA = {
                  "source_prior": dict, "compatibility": dict},
     "onnxruntime": {"providers": list},
 }
+_COORDS = ("pixels", "unit", "per-mille")  # the conventions of frontend.external
 # (section, key) -> (low, high) inclusive: probability thresholds and counts that the models would
 # otherwise take as given (box_threshold = 5 loads and then never finds anything)
 _RANGES = {("groundingdino", "box_threshold"): (0.0, 1.0), ("groundingdino", "text_threshold"): (0.0, 1.0),
@@ -115,6 +116,8 @@ def _sections(path: Path, data: dict) -> dict:
             if kind is None:
                 raise FormatError(f"{path}: unknown key {key!r} in [{name}]; known keys: "
                                   f"{', '.join(_SCHEMA[name])}")
+            if (name, key) == ("external", "coords") and value not in _COORDS:
+                raise FormatError(f"{path}: [external] coords must be one of {', '.join(_COORDS)}, got {value!r}")
             if kind == "path":
                 if not isinstance(value, str) or not value:
                     raise FormatError(f"{path}: [{name}] {key} must be a file path string")
@@ -255,7 +258,9 @@ def load_models(path) -> ModelSet:
         raise FormatError(f"{path}: [selector] mask_model = {choice!r} but [{choice}] is not configured")
     wanted = ms.selector_options.get("sources")
     if wanted is not None:
+        # "vlm": external boxes may also come from Python, models.grounder(external=...)
         have = [d.source for d in (ms.external, ms.groundingdino, ms.owlvit) if d is not None]
+        have += [] if "vlm" in have else ["vlm"]
         if ms.sam3 is not None and ms.sam3.language is not None:
             have.append("sam3_text")
         unknown = [w for w in wanted if w not in have]

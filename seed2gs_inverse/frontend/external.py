@@ -78,8 +78,8 @@ class ExternalBoxes:
 
     def __init__(self, source: Callable[..., Any] | str | Path, name: str = "vlm", coords: str = "pixels"):
         self.source = str(name)
-        if coords not in _SCALES:
-            raise FormatError(f"{name}: coords must be one of {sorted(_SCALES)}, got {coords!r}")
+        if coords not in _SCALES:  # an argument (a configuration file's value is checked with the file)
+            raise ValidationError(f"{name}: coords must be one of {sorted(_SCALES)}, got {coords!r}")
         self.coords = coords
         if callable(source):
             self._fn, self._file = source, None

@@ -177,7 +177,9 @@ class BoxPrompt:
     alpha_min: float = 0.05
 
     def __post_init__(self):
-        # checked when made (a batch job's box fails before any cluster starts), not only when used
+        self._checked()  # when made (a batch job's box fails before any cluster starts) and when used
+
+    def _checked(self) -> np.ndarray:
         try:
             b = np.asarray(self.box, dtype=np.float64)
         except (TypeError, ValueError):
@@ -187,12 +189,13 @@ class BoxPrompt:
         if b[2] <= b[0] or b[3] <= b[1]:
             raise ValidationError(f"box {b.tolist()} is empty: need x0 < x1 and y0 < y1 "
                                   f"([left, top, right, bottom] in pixels)")
+        return b
 
     def to_mask(self, image: np.ndarray, alpha: np.ndarray | None = None, **_) -> np.ndarray:
         import cv2
 
         h, w = np.asarray(image).shape[:2]
-        b = np.asarray(self.box, dtype=np.float64)
+        b = self._checked()  # the box may have been changed since (a mutable dataclass)
         x0, y0, x1, y1 = b
         ix0, iy0 = int(np.clip(np.floor(x0), 0, w)), int(np.clip(np.floor(y0), 0, h))
         ix1, iy1 = int(np.clip(np.ceil(x1), 0, w)), int(np.clip(np.ceil(y1), 0, h))

@@ -214,8 +214,9 @@ def seed_lift(scene, camera, mask, depth, W=None, *, eps_rel: float = 0.02, eps_
         typical = float(np.median(sigma[cand]))
         cand &= sigma <= max_size_ratio * typical
     if not cand.any():
-        if membership is not None and np.any((inside > 0) & depth_ok):
-            # Gaussians do render inside the seed, but mostly outside it: a seed smaller than the splats
+        if membership is not None and np.any((inside > 0) & depth_ok & (colsum >= min_weight) & (resid <= eps)):
+            # Gaussians do render inside the seed and pass every test but membership: mostly outside it,
+            # a seed smaller than the splats
             raise ValidationError(
                 f"the seed mask ({int(m.sum())} px) is smaller than the footprint of the Gaussians that render "
                 f"inside it: none has {min_membership:.0%} of its weight in the seed (min_membership); give a "

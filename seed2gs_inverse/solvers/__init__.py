@@ -33,8 +33,8 @@ import scipy.sparse as sp
 from threadpoolctl import ThreadpoolController
 
 from ..errors import ValidationError
-from ._common import (MethodResult, Problem, SolveResult, available_methods, check_options, get_check,
-                      get_method, method_options, prepare, register_method)
+from ._common import (MethodResult, Problem, SolveResult, as_real, available_methods, check_options,
+                      get_check, get_method, method_options, prepare, register_method)
 from . import beta_bernoulli, least_squares, voting, weighted_bce  # noqa: F401  (importing registers them)
 from ._progress import SolveProgress, reporting
 from .smoothing import harmonic_extension, laplacian_smooth
@@ -181,7 +181,8 @@ def check_method_options(method, options) -> object:
     check_options(method, fn, options)
     defaults = method_options(method)
     for name, v in options.items():
-        _check_kind(method, name, v, defaults[name])
+        if name in defaults:  # (a method taking **kwargs accepts names it does not list)
+            _check_kind(method, name, v, defaults[name])
     for name, hi in COUNT_LIMITS.items():
         v = options.get(name)
         if isinstance(v, (int, np.integer)) and not isinstance(v, bool) and not 1 <= v <= hi:
@@ -201,11 +202,11 @@ def _check_kind(method: str, name: str, value, default) -> None:
     if isinstance(default, bool):
         if not flag:
             raise ValidationError(f"{where} must be true or false, got {value!r}")
-    elif isinstance(default, (int, np.integer)) or (default is None and name in COUNT_LIMITS):
+    elif name in COUNT_LIMITS:
         if flag or not isinstance(value, (int, np.integer)):
             raise ValidationError(f"{where} must be a whole number, got {value!r}")
-    elif isinstance(default, float):
-        if flag or not isinstance(value, (int, float, np.integer, np.floating)) or not np.isfinite(value):
+    elif isinstance(default, (int, float, np.integer, np.floating)):
+        if as_real(value) is None:  # (an int default may well take a fraction: only counts are whole)
             raise ValidationError(f"{where} must be a finite number, got {value!r}")
     elif isinstance(default, str) and not isinstance(value, str):
         raise ValidationError(f"{where} must be a string, got {value!r}")

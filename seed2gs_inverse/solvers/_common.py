@@ -20,7 +20,7 @@ import numpy as np
 from ..errors import ValidationError
 
 __all__ = ["Problem", "SolveResult", "MethodResult", "prepare", "normalize_mask", "prior_from_init",
-           "register_method", "available_methods", "get_method", "method_options", "get_check"]
+           "register_method", "available_methods", "get_method", "method_options", "get_check", "as_real"]
 
 _METHODS: dict = {}
 _CHECKS: dict = {}
@@ -53,6 +53,21 @@ def register_method(name: str, fn, check=None) -> None:
         raise ValidationError(f"method '{name}': check must be callable or None")
     _METHODS[name] = fn
     _CHECKS[name] = check
+
+
+def as_real(value) -> float | None:
+    """``value`` as a float when it is a finite real number (not a bool), else None.
+
+    Safe for any input: a Python int beyond float range gives None instead of
+    ``np.isfinite``'s TypeError or ``float``'s OverflowError.
+    """
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        return None
+    try:
+        f = float(value)
+    except OverflowError:
+        return None
+    return f if np.isfinite(f) else None
 
 
 def get_check(name: str):
@@ -186,7 +201,7 @@ class SolveResult:
         return self.q > t
 
     def __repr__(self) -> str:
-        return (f"SolveResult(method={self.method!r}, n={self.q.size}, selected={int(self.selected().sum())}, "
+        return (f"SolveResult(method={self.method!r}, n={self.q.size}, selected={int((self.q > self.threshold).sum())}, "
                 f"iterations={self.iterations}, seconds={self.seconds:.3f})")
 
 

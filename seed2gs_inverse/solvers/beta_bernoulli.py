@@ -36,7 +36,7 @@ import numpy as np
 from scipy.special import betaln, digamma
 
 from ..errors import ValidationError
-from ._common import MethodResult, Problem, register_method
+from ._common import MethodResult, Problem, as_real, register_method
 from ._progress import report as report_progress
 from .voting import vote_counts
 
@@ -65,10 +65,9 @@ def _view_evidence(problem: Problem, c: int) -> tuple:
 def _check(o: dict) -> None:
     """Raise a ValidationError for option values beta_bernoulli cannot take (``o``: every option by name)."""
     for name in ("a0", "b0"):
-        v = o[name]
-        if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not (
-                np.isfinite(v) and v > 0):
-            raise ValidationError(f"beta_bernoulli: {name} must be a positive finite number, got {v!r}")
+        v = as_real(o[name])
+        if v is None or not v > 0:
+            raise ValidationError(f"beta_bernoulli: {name} must be a positive finite number, got {o[name]!r}")
     if o["order"] not in ("given", "eig"):
         raise ValidationError(f"beta_bernoulli: order must be 'given' or 'eig', got {o['order']!r}")
     b = o["budget"]

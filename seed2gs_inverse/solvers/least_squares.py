@@ -30,7 +30,7 @@ import numpy as np
 from scipy.optimize import lsq_linear
 
 from ..errors import ValidationError
-from ._common import MethodResult, Problem, register_method
+from ._common import MethodResult, Problem, as_real, register_method
 from ._progress import report as report_progress
 
 __all__ = ["least_squares", "operator_norm_sq"]
@@ -58,10 +58,9 @@ def _check(o: dict) -> None:
         v = o[name]
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
             raise ValidationError(f"least_squares: {name} must be a positive integer, got {v!r}")
-    tol = o["tol"]
-    if isinstance(tol, bool) or not isinstance(tol, (int, float, np.integer, np.floating)) or not (
-            np.isfinite(tol) and tol > 0):
-        raise ValidationError(f"least_squares: tol must be a positive finite number, got {tol!r}")
+    tol = as_real(o["tol"])
+    if tol is None or not tol > 0:
+        raise ValidationError(f"least_squares: tol must be a positive finite number, got {o['tol']!r}")
     if o["target"] not in ("alpha", "mask"):
         raise ValidationError(f"least_squares: target must be 'alpha' or 'mask', got {o['target']!r}")
 

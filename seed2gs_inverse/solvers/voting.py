@@ -31,7 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import ValidationError
-from ._common import MethodResult, Problem, register_method
+from ._common import MethodResult, Problem, as_real, register_method
 
 __all__ = ["voting", "vote_counts", "bias_to_threshold"]
 
@@ -45,9 +45,8 @@ def vote_counts(problem: Problem) -> tuple:
 
 def bias_to_threshold(bias: float) -> float:
     """The ``q`` threshold equivalent to FlashSplat's ``Â1 - Â0 > bias``, |bias| < 1."""
-    ok = not isinstance(bias, (bool, np.bool_)) and isinstance(bias, (int, float, np.integer, np.floating))
-    b = float(bias) if ok else np.nan
-    if not (np.isfinite(b) and -1.0 < b < 1.0):
+    b = as_real(bias)
+    if b is None or not -1.0 < b < 1.0:
         raise ValidationError(f"voting: bias must lie in (-1, 1) (the normalised votes differ by at most 1), "
                               f"got {bias!r}")
     return 0.5 * (1.0 + b / np.sqrt(2.0 - b * b))

@@ -91,7 +91,7 @@ from scipy.optimize import minimize
 from scipy.special import expit
 
 from ..errors import ValidationError
-from ._common import MethodResult, Problem, register_method
+from ._common import MethodResult, Problem, as_real, register_method
 from ._bce import PixelBCE, bce_pixels
 from ._progress import report as report_progress
 from .voting import voting
@@ -324,11 +324,9 @@ def _logit(p):
 def _check(o: dict) -> None:
     """Raise a ValidationError for option values weighted_bce cannot take (``o``: every option by name)."""
     def real(name, lo, hi, lo_open=False, hi_open=False, what=None):
-        v = o[name]
-        ok = not isinstance(v, (bool, np.bool_)) and isinstance(v, (int, float, np.integer, np.floating))
-        ok = ok and np.isfinite(v) and (v > lo if lo_open else v >= lo) and (v < hi if hi_open else v <= hi)
-        if not ok:
-            raise ValidationError(f"weighted_bce: {name} must be {what}, got {v!r}")
+        v = as_real(o[name])
+        if v is None or not ((v > lo if lo_open else v >= lo) and (v < hi if hi_open else v <= hi)):
+            raise ValidationError(f"weighted_bce: {name} must be {what}, got {o[name]!r}")
 
     real("r_min", 0.0, 1.0, what="in [0, 1]")
     real("lam", 0.0, np.inf, lo_open=True, what="positive")
