@@ -201,8 +201,10 @@ def main(argv=None) -> int:
             one, two = runs["1t"]["wall"], runs["2"]["wall"]
             print(f"   2 workers over one one-thread worker: x{one / two:.2f} (2 at most)")
             if base is not None:
+                bound = 2 * base['wall'] / one
                 print(f"   bound on 2 one-thread workers over sequential: 2 x {base['wall']:.1f} s / {one:.1f} s = "
-                      f"x{2 * base['wall'] / one:.2f} (the sequential run's own two threads take the rest)")
+                      f"x{bound:.2f} (the sequential run's own two threads take the rest); reached "
+                      f"{100 * base['wall'] / two / bound:.0f}% of it")
         print(f"[{_load()}]")
     return 0
 
