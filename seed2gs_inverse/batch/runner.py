@@ -147,14 +147,16 @@ def batch_client(client=None, n_workers: int | None = None, n_jobs: int | None =
     with dask.config.set({"distributed.scheduler.allowed-failures": 0,
                           "distributed.scheduler.worker-saturation": 1.0,
                           "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
-                          "distributed.worker.daemon": False}):
+                          "distributed.worker.daemon": False,
+                          # Ctrl-C reaches the whole process group: the workers (also those a nanny
+                          # starts again) leave it to this process, which closes the cluster
+                          "distributed.worker.preload": ["seed2gs_inverse.batch._worker_preload"]}):
         if getattr(multiprocessing.current_process(), "_inheriting", False):
             raise ValidationError(_SPAWN_HINT)  # a worker process re-importing the user's script
         try:
-            with _children_ignore_sigint():
-                cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
-                                       dashboard_address=":0",  # a free port: never "8787 is in use"
-                                       silence_logs=logging.ERROR, env=env)
+            cluster = LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
+                                   dashboard_address=":0",  # a free port: never "8787 is in use"
+                                   silence_logs=logging.ERROR, env=env)
         except RuntimeError as exc:
             reason = str(exc).rstrip(".")
             raise ValidationError(f"could not start the embedded Dask workers ({reason}). {_SPAWN_HINT}") from exc
@@ -174,24 +176,6 @@ def batch_client(client=None, n_workers: int | None = None, n_jobs: int | None =
         finally:
             cluster.close()
             dask_log.setLevel(level)
-
-
-@contextmanager
-def _children_ignore_sigint():
-    """Processes started inside ignore SIGINT (an ignored signal stays ignored across exec, and Python
-    keeps it so): Ctrl-C in a terminal reaches the whole process group, and only this process should
-    act on it, by closing the cluster. A no-op off the main thread (signals cannot be set there)."""
-    import signal
-    import threading
-
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
 
 
 def _dashboard(client) -> str | None:

@@ -1,0 +1,13 @@
+"""Preloaded into every worker process of the embedded cluster (``distributed.worker.preload``).
+
+Ctrl-C in a terminal reaches the whole process group; only the runner should act on it (by closing the
+cluster), so workers ignore SIGINT, also those a nanny starts again after a worker died.
+"""
+
+import signal
+import threading
+
+
+def dask_setup(worker):  # noqa: ARG001 - dask's preload hook
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
