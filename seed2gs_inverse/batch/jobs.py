@@ -456,7 +456,7 @@ def jobs_from_table(table: Mapping, base=".", source: str = "jobs") -> list[Job]
                 raise ValidationError(f"{where}: models file {_resolve(base, models)} not found "
                                       f"(a TOML or JSON models configuration, see docs/models.md)")
             jobs.append(Job(name=name, scene=_resolve(base, merged["scene"]), camera=camera, prompt=prompt,
-                            options=_check_options(opts, where),
+                            options=opts,  # checked by Job (its messages are re-headed below)
                             models=None if models is None else _resolve(base, models),
                             format=merged.get("format", "ply"), figure=merged.get("figure", True)))
         except ValidationError as exc:
