@@ -571,6 +571,76 @@ def test_lbfgs_finds_known_minimisers():
     assert _lbfgs(rosen, np.array([-1.2, 1.0]), 3, 0.0, 1e-8, deque(maxlen=5))[2:4] == (3, 1)
 
 
+
+def test_lbfgs_first_step_is_scipys():
+    """Without curvature pairs the first trial step has unit length, as in scipy's L-BFGS-B.
+
+    On a flat quadratic (``|g| = 1e-3`` at the start) both take the step
+    ``-g / |g|``, which satisfies both line searches; a step capped at 1 in
+    units of the gradient would move only 1e-3.
+    """
+    from collections import deque
+
+    from scipy.optimize import minimize
+
+    from seed2gs_inverse.solvers.weighted_bce import _lbfgs
+
+    c = np.random.default_rng(5).normal(size=40)
+    c *= 5.0 / np.linalg.norm(c)
+
+    def fun(x):
+        return 0.5e-4 * np.sum((x - c) ** 2), 1e-4 * (x - c)
+
+    ours, theirs = [], []
+    _lbfgs(fun, np.zeros(40), 1, 0.0, 0.0, deque(maxlen=5), callback=lambda x, f: ours.append(x.copy()))
+    minimize(fun, np.zeros(40), jac=True, method="L-BFGS-B", options={"maxiter": 1},
+             callback=lambda xk: theirs.append(np.array(xk)))
+    np.testing.assert_allclose(ours[0], 0.2 * c, rtol=1e-12)  # x0 - g / |g|: unit length towards c
+    np.testing.assert_allclose(theirs[0], ours[0], rtol=1e-9)
+
+
+def test_lbfgs_extends_a_short_step_to_the_wolfe_conditions():
+    """A step that leaves the slope nearly as steep is extended until it flattens (weak Wolfe)."""
+    from collections import deque
+
+    from seed2gs_inverse.solvers.weighted_bce import _lbfgs
+
+    c = np.random.default_rng(6).normal(size=40)
+    c *= 20.0 / np.linalg.norm(c)  # a unit step from 0 reaches only 5% of the way to the minimiser c
+
+    def fun(x):
+        return 0.5e-4 * np.sum((x - c) ** 2), 1e-4 * (x - c)
+
+    steps = []
+    _lbfgs(fun, np.zeros(40), 1, 0.0, 0.0, deque(maxlen=5), callback=lambda x, f: steps.append(x.copy()))
+    f0, g0 = fun(np.zeros(40))
+    d = steps[0]  # x1 - x0, along -g0
+    f1, g1 = fun(steps[0])
+    assert f1 <= f0 + 1e-4 * (g0 @ d)  # Armijo
+    assert g1 @ d >= 0.9 * (g0 @ d)  # the slope flattened (a unit step leaves it at 0.95 of the start's)
+    assert np.linalg.norm(d) > 1.0
+
+
+def test_lbfgs_keeps_the_last_good_step_when_an_extension_overshoots():
+    from collections import deque
+
+    from seed2gs_inverse.solvers.weighted_bce import _lbfgs
+
+    # slope -1 up to x = 1.5, then a steep wall: the unit step is short, ten of them overshoot
+    def fun(x):
+        over = max(x[0] - 1.5, 0.0)
+        return -x[0] + 50.0 * over ** 3, np.array([-1.0 + 150.0 * over ** 2])
+
+    calls = []
+
+    def counted(x):
+        calls.append(float(x[0]))
+        return fun(x)
+
+    x, f, nit, status, _ = _lbfgs(counted, np.zeros(1), 1, 0.0, 0.0, deque(maxlen=5))
+    assert (nit, status) == (1, 1) and x[0] == 1.0 and f == -1.0
+    assert calls == [0.0, 1.0, 10.0]  # the start, the unit step, the overshooting extension
+
 def _faint_problem(rng, faint_views):
     """4 views; in ``faint_views`` every pixel's rendered opacity is below 1e-3."""
     mats, masks = _random_problem(rng)
