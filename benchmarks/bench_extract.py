@@ -16,7 +16,11 @@ grid, the far side included): per view IoU / boundary IoU of
 ``W(c) 1_selected > 0.5`` against ``W(c) 1_object > 0.5``; per case the
 mean (mIoU, mBIoU) and the minimum, the 3D IoU of the membership, the axis
 error (angle between the orbit axis extract used and the true up) and the
-wall time of ``extract()``. The machine load (``os.getloadavg``) is printed
+wall time of ``extract()``; below each case its per-stage seconds next to
+baselines measured right after it (``bench_speed.same_run_baselines``: one
+960x540 render of the case's scene from the reference pose, one forward and
+one transposed pass over the extraction's own operator stack) and the
+extraction's wall time in renders (``--no-timing`` skips them). The machine load (``os.getloadavg``) is printed
 at the start and the end: other work on the machine inflates wall times.
 
 Backgrounds: ``firepit`` (real; its "true up" is the patio normal that
@@ -30,7 +34,7 @@ vase and plush.
 
 Usage::
 
-    python benchmarks/bench_extract.py [--cases 0,3,garden] [--quick] [--report DIR]
+    python benchmarks/bench_extract.py [--cases 0,3,garden] [--quick] [--report DIR] [--no-timing]
         [--set KEY=VALUE ...]   # extract() keywords, e.g. --set up=truth --set method=voting
 
 ``--set`` values are parsed as JSON when they can be (numbers, true/false,
@@ -275,7 +279,7 @@ def extract_kwargs(options: dict, true_up=None) -> dict:
     return opts
 
 
-def run_case(built: Built, options: dict):
+def run_case(built: Built, options: dict, timing: bool = True):
     from seed2gs_inverse import extract
     from seed2gs_inverse.metrics import boundary_iou, iou, membership_scores
 
@@ -292,9 +296,21 @@ def run_case(built: Built, options: dict):
     used_up = _unit(ex.resolved["up"])
     axis_err = float(np.degrees(np.arccos(np.clip(used_up @ built.up, -1, 1))))
     m3 = membership_scores(ex.selected, built.truth)
-    return {"miou": float(np.mean(ious)), "mbiou": float(np.mean(bious)), "iou3d": float(m3["iou"]),
-            "min": float(np.min(ious)), "axis": axis_err, "seconds": wall, "ious": ious,
-            "seed_px": int(built.seed.sum()), "views": views, "n_views": len(ex.views), "ex": ex}
+    out = {"miou": float(np.mean(ious)), "mbiou": float(np.mean(bious)), "iou3d": float(m3["iou"]),
+           "min": float(np.min(ious)), "axis": axis_err, "seconds": wall, "ious": ious,
+           "seed_px": int(built.seed.sum()), "views": views, "n_views": len(ex.views), "ex": ex,
+           "stages": {k: float(v) for k, v in ex.seconds.items()}}
+    if timing:
+        from bench_speed import same_run_baselines
+
+        # one 960x540 render of the case's scene from the reference pose, and two passes over
+        # the extraction's own stack, measured now: the units its wall time is read in
+        cam = _look(built.center, built.up, built.e1, built.e2, built.case.azimuth, built.case.pitch,
+                    float(np.linalg.norm(built.camera.center - built.center)), 960, 540)
+        base = same_run_baselines(built.scene, cam, ex.operators)
+        out.update(render_s=base["render_s"], two_passes_s=base["two_passes_s"],
+                   renders=wall / base["render_s"])
+    return out
 
 
 def _report_grid(path, rows, n_worst=8):
@@ -332,6 +348,8 @@ def main(argv=None) -> int:
                    help="smaller procedural scenes and 4 held-out views (a smoke run)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="extract() keyword (repeatable)")
     p.add_argument("--report", default=None, metavar="DIR", help="write worst_views.png here")
+    p.add_argument("--no-timing", action="store_true",
+                   help="skip the per-case baselines (a 960x540 render, two sparse passes) and stage lines")
     p.add_argument("--json", default=None, metavar="FILE", help="write the per-case numbers as JSON")
     args = p.parse_args(argv)
     options = _parse_set(args.set)
@@ -339,8 +357,9 @@ def main(argv=None) -> int:
     cases = list(enumerate(CASES))
     if args.cases:
         want = [s.strip() for s in args.cases.split(",") if s.strip()]
+        # a number selects that case alone; other text every case whose name contains it
         cases = [(i, c) for i, c in cases
-                 if any(w == str(i) or w in c.name for w in want)]
+                 if any(w == str(i) if w.isdigit() else w in c.name for w in want)]
         if not cases:
             print(f"bench_extract: no case matches {args.cases!r}; cases: "
                   + ", ".join(f"{i}:{c.name}" for i, c in enumerate(CASES)))
@@ -382,14 +401,23 @@ def main(argv=None) -> int:
         if built.seed.sum() < 50:
             print(f"{i:>2} {case.name:<20} object hardly visible ({int(built.seed.sum())} px), skipped")
             continue
-        r = run_case(built, options)
+        r = run_case(built, options, timing=not args.no_timing)
         rows.append((case.name, r))
         print(f"{i:>2} {case.name:<20} {r['seed_px']:>6} {r['miou']:6.3f} {r['mbiou']:6.3f} {r['iou3d']:6.3f} "
               f"{r['min']:6.3f} {r['axis']:6.1f} {r['seconds']:6.2f}  {np.round(r['ious'], 2).tolist()}"
               + (f" ({built.n_moved} moved past occluders)" if built.n_moved else ""))
+        if not args.no_timing:
+            print(f"{'':>24}stages " + ", ".join(f"{k} {v:.2f}" for k, v in r["stages"].items())
+                  + f" | one 960x540 render {r['render_s']:.3f} s, two passes over its stack "
+                  f"{1e3 * r['two_passes_s']:.1f} ms | extraction = {r['renders']:.1f} renders")
         sys.stdout.flush()
     if not rows:
         return 1
+    if not args.no_timing:
+        stages = {k: float(np.mean([r["stages"][k] for _, r in rows])) for k in rows[0][1]["stages"]}
+        print(f"   mean stage seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in stages.items())
+              + f"; extraction = {np.mean([r['renders'] for _, r in rows]):.1f} renders of 960x540 "
+              f"(range {min(r['renders'] for _, r in rows):.1f}-{max(r['renders'] for _, r in rows):.1f})")
     mean = {k: float(np.mean([r[k] for _, r in rows])) for k in ("miou", "mbiou", "iou3d", "min", "axis", "seconds")}
     worst = min(r["miou"] for _, r in rows)
     print(f"   {'mean of ' + str(len(rows)) + ' cases':<20} {'':>6} {mean['miou']:6.3f} {mean['mbiou']:6.3f} "
