@@ -20,8 +20,9 @@ wall time of ``extract()``; below each case its per-stage seconds next to
 baselines measured right after it (``bench_speed.same_run_baselines``: one
 960x540 render of the case's scene from the reference pose, one forward and
 one transposed pass over the extraction's own operator stack) and the
-extraction's wall time in renders (``--no-timing`` skips them). The machine load (``os.getloadavg``) is printed
-at the start and the end: other work on the machine inflates wall times.
+extraction's wall time in renders (``--no-timing`` skips them). The machine
+load (``os.getloadavg``) is printed at the start and the end: other work on
+the machine inflates wall times.
 
 Backgrounds: ``firepit`` (real; its "true up" is the patio normal that
 ``pose_on_point`` stands the objects on: ``estimate_up`` of the overview
