@@ -358,9 +358,9 @@ def main(argv=None) -> int:
     cases = list(enumerate(CASES))
     if args.cases:
         want = [s.strip() for s in args.cases.split(",") if s.strip()]
-        # a number selects that case alone; other text every case whose name contains it
+        # a case's index selects that case alone; other text every case whose name contains it
         cases = [(i, c) for i, c in cases
-                 if any(w == str(i) if w.isdigit() else w in c.name for w in want)]
+                 if any(w == str(i) if w.isdigit() and int(w) < len(CASES) else w in c.name for w in want)]
         if not cases:
             print(f"bench_extract: no case matches {args.cases!r}; cases: "
                   + ", ".join(f"{i}:{c.name}" for i, c in enumerate(CASES)))
@@ -416,7 +416,7 @@ def main(argv=None) -> int:
         return 1
     if not args.no_timing:
         stages = {k: float(np.mean([r["stages"][k] for _, r in rows])) for k in rows[0][1]["stages"]}
-        print(f"   mean stage seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in stages.items())
+        print("   mean stage seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in stages.items())
               + f"; extraction = {np.mean([r['renders'] for _, r in rows]):.1f} renders of 960x540 "
               f"(range {min(r['renders'] for _, r in rows):.1f}-{max(r['renders'] for _, r in rows):.1f})")
     mean = {k: float(np.mean([r[k] for _, r in rows])) for k in ("miou", "mbiou", "iou3d", "min", "axis", "seconds")}

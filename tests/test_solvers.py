@@ -571,7 +571,6 @@ def test_lbfgs_finds_known_minimisers():
     assert _lbfgs(rosen, np.array([-1.2, 1.0]), 3, 0.0, 1e-8, deque(maxlen=5))[2:4] == (3, 1)
 
 
-
 def test_lbfgs_first_step_is_scipys():
     """Without curvature pairs the first trial step has unit length, as in scipy's L-BFGS-B.
 
@@ -622,11 +621,12 @@ def test_lbfgs_extends_a_short_step_to_the_wolfe_conditions():
 
 
 def test_lbfgs_keeps_the_last_good_step_when_an_extension_overshoots():
+    """A step that passes Armijo is kept when the longer one tried after it fails."""
     from collections import deque
 
     from seed2gs_inverse.solvers.weighted_bce import _lbfgs
 
-    # slope -1 up to x = 1.5, then a steep wall: the unit step is short, ten of them overshoot
+    # slope -1 up to x = 1.5, then a steep wall: the unit step is short, four of them overshoot
     def fun(x):
         over = max(x[0] - 1.5, 0.0)
         return -x[0] + 50.0 * over ** 3, np.array([-1.0 + 150.0 * over ** 2])
@@ -639,7 +639,26 @@ def test_lbfgs_keeps_the_last_good_step_when_an_extension_overshoots():
 
     x, f, nit, status, _ = _lbfgs(counted, np.zeros(1), 1, 0.0, 0.0, deque(maxlen=5))
     assert (nit, status) == (1, 1) and x[0] == 1.0 and f == -1.0
-    assert calls == [0.0, 1.0, 10.0]  # the start, the unit step, the overshooting extension
+    assert calls == [0.0, 1.0, 4.0]  # the start, the unit step, the overshooting extension
+
+
+def test_lbfgs_extends_a_bounded_number_of_times():
+    """On a loss unbounded below the extensions stop (10 of 4x each) instead of running away."""
+    from collections import deque
+
+    from seed2gs_inverse.solvers.weighted_bce import _lbfgs
+
+    calls = []
+
+    def linear(x):
+        calls.append(float(x[0]))
+        return -float(x.sum()), -np.ones_like(x)
+
+    x, f, nit, status, _ = _lbfgs(linear, np.zeros(4), 1, 0.0, 0.0, deque(maxlen=5))
+    assert (nit, status) == (1, 1)
+    assert len(calls) == 1 + 11  # the start, the unit-length step and 10 extensions
+    np.testing.assert_allclose(x, 0.5 * 4.0 ** 10)  # -g / |g| = (1/2, 1/2, 1/2, 1/2), times 4^10
+
 
 def _faint_problem(rng, faint_views):
     """4 views; in ``faint_views`` every pixel's rendered opacity is below 1e-3."""
