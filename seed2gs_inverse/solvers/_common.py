@@ -70,6 +70,16 @@ def as_real(value) -> float | None:
     return f if np.isfinite(f) else None
 
 
+def check_count(method: str, name: str, value, minimum: int = 1, none_ok: bool = False) -> None:
+    """Raise a ValidationError unless option ``name`` of ``method`` is a whole number >= ``minimum``
+    (not a bool; None too with ``none_ok``)."""
+    if none_ok and value is None:
+        return
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < minimum:
+        what = {0: "a non-negative integer", 1: "a positive integer"}.get(minimum, f"an integer >= {minimum}")
+        raise ValidationError(f"{method}: {name} must be {what}{' or None' if none_ok else ''}, got {value!r}")
+
+
 def get_check(name: str):
     """The value check registered with method ``name`` (None when there is none)."""
     return _CHECKS.get(name)

@@ -36,7 +36,7 @@ import numpy as np
 from scipy.special import betaln, digamma
 
 from ..errors import ValidationError
-from ._common import MethodResult, Problem, as_real, register_method
+from ._common import MethodResult, Problem, as_real, check_count, register_method
 from ._progress import report as report_progress
 from .voting import vote_counts
 
@@ -70,9 +70,7 @@ def _check(o: dict) -> None:
             raise ValidationError(f"beta_bernoulli: {name} must be a positive finite number, got {o[name]!r}")
     if o["order"] not in ("given", "eig"):
         raise ValidationError(f"beta_bernoulli: order must be 'given' or 'eig', got {o['order']!r}")
-    b = o["budget"]
-    if b is not None and (isinstance(b, bool) or not isinstance(b, (int, np.integer)) or b < 1):
-        raise ValidationError(f"beta_bernoulli: budget must be a positive integer or None, got {b!r}")
+    check_count("beta_bernoulli", "budget", o["budget"], none_ok=True)
 
 
 def beta_bernoulli(problem: Problem, *, a0: float = 1.0, b0: float = 1.0, order: str = "given",

@@ -30,7 +30,7 @@ import numpy as np
 from scipy.optimize import lsq_linear
 
 from ..errors import ValidationError
-from ._common import MethodResult, Problem, as_real, register_method
+from ._common import MethodResult, Problem, as_real, check_count, register_method
 from ._progress import report as report_progress
 
 __all__ = ["least_squares", "operator_norm_sq"]
@@ -55,9 +55,7 @@ def _check(o: dict) -> None:
     if o["algorithm"] not in ("fista", "lsq_linear"):
         raise ValidationError(f"least_squares: algorithm must be 'fista' or 'lsq_linear', got {o['algorithm']!r}")
     for name in ("max_iter", "power_iters"):
-        v = o[name]
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-            raise ValidationError(f"least_squares: {name} must be a positive integer, got {v!r}")
+        check_count("least_squares", name, o[name])
     tol = as_real(o["tol"])
     if tol is None or not tol > 0:
         raise ValidationError(f"least_squares: tol must be a positive finite number, got {o['tol']!r}")

@@ -101,7 +101,7 @@ from scipy.optimize import minimize
 from scipy.special import expit
 
 from ..errors import ValidationError
-from ._common import MethodResult, Problem, as_real, register_method
+from ._common import MethodResult, Problem, as_real, check_count, register_method
 from ._bce import PixelBCE, bce_pixels
 from ._progress import report as report_progress
 from .voting import voting
@@ -380,14 +380,10 @@ def _check(o: dict) -> None:
         if not isinstance(o[name], (bool, np.bool_)):
             raise ValidationError(f"weighted_bce: {name} must be True or False, got {o[name]!r}")
     for name in ("max_iter", "inner_iters", "maxcor"):
-        v = o[name]
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-            raise ValidationError(f"weighted_bce: {name} must be a positive integer, got {v!r}")
+        check_count("weighted_bce", name, o[name])
     if o["start"] not in ("auto", "vote", "prior", "half"):
         raise ValidationError(f"weighted_bce: start must be 'auto', 'vote', 'prior' or 'half', got {o['start']!r}")
-    v = o["stable_iters"]
-    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
-        raise ValidationError(f"weighted_bce: stable_iters must be a non-negative integer, got {v!r}")
+    check_count("weighted_bce", "stable_iters", o["stable_iters"], minimum=0)
     if o["optimizer"] not in ("scipy", "lbfgs"):
         raise ValidationError(f"weighted_bce: optimizer must be 'scipy' or 'lbfgs', got {o['optimizer']!r}")
 
