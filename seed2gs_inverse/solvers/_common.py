@@ -20,7 +20,8 @@ import numpy as np
 from ..errors import ValidationError
 
 __all__ = ["Problem", "SolveResult", "MethodResult", "prepare", "normalize_mask", "prior_from_init",
-           "register_method", "available_methods", "get_method", "method_options", "get_check", "as_real"]
+           "register_method", "available_methods", "get_method", "method_options", "get_check", "as_real",
+           "check_count"]
 
 _METHODS: dict = {}
 _CHECKS: dict = {}
