@@ -721,20 +721,34 @@ def scatter(tiles, lo, hi, width, height, scr_pix, scr_gi, scr_w, gid, indptr, i
 
 
 @njit(cache=True)
-def cone_cull(means, cam, axis, tan_a, cos_a, sigma3, far, keep):
+def cone_cull(means, cam, roi, smax, eps2d, axis, far, keep):
     """:func:`_cone_cull` with the camera ``cam`` (:class:`CameraParams`) bundled."""
-    _cone_cull(means, cam.rot, cam.trans, axis, tan_a, cos_a, cam.near, sigma3, far, keep)
+    _cone_cull(means, cam.rot, cam.trans, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, cam.near,
+               roi, smax, eps2d, axis, far, keep)
 
 
 @njit(cache=True, parallel=True)
-def _cone_cull(means, rot, trans, axis, tan_a, cos_a, near, sigma3, far, keep):
-    """Gaussians whose 3-sigma ball can meet a view cone (parallel).
+def _cone_cull(means, rot, trans, fx, fy, cx, cy, width, height, near, roi, smax, eps2d, axis, far, keep):
+    """Gaussians whose screen footprint in :func:`_project` can reach the pixel box ``roi`` (parallel).
 
-    With ``v = R x + t`` (view frame), ``s = sigma3[i]``, ``t_a = v . axis``
-    and ``perp = sqrt(max(|v|^2 - t_a^2, 0))``: ``keep[i] = v_z > near - s
-    and perp <= t_a tan_a + s / cos_a + 1e-6 and t_a - s <= far``
-    (``far = inf`` for no far cut).
+    With ``v = R x + t`` (view frame), ``keep[i]`` requires ``v_z >= near``
+    (the projection's own test), ``v . axis - 3 smax[i] <= far`` and the
+    square of half-size ``r`` around the projected centre ``m`` meeting
+    ``roi = (x0, y0, x1, y1)``: ``m_x + r >= x0`` and ``m_x - r <= x1``
+    (and in y). ``r = sqrt(2 ln 255) sqrt(lam) + 2`` px bounds both the
+    projection's radius ``ceil(3 sqrt(lam2d))`` and its support box
+    (``o exp(power) >= 1/255`` needs ``d^T Q d <= 2 ln 255``), because the
+    2D covariance ``J R Sigma R^T J^T + eps2d I`` has its largest eigenvalue
+    ``lam2d <= lam = lmax(J J^T) smax^2 + eps2d`` (``Sigma``'s largest
+    eigenvalue is ``smax^2``; ``J`` the same clamped EWA Jacobian).
     """
+    tan_fovx = 0.5 * width / fx
+    tan_fovy = 0.5 * height / fy
+    lim_x_pos = (width - cx) / fx + 0.3 * tan_fovx
+    lim_x_neg = cx / fx + 0.3 * tan_fovx
+    lim_y_pos = (height - cy) / fy + 0.3 * tan_fovy
+    lim_y_neg = cy / fy + 0.3 * tan_fovy
+    k_support = math.sqrt(2.0 * math.log(255.0))
     for i in prange(means.shape[0]):
         px = np.float64(means[i, 0])
         py = np.float64(means[i, 1])
@@ -742,10 +756,23 @@ def _cone_cull(means, rot, trans, axis, tan_a, cos_a, near, sigma3, far, keep):
         x = px * rot[0, 0] + py * rot[0, 1] + pz * rot[0, 2] + trans[0]
         y = px * rot[1, 0] + py * rot[1, 1] + pz * rot[1, 2] + trans[1]
         z = px * rot[2, 0] + py * rot[2, 1] + pz * rot[2, 2] + trans[2]
-        s = sigma3[i]
-        ta = x * axis[0] + y * axis[1] + z * axis[2]
-        perp = math.sqrt(max(x * x + y * y + z * z - ta * ta, 0.0))
-        keep[i] = (z > near - s) and (perp <= ta * tan_a + s / cos_a + 1e-6) and (ta - s <= far)
+        keep[i] = False
+        if not z >= near:  # also rejects NaN
+            continue
+        if not x * axis[0] + y * axis[1] + z * axis[2] - 3.0 * smax[i] <= far:
+            continue
+        tx = min(lim_x_pos, max(-lim_x_neg, x / z))
+        ty = min(lim_y_pos, max(-lim_y_neg, y / z))
+        # J J^T = [[a, b], [b, c]] for J = [[fx/z, 0, -fx tx/z], [0, fy/z, -fy ty/z]].
+        a = (fx / z) ** 2 * (1.0 + tx * tx)
+        c = (fy / z) ** 2 * (1.0 + ty * ty)
+        b = (fx / z) * (fy / z) * tx * ty
+        mid = 0.5 * (a + c)
+        lmax = mid + math.sqrt(max(mid * mid - (a * c - b * b), 0.0))
+        r = k_support * math.sqrt(lmax * smax[i] * smax[i] + eps2d) + 2.0
+        mx = fx * x / z + cx
+        my = fy * y / z + cy
+        keep[i] = mx + r >= roi[0] and mx - r <= roi[2] and my + r >= roi[1] and my - r <= roi[3]
 
 
 # -- compilation, said once ----------------------------------------------------

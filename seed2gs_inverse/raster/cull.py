@@ -9,7 +9,7 @@ from ..errors import ValidationError
 from ..scene import GaussianScene
 from . import _kernels
 from .frozen import FrozenScene, sigma3, unfreeze
-from .project import camera_params
+from .project import EPS2D, camera_params
 
 __all__ = ["cone_cull"]
 
@@ -29,20 +29,24 @@ def _roi_box(roi, camera: Camera) -> tuple:
 def cone_cull(scene, camera: Camera, roi=None, far: float | None = None) -> np.ndarray:
     """Indices of the Gaussians that can reach the pixels of ``roi`` in ``camera``.
 
-    Keeps the Gaussians in front of the near plane whose centre lies within
-    the cone through the roi's corner pixels, widened by the Gaussian's own
-    3-sigma size ``s_i = 3 max_k exp(log_scale_ik)`` (world units): every
-    Gaussian whose footprint reaches a roi pixel passes, so rasterizing the
-    subset (``build_operator(..., subset=idx)``) gives the same roi pixels.
-    With the view-frame position ``v = R x + t``, the cone axis ``a``
-    through the roi centre, the half-angle ``theta`` to the farthest corner,
-    ``t_a = v . a`` and ``perp = sqrt(|v|^2 - t_a^2)``, Gaussian ``i`` is kept when
+    A conservative bound on the footprint the rasterizer gives each Gaussian,
+    so that rasterizing the subset (``build_operator(..., subset=idx)``)
+    gives the same roi pixels and the same ``W`` there. Kept are the
+    Gaussians in front of the near plane (the projection drops the others)
+    whose projected centre ``m`` lies within ``r`` pixels of the roi box,
 
     .. math::
 
-        v_z > \\mathrm{near} - s_i, \\quad
-        \\mathrm{perp} \\le t_a \\tan\\theta + s_i / \\cos\\theta + 10^{-6}, \\quad
-        t_a - s_i \\le \\mathrm{far}.
+        r = \\sqrt{2 \\ln 255}\\, \\sqrt{\\lambda_{max}(J J^T)\\, s_i^2 + \\epsilon_{2D}} + 2,
+
+    with ``J`` the projection's (clamped) EWA Jacobian at the Gaussian's
+    centre, ``s_i = max_k exp(log_scale_ik)`` and ``epsilon_2D`` its 2D
+    dilation (0.3 px^2): the 2D covariance's largest eigenvalue is at most
+    ``lambda_max(J J^T) s_i^2 + epsilon_2D``, and a pixel passes the alpha
+    test ``o exp(-d^T Q d / 2) >= 1/255`` only within ``d^T Q d <= 2 ln 255``
+    of it. (A bound in 3D, the centre within the view cone widened by
+    ``3 s_i``, missed Gaussians close to the camera and off axis, whose
+    affine footprint is much wider than their projected 3-sigma ball.)
 
     Parameters
     ----------
@@ -52,8 +56,9 @@ def cone_cull(scene, camera: Camera, roi=None, far: float | None = None) -> np.n
     roi : None or (x0, y0, x1, y1)
         Pixel box (half-open); default the whole image.
     far : float, optional
-        Also drop Gaussians whose depth along the cone axis exceeds ``far``
-        plus their 3-sigma size; default no far cut.
+        Also drop Gaussians whose depth ``t_a`` along the axis of the cone
+        through the roi's centre exceeds ``far`` plus their 3-sigma size,
+        ``t_a - 3 s_i > far``; default no far cut.
 
     Returns
     -------
@@ -67,21 +72,14 @@ def cone_cull(scene, camera: Camera, roi=None, far: float | None = None) -> np.n
     if far is not None and (isinstance(far, bool) or not isinstance(far, (int, float, np.integer, np.floating))
                             or np.isnan(far)):
         raise ValidationError(f"far must be a number or None, got {far!r}")
-    x0, y0, x1, y1 = _roi_box(roi, camera)
+    x0, y0, x1, y1 = (float(v) for v in _roi_box(roi, camera))
     scene, frozen = unfreeze(scene)
-    s3 = frozen.sigma3 if frozen is not None else sigma3(scene)
-    xs = (np.array([x0, x1, x1, x0], float) - camera.cx) / camera.fx
-    ys = (np.array([y0, y0, y1, y1], float) - camera.cy) / camera.fy
-    # Axis: through the roi centre; half-angle: to the farthest corner.
+    smax = (frozen.sigma3 if frozen is not None else sigma3(scene)) / 3.0
     axis = np.array([(0.5 * (x0 + x1) - camera.cx) / camera.fx, (0.5 * (y0 + y1) - camera.cy) / camera.fy, 1.0])
     axis /= np.linalg.norm(axis)
-    corners = np.stack([xs, ys, np.ones(4)], 1)
-    corners /= np.linalg.norm(corners, axis=1, keepdims=True)
-    cos_a = float(np.clip((corners @ axis).min(), 1e-3, 1.0))
-    tan_a = np.sqrt(max(1.0 - cos_a ** 2, 0.0)) / cos_a
     # One parallel pass over the scene (this runs for every orbit view of extract).
     keep = np.empty(len(scene), bool)
     _kernels.announce_compilation()
-    _kernels.cone_cull(scene.means, camera_params(camera), axis, tan_a, cos_a, np.ascontiguousarray(s3),
-                       np.inf if far is None else float(far), keep)
+    _kernels.cone_cull(scene.means, camera_params(camera), np.array([x0, y0, x1, y1]), np.ascontiguousarray(smax),
+                       EPS2D, axis, np.inf if far is None else float(far), keep)
     return np.flatnonzero(keep).astype(np.int64, copy=False)

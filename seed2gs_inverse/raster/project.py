@@ -15,7 +15,8 @@ from .frozen import FrozenScene, activations, unfreeze
 __all__ = ["Projection", "project_gaussians", "MODES"]
 
 MODES = ("classic", "antialiased")
-_EPS2D = 0.3
+#: The dilation added to every projected 2D covariance (px^2), as in the reference rasterizer.
+EPS2D = 0.3
 
 
 class Projection(NamedTuple):
@@ -86,7 +87,7 @@ def project(scene, frozen, camera, mode, idx=None, tile_box=None) -> _kernels.Sp
     out = _kernels.Splats(means2d=np.empty((n, 2)), conics=np.empty((n, 3)), radii=np.empty(n, np.int32),
                           depths=np.empty(n), colors=np.empty((n, 3)), opacities=np.empty(n),
                           support=np.empty((n, 3)), rects=np.empty((n, 4), np.int32))
-    _kernels.project(idx, act_rows, scene.means, scene.sh, act, camera_params(camera), _EPS2D,
+    _kernels.project(idx, act_rows, scene.means, scene.sh, act, camera_params(camera), EPS2D,
                      mode == "antialiased", tile_box, out)
     return out
 
