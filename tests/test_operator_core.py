@@ -154,6 +154,22 @@ def test_as_stack_errors(built, bad, masks, match):
         as_stack(bad(views), masks)
 
 
+@pytest.mark.parametrize("value", [np.nan, np.inf, -0.25, 1.5])
+def test_weights_outside_0_1_are_refused_when_the_operator_is_made(built, value, tmp_path):
+    """Compositing weights lie in [0, 1]; a broken matrix used to be accepted, solve late (RuntimeError)
+    or silently, and save to a directory that load() then refused."""
+    _, views, _ = built
+    v = views[0]
+    W = v.W.copy()
+    W.data[W.nnz // 2] = value
+    with pytest.raises(ValidationError, match=r"weights must be finite and lie in \[0, 1\]"):
+        ViewOperator(W, v.camera)
+    with pytest.raises(ValidationError, match=r"view 1: .*weights must be finite"):
+        as_stack([v, W], [np.zeros(v.image_shape)] * 2)
+    assert not (tmp_path / "ops").exists()
+    ViewOperator(v.W, v.camera)  # the rasterizer's own weights pass
+
+
 def test_partial_rendering_loads_as_rendering(built, tmp_path):
     _, views, _ = built
     v = views[0]

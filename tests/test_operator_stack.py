@@ -98,6 +98,8 @@ def test_stack_linear_operator_matches_dense_and_passes_dot_test(rng):
     np.testing.assert_allclose(s.row_sums(), dense.sum(1), rtol=1e-5)
     np.testing.assert_allclose(s.column_sums(), dense.sum(0), rtol=1e-5)
     assert s.row_sums().dtype == np.float32 and not s.row_sums().flags.writeable
+    # solve() reads the cached column sums: a user's in-place change must not reach it
+    assert not s.column_sums().flags.writeable
     assert len(s) == 3 and [v.name for v in s] == ["v0", "v1", "v2"] and s[1].name == "v1"
     np.testing.assert_array_equal(s.row_offsets(), np.cumsum([0, 48, 56, 64]))
     sub = s.subset([2, 0])

@@ -780,11 +780,13 @@ def test_solve_rejects_bad_requests_with_validation_errors(rng):
     for init in (None, np.zeros(0)):
         with pytest.raises(ValidationError, match="view 0: the operator has no columns"):
             solve([empty], [m], init=init)
-    bad = W.copy()
-    bad.data[3] = np.nan
-    for method in available_methods():
-        with pytest.raises(ValidationError, match="view 1: the operator holds non-finite weights"):
-            solve([W, bad], [m, m], method=method)
+    for value in (np.nan, np.inf, -0.2, 2.0):  # compositing weights lie in [0, 1]
+        bad = W.copy()
+        bad.data[3] = value
+        for method in available_methods():
+            with pytest.raises(ValidationError, match=r"view 1: the operator's weights must be finite and lie in "
+                                                      r"\[0, 1\]"):
+                solve([W, bad], [m, m], method=method)
     with pytest.raises(ValidationError, match=r"max_iter must be in 1\.\.100,000, got 1000000000000"):
         solve([W], [m], method="least_squares", max_iter=10 ** 12)
     with pytest.raises(ValidationError, match="progress must be a callable"):

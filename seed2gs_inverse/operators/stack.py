@@ -16,7 +16,7 @@ from scipy.sparse.linalg import LinearOperator
 
 from ..errors import ValidationError
 from . import _passes, store
-from .view import ViewOperator, _Transposed, view_label
+from .view import ViewOperator, _Transposed, check_weights, view_label
 
 __all__ = ["OperatorStack", "as_stack"]
 
@@ -117,10 +117,15 @@ class OperatorStack(LinearOperator):
         return out
 
     def column_sums(self) -> np.ndarray:
-        """(N,) float64 ``sum_c W(c)^T 1``: how much each Gaussian is seen over all views; cached."""
+        """(N,) float64 ``sum_c W(c)^T 1``: how much each Gaussian is seen over all views (read-only; cached).
+
+        The solvers read the same cached array (each Gaussian's known weight when every pixel is
+        known), so it cannot be changed in place; ``column_sums().copy()`` to modify it.
+        """
         if self._column_sums is None:
             self._column_sums = sum(np.asarray(v.W.T @ np.ones(v.n_pixels, np.float32), dtype=np.float64)
                                     for v in self.views)
+            self._column_sums.setflags(write=False)
         return self._column_sums
 
     def subset(self, indices) -> "OperatorStack":
@@ -140,7 +145,8 @@ class OperatorStack(LinearOperator):
         matrices (the forward pass bit-identical to this matrix's, the
         adjoint summed over two runs of views, see ``_passes``, which only
         rounds differently). Call this only where one
-        scipy matrix is needed (it costs a second copy of every weight).
+        scipy matrix is needed (it costs a second copy of every weight). The matrix is shared by later
+        calls: copy it (``.copy()``) before changing it in place.
         """
         if self._stacked is None:
             self._stacked = sp.vstack([v.W for v in self.views], format="csr", dtype=np.float32)
@@ -229,14 +235,15 @@ def _pair_view(i: int, item) -> ViewOperator:
     if len(shape) != 2 or W.ndim != 2 or W.shape[0] != shape[0] * shape[1]:
         raise ValidationError(f"view {i}: W has shape {W.shape}, which does not match "
                               f"image shape {shape} (rows must be H*W)")
-    return ViewOperator(_csr32(W), None, shape)
+    return ViewOperator(_csr32(W, i), None, shape)
 
 
-def _csr32(W):
-    """CSR float32 (no copy when it already is)."""
-    if sp.issparse(W) and W.format == "csr" and W.dtype == np.float32:
-        return W
-    return sp.csr_matrix(W, dtype=np.float32)
+def _csr32(W, i: int):
+    """View ``i``'s weights as CSR float32 (no copy when they already are), checked to lie in [0, 1]."""
+    if not (sp.issparse(W) and W.format == "csr" and W.dtype == np.float32):
+        W = sp.csr_matrix(W, dtype=np.float32)
+    check_weights(W.data, f"view {i}")  # here, where the message can name the view's index
+    return W
 
 
 def as_stack(operators, masks=None) -> OperatorStack:
@@ -297,7 +304,7 @@ def as_stack(operators, masks=None) -> OperatorStack:
                 if shape[0] * shape[1] != v.shape[0]:
                     raise ValidationError(f"view {i}: mask has {ma.size} pixels (shape {ma.shape}) but the "
                                           f"operator has {v.shape[0]} rows")
-            views.append(ViewOperator(_csr32(v), None, shape))
+            views.append(ViewOperator(_csr32(v, i), None, shape))
         elif isinstance(v, (tuple, list)) and len(v) == 2:
             views.append(_pair_view(i, v))
         else:

@@ -24,7 +24,7 @@ from scipy.sparse.linalg import LinearOperator
 from ..camera import Camera
 from ..errors import ValidationError
 
-__all__ = ["Rendering", "ViewOperator", "view_label"]
+__all__ = ["Rendering", "ViewOperator", "view_label", "check_weights"]
 
 # The per-view rendering arrays kept next to W (what the view looked like).
 RENDER_FIELDS = ("rgb", "alpha", "depth", "n_contrib")
@@ -72,6 +72,23 @@ def view_label(camera, index=None) -> str:
     return f"view {index}" + (f" ('{name}')" if name else "")
 
 
+def check_weights(data, label: str) -> None:
+    """Raise a ValidationError unless the weights ``data`` are finite and lie in [0, 1].
+
+    Compositing weights ``alpha_i(u) T_i(u)`` always do; anything else (a
+    NaN, a negative or a weight above 1) comes from a broken matrix and would
+    fail late in a solver, or be saved where :meth:`OperatorStack.load`
+    refuses it. Two reductions (NaN propagates through both).
+    """
+    data = np.asarray(data)
+    if data.size == 0:
+        return
+    lo, hi = data.min(), data.max()
+    if not (lo >= 0 and hi <= 1):
+        raise ValidationError(f"{label}: the operator's weights must be finite and lie in [0, 1] (compositing "
+                              f"weights), got values from {lo} to {hi}; rebuild it from the scene")
+
+
 class ViewOperator(LinearOperator):
     """The linear forward model of one view, ``P = W q``, as a ``LinearOperator``.
 
@@ -83,7 +100,8 @@ class ViewOperator(LinearOperator):
     ----------
     W : scipy.sparse.csr_matrix or csr_array, shape (H*W, N), float32
         Compositing weights; row ``y*width + x`` is pixel ``(x, y)``, column
-        ``i`` is scene Gaussian ``i``. Row sums equal the rendered alpha (<= 1).
+        ``i`` is scene Gaussian ``i``. Row sums equal the rendered alpha (<= 1);
+        every weight must be finite and lie in [0, 1] (ValidationError otherwise).
     camera : Camera or None
         The view's camera; when given, its ``image_shape`` must equal
         ``image_shape``. ``None`` for operators without geometry (tests,
@@ -125,6 +143,7 @@ class ViewOperator(LinearOperator):
         if W.shape[0] != shape[0] * shape[1]:
             raise ValidationError(f"{label}: W has {W.shape[0]} rows but the image {shape} has "
                                   f"{shape[0] * shape[1]} pixels")
+        check_weights(W.data, label)
         if rendering is not None and not isinstance(rendering, Rendering):
             raise ValidationError(f"{label}: rendering must be a Rendering or None, got {type(rendering).__name__}")
         super().__init__(np.float32, W.shape)
