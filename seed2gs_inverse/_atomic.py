@@ -14,7 +14,9 @@ are clearly abandoned (:func:`clean_stale_temps`) with a warning.
 
 from __future__ import annotations
 
+import fnmatch
 import hashlib
+import json
 import os
 import re
 import shutil
@@ -27,7 +29,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 __all__ = ["atomic_path", "write_files", "check_output_parent", "check_writable", "clean_stale_temps",
-           "STALE_AGE_S"]
+           "not_an_earlier_output", "OUTPUT_KINDS", "STALE_AGE_S"]
 
 #: A temporary whose creator cannot be checked (another host, or a name
 #: without a process id from an older version) is abandoned after this long.
@@ -233,3 +235,46 @@ def check_output_parent(path, option: str) -> Path:
     if not parent.is_dir():
         raise ValidationError(f"{option} {path}: the directory {parent} does not exist")
     return path
+
+
+#: The output directories the toolkit may replace, by kind: the marker file every such output
+#: holds, a test that the marker is the toolkit's own (its JSON content), and the names written there.
+OUTPUT_KINDS = {
+    "extract": ("report.json", lambda d: isinstance(d, dict) and isinstance(d.get("outputs"), dict),
+                ("report.json", "report.png", "q.npy", "object.*", "remainder.*")),
+    "operators": ("manifest.json", lambda d: isinstance(d, dict) and d.get("format") == "seed2gs-operators",
+                  ("manifest.json", "view_*.npy")),
+    "compare": ("comparison.json", lambda d: isinstance(d, dict) and isinstance(d.get("rows"), list),
+                ("comparison.json", "comparison.csv", "comparison.png")),
+    "evaluation": ("report.json", lambda d: isinstance(d, dict) and isinstance(d.get("protocol"), dict)
+                   and isinstance(d.get("queries"), list),
+                   ("report.json", "per_query.csv", "per_scene.csv", "grid.png", "jobs", "masks")),
+}
+
+
+def not_an_earlier_output(directory, kind: str) -> str | None:
+    """Why the existing directory may not be replaced as an earlier output of ``kind``; None if it may.
+
+    It may when it is empty, or when its marker file (:data:`OUTPUT_KINDS`:
+    ``report.json`` of ``extract`` or of an evaluation, ``manifest.json`` of
+    an operator directory, ``comparison.json`` of ``compare``) is the
+    toolkit's own and it holds nothing but the files of that output:
+    replacing a directory must never take a user's other files with it (an
+    empty ``{}`` named report.json, or notes added next to an earlier output).
+    """
+    d = Path(directory)
+    names = sorted(e.name for e in d.iterdir())
+    if not names:
+        return None
+    marker, is_ours, own = OUTPUT_KINDS[kind]
+    try:
+        ours = is_ours(json.loads((d / marker).read_text("utf-8")))
+    except (OSError, UnicodeDecodeError, ValueError):
+        ours = False
+    if not ours:
+        return f"it is not empty and is not an earlier output (its {marker} is missing or not the toolkit's)"
+    foreign = [n for n in names if not any(fnmatch.fnmatchcase(n, pat) for pat in own)]
+    if foreign:
+        shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
+        return f"it holds files that are not part of such an output ({shown})"
+    return None

@@ -243,6 +243,11 @@ def test_output_folders_no_batch_wrote_are_refused_and_kept(tiny, tmp_path):
     with pytest.raises(ValidationError, match="not the summary of a seed2gs batch"):
         extract_many([job], "sequential", output=other, progress=False)
     assert (other / "summary.json").read_text() == '{"results": []}'
+    (other / "summary.json").unlink()
+    (other / "summary.csv").write_text("my,own,table\n")  # a user's table named like the batch's
+    with pytest.raises(ValidationError, match=r"summary.csv is not the summary of a seed2gs batch"):
+        extract_many([job], "sequential", output=other, progress=False)
+    assert (other / "summary.csv").read_text() == "my,own,table\n"
 
 
 def test_summary_keeps_earlier_jobs_and_a_failed_rerun_leaves_no_folder(tiny, tmp_path):

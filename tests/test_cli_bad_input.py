@@ -44,6 +44,10 @@ def files(tmp_path_factory):
     (d / "exists").mkdir()
     (d / "userdir").mkdir()
     (d / "userdir" / "mine.txt").write_text("keep")
+    for marker in ("report.json", "manifest.json", "comparison.json"):  # a marker's name is not enough
+        (d / f"fake_{marker[:-5]}").mkdir()
+        (d / f"fake_{marker[:-5]}" / marker).write_text("{}")
+        (d / f"fake_{marker[:-5]}" / "thesis.tex").write_text("keep")
     (d / "exists.ply").write_bytes(b"")
     (d / "exists.png").write_bytes(b"")
     (d / "exists.npy").write_bytes(b"")
@@ -77,12 +81,18 @@ BAD = [
     (EXTRACT + ["-o", "{d}/exists"], "-o {d}/exists exists; use --force"),
     (EXTRACT + ["-o", "{d}/exists.ply", "--force"], "exists and is not a directory"),
     # --force replaces an earlier output, never a folder of the user's files or the working directory
-    (EXTRACT + ["-o", "{d}/userdir", "--force"], "-o {d}/userdir exists and is not an earlier output of this "
-                                                 "command (no report.json)"),
+    (EXTRACT + ["-o", "{d}/userdir", "--force"], "-o {d}/userdir exists and it is not empty and is not an "
+                                                 "earlier output (its report.json is missing or not the toolkit's)"),
+    (EXTRACT + ["-o", "{d}/fake_report", "--force"], "-o {d}/fake_report exists and it is not empty and is not "
+                                                     "an earlier output"),
+    (["operators", "build", "{d}/scene.ply", "--cameras", "{d}/cameras.json", "-o", "{d}/fake_manifest",
+      "--force"], "its manifest.json is missing or not the toolkit's"),
     (EXTRACT + ["-o", ".", "--force"], "-o . is the current directory or holds it"),
     (["compare", "{d}/ops", "{d}/masks", "--truth", "{d}/truth.npy", "-o", "{d}/userdir", "--force"],
-     "no comparison.json"),
-    (["demo", "-o", "{d}/userdir", "--force"], "no report.json"),
+     "its comparison.json is missing or not the toolkit's"),
+    (["compare", "{d}/ops", "{d}/masks", "--truth", "{d}/truth.npy", "-o", "{d}/fake_comparison", "--force"],
+     "its comparison.json is missing or not the toolkit's"),
+    (["demo", "-o", "{d}/userdir", "--force"], "its report.json is missing or not the toolkit's"),
     (["extract", "{d}/scene.ply", "--camera", "{d}/cameras.json", "--mask", "{d}/nomask.png", "-o", "{d}/o"],
      "--mask {d}/nomask.png: no such file"),
     (["extract", "{d}/scene.ply", "--camera", "{d}/cameras.json", "--mask", "{d}/text.png", "-o", "{d}/o"],

@@ -129,6 +129,18 @@ def test_eval_layout_errors(dataset, tmp_path):
     root, _ = dataset
     with pytest.raises(ValidationError, match="grounding model"):
         evaluate_lerf_mask(root / "data", root / "scenes", tmp_path / "r", oracle_seed=False)
+    mine = tmp_path / "mine"  # a user's folder: the report must not overwrite its files
+    mine.mkdir()
+    (mine / "per_query.csv").write_text("my,own\n")
+    (mine / "notes.txt").write_text("keep")
+    for report in (None, "{}"):  # no report.json, or one that is not an evaluation's
+        if report is not None:
+            (mine / "report.json").write_text(report)
+        with pytest.raises(ValidationError, match=f"output {mine} exists and it is not empty and is not an "
+                                                  "earlier output"):
+            evaluate_lerf_mask(root / "data", root / "scenes", mine, oracle_seed=True)
+    assert sorted(p.name for p in mine.iterdir()) == ["notes.txt", "per_query.csv", "report.json"]
+    assert (mine / "per_query.csv").read_text() == "my,own\n"
     with pytest.raises(ValidationError, match="no trained scene for 'blocks'"):
         read_lerf_mask(root / "data", tmp_path)
     with pytest.raises(ValidationError, match="nowhere"):

@@ -193,10 +193,14 @@ def test_save_refuses_foreign_directory_and_overwrites_only_when_asked(rng, tmp_
     other = tmp_path / "photos"
     other.mkdir()
     (other / "keep.txt").write_text("mine")
-    with pytest.raises(ValidationError, match="not an operator directory"):
+    with pytest.raises(ValidationError, match="manifest.json is missing or not the toolkit's"):
         s.save(other, overwrite=True)
     assert (other / "keep.txt").read_text() == "mine"
     s.save(tmp_path / "ops")
+    (tmp_path / "ops" / "notes.txt").write_text("mine")  # a user's file beside an operator directory
+    with pytest.raises(ValidationError, match=r"files that are not part of such an output \(notes.txt\)"):
+        s.save(tmp_path / "ops", overwrite=True)
+    (tmp_path / "ops" / "notes.txt").unlink()
     with pytest.raises(ValidationError, match="overwrite"):
         s.save(tmp_path / "ops")
     s2 = _stack(np.random.default_rng(7))

@@ -223,6 +223,7 @@ def _read_summary(output: Path) -> dict:
     """
     p = output / "summary.json"
     if not p.exists():
+        _check_summary_csv(output / "summary.csv")
         return {}
     try:
         doc = json.loads(p.read_text("utf-8"))
@@ -233,6 +234,20 @@ def _read_summary(output: Path) -> dict:
     except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as exc:
         raise ValidationError(f"{p} is not the summary of a seed2gs batch ({type(exc).__name__}: {exc}); "
                               f"choose another output directory, or move that file away") from None
+
+
+def _check_summary_csv(path: Path) -> None:
+    """Raise unless ``path`` is missing or begins with the batch's own header (it is replaced)."""
+    if not path.exists():
+        return
+    try:
+        with open(path, encoding="utf-8", newline="") as fh:
+            header = next(csv.reader(fh), [])
+    except (OSError, UnicodeDecodeError, csv.Error):
+        header = []
+    if header[:len(SUMMARY_COLUMNS)] != list(SUMMARY_COLUMNS):
+        raise ValidationError(f"{path} is not the summary of a seed2gs batch (not its columns); choose another "
+                              f"output directory, or move that file away")
 
 
 def _batch_folder(path: Path) -> bool:

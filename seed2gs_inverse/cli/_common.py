@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._atomic import check_writable
+from .._atomic import check_writable, not_an_earlier_output
 from ..errors import ValidationError
 
 __all__ = ["check_output", "parse_vector", "add_method_arguments", "parse_options", "progress_enabled",
@@ -38,7 +38,7 @@ def _default_views() -> int:
 DEFAULT_VIEWS = _default_views()
 
 
-def check_output(path, option: str, *, directory: bool = False, force: bool = False, marker: str | None = None) -> Path:
+def check_output(path, option: str, *, directory: bool = False, force: bool = False, kind: str | None = None) -> Path:
     """``path`` as a Path once it is known that the command can write it; else a ValidationError.
 
     Called before any expensive work, so that a typo fails at once and the
@@ -51,10 +51,11 @@ def check_output(path, option: str, *, directory: bool = False, force: bool = Fa
     * an existing ``path`` is replaced only with ``force`` (the same rule for
       every command), and only by the same kind (file or directory);
     * a directory is never replaced when it is the current directory or
-      holds it, nor, when the command names its ``marker`` file (the file
-      every output of the command holds, e.g. ``report.json``), when it is
-      neither empty nor an earlier output: ``--force`` replaces the
-      command's own output, never a folder of the user's files.
+      holds it, nor, when the command names the ``kind`` of its output
+      (``"extract"``, ``"operators"``, ``"compare"``), when it is neither
+      empty nor an earlier output of that kind holding only what the command
+      writes (:func:`~seed2gs_inverse._atomic.not_an_earlier_output`):
+      ``--force`` replaces the command's own output, never a user's files.
     """
     p = Path(os.fspath(path))
     if not str(path):
@@ -80,9 +81,10 @@ def check_output(path, option: str, *, directory: bool = False, force: bool = Fa
             if target == here or target in here.parents:
                 raise ValidationError(f"{option} {path} is the current directory or holds it; "
                                       f"give a new directory")
-            if marker is not None and any(p.iterdir()) and not (p / marker).is_file():
-                raise ValidationError(f"{option} {path} exists and is not an earlier output of this command "
-                                      f"(no {marker}); --force only replaces those: remove it yourself or "
+            why = None if kind is None else not_an_earlier_output(p, kind)
+            if why is not None:
+                raise ValidationError(f"{option} {path} exists and {why}; --force only replaces an empty "
+                                      f"directory or this command's own earlier output: remove it yourself or "
                                       f"choose another path")
     return p
 

@@ -93,7 +93,7 @@ def run(args) -> int:
     from ..synthetic import make_scene
 
     if args.output and not args.summary:
-        check_output(args.output, "-o", directory=True, force=args.force, marker="report.json")  # before the work
+        check_output(args.output, "-o", directory=True, force=args.force, kind="extract")  # before the work
     if args.summary:
         print("\n".join(_summary(make_scene(seed=args.seed))))
         return 0

@@ -208,7 +208,7 @@ def write_outputs(extraction, outdir, fmt: str = "ply", force: bool = False, fig
     from ..io import write_scene
     from ..pipeline.report import seed_summary
 
-    out = check_output(outdir, "-o", directory=True, force=force, marker="report.json")
+    out = check_output(outdir, "-o", directory=True, force=force, kind="extract")
     with atomic_path(out, directory=True) as tmp:
         outputs = {}
         for part, subset in (("object", extraction.object_scene()), ("remainder", extraction.remainder_scene())):
@@ -366,7 +366,7 @@ def run(args) -> int:
     from ..pipeline import extract
 
     # Everything cheap first: outputs, settings, inputs; the expensive work last.
-    out = check_output(args.output, "-o", directory=True, force=args.force, marker="report.json")
+    out = check_output(args.output, "-o", directory=True, force=args.force, kind="extract")
     recorded = None
     if args.from_report is not None:
         scene_path, camera, spec, prompt, settings, models_path, fmt, recorded = _from_report(args)

@@ -52,7 +52,7 @@ def build(args) -> int:
         raise ValidationError(f"--scale must be positive, got {args.scale}")
     from ._common import check_output, progress_enabled
 
-    check_output(args.output, "-o", directory=True, force=args.overwrite, marker="manifest.json")  # fail before rendering anything
+    check_output(args.output, "-o", directory=True, force=args.overwrite, kind="operators")  # fail before rendering anything
     OperatorStack.check_target(args.output, args.overwrite)
     scene = read_scene(args.scene)
     cameras = read_cameras(args.cameras)

@@ -131,7 +131,7 @@ def compare_command(args) -> int:
     if methods is not None and not methods:
         raise ValidationError("--methods: give at least one method")
     if args.output:
-        check_output(args.output, "-o", directory=True, force=args.force, marker="comparison.json")  # DIR is written at the end
+        check_output(args.output, "-o", directory=True, force=args.force, kind="compare")  # DIR is written at the end
     truth = _load_npy(Path(args.truth))
     if truth.dtype != bool:
         if truth.dtype.kind in "ui" and truth.size and set(np.unique(truth).tolist()) <= {0, 1}:

@@ -438,9 +438,22 @@ def evaluate_lerf_mask(data_dir, scenes_dir, output, *, oracle_seed: bool | None
 
 
 def _check_output(output) -> Path:
+    """The report directory, checked: new, empty, or an earlier evaluation (which a run resumes).
+
+    An earlier evaluation holds the report's files and its ``jobs/`` and
+    ``masks/`` folders (only those two after an interrupted run); any other
+    directory is refused, so that the report never overwrites a user's files.
+    """
+    from .._atomic import not_an_earlier_output
     from ..batch.runner import check_output_dir
 
-    return check_output_dir(output)
+    out = check_output_dir(output)
+    if out.is_dir() and not {e.name for e in out.iterdir()} <= {"jobs", "masks"}:
+        why = not_an_earlier_output(out, "evaluation")
+        if why is not None:
+            raise ValidationError(f"output {out} exists and {why}; choose a new directory (an earlier "
+                                  f"evaluation there is resumed, not overwritten)")
+    return out
 
 
 def evaluate_scenes(dataset, output, *, oracle_seed: bool | None = None, models=None, options=None,

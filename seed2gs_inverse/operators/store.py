@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
-from .._atomic import atomic_path
+from .._atomic import atomic_path, not_an_earlier_output
 from ..camera import Camera
 from ..errors import FormatError, ValidationError
 from .view import RENDER_FIELDS, Rendering, ViewOperator
@@ -121,16 +121,17 @@ def check_target(directory, overwrite: bool = False) -> Path:
     """Raise unless :func:`save` may write to ``directory`` (call it before expensive work).
 
     Allowed: a missing or empty directory, or an operator directory with
-    ``overwrite=True``; never a non-empty directory of something else.
+    ``overwrite=True``; never a non-empty directory of something else, nor
+    an operator directory that also holds other files.
     """
     target = Path(directory)
     if target.exists():
         if not target.is_dir():
             raise ValidationError(f"{target}: exists and is not a directory")
         if any(target.iterdir()):
-            if not (target / "manifest.json").is_file():
-                raise ValidationError(f"{target}: exists, is not empty and is not an operator directory; "
-                                      "choose another output directory")
+            why = not_an_earlier_output(target, "operators")
+            if why is not None:
+                raise ValidationError(f"{target}: exists and {why}; choose another output directory")
             if not overwrite:
                 raise ValidationError(f"{target}: an operator directory already exists; "
                                       "replace it with overwrite=True (seed2gs operators build --force)")
