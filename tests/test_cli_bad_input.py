@@ -85,6 +85,8 @@ BAD = [
                                                  "earlier output (its report.json is missing or not the toolkit's)"),
     (EXTRACT + ["-o", "{d}/fake_report", "--force"], "-o {d}/fake_report exists and it is not empty and is not "
                                                      "an earlier output"),
+    (["operators", "build", "{d}/scene.ply", "--cameras", "{d}/cameras.json", "-o", "{d}/o", "--scale", 100],
+     "--scale must be in (0, 4], got 100.0"),
     (["operators", "build", "{d}/scene.ply", "--cameras", "{d}/cameras.json", "-o", "{d}/fake_manifest",
       "--force"], "its manifest.json is missing or not the toolkit's"),
     (EXTRACT + ["-o", ".", "--force"], "-o . is the current directory or holds it"),

@@ -188,6 +188,18 @@ def test_fingerprint_checks_scene(rng, tmp_path):
         OperatorStack.load(tmp_path / "ops", scene=_scene(rng, n=49))
 
 
+def test_save_refuses_a_stack_the_disk_cannot_hold(rng, tmp_path, monkeypatch):
+    """Checked before writing: a 22 GB stack (operators build --scale 100) used to fill the disk."""
+    import shutil
+    from collections import namedtuple
+
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(2 ** 31, 2 ** 31 - 2 ** 29, 2 ** 29))
+    with pytest.raises(ValidationError, match=r"the operators need 0\.0 GB but .* has 0\.5 GB free"):
+        _stack(rng).save(tmp_path / "ops")
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_save_refuses_foreign_directory_and_overwrites_only_when_asked(rng, tmp_path):
     s = _stack(rng)
     other = tmp_path / "photos"

@@ -39,6 +39,18 @@ def test_camera_file_outputs(files, capsys):
     assert "40x30" in capsys.readouterr().out
 
 
+def test_look_at_takes_vectors_that_start_with_a_minus_sign(files, tmp_path):
+    """argparse read "-0.2,-0.5,-4" as an unknown option ("expected 2 arguments")."""
+    d, scene, _ = files
+    for eye, target in (("-0.2,-0.5,-4", "0,0,0"), ("0.2,-0.5,-4", "-.1,0,0"), ("-2e-1,-0.5,-4", "-1E-1,0,0")):
+        out = tmp_path / f"{eye}_{target}.npy"
+        assert cli.main(["render", str(d / "scene.ply"), "--look-at", eye, target, "--fov", "50",
+                         "--size", "24x20", "-o", str(out)]) == 0
+        cam = Camera.look_at([float(v) for v in eye.split(",")], [float(v) for v in target.split(",")],
+                             [0, -1, 0], 50, 24, 20)
+        np.testing.assert_allclose(np.load(out), render(scene, cam).rgb, atol=1e-6)
+
+
 def test_look_at_png_with_background_and_scale(files):
     d, scene, cams = files
     rc = cli.main(["render", str(d / "scene.ply"), "--look-at", "0.2,-0.5,-4", "0,0,0", "--fov", "50",

@@ -260,3 +260,22 @@ def test_cli_view_camera_grammar(offscreen, fake_reader, tmp_path, monkeypatch, 
     # the old three-number --up still works, with a note
     assert cli.main(["view", "s.ply", "--screenshot", str(new), "--force", "--up", "0", "0", "1"]) == 0
     assert "'--up X Y Z' is deprecated; write --up 0,0,1" in capsys.readouterr().err
+
+
+def test_cli_view_counts_what_it_draws_and_refuses_up_with_a_camera(offscreen, fake_reader, tmp_path,
+                                                                     monkeypatch, capsys):
+    """``shown:`` counted only --threshold (``shown: all`` for an empty picture); --up was ignored with --camera."""
+    from seed2gs_inverse import Camera, cli
+    from seed2gs_inverse.io import write_cameras
+
+    monkeypatch.setattr(cli, "_COMMAND_MODULES", ("_view",))
+    out = tmp_path / "v.png"
+    assert cli.main(["view", "s.ply", "--screenshot", str(out), "--min-opacity", "0.999999"]) == 0
+    assert "shown: 0)" in capsys.readouterr().out
+    assert cli.main(["view", "s.ply", "--screenshot", str(out), "--force"]) == 0
+    assert "shown: all)" in capsys.readouterr().out
+    write_cameras(tmp_path / "cams.json", [Camera.look_at(np.array([0.0, -3.0, 0.0]), np.zeros(3),
+                                                          np.array([0.0, 0.0, 1.0]), 50, 40, 30)])
+    assert cli.main(["view", "s.ply", "--camera", str(tmp_path / "cams.json"), "--up", "1,0,0",
+                     "--screenshot", str(out), "--force"]) == 2
+    assert "--up applies without --camera only" in capsys.readouterr().err

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import re
 import sys
 import warnings
 
@@ -24,12 +25,22 @@ _COMMAND_MODULES = ("_extract", "_batch", "_eval", "_demo", "_scene", "_render",
                     "_models")
 
 
+#: A negative number, or comma-separated numbers the first of which is negative ("-1,-2.5,3e-2").
+_NUMBERS = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?(,-?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?)*$")
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse with one-line usage errors: ``seed2gs extract: error: ...`` (exit status 2).
 
     The full usage is one ``--help`` away; a wall of usage text before the
     one line that matters hides it (and differs from our other errors).
     """
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        # Values such as "-1,-2,-3" (--look-at, --up) are vectors, not options: argparse only takes
+        # single negative numbers for values, so widen its test to comma-separated numbers.
+        self._negative_number_matcher = _NUMBERS
 
     def error(self, message):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")

@@ -73,7 +73,7 @@ def register(subparsers) -> None:
                    help="orbit axis: 'auto' (default: the support plane under the object, the scene's "
                         "plane, the camera's roll and --cameras; report.json's 'up' says which and how "
                         "sure), 'level' (the camera's up without its pitch), 'camera' (the image up) or a "
-                        "world direction X,Y,Z (--up=-1,0,0 when it starts with a minus)")
+                        "world direction X,Y,Z")
     p.add_argument("--cameras", metavar="FILE", default=None,
                    help="the scene's capture cameras (cameras.json / COLMAP / transforms.json): with "
                         "--up auto their level right vectors fix the world up")

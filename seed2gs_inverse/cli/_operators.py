@@ -26,7 +26,8 @@ def register(subparsers) -> None:
     b.add_argument("--cameras", required=True, metavar="FILE",
                    help="cameras (3DGS cameras.json, COLMAP model, nerfstudio transforms.json)")
     b.add_argument("-o", "--output", required=True, metavar="DIR", help="output operator directory")
-    b.add_argument("--scale", type=float, default=1.0, help="resolution factor (default 1.0)")
+    b.add_argument("--scale", type=float, default=1.0,
+                   help="resolution factor relative to the cameras, in (0, 4] (default 1.0)")
     b.add_argument("--min-weight", type=float, default=0.0,
                    help="drop weights below this (default 0: keep all)")
     b.add_argument("--force", "--overwrite", dest="overwrite", action="store_true",
@@ -48,8 +49,8 @@ def build(args) -> int:
     from ..operators import OperatorStack, scene_fingerprint
     from ..raster import build_operator
 
-    if not (np.isfinite(args.scale) and args.scale > 0):
-        raise ValidationError(f"--scale must be positive, got {args.scale}")
+    if not (np.isfinite(args.scale) and 0 < args.scale <= 4):  # x4 already turns 1080p into 8K views
+        raise ValidationError(f"--scale must be in (0, 4], got {args.scale}")
     from ._common import check_output, progress_enabled
 
     check_output(args.output, "-o", directory=True, force=args.overwrite, kind="operators")  # fail before rendering anything

@@ -34,7 +34,7 @@ def register(subparsers) -> None:
                      help="camera position and the point it looks at, each 'x,y,z'")
     p.add_argument("--up", default=None, metavar="X,Y,Z",
                    help="with --look-at: world direction shown upwards (default 0,-1,0, the "
-                        "usual up of COLMAP-trained scenes; --up=-1,0,0 when it starts with a minus)")
+                        "usual up of COLMAP-trained scenes)")
     p.add_argument("--fov", type=float, default=None, metavar="DEG",
                    help="with --look-at: vertical field of view in degrees (default 60)")
     p.add_argument("--size", default=None, metavar="WxH",

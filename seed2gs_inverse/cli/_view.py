@@ -36,8 +36,7 @@ def register(subparsers) -> None:
     p.add_argument("--view", default=None, metavar="NAME|INDEX",
                    help="deprecated: write --camera FILE:NAME")
     p.add_argument("--up", nargs="+", default=None, metavar="X,Y,Z",
-                   help="without --camera: world direction shown upwards (COLMAP-like scenes: 0,-1,0; "
-                        "--up=-1,0,0 when it starts with a minus)")
+                   help="without --camera: world direction shown upwards (COLMAP-like scenes: 0,-1,0)")
     p.add_argument("--size", default=None, metavar="WxH",
                    help="window/screenshot size (default: the camera's, else 1024x768)")
     p.add_argument("--screenshot", metavar="OUT.png", help="write a PNG instead of opening a window")
@@ -119,6 +118,8 @@ def run(args) -> int:
         raise ValidationError("--threshold needs --membership")
     if args.view is not None and args.camera is None:
         raise ValidationError("--view needs --camera")
+    if args.up is not None and args.camera is not None:
+        raise ValidationError("--up applies without --camera only (a camera fixes the view's up); drop one")
     if args.screenshot is None and not has_display():
         raise ValidationError("no display to open a window on; pass --screenshot OUT.png")
     if args.screenshot is not None and Path(args.screenshot).suffix.lower() != ".png":
@@ -136,6 +137,10 @@ def run(args) -> int:
         return 0
     with atomic_path(out) as tmp:  # a failure leaves nothing behind
         img = membership_plot(scene, q, screenshot=str(tmp), off_screen=True, **kw)
-    shown = "all" if q is None or args.threshold is None else int(np.sum(q > args.threshold))
+    # the Gaussians membership_plot draws: above --min-opacity and, with --threshold, q above it
+    keep = scene.opacities >= args.min_opacity if args.min_opacity > 0 else np.ones(len(scene), bool)
+    if q is not None and args.threshold is not None:
+        keep &= q > args.threshold
+    shown = "all" if keep.all() else f"{int(keep.sum()):,}"
     print(f"wrote {out} ({img.shape[1]}x{img.shape[0]}, {len(scene)} Gaussians, shown: {shown})")
     return 0

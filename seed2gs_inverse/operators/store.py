@@ -88,6 +88,7 @@ def save(views, fingerprint, directory, overwrite: bool = False) -> Path:
     Path of the directory.
     """
     target = check_target(directory, overwrite)
+    _check_space(views, target)
     with atomic_path(target, directory=True) as tmp:
         entries = []
         for i, v in enumerate(views):
@@ -115,6 +116,24 @@ def save(views, fingerprint, directory, overwrite: bool = False) -> Path:
         with open(tmp / "manifest.json", "w", encoding="utf-8") as fh:
             json.dump(manifest, fh, indent=1)
     return target
+
+
+def _check_space(views, target: Path) -> None:
+    """Raise before writing when the file system of ``target`` cannot hold the stack (and 1 GB more)."""
+    import shutil
+
+    need = 0
+    for v in views:
+        need += v.W.data.nbytes + v.W.indices.nbytes + v.W.indptr.nbytes
+        if v.rendering is not None:
+            need += sum(np.asarray(a).nbytes for a in (getattr(v.rendering, k) for k in RENDER_FIELDS)
+                        if a is not None)
+    parent = target.resolve().parent
+    free = shutil.disk_usage(parent).free
+    if need + 2 ** 30 > free:
+        raise ValidationError(f"{target}: the operators need {need / 1e9:.1f} GB but {parent} has "
+                              f"{free / 1e9:.1f} GB free (1 GB is kept spare); free space, save elsewhere, "
+                              f"or build fewer or smaller views")
 
 
 def check_target(directory, overwrite: bool = False) -> Path:
