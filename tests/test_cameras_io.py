@@ -152,6 +152,20 @@ def test_read_camera_selection(tmp_path):
         read_cameras(tmp_path / "cams.yaml")
 
 
+
+def test_read_camera_names_with_colons_and_shared_names(tmp_path):
+    """"cams.json:frame:1" read "cams.json:frame" as the file; a shared name picked the first camera."""
+    entries = [_entry(np.eye(3), [i, 0, 0], name=n) for i, n in enumerate(["frame:1", "frame:2", "twin", "twin"])]
+    path = _write_json(tmp_path / "cams.json", entries)
+    assert read_camera(f"{path}:frame:2").center[0] == 1
+    assert read_camera(f"{path}:1").name == "frame:2"
+    with pytest.raises(ValidationError, match="no camera named 'frame:3'"):
+        read_camera(f"{path}:frame:3")
+    with pytest.raises(ValidationError, match=r"holds 2 cameras named 'twin' \(indices 2, 3\); pick one by index"):
+        read_camera(f"{path}:twin")
+    assert read_camera(f"{path}:3").center[0] == 3
+
+
 # --------------------------------------------------------------------------
 # COLMAP
 

@@ -57,6 +57,7 @@ def files(tmp_path_factory):
     (d / "garbage.json").write_text("{not json")
     (d / "garbage.ply").write_bytes(b"ply\nformat nonsense\n")
     (d / "not_a_report.json").write_text(json.dumps({"n_selected": 3}))
+    (d / "edited_report.json").write_text(json.dumps({"run": {"scene": "scene.ply", "camera": {}}, "settings": {}}))
     (d / "text.png").write_text("not an image")
     np.save(d / "objects.npy", np.array([{"a": 1}], dtype=object), allow_pickle=True)  # a pickle inside
     np.save(d / "short.npy", np.ones(3, bool))
@@ -188,6 +189,11 @@ BAD = [
     (["extract", "--from-report", "{d}/missing.json", "-o", "{d}/o"], "--from-report {d}/missing.json: no such file"),
     (["extract", "--from-report", "{d}/garbage.json", "-o", "{d}/o"], "not a JSON report"),
     (["extract", "--from-report", "{d}/not_a_report.json", "-o", "{d}/o"], "no 'run' and 'settings' sections"),
+    # an edited report: with or without SCENE, one clear line instead of an AttributeError
+    (["extract", "--from-report", "{d}/edited_report.json", "-o", "{d}/o"],
+     'run.scene must be a section (a JSON object), got "scene.ply"'),
+    (["extract", "{d}/scene.ply", "--from-report", "{d}/edited_report.json", "-o", "{d}/o"],
+     'run.scene must be a section'),
     (["extract", "--from-report", "{d}/not_a_report.json", "--views", 6, "-o", "{d}/o"],
      "cannot be combined with --views"),
     # demo

@@ -273,3 +273,15 @@ def test_an_empty_selection_is_said_and_splat_outputs_skip_empty_parts(files, ca
     rep = json.loads((out / "report.json").read_text())
     assert rep["outputs"] == {"object": None, "remainder": "remainder.splat", "q": "q.npy"}
     assert rep["n_selected"] == 0 and len(read_scene(out / "remainder.splat")) == len(files["syn"].scene)
+
+
+def test_splat_output_warnings_name_the_users_path(files, capsys, tmp_path):
+    """The .splat writer's warning (SH bands dropped) named the temporary directory the outputs are built in."""
+    d = files["dir"]
+    assert files["syn"].scene.sh_degree == 3
+    out = tmp_path / "out"
+    assert _run(["extract", d / "scene.ply", "--camera", f"{d / 'cameras.json'}:0", "--mask", d / "mask.png",
+                 "-o", out, "--views", 4, "--format", "splat", "--no-progress"]) == 0
+    err = capsys.readouterr().err
+    assert f"{out / 'object.splat'}: the .splat format cannot store SH bands 1-3" in err, err
+    assert ".tmp" not in err

@@ -62,6 +62,7 @@ def test_defaults_are_those_of_the_old_extract_but_issue_10s():
     ("orbit_scale", 0.0, "orbit_scale must be > 0"),
     ("orbit_scale", 5.0, "orbit_scale must be <= 4"),
     ("orbit_scale", "half", "orbit_scale must be a number"),
+    ("min_weight", 1.5, "min_weight must be <= 1"),  # refused here, not at the operators stage
     ("max_view_pixels", 10, r"max_view_pixels must be in 64\.\.16,777,216"),
     ("max_view_pixels", 10 ** 12, r"max_view_pixels must be in 64\.\.16,777,216"),
     ("max_view_pixels", 1e5, "max_view_pixels must be an integer or None"),

@@ -242,6 +242,14 @@ def test_track_clips_passes_references_and_drops_spiral_frame_0(staged):
         ex_mod.track_clips(Old(), o, staged.ref.seed)
 
 
+    class Silent:
+        def track(self, frames, seed_mask, references=()):
+            return None
+
+    with pytest.raises(ValidationError, match=r"tracker Silent: track\(\) returned NoneType; it must return one"):
+        ex_mod.track_clips(Silent(), o, staged.ref.seed)
+
+
 def test_stack_operators(syn, staged):
     st = staged.stack
     assert len(st) == len(staged.labelled) and st.fingerprint == scene_fingerprint(syn.scene)

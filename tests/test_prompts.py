@@ -114,6 +114,11 @@ def test_text_prompt_needs_a_grounder_and_takes_the_best(view):
     assert [c["score"] for c in info["candidates"]] == [0.9, 0.3] and info["candidates"][0]["source"] == "vlm"
     with pytest.raises(ValidationError, match="no candidate"):
         seed_mask_from_prompt("x", r.rgb, grounder=_Grounder([]))
+    # plug-ins that break the protocol: a ValidationError naming it, not an AttributeError/TypeError
+    with pytest.raises(ValidationError, match=r"grounder must have a ground\(image, text\) method.*got object"):
+        seed_mask_from_prompt("x", r.rgb, grounder=object())
+    with pytest.raises(ValidationError, match=r"grounder _Grounder: ground\(\) returned NoneType"):
+        seed_mask_from_prompt("x", r.rgb, grounder=_Grounder(None))
     assert isinstance(as_prompt("chair"), TextPrompt)
     with pytest.raises(ValidationError):
         as_prompt(3.5)

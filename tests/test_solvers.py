@@ -770,6 +770,14 @@ def test_methods_return_a_method_result(blob):
     assert get_method("voting")(problem, bias=0.2).threshold > 0.5
 
 
+def test_masks_may_be_a_generator_with_bare_matrices(rng):
+    """as_stack used the generator up for the image shapes: "got 0 masks for 2 views"."""
+    Ws = [sp.random(12, 5, density=0.5, format="csr", dtype=np.float32, random_state=k) for k in (0, 1)]
+    masks = [rng.random((3, 4)) > 0.5 for _ in Ws]
+    want = solve(Ws, masks, method="voting").q
+    np.testing.assert_array_equal(solve(Ws, (m for m in masks), method="voting").q, want)
+
+
 def test_solve_rejects_bad_requests_with_validation_errors(rng):
     """Issue 12 item 4: each of these raised TypeError, RuntimeError or a numpy ValueError."""
     W = sp.random(12, 5, density=0.5, format="csr", dtype=np.float32, random_state=0)

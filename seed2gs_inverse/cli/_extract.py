@@ -218,7 +218,11 @@ def write_outputs(extraction, outdir, fmt: str = "ply", force: bool = False, fig
                               f"(report.json's outputs say so); q.npy and report.json are", stacklevel=2)
                 outputs[part] = None
                 continue
-            write_scene(tmp / f"{part}.{fmt}", subset)
+            with warnings.catch_warnings(record=True) as caught:  # they name the temporary directory
+                warnings.simplefilter("always")
+                write_scene(tmp / f"{part}.{fmt}", subset)
+            for w in caught:  # ... so say them again with the user's path
+                warnings.warn(str(w.message).replace(os.fspath(tmp), os.fspath(out)), w.category, stacklevel=2)
             outputs[part] = f"{part}.{fmt}"
         np.save(tmp / "q.npy", np.asarray(extraction.q, np.float32), allow_pickle=False)
         report = extraction.report()
@@ -346,6 +350,10 @@ def _from_report(args):
     rep = _read_report(args.from_report)
     where = f"--from-report {args.from_report}"
     run = rep["run"]
+    for key, required in (("scene", True), ("camera", True), ("up_cameras", False)):
+        if (required or run.get(key) is not None) and not isinstance(run.get(key), dict):
+            raise FormatError(f"{where}: run.{key} must be a section (a JSON object), got "
+                              f"{json.dumps(run.get(key))[:60]}; repeat the run from an unedited report.json")
     try:
         scene_path = args.scene or run["scene"]["path"]
         camera = Camera.from_dict(run["camera"]["camera"])

@@ -355,7 +355,15 @@ def seed_mask_from_prompt(prompt, image: np.ndarray, depth: np.ndarray | None = 
     if isinstance(prompt, TextPrompt):
         if grounder is None:
             raise ValidationError(TEXT_NEEDS_GROUNDER)
-        cands = list(grounder.ground(np.asarray(image, np.float32), prompt.text))
+        if not callable(getattr(grounder, "ground", None)):
+            raise ValidationError(f"grounder must have a ground(image, text) method (the Grounder protocol, "
+                                  f"seed2gs_inverse.frontend.base), got {type(grounder).__name__}")
+        res = grounder.ground(np.asarray(image, np.float32), prompt.text)
+        try:
+            cands = list(res)
+        except TypeError:
+            raise ValidationError(f"grounder {type(grounder).__name__}: ground() returned {type(res).__name__}; "
+                                  f"it must return a list of Candidate (empty when nothing is found)") from None
         if not cands:
             raise ValidationError(f"the grounder found no candidate for the prompt {prompt.text!r}; "
                                   f"try another wording or a box/point prompt")

@@ -188,14 +188,20 @@ def _read_cameras(p: Path) -> list:
 def read_camera(spec) -> Camera:
     """One camera from ``"FILE"``, ``"FILE:NAME"`` or ``"FILE:INDEX"``.
 
-    A name matches the camera's ``name``; otherwise an integer selects by
-    position (negative counts from the end). Without a selector the file must
-    hold exactly one camera. Example: ``read_camera("cams.json:overview")``.
+    A name matches the camera's ``name`` (it may hold colons: the file is the
+    longest existing path before one; a name several cameras share is an
+    error); otherwise an integer selects by position (negative counts from
+    the end). Without a selector the file must hold exactly one camera.
+    Example: ``read_camera("cams.json:overview")``.
     """
     spec = os.fspath(spec)
     path, selector = spec, None
     if not os.path.exists(spec) and ":" in spec:
-        path, selector = spec.rsplit(":", 1)
+        # The file is the longest existing prefix before a colon, so names may hold colons
+        # ("cams.json:frame:1"); with none, the last colon (the error then names that file).
+        cuts = [i for i, ch in enumerate(spec) if ch == ":"]
+        cut = next((i for i in reversed(cuts) if os.path.isfile(spec[:i])), cuts[-1])
+        path, selector = spec[:cut], spec[cut + 1:]
     cams = read_cameras(path)
     names = ", ".join(c.name or str(i) for i, c in enumerate(cams[:10]))
     names += ", ..." if len(cams) > 10 else ""
@@ -204,9 +210,12 @@ def read_camera(spec) -> Camera:
             return cams[0]
         raise ValidationError(f"{path} holds {len(cams)} cameras; pick one with {path}:NAME or "
                               f"{path}:INDEX (names: {names})")
-    for cam in cams:
-        if cam.name == selector:
-            return cam
+    named = [i for i, cam in enumerate(cams) if cam.name == selector]
+    if len(named) > 1:
+        raise ValidationError(f"{path} holds {len(named)} cameras named '{selector}' (indices "
+                              f"{', '.join(map(str, named[:10]))}); pick one by index, {path}:INDEX")
+    if named:
+        return cams[named[0]]
     try:
         index = int(selector)
     except ValueError:

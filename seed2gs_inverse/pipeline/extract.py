@@ -613,12 +613,18 @@ def track_clips(tracker, orbits: OrbitViews, seed: np.ndarray, progress: _Progre
     labelled = []
     for name, frames in orbits.clips():
         try:
-            out = list(tracker.track(frames, seed, references=tuple(labelled)))
+            res = tracker.track(frames, seed, references=tuple(labelled))
         except TypeError as e:
             if "references" not in str(e):
                 raise
             raise ValidationError(f"tracker {type(tracker).__name__}: track() must accept references=() "
                                   f"(the Tracker protocol, seed2gs_inverse.frontend.base); got: {e}") from None
+        try:
+            out = list(res)
+        except TypeError:
+            raise ValidationError(f"tracker {type(tracker).__name__}: track() returned {type(res).__name__}; it "
+                                  f"must return one (H, W) mask per frame (the Tracker protocol, "
+                                  f"seed2gs_inverse.frontend.base)") from None
         if len(out) != len(frames):
             raise ValidationError(f"tracker returned {len(out)} masks for a {name} clip of {len(frames)} frames")
         for k, (f, m) in enumerate(zip(frames, out)):

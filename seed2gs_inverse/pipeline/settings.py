@@ -343,7 +343,7 @@ class ExtractSettings:
         set_("roi_margin", _real("roi_margin", self.roi_margin, lo=0.0, lo_open=True, optional=True))
         set_("zoom_margin", _real("zoom_margin", self.zoom_margin, lo=0.0, lo_open=True, optional=True))
         set_("up", _up(self.up))
-        set_("min_weight", _real("min_weight", self.min_weight, lo=0.0))
+        set_("min_weight", _real("min_weight", self.min_weight, lo=0.0, hi=1.0))
         if not isinstance(self.cull, (bool, np.bool_)):
             raise ValidationError(f"cull must be True or False, got {self.cull!r}")
         set_("cull", bool(self.cull))

@@ -386,13 +386,13 @@ def prepare(operators, masks, init=None) -> Problem:
     """
     from ..operators import as_stack  # the operator core: numpy/scipy only
 
-    stack = as_stack(operators, masks)
-    try:
+    try:  # a list once: a generator would be used up by as_stack (the image shapes of bare matrices)
         mask_list = list(masks) if not isinstance(masks, np.ndarray) or masks.ndim >= 2 else None
     except TypeError:
         mask_list = None
     if mask_list is None:
         raise ValidationError("masks must be a sequence with one array per view (or a (V, H, W) array)")
+    stack = as_stack(operators, mask_list)
     if len(mask_list) != len(stack):
         raise ValidationError(f"got {len(mask_list)} masks for {len(stack)} views; give one mask per view")
     n = stack.n_gaussians
