@@ -123,12 +123,19 @@ def test_eval_on_the_dask_cluster_matches(dataset, dask_client, tmp_path):
     assert [s["scene"] for s in rep["scenes"]] == ["shelf"]
 
 
-def test_eval_layout_errors(dataset, tmp_path):
+def test_eval_layout_errors(dataset, tmp_path, capsys):
     from seed2gs_inverse.evaluation import evaluate_lerf_mask, read_lerf_mask
 
     root, _ = dataset
     with pytest.raises(ValidationError, match="grounding model"):
         evaluate_lerf_mask(root / "data", root / "scenes", tmp_path / "r", oracle_seed=False)
+    from seed2gs_inverse.cli import main
+
+    for views in (1, 400):  # the range with the option's name, not the job's "options: n_views ..."
+        assert main(["eval", "lerf-mask", str(root / "data"), "--scenes", str(root / "scenes"), "-o",
+                     str(tmp_path / "v"), "--oracle-seed", "--views", str(views)]) == 2
+        assert f"--views must be in 2..360, got {views}" in capsys.readouterr().err
+    assert not (tmp_path / "v").exists()
     mine = tmp_path / "mine"  # a user's folder: the report must not overwrite its files
     mine.mkdir()
     (mine / "per_query.csv").write_text("my,own\n")

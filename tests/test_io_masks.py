@@ -91,8 +91,17 @@ def test_one_view_in_two_formats_names_both_files(tmp_path):
 def test_missing_view_is_named(tmp_path):
     for k in (0, 1, 3):
         _png(tmp_path / f"view_{k:03d}.png", np.zeros((4, 6), np.uint8))
-    with pytest.raises(FormatError, match=r"missing view\(s\) \[2\]"):
+    with pytest.raises(FormatError, match=r"without gaps; view\(s\) 2 missing below view_003.png"):
         read_masks(tmp_path)
+
+
+def test_a_mask_beyond_the_views_is_named(tmp_path):
+    """One extra file used to read "numbered 0..8; missing view(s) [8, 9, 10, 11]"."""
+    for k in (0, 1, 2, 12):
+        _png(tmp_path / f"view_{k:03d}.png", np.zeros((4, 6), np.uint8))
+    with pytest.raises(ValidationError, match=r"view_012.png names a view beyond the 3 operator views "
+                                              r"\(view_000 .. view_002\); remove or renumber it"):
+        read_masks(tmp_path, n_views=3)
 
 
 def test_two_files_for_one_view(tmp_path):

@@ -180,6 +180,11 @@ def test_cli_view_errors_exit_2_and_leave_nothing(fake_reader, tmp_path, monkeyp
     out = tmp_path / "shot.png"
     assert cli.main(["view", "s.ply", "--membership", str(q), "--screenshot", str(out)]) == 2
     assert "shape (7,)" in capsys.readouterr().err
+    text = tmp_path / "q.txt"  # numpy calls a text file "pickled data"
+    text.write_text("0.1 0.9\n")
+    assert cli.main(["view", "s.ply", "--membership", str(text), "--screenshot", str(out)]) == 2
+    assert f"--membership {text}: not a .npy file (write the array with numpy.save)" in capsys.readouterr().err
+    text.unlink()
     assert cli.main(["view", "s.ply", "--threshold", "0.5", "--screenshot", str(out)]) == 2
     assert "--threshold needs --membership" in capsys.readouterr().err
     assert cli.main(["view", "s.ply", "--screenshot", str(tmp_path / "a.jpg")]) == 2

@@ -24,7 +24,7 @@ import numpy as np
 from .._atomic import check_writable, not_an_earlier_output
 from ..errors import ValidationError
 
-__all__ = ["check_output", "parse_vector", "add_method_arguments", "parse_options", "progress_enabled",
+__all__ = ["check_output", "check_input_file", "parse_vector", "add_method_arguments", "parse_options", "progress_enabled",
            "SolveBar", "DEFAULT_VIEWS"]
 
 
@@ -87,6 +87,14 @@ def check_output(path, option: str, *, directory: bool = False, force: bool = Fa
                                       f"directory or this command's own earlier output: remove it yourself or "
                                       f"choose another path")
     return p
+
+
+def check_input_file(path, label: str) -> None:
+    """Raise a ValidationError ``"{label} {path}: no such file"`` (or ``": a directory, not a file"``)."""
+    if os.path.isdir(path):
+        raise ValidationError(f"{label} {path}: a directory, not a file")
+    if not os.path.isfile(path):
+        raise ValidationError(f"{label} {path}: no such file")
 
 
 def parse_vector(option: str, values) -> np.ndarray:

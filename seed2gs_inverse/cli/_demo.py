@@ -18,12 +18,12 @@ def register(subparsers) -> None:
         description="Build the procedural scene of seed2gs_inverse.synthetic, extract one object "
                     "from a ground-truth seed mask in the reference view, and print its scores "
                     "against the truth on held-out views that the pipeline never rendered.")
-    p.add_argument("--seed", type=int, default=0, help="scene seed (default 0)")
+    p.add_argument("--seed", type=int, default=0, help="scene seed, >= 0 (default 0)")
     p.add_argument("--object", default="box", help="object name or label to extract (default box)")
     p.add_argument("--views", type=int, default=DEFAULT_VIEWS,
                    help=f"views per VAAS clip, 2..360 (default {DEFAULT_VIEWS}, as seed2gs extract)")
     p.add_argument("--size", type=int, nargs=2, default=(192, 144), metavar=("W", "H"),
-                   help="reference image size (default 192 144)")
+                   help="reference image size, each in 16..4096 (default 192 144)")
     add_method_arguments(p, options=False)
     p.add_argument("--summary", action="store_true", help="only print the scene summary")
     p.add_argument("-o", "--output", default=None, metavar="OUTDIR",
@@ -92,6 +92,10 @@ def run_demo(seed=0, obj="box", views=DEFAULT_VIEWS, size=(192, 144), method="we
 def run(args) -> int:
     from ..synthetic import make_scene
 
+    if args.seed < 0:
+        raise ValidationError(f"--seed must be a whole number >= 0, got {args.seed}")
+    if not all(16 <= v <= 4096 for v in args.size):  # the procedural scene is small: 16..4096 px suffice
+        raise ValidationError(f"--size W H: each must be in 16..4096 pixels, got {args.size[0]} {args.size[1]}")
     if args.output and not args.summary:
         check_output(args.output, "-o", directory=True, force=args.force, kind="extract")  # before the work
     if args.summary:

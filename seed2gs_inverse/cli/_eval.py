@@ -27,7 +27,7 @@ def _add_arguments(q, name: str) -> None:
                       help="models configuration (docs/models.md): ground each query's text in the first "
                            "test frame; the file is checked before anything runs")
     q.add_argument("--only", nargs="+", metavar="SCENE", default=None, help="evaluate only these scenes")
-    q.add_argument("--views", type=int, default=None, help="views per VAAS clip (default: extract's, 24)")
+    q.add_argument("--views", type=int, default=None, help="views per VAAS clip, 2..360 (default: extract's, 24)")
     from ..solvers import available_methods
 
     methods = available_methods()
@@ -66,8 +66,11 @@ def run_eval(args) -> int:
     client = client_from_args(args)
     options = {}
     if args.views is not None:
-        if args.views < 2:
-            raise ValidationError(f"--views must be >= 2, got {args.views}")
+        from ..pipeline.settings import LIMITS
+
+        lo, hi = LIMITS["n_views"]  # ExtractSettings' range, said with the option's name
+        if not lo <= args.views <= hi:
+            raise ValidationError(f"--views must be in {lo}..{hi}, got {args.views}")
         options["n_views"] = args.views
     if args.method is not None:
         options["method"] = args.method

@@ -22,7 +22,8 @@ import numpy as np
 from .._atomic import atomic_path
 from .._memory import peak_rss_mb
 from ..errors import FormatError, ValidationError
-from ._common import DEFAULT_VIEWS, add_method_arguments, check_output, parse_options, progress_enabled
+from ._common import (DEFAULT_VIEWS, add_method_arguments, check_input_file, check_output, parse_options,
+                      progress_enabled)
 
 __all__ = ["register", "write_outputs", "settings_from_args", "seed_summary_line"]
 
@@ -106,8 +107,7 @@ def _prompt_from_args(args):
     if args.negative and args.point is None:
         raise ValidationError("--negative clicks need at least one --point")
     if args.mask is not None:
-        if not os.path.isfile(args.mask):
-            raise ValidationError(f"--mask {args.mask}: no such file")
+        check_input_file(args.mask, "--mask")
         return MaskPrompt(args.mask)
     if args.box is not None:
         return BoxPrompt(args.box)
@@ -285,8 +285,7 @@ def settings_from_args(args):
 
 def _read_report(path) -> dict:
     p = Path(path)
-    if not p.is_file():
-        raise ValidationError(f"--from-report {path}: no such file")
+    check_input_file(p, "--from-report")
     try:
         rep = json.loads(p.read_text())
     except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
@@ -387,8 +386,7 @@ def run(args) -> int:
             raise ValidationError("give the reference camera: --camera FILE[:NAME|INDEX]")
         settings = settings_from_args(args)
         scene_path, spec, fmt, models_path = args.scene, args.camera, args.format or "ply", args.models
-        if not os.path.isfile(scene_path):
-            raise ValidationError(f"scene {scene_path}: no such file")
+        check_input_file(scene_path, "scene")
         prompt = _prompt_from_args(args)
         camera = read_camera(args.camera)
     cameras_path = args.cameras if recorded is None else (recorded.get("up_cameras") or {}).get("path")

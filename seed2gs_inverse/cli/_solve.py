@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import FormatError, ValidationError
+from ..errors import ValidationError
+from ..io._common import load_npy
 from ._common import add_method_arguments, check_output, parse_options, progress_enabled
 
 __all__ = ["register", "solve_command", "compare_command"]
@@ -57,26 +58,6 @@ def register(subparsers) -> None:
     c.set_defaults(func=compare_command)
 
 
-def _load_npy(path: Path) -> np.ndarray:
-    """A numeric array from a ``.npy`` file; never unpickles (numpy's own message would suggest it)."""
-    try:
-        with open(path, "rb") as fh:
-            magic = fh.read(6)
-    except OSError as exc:
-        raise FormatError(f"{path}: cannot read it ({exc.strerror or exc})") from None
-    if magic != b"\x93NUMPY":
-        raise FormatError(f"{path}: not a .npy file (write the array with numpy.save)")
-    try:
-        return np.load(path, allow_pickle=False)
-    except ValueError as exc:
-        if "allow_pickle" in str(exc):
-            raise FormatError(f"{path}: holds Python objects, which are never loaded; save a numeric or "
-                              f"boolean array") from None
-        raise FormatError(f"{path}: not a readable .npy array ({exc})") from None
-    except (OSError, EOFError) as exc:
-        raise FormatError(f"{path}: not a readable .npy array ({exc})") from None
-
-
 def _npy_bytes(arr) -> bytes:
     buf = io.BytesIO()
     np.save(buf, arr, allow_pickle=False)
@@ -99,7 +80,7 @@ def solve_command(args) -> int:
     if args.init:
         from ..solvers._common import prior_from_init
 
-        init = _load_npy(Path(args.init))
+        init = load_npy(args.init)
         try:  # checked here so that the message names the option and file
             prior_from_init(init, stack.n_gaussians)
         except ValidationError as exc:
@@ -132,7 +113,7 @@ def compare_command(args) -> int:
         raise ValidationError("--methods: give at least one method")
     if args.output:
         check_output(args.output, "-o", directory=True, force=args.force, kind="compare")  # DIR is written at the end
-    truth = _load_npy(Path(args.truth))
+    truth = load_npy(args.truth)
     if truth.dtype != bool:
         if truth.dtype.kind in "ui" and truth.size and set(np.unique(truth).tolist()) <= {0, 1}:
             truth = truth.astype(bool)

@@ -73,13 +73,10 @@ def _camera(spec, view):
 
 
 def _load_membership(path, n: int) -> np.ndarray:
-    try:
-        q = np.load(path, allow_pickle=False)
-    except ValueError as exc:
-        raise ValidationError(f"--membership {path}: not a plain .npy array ({exc})") from None
-    if not isinstance(q, np.ndarray):
-        raise ValidationError(f"--membership {path}: expected a .npy array, got an archive")
+    from ..io._common import load_npy
     from ..viz import check_membership
+
+    q = load_npy(path, f"--membership {path}")
 
     return check_membership(q, n, f"--membership {path}")
 

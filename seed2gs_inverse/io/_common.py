@@ -24,6 +24,33 @@ __all__: list[str] = []
 OPACITY_LOGIT_LIMIT = 40.0
 
 
+def load_npy(path, label: str | None = None) -> np.ndarray:
+    """A numeric array from a ``.npy`` file; never unpickles (numpy's own message would suggest it).
+
+    Errors are FormatErrors that start with ``label`` (default: the path):
+    a file that is not ``.npy`` at all (no magic bytes: numpy would call a
+    text file "pickled data"), an unreadable one, or one holding objects.
+    """
+    where = os.fspath(path) if label is None else label
+    try:
+        with open(path, "rb") as fh:
+            magic = fh.read(6)
+    except OSError as exc:
+        raise FormatError(f"{where}: cannot read it ({exc.strerror or exc})") from None
+    if magic != b"\x93NUMPY":
+        raise FormatError(f"{where}: not a .npy file (write the array with numpy.save)")
+    try:
+        arr = np.load(path, allow_pickle=False)
+    except ValueError as exc:
+        if "allow_pickle" in str(exc):
+            raise FormatError(f"{where}: holds Python objects, which are never loaded; save a numeric or "
+                              f"boolean array") from None
+        raise FormatError(f"{where}: not a readable .npy array ({exc})") from None
+    except (OSError, EOFError) as exc:
+        raise FormatError(f"{where}: not a readable .npy array ({exc})") from None
+    return arr
+
+
 def fail(path, message: str) -> FormatError:
     """A FormatError whose message starts with the file name."""
     return FormatError(f"{os.fspath(path)}: {message}")

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FormatError, ValidationError
+from ._common import load_npy
 
 __all__ = ["read_masks", "MASK_NAME"]
 
@@ -23,8 +24,9 @@ __all__ = ["read_masks", "MASK_NAME"]
 MASK_NAME = re.compile(r"^view_(\d+)\.(png|npy)$", re.IGNORECASE)
 
 
-def _mask_files(d: Path) -> list[Path]:
-    """The mask files of ``d`` in view order, after checking names, numbering and format."""
+def _mask_files(d: Path, n_views: int | None = None) -> list[Path]:
+    """The mask files of ``d`` in view order, after checking names, numbering (against ``n_views``
+    views when given) and format."""
     if not d.is_dir():
         raise FormatError(f"{d}: not a directory of masks (view_000.png|npy, ...)")
     found = {}
@@ -37,18 +39,23 @@ def _mask_files(d: Path) -> list[Path]:
             found[k] = f
     if not found:
         raise FormatError(f"{d}: no masks named view_000.png / view_000.npy")
+    extra = sorted(k for k in found if n_views is not None and k >= n_views)
+    if extra:
+        names = ", ".join(found[k].name for k in extra[:3]) + (", ..." if len(extra) > 3 else "")
+        raise ValidationError(f"{d}: {names} {'names a view' if len(extra) == 1 else 'name views'} beyond the "
+                              f"{n_views} operator views (view_000 .. view_{n_views - 1:03d}); remove or "
+                              f"renumber {'it' if len(extra) == 1 else 'them'}")
     if sorted(found) != list(range(len(found))):
         missing = sorted(set(range(max(found) + 1)) - set(found))
-        raise FormatError(f"{d}: mask files must be numbered 0..{len(found) - 1}; missing view(s) {missing[:5]}")
+        raise FormatError(f"{d}: mask files must be numbered from view_000 without gaps; view(s) "
+                          f"{', '.join(map(str, missing[:5]))}{', ...' if len(missing) > 5 else ''} missing "
+                          f"below {found[max(found)].name}")
     return [found[k] for k in range(len(found))]
 
 
 def _read_one(f: Path) -> np.ndarray:
     if f.suffix.lower() == ".npy":
-        try:
-            arr = np.load(f, allow_pickle=False)
-        except (ValueError, OSError, EOFError) as exc:
-            raise FormatError(f"{f}: not a readable .npy array ({exc})") from None
+        arr = load_npy(f)
         if arr.dtype.kind not in "buif":
             raise FormatError(f"{f}: mask dtype {arr.dtype} is not supported; use bool, uint8 or float")
         return arr
@@ -94,7 +101,7 @@ def read_masks(directory, n_views: int | None = None, image_shapes=None) -> list
         image (naming the file and the expected shape).
     """
     d = Path(directory)
-    files = _mask_files(d)
+    files = _mask_files(d, n_views)
     if n_views is not None and len(files) != n_views:
         raise ValidationError(f"{d}: {len(files)} masks for {n_views} operator views; give one mask per view")
     if image_shapes is not None:
