@@ -24,6 +24,16 @@ Three stages, each a kernel over plain arrays, plus the CSR assembly:
 All arithmetic is float64; the public wrapper converts outputs to float32.
 Arguments are packed in the NamedTuples below. See
 :mod:`seed2gs_inverse.raster.rasterize` for the exact semantics.
+
+Entry points: ``activate``, ``project``, ``composite`` and ``cone_cull``
+are plain Python functions that unpack the bundles and call one compiled
+parallel kernel each. They used to be cached ``@njit`` functions calling
+the cached kernels, and Numba (0.68.1) can store such a caller against the
+callee's code loaded from the cache, which then crashes (segmentation
+fault) every later process that loads it: that happens when the caller is
+compiled while the callee comes from the cache, e.g. two batch workers
+compiling at once on a cold cache. Only inlined helpers
+(``inline="always"``) and intrinsics are called from compiled code.
 """
 
 from __future__ import annotations
@@ -212,7 +222,6 @@ def _clamp_floor(v, hi):
     return int(math.floor(v))
 
 
-@njit(cache=True)
 def activate(idx, quats, log_scales, opacity_logits, sh, act):
     """:func:`_activate` with its outputs in ``act`` (:class:`Activations`)."""
     mfac, opac, col0 = act
@@ -259,14 +268,14 @@ def _activate(idx, quats, log_scales, opacity_logits, sh, mfac, opac, col0):
         mfac[i, 8] = (1.0 - 2.0 * (qx * qx + qy * qy)) * s2
 
 
-@njit(cache=True)
 def project(idx, act_rows, means, sh, act, cam, eps2d, antialiased, tile_box, out):
     """:func:`_project` with the activations ``act`` (:class:`Activations`), the camera
     ``cam`` (:class:`CameraParams`) and the outputs ``out`` (:class:`Splats`) bundled.
 
-    The bundles are unpacked here, outside the parallel loop: writes through
-    arrays unpacked from a tuple inside a ``prange`` kernel were lost (Numba
-    0.68.1 parfor lowering; the depths came back uninitialised).
+    The bundles are unpacked here, in Python (see "Entry points" below), and
+    not inside the parallel loop: writes through arrays unpacked from a
+    tuple inside a ``prange`` kernel were lost (Numba 0.68.1 parfor
+    lowering; the depths came back uninitialised).
     """
     mfac, opac, col0 = act
     rot, trans, center, fx, fy, cx, cy, width, height, near = cam
@@ -498,7 +507,6 @@ def bin_tiles(order, rects, tiles_x, n_tiles):
     return tile_start, tile_gauss
 
 
-@njit(cache=True)
 def composite(tiles, splats, width, height, roi, background, min_weight, fill, gid, img, csr, scr, tile_evals,
               n_workers):
     """Front-to-back compositing of every tile (parallel over tiles).
@@ -543,7 +551,7 @@ def composite(tiles, splats, width, height, roi, background, min_weight, fill, g
     n_contrib, n_kept), ``csr`` :class:`CSR` (indptr, indices, data) and
     ``scr`` :class:`Scratch` (scr_start, scr_pix, scr_gi, scr_w, scr_used).
     """
-    # Unpacked outside the parallel loop, as in project().
+    # Unpacked here, in Python, as in project().
     tile_start, tile_gauss, tile_order = tiles
     means2d, conics, _radii, depths, colors, opacities, support, _rects = splats
     rgb, alpha, depth, n_contrib, n_kept = img
@@ -720,7 +728,6 @@ def scatter(tiles, lo, hi, width, height, scr_pix, scr_gi, scr_w, gid, indptr, i
                 cursor[lp] = c + 1
 
 
-@njit(cache=True)
 def cone_cull(means, cam, roi, smax, eps2d, axis, far, keep):
     """:func:`_cone_cull` with the camera ``cam`` (:class:`CameraParams`) bundled."""
     _cone_cull(means, cam.rot, cam.trans, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, cam.near,
@@ -779,8 +786,8 @@ def _cone_cull(means, rot, trans, fx, fy, cx, cy, width, height, near, roi, smax
 # Every kernel above is compiled on first use and cached on disk (``cache=True``: the
 # ``__pycache__`` next to this file, or Numba's user-wide cache directory when that is not
 # writable, or ``$NUMBA_CACHE_DIR``), so a user compiles them once per installation.
-#: The kernels called from Python; the others are compiled (and cached) inside them.
-ENTRY_KERNELS = (activate, project, bin_tiles, composite, scatter, cone_cull)
+#: The compiled kernels, each called from Python (the helpers they call are inlined).
+ENTRY_KERNELS = (_activate, _project, bin_tiles, _composite_tiles, scatter, _cone_cull)
 #: Seconds a cold compilation of all of them takes on the 2-core benchmark machine when it is
 #: quiet (19 s measured for issue 11; 185 s at load 17). Said, not measured, at run time.
 COMPILE_SECONDS = 20
