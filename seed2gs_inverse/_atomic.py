@@ -246,9 +246,6 @@ OUTPUT_KINDS = {
                   ("manifest.json", "view_*.npy")),
     "compare": ("comparison.json", lambda d: isinstance(d, dict) and isinstance(d.get("rows"), list),
                 ("comparison.json", "comparison.csv", "comparison.png")),
-    "evaluation": ("report.json", lambda d: isinstance(d, dict) and isinstance(d.get("protocol"), dict)
-                   and isinstance(d.get("queries"), list),
-                   ("report.json", "per_query.csv", "per_scene.csv", "grid.png", "jobs", "masks")),
 }
 
 
@@ -256,8 +253,8 @@ def not_an_earlier_output(directory, kind: str) -> str | None:
     """Why the existing directory may not be replaced as an earlier output of ``kind``; None if it may.
 
     It may when it is empty, or when its marker file (:data:`OUTPUT_KINDS`:
-    ``report.json`` of ``extract`` or of an evaluation, ``manifest.json`` of
-    an operator directory, ``comparison.json`` of ``compare``) is the
+    ``report.json`` of ``extract``, ``manifest.json`` of an operator
+    directory, ``comparison.json`` of ``compare``) is the
     toolkit's own and it holds nothing but the files of that output:
     replacing a directory must never take a user's other files with it (an
     empty ``{}`` named report.json, or notes added next to an earlier output).
@@ -269,7 +266,7 @@ def not_an_earlier_output(directory, kind: str) -> str | None:
     marker, is_ours, own = OUTPUT_KINDS[kind]
     try:
         ours = is_ours(json.loads((d / marker).read_text("utf-8")))
-    except (OSError, UnicodeDecodeError, ValueError):
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError):  # deep nesting: RecursionError
         ours = False
     if not ours:
         return f"it is not empty and is not an earlier output (its {marker} is missing or not the toolkit's)"

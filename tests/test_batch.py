@@ -264,6 +264,15 @@ def test_summary_keeps_earlier_jobs_and_a_failed_rerun_leaves_no_folder(tiny, tm
     # resume=False replaces the folders the batch wrote
     rerun = extract_many(jobs[:1], "sequential", output=res, progress=False, resume=False)
     assert rerun[0].status == "done" and not rerun[0].resumed
+    # ... but not a user's file put in one: refused before anything runs (it used to fail the job and
+    # remove the folder with the file); a resumed job leaves its folder alone, so that run goes on
+    (res / "a-mask" / "notes.txt").write_text("mine")
+    with pytest.raises(ValidationError, match=r"job folder a-mask \(it holds files that are not part of such an "
+                                              r"output \(notes.txt\)\) would be replaced"):
+        extract_many(jobs[:1], "sequential", output=res, progress=False, resume=False)
+    assert extract_many(jobs[:1], "sequential", output=res, progress=False)[0].resumed
+    assert (res / "a-mask" / "notes.txt").read_text() == "mine"
+    (res / "a-mask" / "notes.txt").unlink()
     # A re-run that fails takes the earlier result of that name away: the folders are what the summary
     # lists as done.
     bad = Job("a-mask", jobs[0].scene, jobs[0].camera, sgi.BoxPrompt([500, 500, 600, 600]), OPTS)

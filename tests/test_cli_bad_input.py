@@ -44,6 +44,8 @@ def files(tmp_path_factory):
     (d / "exists").mkdir()
     (d / "userdir").mkdir()
     (d / "userdir" / "mine.txt").write_text("keep")
+    (d / "deep").mkdir()
+    (d / "deep" / "report.json").write_text("[" * 200_000)  # json's RecursionError, not a traceback
     for marker in ("report.json", "manifest.json", "comparison.json"):  # a marker's name is not enough
         (d / f"fake_{marker[:-5]}").mkdir()
         (d / f"fake_{marker[:-5]}" / marker).write_text("{}")
@@ -84,6 +86,7 @@ BAD = [
     # --force replaces an earlier output, never a folder of the user's files or the working directory
     (EXTRACT + ["-o", "{d}/userdir", "--force"], "-o {d}/userdir exists and it is not empty and is not an "
                                                  "earlier output (its report.json is missing or not the toolkit's)"),
+    (EXTRACT + ["-o", "{d}/deep", "--force"], "-o {d}/deep exists and it is not empty and is not an earlier output"),
     (EXTRACT + ["-o", "{d}/fake_report", "--force"], "-o {d}/fake_report exists and it is not empty and is not "
                                                      "an earlier output"),
     (["operators", "build", "{d}/scene.ply", "--cameras", "{d}/cameras.json", "-o", "{d}/o", "--scale", 100],

@@ -92,10 +92,12 @@ def test_eval_lerf_mask_reproduces_the_known_scores(dataset, capsys):
     # the extractions went through the batch runner: a re-run resumes them
     summary = json.loads((out / "jobs" / "summary.json").read_text())
     assert summary["counts"]["done"] == 3
+    (out / ".DS_Store").write_bytes(b"\0")  # a file of the user's (or the OS's) next to the report stays
     rc = main(["eval", "lerf-mask", str(root / "data"), "--scenes", str(root / "scenes"), "-o", str(out),
                "--oracle-seed", "--sequential", "--no-progress", *OPTS])
     assert rc == 0
     assert json.loads((out / "jobs" / "summary.json").read_text())["counts"]["resumed"] == 3
+    assert (out / ".DS_Store").read_bytes() == b"\0"
     assert json.loads((out / "report.json").read_text())["overall"] == report["overall"]
     # A run over one scene says that its report replaces a fuller one; the other scene's extractions
     # stay listed, so the next full run still resumes all three.
@@ -140,11 +142,11 @@ def test_eval_layout_errors(dataset, tmp_path, capsys):
     mine.mkdir()
     (mine / "per_query.csv").write_text("my,own\n")
     (mine / "notes.txt").write_text("keep")
-    for report in (None, "{}"):  # no report.json, or one that is not an evaluation's
+    for report in (None, "{}", "[" * 100_000):  # no report.json, one that is not an evaluation's, a deep one
         if report is not None:
             (mine / "report.json").write_text(report)
-        with pytest.raises(ValidationError, match=f"output {mine} exists and it is not empty and is not an "
-                                                  "earlier output"):
+        with pytest.raises(ValidationError, match=f"output {mine} holds (report.json, )?per_query.csv of no "
+                                                  "earlier evaluation"):
             evaluate_lerf_mask(root / "data", root / "scenes", mine, oracle_seed=True)
     assert sorted(p.name for p in mine.iterdir()) == ["notes.txt", "per_query.csv", "report.json"]
     assert (mine / "per_query.csv").read_text() == "my,own\n"

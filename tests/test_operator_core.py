@@ -155,7 +155,7 @@ def test_as_stack_errors(built, bad, masks, match):
 
 
 @pytest.mark.parametrize("value", [np.nan, np.inf, -0.25, 1.5])
-def test_weights_outside_0_1_are_refused_when_the_operator_is_made(built, value, tmp_path):
+def test_weights_outside_0_1_are_refused_when_the_operator_is_made(built, value):
     """Compositing weights lie in [0, 1]; a broken matrix used to be accepted, solve late (RuntimeError)
     or silently, and save to a directory that load() then refused."""
     _, views, _ = built
@@ -166,7 +166,6 @@ def test_weights_outside_0_1_are_refused_when_the_operator_is_made(built, value,
         ViewOperator(W, v.camera)
     with pytest.raises(ValidationError, match=r"view 1: .*weights must be finite"):
         as_stack([v, W], [np.zeros(v.image_shape)] * 2)
-    assert not (tmp_path / "ops").exists()
     ViewOperator(v.W, v.camera)  # the rasterizer's own weights pass
 
 

@@ -279,6 +279,10 @@ def test_cli_view_counts_what_it_draws_and_refuses_up_with_a_camera(offscreen, f
     assert "shown: 0)" in capsys.readouterr().out
     assert cli.main(["view", "s.ply", "--screenshot", str(out), "--force"]) == 0
     assert "shown: all)" in capsys.readouterr().out
+    assert cli.main(["view", "s.ply", "--screenshot", str(out), "--force", "--mode", "ellipsoids",
+                     "--max-glyphs", "10"]) == 0
+    printed = capsys.readouterr()
+    assert "shown: 10)" in printed.out and "ellipsoids for 10 of 50" in printed.err
     write_cameras(tmp_path / "cams.json", [Camera.look_at(np.array([0.0, -3.0, 0.0]), np.zeros(3),
                                                           np.array([0.0, 0.0, 1.0]), 50, 40, 30)])
     assert cli.main(["view", "s.ply", "--camera", str(tmp_path / "cams.json"), "--up", "1,0,0",

@@ -47,6 +47,7 @@ import time
 from contextlib import contextmanager
 from pathlib import Path
 
+from .._atomic import not_an_earlier_output
 from ..errors import ValidationError
 from .jobs import Job, read_jobs
 from .worker import JobResult, clear_scene_cache, run_job
@@ -417,6 +418,14 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
             results[job.name] = r
         else:
             todo.append(job)
+    if out is not None:  # a folder this run rewrites must hold nothing but a job's output (user files stay)
+        mixed = {j.name: why for j in todo if (out / j.name).is_dir()
+                 and (why := not_an_earlier_output(out / j.name, "extract")) is not None}
+        if mixed:
+            raise ValidationError(f"output {out}: the job folder{'s' if len(mixed) > 1 else ''} "
+                                  + "; ".join(f"{n} ({why})" for n, why in mixed.items())
+                                  + f" would be replaced by this run: move those files away, rename the "
+                                  f"job{'s' if len(mixed) > 1 else ''}, or choose another output directory")
     names = {j.name for j in jobs}
     kept = [JobResult.from_dict(d) for n, d in owned.items() if n not in names]  # jobs this run does not name
     # Grouped by scene, first-seen order: each worker then meets each scene once.

@@ -134,10 +134,12 @@ def run(args) -> int:
         return 0
     with atomic_path(out) as tmp:  # a failure leaves nothing behind
         img = membership_plot(scene, q, screenshot=str(tmp), off_screen=True, **kw)
-    # the Gaussians membership_plot draws: above --min-opacity and, with --threshold, q above it
+    # the Gaussians membership_plot draws: above --min-opacity, with --threshold q above it, and as
+    # ellipsoids at most --max-glyphs of those (a random subset, which it warns about)
     keep = scene.opacities >= args.min_opacity if args.min_opacity > 0 else np.ones(len(scene), bool)
     if q is not None and args.threshold is not None:
         keep &= q > args.threshold
-    shown = "all" if keep.all() else f"{int(keep.sum()):,}"
+    n = int(keep.sum()) if args.mode != "ellipsoids" else min(int(keep.sum()), int(args.max_glyphs))
+    shown = "all" if n == len(scene) else f"{n:,}"
     print(f"wrote {out} ({img.shape[1]}x{img.shape[0]}, {len(scene)} Gaussians, shown: {shown})")
     return 0

@@ -437,22 +437,40 @@ def evaluate_lerf_mask(data_dir, scenes_dir, output, *, oracle_seed: bool | None
                            protocol={"dataset": "LERF-Mask", "gt": "grey > 128"})
 
 
-def _check_output(output) -> Path:
-    """The report directory, checked: new, empty, or an earlier evaluation (which a run resumes).
+#: What an evaluation writes at the top of its report directory (besides ``jobs/``, the batch's folder).
+_REPORT_FILES = ("report.json", "per_query.csv", "per_scene.csv", "grid.png", "masks")
 
-    An earlier evaluation holds the report's files and its ``jobs/`` and
-    ``masks/`` folders (only those two after an interrupted run); any other
-    directory is refused, so that the report never overwrites a user's files.
+
+def _check_output(output) -> Path:
+    """The report directory, checked: the run writes its files there only over an earlier evaluation's.
+
+    A new or empty directory, or one without any of the report's files, is
+    fine (other files are left alone). When one of them is there, the
+    directory must be an earlier evaluation, which the run resumes: its
+    ``report.json`` is an evaluation's, or (a run interrupted before the
+    report) ``jobs/summary.json`` is a batch summary. Else the run would
+    overwrite a user's files, and is refused.
     """
-    from .._atomic import not_an_earlier_output
-    from ..batch.runner import check_output_dir
+    from ..batch.runner import _read_summary, check_output_dir
 
     out = check_output_dir(output)
-    if out.is_dir() and not {e.name for e in out.iterdir()} <= {"jobs", "masks"}:
-        why = not_an_earlier_output(out, "evaluation")
-        if why is not None:
-            raise ValidationError(f"output {out} exists and {why}; choose a new directory (an earlier "
-                                  f"evaluation there is resumed, not overwritten)")
+    clash = [n for n in _REPORT_FILES if (out / n).exists()] if out.is_dir() else []
+    if clash:
+        try:
+            doc = json.loads((out / "report.json").read_text("utf-8"))
+            ours = isinstance(doc, dict) and isinstance(doc.get("protocol"), dict) \
+                and isinstance(doc.get("queries"), list)
+        except (OSError, UnicodeDecodeError, ValueError, RecursionError):
+            ours = False
+        if not ours and (out / "jobs" / "summary.json").is_file():
+            try:
+                ours = bool(_read_summary(out / "jobs"))
+            except ValidationError:
+                ours = False
+        if not ours:
+            raise ValidationError(f"output {out} holds {', '.join(clash)} of no earlier evaluation; the report "
+                                  f"would overwrite {'it' if len(clash) == 1 else 'them'}: choose a new "
+                                  f"directory (an earlier evaluation there is resumed)")
     return out
 
 

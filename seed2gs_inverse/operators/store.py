@@ -119,7 +119,7 @@ def save(views, fingerprint, directory, overwrite: bool = False) -> Path:
 
 
 def _check_space(views, target: Path) -> None:
-    """Raise before writing when the file system of ``target`` cannot hold the stack (and 1 GB more)."""
+    """Raise before writing when the file system of ``target`` cannot hold the stack (with 5% to spare)."""
     import shutil
 
     need = 0
@@ -130,10 +130,13 @@ def _check_space(views, target: Path) -> None:
                         if a is not None)
     parent = target.resolve().parent
     free = shutil.disk_usage(parent).free
-    if need + 2 ** 30 > free:
-        raise ValidationError(f"{target}: the operators need {need / 1e9:.1f} GB but {parent} has "
-                              f"{free / 1e9:.1f} GB free (1 GB is kept spare); free space, save elsewhere, "
-                              f"or build fewer or smaller views")
+    if 1.05 * need + 2 ** 20 > free:  # + headers and the manifest
+        raise ValidationError(f"{target}: the operators need {_size(need)} but {parent} has {_size(free)} free; "
+                              f"free space, save elsewhere, or build fewer or smaller views")
+
+
+def _size(n: float) -> str:
+    return f"{n / 1e9:.1f} GB" if n >= 1e9 else f"{n / 1e6:.1f} MB"
 
 
 def check_target(directory, overwrite: bool = False) -> Path:

@@ -29,11 +29,9 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import scipy.sparse as sp
 from threadpoolctl import ThreadpoolController
 
 from ..errors import ValidationError
-from ..operators.view import check_weights
 from ._common import (MethodResult, Problem, SolveResult, as_real, available_methods, check_options,
                       get_check, get_method, method_options, prepare, register_method)
 from . import beta_bernoulli, least_squares, voting, weighted_bce  # noqa: F401  (importing registers them)
@@ -220,7 +218,7 @@ def _check_request(operators, method, min_evidence, progress, options, smoothnes
     name that is not a string, unknown options, count options outside
     :data:`COUNT_LIMITS`, a bad ``min_evidence``, ``smoothness`` (or one
     without ``graph``) or ``progress``, operators
-    without columns (no Gaussians), and operators holding weights outside [0, 1] (NaN, inf).
+    without columns (no Gaussians). (Weights outside [0, 1] are refused when the operators are made.)
     """
     fn = check_method_options(method, options)
     if isinstance(min_evidence, bool) or not isinstance(min_evidence, (int, float, np.integer, np.floating)) \
@@ -242,9 +240,5 @@ def _check_request(operators, method, min_evidence, progress, options, smoothnes
             if shape is not None and len(shape) == 2 and shape[1] == 0:
                 raise ValidationError(f"view {i}: the operator has no columns (0 Gaussians); "
                                       f"build the operators from a non-empty scene")
-            # Bare matrices here, so that the message names the view's index (a ViewOperator
-            # checks its own weights when it is made).
-            if sp.issparse(op):
-                check_weights(op.data, f"view {i}")
     return fn
 
