@@ -213,6 +213,16 @@ def _sh_basis(x, y, z, k, out):
 
 
 @njit(cache=True, inline="always")
+def _jacobian_limits(width, height, fx, fy, cx, cy):
+    """Bounds ``(x+, x-, y+, y-)`` of ``x/z`` and ``y/z`` at which the EWA Jacobian is evaluated: the
+    image's extent plus 0.3 of the half field of view on each side (gsplat's persp_proj)."""
+    tan_fovx = 0.5 * width / fx
+    tan_fovy = 0.5 * height / fy
+    return (width - cx) / fx + 0.3 * tan_fovx, cx / fx + 0.3 * tan_fovx, \
+        (height - cy) / fy + 0.3 * tan_fovy, cy / fy + 0.3 * tan_fovy
+
+
+@njit(cache=True, inline="always")
 def _clamp_floor(v, hi):
     """``floor(v)`` clamped to [0, hi], safe for huge or NaN ``v`` (gives 0)."""
     if not v > 0.0:
@@ -321,12 +331,7 @@ def _project(idx, act_rows, means, mfac, opac, col0, sh, rot, trans, center,
     k = sh.shape[1]
     tiles_x = (width + TILE - 1) // TILE
     tiles_y = (height + TILE - 1) // TILE
-    tan_fovx = 0.5 * width / fx
-    tan_fovy = 0.5 * height / fy
-    lim_x_pos = (width - cx) / fx + 0.3 * tan_fovx
-    lim_x_neg = cx / fx + 0.3 * tan_fovx
-    lim_y_pos = (height - cy) / fy + 0.3 * tan_fovy
-    lim_y_neg = cy / fy + 0.3 * tan_fovy
+    lim_x_pos, lim_x_neg, lim_y_pos, lim_y_neg = _jacobian_limits(width, height, fx, fy, cx, cy)
     for i in prange(n):
         g = idx[i]
         px = np.float64(means[g, 0])
@@ -749,12 +754,7 @@ def _cone_cull(means, rot, trans, fx, fy, cx, cy, width, height, near, roi, smax
     ``lam2d <= lam = lmax(J J^T) smax^2 + eps2d`` (``Sigma``'s largest
     eigenvalue is ``smax^2``; ``J`` the same clamped EWA Jacobian).
     """
-    tan_fovx = 0.5 * width / fx
-    tan_fovy = 0.5 * height / fy
-    lim_x_pos = (width - cx) / fx + 0.3 * tan_fovx
-    lim_x_neg = cx / fx + 0.3 * tan_fovx
-    lim_y_pos = (height - cy) / fy + 0.3 * tan_fovy
-    lim_y_neg = cy / fy + 0.3 * tan_fovy
+    lim_x_pos, lim_x_neg, lim_y_pos, lim_y_neg = _jacobian_limits(width, height, fx, fy, cx, cy)
     k_support = math.sqrt(2.0 * math.log(255.0))
     for i in prange(means.shape[0]):
         px = np.float64(means[i, 0])
