@@ -24,8 +24,8 @@ import numpy as np
 from .._atomic import check_writable, not_an_earlier_output
 from ..errors import ValidationError
 
-__all__ = ["check_output", "check_input_file", "parse_vector", "add_method_arguments", "parse_options", "progress_enabled",
-           "SolveBar", "DEFAULT_VIEWS"]
+__all__ = ["check_output", "check_input_file", "parse_vector", "add_method_arguments", "parse_options",
+           "progress_enabled", "SolveBar", "DEFAULT_VIEWS"]
 
 
 def _default_views() -> int:

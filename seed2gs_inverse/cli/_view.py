@@ -76,9 +76,7 @@ def _load_membership(path, n: int) -> np.ndarray:
     from ..io._common import load_npy
     from ..viz import check_membership
 
-    q = load_npy(path, f"--membership {path}")
-
-    return check_membership(q, n, f"--membership {path}")
+    return check_membership(load_npy(path, f"--membership {path}"), n, f"--membership {path}")
 
 
 def _pick_camera(cams, which):

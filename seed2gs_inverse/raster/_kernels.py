@@ -282,7 +282,7 @@ def project(idx, act_rows, means, sh, act, cam, eps2d, antialiased, tile_box, ou
     """:func:`_project` with the activations ``act`` (:class:`Activations`), the camera
     ``cam`` (:class:`CameraParams`) and the outputs ``out`` (:class:`Splats`) bundled.
 
-    The bundles are unpacked here, in Python (see "Entry points" below), and
+    The bundles are unpacked here, in Python (see the module docstring), and
     not inside the parallel loop: writes through arrays unpacked from a
     tuple inside a ``prange`` kernel were lost (Numba 0.68.1 parfor
     lowering; the depths came back uninitialised).
