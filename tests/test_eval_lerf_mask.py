@@ -150,6 +150,20 @@ def test_eval_layout_errors(dataset, tmp_path, capsys):
             evaluate_lerf_mask(root / "data", root / "scenes", mine, oracle_seed=True)
     assert sorted(p.name for p in mine.iterdir()) == ["notes.txt", "per_query.csv", "report.json"]
     assert (mine / "per_query.csv").read_text() == "my,own\n"
+    # a batch's jobs/ beside them proves nothing: only masks/ (an interrupted scoring) may go with it
+    (mine / "report.json").unlink()
+    (mine / "jobs").mkdir()
+    (mine / "jobs" / "summary.json").write_text(json.dumps({"jobs": [{"name": "x", "status": "done"}]}))
+    with pytest.raises(ValidationError, match="holds per_query.csv of no earlier evaluation"):
+        evaluate_lerf_mask(root / "data", root / "scenes", mine, oracle_seed=True)
+    from seed2gs_inverse.evaluation.lerf_mask import _check_output
+
+    (mine / "per_query.csv").unlink()
+    (mine / "masks").mkdir()
+    assert _check_output(mine) == mine
+    (mine / "jobs" / "summary.json").write_text("[" * 200_000)  # one clear line, no RecursionError
+    with pytest.raises(ValidationError, match="holds masks of no earlier evaluation"):
+        _check_output(mine)
     with pytest.raises(ValidationError, match="no trained scene for 'blocks'"):
         read_lerf_mask(root / "data", tmp_path)
     with pytest.raises(ValidationError, match="nowhere"):

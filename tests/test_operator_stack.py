@@ -197,7 +197,8 @@ def test_save_refuses_a_stack_the_disk_cannot_hold(rng, tmp_path, monkeypatch):
     s = _stack(rng)
     need = sum(v.W.data.nbytes + v.W.indices.nbytes + v.W.indptr.nbytes for v in s)
     monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(2 ** 31, 2 ** 31 - 2 ** 20, 2 ** 20))
-    with pytest.raises(ValidationError, match=rf"the operators need {need / 1e6:.1f} MB but .* has 1\.0 MB free"):
+    with pytest.raises(ValidationError, match=rf"the operators need {need / 1e3:.0f} kB \(1\.\d MB with room to "
+                                              rf"spare\) but .* has 1\.0 MB free"):
         s.save(tmp_path / "ops")
     assert list(tmp_path.iterdir()) == []
     monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(2 ** 31, 2 ** 31 - 2 ** 22, 2 ** 22))

@@ -232,7 +232,7 @@ def _read_summary(output: Path) -> dict:
         # entries the runner can read back (a hand-edited line without them is dropped, not a crash)
         return {d["name"]: d for d in entries if isinstance(d, dict) and isinstance(d.get("name"), str)
                 and d.get("status") in ("done", "failed")}
-    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as exc:
+    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError, RecursionError) as exc:
         raise ValidationError(f"{p} is not the summary of a seed2gs batch ({type(exc).__name__}: {exc}); "
                               f"choose another output directory, or move that file away") from None
 

@@ -445,10 +445,11 @@ def _check_output(output) -> Path:
     """The report directory, checked: the run writes its files there only over an earlier evaluation's.
 
     A new or empty directory, or one without any of the report's files, is
-    fine (other files are left alone). When one of them is there, the
-    directory must be an earlier evaluation, which the run resumes: its
-    ``report.json`` is an evaluation's, or (a run interrupted before the
-    report) ``jobs/summary.json`` is a batch summary. Else the run would
+    fine (other files are left alone). The report's own files
+    (``report.json``, the tables, ``grid.png``) may be there only as an
+    earlier evaluation's (its ``report.json``), which the run resumes;
+    ``masks/`` alone also when ``jobs/summary.json`` is a batch summary (a
+    run interrupted while scoring, before its report). Anything else would
     overwrite a user's files, and is refused.
     """
     from ..batch.runner import _read_summary, check_output_dir
@@ -462,7 +463,7 @@ def _check_output(output) -> Path:
                 and isinstance(doc.get("queries"), list)
         except (OSError, UnicodeDecodeError, ValueError, RecursionError):
             ours = False
-        if not ours and (out / "jobs" / "summary.json").is_file():
+        if not ours and clash == ["masks"] and (out / "jobs" / "summary.json").is_file():
             try:
                 ours = bool(_read_summary(out / "jobs"))
             except ValidationError:

@@ -130,13 +130,15 @@ def _check_space(views, target: Path) -> None:
                         if a is not None)
     parent = target.resolve().parent
     free = shutil.disk_usage(parent).free
-    if 1.05 * need + 2 ** 20 > free:  # + headers and the manifest
-        raise ValidationError(f"{target}: the operators need {_size(need)} but {parent} has {_size(free)} free; "
-                              f"free space, save elsewhere, or build fewer or smaller views")
+    room = 1.05 * need + 2 ** 20  # + headers and the manifest
+    if room > free:
+        raise ValidationError(f"{target}: the operators need {_size(need)} ({_size(room)} with room to spare) but "
+                              f"{parent} has {_size(free)} free; free space, save elsewhere, or build fewer or "
+                              f"smaller views")
 
 
 def _size(n: float) -> str:
-    return f"{n / 1e9:.1f} GB" if n >= 1e9 else f"{n / 1e6:.1f} MB"
+    return f"{n / 1e9:.1f} GB" if n >= 1e9 else f"{n / 1e6:.1f} MB" if n >= 1e6 else f"{n / 1e3:.0f} kB"
 
 
 def check_target(directory, overwrite: bool = False) -> Path:
