@@ -288,3 +288,13 @@ def test_cli_view_counts_what_it_draws_and_refuses_up_with_a_camera(offscreen, f
     assert cli.main(["view", "s.ply", "--camera", str(tmp_path / "cams.json"), "--up", "1,0,0",
                      "--screenshot", str(out), "--force"]) == 2
     assert "--up applies without --camera only" in capsys.readouterr().err
+
+
+def test_cli_view_usage_shows_one_up_vector(monkeypatch, capsys):
+    """The usage read ``--up X,Y,Z [X,Y,Z ...]``, though two directions are an error."""
+    from seed2gs_inverse import cli
+
+    monkeypatch.setattr(cli, "_COMMAND_MODULES", ("_view",))
+    assert cli.main(["view", "--help"]) == 0
+    out = capsys.readouterr().out
+    assert "[--up X,Y,Z]" in out and "X,Y,Z ..." not in out

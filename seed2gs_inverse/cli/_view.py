@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 import numpy as np
@@ -13,9 +14,18 @@ from ._common import check_output, parse_vector
 __all__ = ["register"]
 
 
+class _UsageFormatter(argparse.HelpFormatter):
+    """Shows ``--up X,Y,Z``: it takes one vector (three numbers as three words only for the deprecated form)."""
+
+    def _format_args(self, action, default_metavar):
+        if action.dest == "up":
+            return "X,Y,Z"
+        return super()._format_args(action, default_metavar)
+
+
 def register(subparsers) -> None:
     p = subparsers.add_parser(
-        "view", help="show a scene's Gaussians coloured by membership (pyvista)",
+        "view", help="show a scene's Gaussians coloured by membership (pyvista)", formatter_class=_UsageFormatter,
         description="Show the Gaussians of SCENE as points or ellipsoids, coloured by a "
                     "membership q (a .npy of N values in [0, 1]) or by their own colour. "
                     "Opens a window, or writes a PNG with --screenshot (required when there "
