@@ -135,6 +135,28 @@ def test_laplacian_smooth_isolated_and_zero_smoothness():
         laplacian_smooth(qh, -e, g, 1.0)
 
 
+@pytest.mark.parametrize("solver", ["direct", "cg"])
+def test_a_component_without_evidence_keeps_its_prior_node_by_node(solver):
+    """The ridge alone gave such a component its smoothed prior (about its mean): a seeded Gaussian (prior 1)
+    beside an unseeded one came out at 0.5, on either side of the threshold depending on the solver."""
+    a, b = _random_graph(30, 8, p=0.3), _random_graph(20, 9, p=0.3)  # two blocks: two sets of components
+    g = sp.block_diag([a, b]).tocsr()
+    n = 50
+    rng = np.random.default_rng(10)
+    qh = rng.uniform(size=n)
+    e = np.r_[rng.uniform(0, 3, 30) * (rng.uniform(size=30) < 0.6), np.zeros(20)]  # no evidence in block b
+    p = (rng.uniform(size=n) < 0.5).astype(float)
+    lam, eps = 0.7, 1e-3
+    out = laplacian_smooth(qh, e, g, lam, p, ridge=eps, solver=solver, rtol=1e-10)
+    np.testing.assert_array_equal(out[30:], p[30:])
+    ad = a.toarray()  # block a alone, against the dense solve of its own system
+    ref = np.linalg.solve(np.diag(e[:30] + eps) + lam * (np.diag(ad.sum(1)) - ad), e[:30] * qh[:30] + eps * p[:30])
+    np.testing.assert_allclose(out[:30], np.clip(ref, 0, 1), atol=1e-7)
+    fixed = np.r_[e[:30] > 0, np.zeros(20, bool)]
+    h = harmonic_extension(g, fixed, qh, prior=p, solver=solver)
+    np.testing.assert_array_equal(h[30:], p[30:])
+
+
 def test_harmonic_extension_on_a_path_is_linear():
     # Path 0-1-2-3-4 with unit weights, ends fixed to 1 and 0: q = 1 - i/4 exactly.
     n = 5

@@ -770,6 +770,23 @@ def test_methods_return_a_method_result(blob):
     assert get_method("voting")(problem, bias=0.2).threshold > 0.5
 
 
+def test_smoothing_takes_evidence_only_where_the_method_fitted_q():
+    """A Gaussian seen only in a view beyond beta_bernoulli's budget is unobserved (q = prior): it entered the
+    regulariser as evidence all the same, dragging its neighbours towards the prior."""
+    W0 = sp.csr_matrix(np.array([[0.5, 0.4, 0.0]], np.float32))
+    W1 = sp.csr_matrix(np.array([[0.0, 0.0, 0.9]], np.float32))
+    G = sp.csr_matrix(np.ones((3, 3)) - np.eye(3))
+    masks = [np.ones((1, 1)), np.ones((1, 1))]
+    r = solve([W0, W1], masks, method="beta_bernoulli", budget=1, smoothness=1.0, graph=G)
+    plain = solve([W0, W1], masks, method="beta_bernoulli", budget=1)
+    assert list(r.unobserved) == [False, False, True]
+    # the dense system with e = (k0, k1, 0), from the method's q (prior 0 for Gaussian 2)
+    e = np.array([0.5, 0.4, 0.0])
+    L = np.diag(G.toarray().sum(1)) - G.toarray()
+    ref = np.linalg.solve(np.diag(e + 1e-6) + L, e * plain.q)
+    np.testing.assert_allclose(r.q, ref, atol=1e-5)
+
+
 def test_masks_may_be_a_generator_with_bare_matrices(rng):
     """as_stack used the generator up for the image shapes: "got 0 masks for 2 views"."""
     Ws = [sp.random(12, 5, density=0.5, format="csr", dtype=np.float32, random_state=k) for k in (0, 1)]

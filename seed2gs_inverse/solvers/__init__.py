@@ -90,7 +90,8 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
         Common to every method: ``lambda`` of the graph-Laplacian
         regulariser applied to the method's ``q``
         (:func:`~seed2gs_inverse.solvers.smoothing.laplacian_smooth` with
-        evidence ``e_i = k_i``, set to 0 below ``min_evidence``, and the
+        evidence ``e_i = k_i``, set to 0 below ``min_evidence`` and where the
+        method reports the Gaussian unobserved, and the
         prior): Gaussians without evidence take the harmonic extension of
         their neighbours on ``graph`` instead of the prior, those with
         evidence stay close to the fit. ``0``: off (the ``min_evidence``
@@ -149,7 +150,9 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
         # differently with more threads, and q must not depend on the machine's
         # thread settings (a Dask worker runs with one BLAS thread).
         with _one_blas_thread():
-            q = laplacian_smooth(q, np.where(weak, 0.0, problem.known_weight), graph, smoothness,
+            # evidence only where the method fitted q (not where it left the prior: views beyond a
+            # budget, weighted_bce's pixels below alpha_min)
+            q = laplacian_smooth(q, np.where(weak | unobserved, 0.0, problem.known_weight), graph, smoothness,
                                  prior=problem.prior).astype(np.float32)
     else:
         q[weak] = problem.prior[weak].astype(np.float32)

@@ -177,9 +177,12 @@ class SolveResult:
     view_weights : (V,) float64
         Final weight of each view (ones for methods that do not weight views).
     unobserved : (N,) bool
-        Gaussians with no weight on any known pixel; their ``q`` is the prior.
-        (Gaussians with some but too little evidence, below ``min_evidence``,
-        also take the prior; ``info["n_weak_evidence"]`` counts all of them.)
+        Gaussians with no weight on any known pixel (or that the method did
+        not fit, e.g. seen only in views beyond a budget); their ``q`` is the
+        prior, or with ``smoothness > 0`` the harmonic extension of their
+        neighbours. (Gaussians with some but too little evidence, below
+        ``min_evidence``, are treated alike; ``info["n_weak_evidence"]``
+        counts all of them.)
     seconds : float
         Wall-clock time of the solve.
     threshold : float

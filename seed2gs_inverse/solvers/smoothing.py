@@ -17,9 +17,10 @@ keep the solver's value:
 with :math:`\hat q` the solver's membership, :math:`e_i` the Gaussian's
 evidence (its summed compositing weight over known pixels,
 ``Problem.known_weight``), :math:`\lambda` the smoothness, :math:`p` the
-prior and :math:`\epsilon` a tiny ridge that only decides graph components
-without any evidence (they keep the prior). The minimiser solves the
-symmetric positive definite system
+prior and :math:`\epsilon` a tiny ridge. A graph component without any
+evidence keeps the prior, node by node (it is left out of the system: the
+ridge alone would give it its smoothed prior, about the component's mean).
+The minimiser solves the symmetric positive definite system
 
 .. math::
 
@@ -67,6 +68,16 @@ def _vector(name, v, n, lo=None, hi=None) -> np.ndarray:
     return a
 
 
+def _reached(g: sp.spmatrix, linked: np.ndarray, sources: np.ndarray) -> np.ndarray:
+    """Indices of the ``linked`` nodes (with an edge) whose component of ``g`` holds a ``sources`` node."""
+    from scipy.sparse.csgraph import connected_components
+
+    _, label = connected_components(g, directed=False)
+    hit = np.zeros(label.max(initial=0) + 1, bool)
+    hit[label[sources]] = True
+    return np.flatnonzero(linked & hit[label])
+
+
 def _spd_solve(A: sp.spmatrix, b: np.ndarray, x0: np.ndarray, method: str, rtol: float) -> np.ndarray:
     n = A.shape[0]
     if method == "auto":
@@ -97,8 +108,8 @@ def laplacian_smooth(q_hat, evidence, graph, smoothness: float = 1.0, prior=None
     graph : scipy.sparse (N, N)
         Symmetric non-negative weights, e.g. :func:`~seed2gs_inverse.graph.gaussian_graph`.
     smoothness : float
-        :math:`\lambda \ge 0`; 0 returns :math:`\hat q` where ``e > 0`` and the
-        prior elsewhere (as without a graph).
+        :math:`\lambda \ge 0`; 0 returns :math:`(e_i \hat q_i + \epsilon p_i) / (e_i + \epsilon)`:
+        :math:`\hat q` where :math:`e \gg \epsilon`, the prior where ``e = 0``.
     prior : (N,) array in [0, 1], optional
         :math:`p`, the value of Gaussians no evidence reaches; default 0.
     ridge : float
@@ -139,7 +150,9 @@ def laplacian_smooth(q_hat, evidence, graph, smoothness: float = 1.0, prior=None
     if lam == 0 or g.nnz == 0:
         return np.clip(out, 0.0, 1.0)
     L = graph_laplacian(g)
-    coupled = np.flatnonzero(L.diagonal() > 0)  # nodes with at least one edge
+    # Nodes with at least one edge, in a graph component that holds evidence: the others keep the
+    # closed form above (the prior where there is no evidence), not the ridge's smoothed prior.
+    coupled = _reached(g, L.diagonal() > 0, e > 0)
     if coupled.size:
         Lc = L[coupled][:, coupled]  # edges only join coupled nodes, so this block is exact
         A = (lam * Lc + sp.diags(e[coupled] + eps)).tocsr()
@@ -153,9 +166,8 @@ def laplacian_smooth(q_hat, evidence, graph, smoothness: float = 1.0, prior=None
         if use_cg and (ec > 0).any() and (ec == 0).any():
             # Only a starting point: a loose tolerance (the CG below converges to
             # rtol either way), where 1e-10 cost thousands of CG steps on the
-            # firepit table's 60k-node region.
-            x0 = harmonic_extension(g[coupled][:, coupled], ec > 0, q_hat[coupled], prior=p[coupled],
-                                    rtol=1e-4)
+            # firepit table's 60k-node region. Every component here holds evidence.
+            x0 = _harmonic(Lc, ec > 0, q_hat[coupled], p[coupled], np.flatnonzero(ec == 0), 1e-9, "auto", 1e-4)
         out[coupled] = _spd_solve(A, b, x0, solver, rtol)
     return np.clip(out, 0.0, 1.0)
 
@@ -166,8 +178,9 @@ def harmonic_extension(graph, fixed, values, prior=None, *, ridge: float = 1e-9,
 
     Solves :math:`(L_{UU} + \epsilon I) q_U = -L_{UB} q_B + \epsilon p_U`;
     every free node connected to a fixed one then satisfies
-    :math:`q_i = \sum_j w_{ij} q_j / \sum_j w_{ij}` (to :math:`O(\epsilon)`),
-    free components without a fixed node keep the prior.
+    :math:`q_i = \sum_j w_{ij} q_j / \sum_j w_{ij}` (to :math:`O(\epsilon)`);
+    free components without a fixed node keep the prior, node by node (they
+    are left out of the system).
 
     Parameters
     ----------
@@ -200,10 +213,16 @@ def harmonic_extension(graph, fixed, values, prior=None, *, ridge: float = 1e-9,
     eps = float(ridge)
     if not (np.isfinite(eps) and eps > 0):
         raise ValidationError(f"ridge must be positive, got {ridge!r}")
-    out = np.where(fixed, v, p)
     L = graph_laplacian(g)
-    deg = L.diagonal()
-    free = np.flatnonzero(~fixed & (deg > 0))
+    reached = np.zeros(n, bool)
+    reached[_reached(g, L.diagonal() > 0, fixed)] = True
+    return _harmonic(L, fixed, v, p, np.flatnonzero(~fixed & reached), eps, solver, rtol)
+
+
+def _harmonic(L, fixed, v, p, free, eps, solver, rtol) -> np.ndarray:
+    """:func:`harmonic_extension` on the Laplacian ``L`` for the ``free`` nodes given (those in a component
+    with a fixed node); the other nodes keep ``v`` (fixed) or ``p``."""
+    out = np.where(fixed, v, p)
     if free.size == 0:
         return np.clip(out, 0.0, 1.0)
     bidx = np.flatnonzero(fixed)
