@@ -60,6 +60,7 @@ def files(tmp_path_factory):
     (d / "garbage.ply").write_bytes(b"ply\nformat nonsense\n")
     (d / "not_a_report.json").write_text(json.dumps({"n_selected": 3}))
     (d / "edited_report.json").write_text(json.dumps({"run": {"scene": "scene.ply", "camera": {}}, "settings": {}}))
+    (d / "batch_report.json").write_text(json.dumps({"batch": {"job": "chair", "fingerprint": "f"}, "settings": {}}))
     (d / "text.png").write_text("not an image")
     np.save(d / "objects.npy", np.array([{"a": 1}], dtype=object), allow_pickle=True)  # a pickle inside
     np.save(d / "short.npy", np.ones(3, bool))
@@ -202,6 +203,9 @@ BAD = [
      'run.scene must be a section (a JSON object), got "scene.ply"'),
     (["extract", "{d}/scene.ply", "--from-report", "{d}/edited_report.json", "-o", "{d}/o"],
      'run.scene must be a section'),
+    (["extract", "--from-report", "{d}/batch_report.json", "-o", "{d}/o"],
+     "written by seed2gs batch (job 'chair'), which records the job, not a run of extract: repeat it by running "
+     "the batch again"),
     (["extract", "--from-report", "{d}/not_a_report.json", "--views", 6, "-o", "{d}/o"],
      "cannot be combined with --views"),
     # demo

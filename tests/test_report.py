@@ -71,3 +71,22 @@ def test_report_figure_panels(tmp_path):
     assert "of the object's box" in axes[0].get_title()
     fig.savefig(tmp_path / "r.png", dpi=100)
     assert fig.get_size_inches()[0] >= 13  # larger panels than the old 2.2-inch strip
+
+
+def test_the_object_rendering_uses_the_runs_mode():
+    """The seed summary and report.png rendered the object in the classic mode whatever ``mode`` the run used."""
+    from seed2gs_inverse.pipeline.report import _object_rendering
+    from seed2gs_inverse.raster import render
+
+    cam = Camera.look_at(np.array([0.0, -3.0, 0.0]), np.zeros(3), np.array([0.0, 0.0, 1.0]), 50, 48, 36)
+    rng = np.random.default_rng(0)
+    from seed2gs_inverse.scene import GaussianScene
+
+    n = 200
+    scene = GaussianScene(rng.normal(0, 0.3, (n, 3)), rng.normal(size=(n, 4)), rng.normal(-4.0, 0.5, (n, 3)),
+                          rng.normal(0.0, 1.0, n), rng.normal(size=(n, 1, 3)))
+    for mode in ("classic", "antialiased"):
+        ex = SimpleNamespace(reference_camera=cam, object_scene=lambda: scene,
+                             settings=SimpleNamespace(mode=mode))
+        np.testing.assert_array_equal(_object_rendering(ex)[1], render(scene, cam, mode=mode).alpha)
+    assert not np.array_equal(render(scene, cam, mode="classic").alpha, render(scene, cam, mode="antialiased").alpha)

@@ -295,6 +295,9 @@ def _read_report(path) -> dict:
         d = rep["demo"]
         raise FormatError(f"--from-report {path}: written by seed2gs demo, whose scene is generated, not read; "
                           f"repeat it with: {_demo_command(d)}")
+    if not isinstance(run, dict) and isinstance(rep, dict) and isinstance(rep.get("batch"), dict):
+        raise FormatError(f"--from-report {path}: written by seed2gs batch (job {rep['batch'].get('job')!r}), "
+                          f"which records the job, not a run of extract: repeat it by running the batch again")
     if not isinstance(run, dict) or not isinstance(rep.get("settings"), dict):
         raise FormatError(f"--from-report {path}: no 'run' and 'settings' sections; only report.json files "
                           f"written by seed2gs extract can be repeated")

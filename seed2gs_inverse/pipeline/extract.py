@@ -68,8 +68,10 @@ class Extraction:
     scene : GaussianScene
         The input scene.
     q : (N,) float32
-        Foreground probabilities: ``result.q``, in which the solver reset
-        Gaussians without evidence (``min_evidence``) to the prior, and 0 on
+        Foreground probabilities: ``result.q``, in which Gaussians without
+        evidence (``min_evidence``) took the prior or, with the regulariser
+        (``resolved["smoothness"] > 0``, the default with the model-free
+        tracker), the harmonic extension of their neighbours; and 0 on
         islands apart from G0 (``settings.seed_connected``, counted in
         ``resolved["n_disconnected"]``).
     selected : (N,) bool
@@ -110,8 +112,10 @@ class Extraction:
         ``min_evidence``, or decided by the regulariser), ``n_disconnected``
         (above the threshold in islands apart from G0, set to 0), ``support``
         (the support surface the model-free tracker labelled background,
-        :func:`support_band`) and ``smoothness``
-        (the regulariser's lambda used, after ``None`` was resolved).
+        :func:`support_band`), ``smoothness``
+        (the regulariser's lambda used, after ``None`` was resolved) and
+        ``warnings`` (why a finished run should not be trusted, if it should
+        not: :func:`result_warnings`).
     up : dict
         The orbit axis (:func:`orbit_axis`): ``axis``, ``method`` (how it
         was chosen), ``confidence`` in [0, 1] (None when the user chose it)

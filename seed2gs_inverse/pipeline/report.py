@@ -45,7 +45,7 @@ def _object_rendering(ex):
         cam = ex.reference_camera
         obj = ex.object_scene()
         if len(obj):
-            r = render(obj, cam)
+            r = render(obj, cam, mode=ex.settings.mode)  # as every rendering of the run
             cached = (r.rgb, r.alpha)
         else:
             cached = (np.zeros(cam.image_shape + (3,), np.float32), np.zeros(cam.image_shape, np.float32))
@@ -155,7 +155,7 @@ def report_figure(extraction, n_strip: int = 8):
     summary = seed_summary(ex)
     obj_rgb, obj_alpha = _object_rendering(ex)
     rem = ex.remainder_scene()
-    rem_img = render(rem, cam).rgb if len(rem) else np.zeros(cam.image_shape + (3,), np.float32)
+    rem_img = render(rem, cam, mode=ex.settings.mode).rgb if len(rem) else np.zeros(cam.image_shape + (3,), np.float32)
     n = min(int(n_strip), len(ex.views))
     picks = np.unique(np.linspace(0, len(ex.views) - 1, n).round().astype(int)) if n else np.zeros(0, int)
     per_row = 4

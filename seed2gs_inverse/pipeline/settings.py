@@ -55,6 +55,12 @@ def _real(name, value, *, lo=None, hi=None, lo_open=False, optional=False) -> fl
     return v
 
 
+#: Ranges of seed_lift's real-valued options (its docstring says what each means).
+_LIFT_RANGES = {"eps_rel": dict(lo=0.0), "eps_sigma": dict(lo=0.0), "min_membership": dict(lo=0.0, hi=1.0),
+                "min_weight": dict(lo=0.0), "link_factor": dict(lo=0.0, lo_open=True),
+                "keep_fraction": dict(lo=0.0, hi=1.0), "max_size_ratio": dict(lo=0.0, lo_open=True, optional=True)}
+
+
 def _int(name, value, *, lo, hi, optional=False) -> int | None:
     """``value`` as an int in ``lo..hi``, or a ValidationError naming ``name`` and the range."""
     if value is None and optional:
@@ -213,7 +219,9 @@ class ExtractSettings:
         A Gaussian whose summed compositing weight over the *decided*
         (non-NaN) pixels of all views is below this (default 0.05, a
         twentieth of one opaque pixel) has no real evidence: its ``q`` is
-        reset to the prior (1 in G0, else 0). Without this, an unregularised
+        reset to the prior (1 in G0, else 0), or with the regulariser
+        (``smoothness`` > 0, the default with the model-free tracker) it is
+        decided by its neighbours. Without this, an unregularised
         fit can drive such Gaussians to 1 on a trace of weight. Passed to
         :func:`~seed2gs_inverse.solvers.solve` as its ``min_evidence``.
     threshold : float or None
@@ -361,6 +369,9 @@ class ExtractSettings:
         if "k_neighbors" in lift:
             _int("lift_options k_neighbors", lift["k_neighbors"], lo=LIMITS["k_neighbors"][0],
                  hi=LIMITS["k_neighbors"][1])
+        for name, kw in _LIFT_RANGES.items():  # the others, checked here and not mid-pipeline
+            if name in lift:
+                _real(f"lift_options {name}", lift[name], **kw)
         set_("lift_options", lift)
         solver = _options("solver_options", self.solver_options)
         check_method_options(self.method, dict(solver))
