@@ -324,9 +324,6 @@ def _load_view(d: Path, mpath: Path, i: int, entry, n: int, mmap: bool) -> ViewO
     if data.size:
         if int(indices.min()) < 0 or int(indices.max()) >= n:
             raise FormatError(f"{d / files['indices']} ({label}): column indices must lie in [0, {n})")
-        # Compositing weights alpha_i(u) T_i(u) lie in [0, 1].
-        if not np.all(np.isfinite(data)) or float(data.min()) < 0 or float(data.max()) > 1:
-            raise FormatError(f"{where}: weights must be finite and lie in [0, 1] (compositing weights)")
         if _has_duplicate_columns(indices, indptr, n):
             raise FormatError(f"{d / files['indices']} ({label}): a row lists the same column twice; "
                               "each Gaussian has one weight per pixel")
@@ -348,7 +345,10 @@ def _load_view(d: Path, mpath: Path, i: int, entry, n: int, mmap: bool) -> ViewO
             if arr.size and (float(arr.min()) < lo or float(arr.max()) > hi):
                 raise FormatError(f"{d / files[k]} ({label}): rendering '{k}' must lie in [{lo:g}, {hi:g}]")
         rendering = Rendering(**extra)
-    return ViewOperator(W, camera, shape, rendering)
+    try:  # the view checks its weights (finite, in [0, 1]) itself: the error names the file too
+        return ViewOperator(W, camera, shape, rendering)
+    except ValidationError as exc:  # its message starts with the view's label, which `where` already has
+        raise FormatError(f"{where}: {str(exc).split(': ', 1)[-1]}") from None
 
 
 #: What a rendering can hold: sums of non-negative weights, depths in front of the camera, counts. (No
