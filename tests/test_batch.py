@@ -314,6 +314,43 @@ def test_resume_runs_a_job_again_when_an_input_file_changed(tiny, tmp_path):
     assert again.status == "done" and not again.resumed
 
 
+def test_resume_and_the_scene_cache_notice_a_replaced_scene_file(tiny, tmp_path):
+    """Another scene written to the same path: the job runs again (not resumed), the process's scene cache
+    does not hand back the old arrays, and q is that of a fresh extract() of the new file."""
+    import shutil
+
+    scene = tmp_path / "s.ply"
+    shutil.copy(tiny["dir"] / "a.ply", scene)
+    job = Job("s", scene, f"{tiny['dir']}/a_cams.json", sgi.BoxPrompt(tiny["a"]["box"]), OPTS)
+    res = tmp_path / "res"
+    first = extract_many([job], "sequential", output=res, progress=False)[0]
+    assert first.status == "done"
+    q_first = first.load_q()
+    assert extract_many([job], "sequential", output=res, progress=False)[0].resumed
+    write_scene(scene, make_scene(seed=7, n_per_object=40).scene)
+    st = scene.stat()
+    os.utime(scene, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    again = extract_many([job], "sequential", output=res, progress=False)[0]
+    assert again.status == "done" and not again.resumed and not again.scene_cached
+    q = again.load_q()
+    assert np.array_equal(q, _sequential_q(job))
+    assert q.shape != q_first.shape or not np.array_equal(q, q_first)
+    # A worker keeps its scenes between jobs (the sequential runner clears them after each call): a
+    # replaced file is read again there too.
+    from seed2gs_inverse.batch.worker import clear_scene_cache, run_job
+
+    try:
+        assert run_job(job).scene_cached is False
+        assert run_job(job).scene_cached is True
+        shutil.copy(tiny["dir"] / "a.ply", scene)
+        st = scene.stat()
+        os.utime(scene, ns=(st.st_atime_ns, st.st_mtime_ns + 2 * 10**9))
+        back = run_job(job)
+        assert back.status == "done" and back.scene_cached is False and np.array_equal(back.q, q_first)
+    finally:
+        clear_scene_cache()
+
+
 def test_job_paths_become_absolute_and_values_are_checked_up_front(tiny, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     j = Job("x", "s.ply", "c.json:ref", sgi.MaskPrompt("m.png"), models="models.toml")

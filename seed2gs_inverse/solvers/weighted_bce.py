@@ -227,28 +227,14 @@ class BCEObjective:
         """``(L, dL/dx)`` for the logits ``x`` of the Gaussians ``rows`` only.
 
         ``q_full`` (N,) holds ``q`` of every Gaussian; its entries at ``rows``
-        are overwritten with ``sigmoid(x)`` (the same values
-        :meth:`loss_grad_logits` computes from full logits, without the
-        sigmoid of the Gaussians that do not move).
+        are overwritten with ``q_rows = sigmoid(x)``, and
+        ``dL/dx = q_rows (1 - q_rows) (dL/dq)_rows``.
         """
         qr = expit(x)
         q_full[rows] = qr
         loss, g = self._forward(q_full, omega)
         gq = self._adjoint(g)[rows]
         return loss, qr * (1.0 - qr) * gq
-
-    def loss_grad_logits(self, logits: np.ndarray, omega: np.ndarray, rows=None) -> tuple:
-        """``(L, dL/dl)`` for full logits (N,): ``dL/dl = q (1-q) dL/dq``.
-
-        ``rows`` (int indices): return the gradient of those Gaussians
-        only (the optimised ones); by default all N.
-        """
-        q = expit(logits)
-        loss, g = self._forward(q, omega)
-        gq = self._adjoint(g)
-        if rows is not None:
-            q, gq = q[rows], gq[rows]
-        return loss, q * (1.0 - q) * gq
 
 
 #: The built-in L-BFGS extends a too-short step by this factor, at most ``_MAX_EXTENSIONS`` times
