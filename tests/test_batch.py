@@ -351,6 +351,26 @@ def test_resume_and_the_scene_cache_notice_a_replaced_scene_file(tiny, tmp_path)
         clear_scene_cache()
 
 
+def test_a_moved_results_directory_resumes_from_its_own_folders(tiny, tmp_path):
+    """Resumed jobs point at the output this run was given, not where an earlier run wrote them; a run
+    with every job resumed starts no cluster."""
+    jobs = _jobs(tiny)[:2]
+    first = tmp_path / "first"
+    done = extract_many(jobs, "sequential", output=first, progress=False)
+    q = [r.load_q() for r in done]
+    moved = tmp_path / "moved"
+    first.rename(moved)
+    again = extract_many(jobs + [_jobs(tiny)[2]], "sequential", output=moved, progress=False)
+    assert [r.resumed for r in again] == [True, True, False]
+    for r, want in zip(again, q):
+        assert r.outdir == str(moved / r.name) and np.array_equal(r.load_q(), want)
+    only_first = extract_many(jobs[:1], None, output=moved, progress=False)  # no scheduler: would start one
+    assert only_first[0].resumed and only_first[0].outdir == str(moved / jobs[0].name)
+    doc = json.loads((moved / "summary.json").read_text())
+    assert doc["meta"]["where"] == "nothing to run (every job resumed)"
+    assert {d["name"]: d["outdir"] for d in doc["jobs"]} == {j.name: str(moved / j.name) for j in _jobs(tiny)[:3]}
+
+
 def test_job_paths_become_absolute_and_values_are_checked_up_front(tiny, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     j = Job("x", "s.ply", "c.json:ref", sgi.MaskPrompt("m.png"), models="models.toml")

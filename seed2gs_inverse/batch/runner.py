@@ -415,6 +415,7 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
                 and (out / job.name / "report.json").is_file()):
             r = JobResult.from_dict(prev)
             r.resumed = True
+            r.outdir = os.fspath(out / job.name)  # here, also when the directory was moved or copied since
             results[job.name] = r
         else:
             todo.append(job)
@@ -428,6 +429,9 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
                                   f"job{'s' if len(mixed) > 1 else ''}, or choose another output directory")
     names = {j.name for j in jobs}
     kept = [JobResult.from_dict(d) for n, d in owned.items() if n not in names]  # jobs this run does not name
+    for r in kept:
+        if r.outdir is not None:
+            r.outdir = os.fspath(out / r.name)
     # Grouped by scene, first-seen order: each worker then meets each scene once.
     order = {}
     for job in todo:
@@ -457,16 +461,19 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
 
         bar = tqdm(total=len(jobs), initial=len(results), desc="jobs", unit="job", file=sys.stderr)
     try:
-        with batch_client(client, n_workers=n_workers, n_jobs=len(todo),
+        # every job resumed: nothing to run, so no cluster is started for it
+        with batch_client(client if todo else "sequential", n_workers=n_workers, n_jobs=len(todo),
                           threads_per_worker=threads_per_worker) as c:
-            if c is None:
+            if not todo:
+                meta["where"] = "nothing to run (every job resumed)"
+            elif c is None:
                 meta["where"] = "sequential"
                 try:
                     for job in todo:
                         record(run_job(job, out))
                 finally:
                     clear_scene_cache()
-            elif todo:
+            else:
                 meta["where"] = f"dask {c.scheduler.address} ({len(c.scheduler_info()['workers'])} workers)"
                 link = _dashboard(c)
                 if link:
