@@ -215,3 +215,43 @@ def test_eval_layout_warnings_and_the_oracle_seed_of_empty_masks(dataset, tmp_pa
         sc.seed_frame("sphere")
     with pytest.raises(ValidationError, match="is itself a scene"):
         read_lerf_mask(data / "blocks", root / "scenes")
+
+
+def test_a_rerun_scores_its_own_extractions_and_leaves_no_stale_prediction(dataset, tmp_path, monkeypatch):
+    """A copied report directory scores its own job folders (not those its summary was written from); a
+    query that fails on a re-run loses its earlier predicted masks and is titled as failed in the grid."""
+    import shutil
+
+    import cv2
+    import matplotlib.axes
+
+    from seed2gs_inverse.evaluation import evaluate_lerf_mask
+
+    root, info = dataset
+    data = tmp_path / "data"
+    shutil.copytree(root / "data", data)
+    run = dict(oracle_seed=True, options={"n_views": 6}, scenes=["blocks"], client="sequential", progress=False)
+    first = evaluate_lerf_mask(data, root / "scenes", tmp_path / "a", **run)
+    shutil.copytree(tmp_path / "a", tmp_path / "b")
+    q = tmp_path / "a" / "jobs" / "blocks--sphere" / "q.npy"
+    np.save(q, np.zeros_like(np.load(q)))  # the original's extraction changes after the copy
+    copied = evaluate_lerf_mask(data, root / "scenes", tmp_path / "b", **run)
+    assert copied["overall"] == first["overall"] and copied["overall"]["miou"] > 0.5
+    # "sphere top" now fails: its seed mask marks an empty corner of the image
+    seed = next(r["seed_frame"] for r in first["queries"] if r["query"] == "sphere top")
+    corner = np.zeros(info["blocks"]["truth"][seed].shape, np.uint8)
+    corner[:4, :4] = 255
+    cv2.imwrite(str(data / "blocks" / "test_mask" / seed / "sphere top.png"), corner)
+    masks = tmp_path / "b" / "masks" / "blocks"
+    assert sorted(p.name for p in masks.glob("*/sphere top.png"))
+    titles = []
+    real = matplotlib.axes.Axes.set_title
+    monkeypatch.setattr(matplotlib.axes.Axes, "set_title",
+                        lambda self, label, *a, **k: (titles.append(label), real(self, label, *a, **k))[1])
+    again = evaluate_lerf_mask(data, root / "scenes", tmp_path / "b", **run)
+    top = next(r for r in again["queries"] if r["query"] == "sphere top")
+    assert top["status"] == "failed" and top["miou"] == 0.0
+    assert not list(masks.glob("*/sphere top.png"))  # no earlier prediction left for another scorer
+    assert len(list(masks.glob("*/sphere.png"))) == len(info["blocks"]["frames"])
+    frames = sorted(info["blocks"]["frames"])
+    assert [t for t in titles if "failed" in t] == [f"{f}: failed, IoU 0" for f in frames]

@@ -547,6 +547,7 @@ def evaluate_scenes(dataset, output, *, oracle_seed: bool | None = None, models=
             if r["iou"] is not None:
                 per_frame.setdefault((sc.name, r["query"]), {})[f] = (r["iou"], r["biou"])
     failed = {r.name: r.error for r in results if not r.ok}
+    _remove_stale_masks(out / "masks", dataset, preds)
     report = _tables(dataset, job_of, by_name, per_frame, protocol_mean, oracle_seed)
     report["failed"] = failed
     report["protocol"] = {**dict(protocol or {}),
@@ -569,7 +570,8 @@ def evaluate_scenes(dataset, output, *, oracle_seed: bool | None = None, models=
              (out / "per_query.csv", _csv(report["queries"], list(QUERY_COLUMNS))),
              (out / "per_scene.csv", _csv(report["scenes"], ["scene", "miou", "mbiou", "n_queries",
                                                              "n_failed"]))]
-    png = _grid(dataset, preds, per_frame)
+    png = _grid(dataset, preds, per_frame,
+                {(sc.name, q) for sc in dataset for q in sc.queries if job_of[(sc.name, q)].name in failed})
     if png is not None:
         files.append((out / "grid.png", png))
     write_files(files)
@@ -645,11 +647,32 @@ def _csv(rows, cols) -> bytes:
     return buf.getvalue().encode("utf-8")
 
 
-def _grid(dataset, preds, per_frame):
+def _remove_stale_masks(masks_dir: Path, dataset, preds) -> None:
+    """Delete the predicted masks an earlier run left for this run's scenes that this run did not write.
+
+    A query that failed this time, or that the dataset no longer has, must
+    not leave an earlier prediction for a scorer reading ``masks/``. Masks
+    of scenes outside this run stay, as their job folders do.
+    """
+    for sc in dataset:
+        root = masks_dir / sc.name
+        if not root.is_dir():
+            continue
+        for frame_dir in [d for d in root.iterdir() if d.is_dir()]:
+            for png in frame_dir.glob("*.png"):
+                if (sc.name, frame_dir.name, png.stem) not in preds:
+                    png.unlink()
+            if not any(frame_dir.iterdir()):
+                frame_dir.rmdir()
+
+
+def _grid(dataset, preds, per_frame, failed=frozenset()):
     """PNG bytes: one row per query, one column per test frame; truth vs prediction.
 
     Each cell overlays the two masks: green = both, red = predicted only,
-    blue = missed (truth only); the title gives the frame's IoU.
+    blue = missed (truth only); the title gives the frame's IoU, or says that
+    the query failed (``failed``: its ``(scene, query)`` pairs; scored 0
+    where it has truth).
     """
     import matplotlib
 
@@ -681,7 +704,11 @@ def _grid(dataset, preds, per_frame):
             img[~p & g] = (0.2, 0.4, 0.9)
             ax.imshow(img, interpolation="nearest")
             s = per_frame.get((sc.name, q), {}).get(f)
-            ax.set_title(f"{f}: " + ("no truth" if s is None else f"IoU {s[0]:.2f}"), fontsize=7)
+            if (sc.name, q) in failed:
+                title = "failed" + (", IoU 0" if gt is not None else "")
+            else:
+                title = "no truth" if s is None else f"IoU {s[0]:.2f}"
+            ax.set_title(f"{f}: {title}", fontsize=7)
             if j == 0:
                 ax.set_ylabel(f"{sc.name}\n{q}", fontsize=7)
     fig.suptitle("green: both, red: predicted only, blue: missed", fontsize=8)
