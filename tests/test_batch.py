@@ -198,8 +198,17 @@ format = "splat"
     ('[[jobs]]\nname="../x"\nscene="s.ply"\ncamera="c.json"\nbox=[0,0,5,5]', ["folder name"]),
     ('[defaults]\nscene="s.ply"\ncamera="c.json"\nbox=[0,0,5,5]\n[[jobs]]\nname="x"\n[[jobs]]\nname="x"',
      ["unique"]),
+    ('[defaults]\nscene="s.ply"\ncamera="c.json"\nbox=[0,0,5,5]\n[[jobs]]\nname="Cup"\n[[jobs]]\nname="cup"',
+     ["jobs[0]", "unique, also ignoring case"]),
     ('[[jobs]]\nname="x"\nscene="s.ply"\ncamera="c.json"\nbox=[0,0,5,5]\ncolour="red"', ["unknown key"]),
     ('[[jobs]]\nname="x"\nscene="s.ply"\ncamera={eye=[0,0,0],target=[0,0,1]}\nbox=[0,0,5,5]', ["width"]),
+    ('[[jobs]]\nname="x"\nscene="s.ply"\ncamera="c.json"\npoint=[[50,78],[1]]', ["'point'", "[[50, 78], [1]]"]),
+    ('[[jobs]]\nname="x"\nscene="s.ply"\ncamera="c.json"\npoint=[[5,7]]\nnegative=[[1,2],[3]]',
+     ["'negative'", "[[1, 2], [3]]"]),
+    ('[[jobs]]\nname="x"\nscene="s.ply"\ncamera="c.json"\npoint=[[5,7]]\nnegative=[1,2,3]',
+     ["'negative' must be [x, y]", "[1, 2, 3]"]),
+    ('[[jobs]]\nname="x"\nscene="s.ply"\ncamera="c.json"\npoint=[[5,7]]\nnegative="ab"', ["'negative'", "'ab'"]),
+    ('[[jobs]]\nname="x"\nscene="s.ply"\ncamera="c.json"\npoint=[]', ["at least one click"]),
 ])
 def test_jobs_file_errors_name_file_and_job(tmp_path, body, words):
     p = tmp_path / "jobs.toml"
@@ -218,6 +227,8 @@ def test_job_and_runner_arguments_are_validated(tiny):
     j = _jobs(tiny)[0]
     with pytest.raises(ValidationError, match="unique"):
         extract_many([j, j], "sequential")
+    with pytest.raises(ValidationError, match=r"ignoring case.*\['A-MASK', 'a-mask'\]"):
+        extract_many([j, Job("A-MASK", j.scene, j.camera, j.prompt, OPTS)], "sequential")
     with pytest.raises(ValidationError, match="tcp://"):
         extract_many([j], "localhost:8786")
     with pytest.raises(ValidationError, match="prompt"):

@@ -72,6 +72,12 @@ def test_3d_ovs_layout(ovs, tmp_path):
     (sc,) = read_3d_ovs(root / "data", root / "scenes")
     assert sc.frames == ["00", "04", "08", "12"] and sc.queries == ["rod", "sphere", "sphere top"]
     assert ("04", "rod") not in sc.gt and ("00", "rod") in sc.gt
+    (root / "data" / "room" / "images" / ".DS_Store").write_bytes(b"\0")  # the OS's, not an image
+    try:
+        again = read_3d_ovs(root / "data", root / "scenes")[0].cameras
+        assert {f: c.name for f, c in again.items()} == {f: c.name for f, c in sc.cameras.items()}
+    finally:
+        (root / "data" / "room" / "images" / ".DS_Store").unlink()
     for f in sc.frames:  # frame NN is image NN of images/: its COLMAP camera
         assert sc.cameras[f].name == f"frame_{int(f):02d}.png"
         np.testing.assert_allclose(sc.cameras[f].world_to_camera, info["cameras"][int(f)].world_to_camera,

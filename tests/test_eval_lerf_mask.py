@@ -20,7 +20,7 @@ import json
 import numpy as np
 import pytest
 
-from seed2gs_inverse.errors import ValidationError
+from seed2gs_inverse.errors import FormatError, ValidationError
 
 import _lerf_dataset
 from _mask_scores import biou_reference, iou_reference
@@ -178,6 +178,14 @@ def test_eval_layout_errors(dataset, tmp_path, capsys):
     finally:
         (bad / "sphere.png").unlink()
         bad.rmdir()
+    junk = root / "data" / "blocks" / "test_mask" / "orbit_001" / "junk.png"  # empty, or not an image
+    try:
+        for content in (b"", b"not a png"):
+            junk.write_bytes(content)
+            with pytest.raises(FormatError, match=r"orbit_001/junk\.png: not a readable mask image"):
+                read_lerf_mask(root / "data", root / "scenes")
+    finally:
+        junk.unlink()
 
 
 def test_eval_layout_warnings_and_the_oracle_seed_of_empty_masks(dataset, tmp_path):
@@ -186,6 +194,7 @@ def test_eval_layout_warnings_and_the_oracle_seed_of_empty_masks(dataset, tmp_pa
     import cv2
 
     from seed2gs_inverse.evaluation import read_lerf_mask
+    from seed2gs_inverse.evaluation.lerf_mask import lerf_jobs
 
     root, _ = dataset
     data = tmp_path / "data"
@@ -200,7 +209,9 @@ def test_eval_layout_warnings_and_the_oracle_seed_of_empty_masks(dataset, tmp_pa
     # Query names that differ only in case are two objects to the protocol: said so.
     (blocks / frames[1] / "sphere.png").rename(blocks / frames[1] / "Sphere.png")
     with pytest.warns(UserWarning, match="'Sphere' and 'sphere' differ only in case"):
-        read_lerf_mask(data, root / "scenes", scenes=["blocks"])
+        cased = read_lerf_mask(data, root / "scenes", scenes=["blocks"])
+    names = [j.name for j in lerf_jobs(cased, oracle_seed=True)]  # their folders must differ, also ignoring case
+    assert len({n.casefold() for n in names}) == len(names) == 3
     (blocks / frames[1] / "Sphere.png").rename(blocks / frames[1] / "sphere.png")
     # The oracle seed comes from the first frame whose mask marks the object.
     first = blocks / frames[0] / "sphere.png"

@@ -368,23 +368,33 @@ def _prompt_from_table(t: Mapping, where: str, base: Path):
         if box.shape != (4,):
             raise ValidationError(f"{where}: 'box' must be [x0, y0, x1, y1], got {value!r}")
         return BoxPrompt(box.tolist())
-    pos = _numbers(where, "point", value).reshape(-1, 2) if np.size(value) % 2 == 0 else None
-    neg = _numbers(where, "negative", t.get("negative", [])).reshape(-1, 2) if np.size(
-        t.get("negative", [])) % 2 == 0 else None
-    if pos is None or neg is None or len(pos) == 0:
-        raise ValidationError(f"{where}: 'point' / 'negative' must be [x, y] or [[x, y], ...], "
-                              f"got {value!r}")
+    pos = _clicks(where, "point", value)
+    neg = _clicks(where, "negative", t.get("negative", []))
+    if len(pos) == 0:
+        raise ValidationError(f"{where}: 'point' needs at least one click [x, y], got {value!r}")
     return PointPrompt(np.concatenate([pos, neg]).tolist(), [1] * len(pos) + [0] * len(neg))
 
 
-def _numbers(where, key, value) -> np.ndarray:
+def _clicks(where, key, value) -> np.ndarray:
+    """(K, 2) clicks from ``[x, y]`` or ``[[x, y], ...]`` (K may be 0), the message naming ``key``."""
+    arr = _numbers(where, key, value, flat=False)
+    if arr.ndim == 1 and arr.size == 2:
+        arr = arr[None]
+    if arr.size == 0:
+        return arr.reshape(0, 2)
+    if arr.ndim != 2 or arr.shape[1] != 2:
+        raise ValidationError(f"{where}: '{key}' must be [x, y] or [[x, y], ...], got {value!r}")
+    return arr
+
+
+def _numbers(where, key, value, flat: bool = True) -> np.ndarray:
     try:
-        arr = np.asarray(value, dtype=np.float64)
+        arr = np.asarray(value, dtype=np.float64)  # a ragged list is a ValueError too
     except (TypeError, ValueError):
-        raise ValidationError(f"{where}: '{key}' must hold numbers, got {value!r}") from None
+        raise ValidationError(f"{where}: '{key}' must hold numbers in a regular list, got {value!r}") from None
     if not np.all(np.isfinite(arr)):
         raise ValidationError(f"{where}: '{key}' must hold finite numbers, got {value!r}")
-    return arr.ravel()
+    return arr.ravel() if flat else arr
 
 
 def jobs_from_table(table: Mapping, base=".", source: str = "jobs") -> list[Job]:
@@ -426,9 +436,10 @@ def jobs_from_table(table: Mapping, base=".", source: str = "jobs") -> list[Job]
             raise FormatError(f"{where}: unknown key(s) {unknown}; known keys: {', '.join(_JOB_KEYS)}")
         if not isinstance(name, str):
             raise FormatError(f"{where}: 'name' must be a string")
-        if name in seen:
-            raise FormatError(f"{where}: the name is also used by jobs[{seen[name]}]; names must be unique")
-        seen[name] = i
+        if name.casefold() in seen:  # folder names: one folder on a case-insensitive file system
+            raise FormatError(f"{where}: the name is also used by jobs[{seen[name.casefold()]}]; names must be "
+                              f"unique, also ignoring case")
+        seen[name.casefold()] = i
         # A job's own prompt replaces the default one; options merge key by key.
         merged = {k: v for k, v in defaults.items()
                   if not (k in PROMPT_KEYS + ("negative",) and any(p in entry for p in PROMPT_KEYS))}

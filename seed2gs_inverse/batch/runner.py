@@ -205,10 +205,11 @@ def _as_jobs(jobs) -> list[Job]:
     for i, j in enumerate(out):
         if not isinstance(j, Job):
             raise ValidationError(f"extract_many: jobs[{i}] is a {type(j).__name__}, not a Job")
-    names = [j.name for j in out]
-    dup = sorted({n for n in names if names.count(n) > 1})
+    names = [j.name.casefold() for j in out]  # folder names: one folder on a case-insensitive file system
+    dup = sorted({j.name for j in out if names.count(j.name.casefold()) > 1})
     if dup:
-        raise ValidationError(f"extract_many: job names must be unique (folder names); repeated: {dup}")
+        raise ValidationError(f"extract_many: job names must be unique, also ignoring case (they name folders); "
+                              f"repeated: {dup}")
     return out
 
 

@@ -135,6 +135,17 @@ def read_gt_mask(path, threshold: int = 128) -> np.ndarray:
         raise FormatError(f"{path}: not a readable mask image ({exc})") from None
 
 
+def _image_shape(path) -> tuple:
+    """(H, W) of an image file from its header; FormatError naming the file when it is no image."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as im:
+            return im.height, im.width
+    except (UnidentifiedImageError, OSError) as exc:
+        raise FormatError(f"{path}: not a readable mask image ({exc})") from None
+
+
 def _scene_file(scenes_dir: Path, name: str) -> Path:
     cands = [scenes_dir / f"{name}.ply", scenes_dir / name / "point_cloud.ply"]
     its = sorted((scenes_dir / name / "point_cloud").glob("iteration_*/point_cloud.ply"),
@@ -256,10 +267,7 @@ def read_lerf_mask(data_dir, scenes_dir, scenes=None) -> list:
                 q = p.stem
                 gt[(f, q)] = p
                 queries.add(q)
-                from PIL import Image
-
-                with Image.open(p) as im:
-                    shapes[p.name] = (im.height, im.width)
+                shapes[p.name] = _image_shape(p)
             if len(set(shapes.values())) != 1:
                 raise ValidationError(f"{where}: masks of one frame differ in size: {shapes}")
             cameras[f] = _at_size(_frame_camera(f, cams, test, where), next(iter(shapes.values())), where)
@@ -331,9 +339,10 @@ def lerf_jobs(scenes, oracle_seed: bool | None = None, models=None, options=None
             f = sc.reference_frame(q, oracle_seed)
             name = f"{_slug(sc.name)}--{_slug(q)}"
             k = 2
-            while name in names:  # two queries that differ only in punctuation
+            # two queries that differ only in punctuation, or in case (one folder on macOS / Windows)
+            while name.casefold() in names:
                 name, k = f"{_slug(sc.name)}--{_slug(q)}-{k}", k + 1
-            names.add(name)
+            names.add(name.casefold())
             prompt = MaskPrompt(sc.read_gt(f, q)) if oracle_seed else TextPrompt(q)
             jobs.append(Job(name=name, scene=os.fspath(sc.scene_file.resolve()), camera=sc.cameras[f],
                             prompt=prompt, options=dict(options or {}),

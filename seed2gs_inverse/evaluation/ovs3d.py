@@ -103,7 +103,9 @@ def read_3d_ovs(data_dir, scenes_dir, scenes=None) -> list:
             raise ValidationError(f"{seg}: no frame folders")
         folders.sort(key=lambda p: int(p.name))
         cams = sorted(_cameras(root, scenes_dir, name), key=lambda c: c.name or "")
-        images = sorted(p.name for p in (root / "images").iterdir()) if (root / "images").is_dir() else []
+        # the images in name order, as the official loader lists them; hidden files (.DS_Store) are no image
+        images = sorted(p.name for p in (root / "images").iterdir()
+                        if p.is_file() and not p.name.startswith(".")) if (root / "images").is_dir() else []
         gt, cameras, queries, frames = {}, {}, set(), []
         for fd in folders:
             f, shape = fd.name, None
