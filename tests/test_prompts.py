@@ -57,6 +57,12 @@ def test_box_prompt_grabcut(view):
         BoxPrompt((200, 200, 300, 300)).to_mask(r.rgb)
     with pytest.raises(ValidationError, match="empty"):
         BoxPrompt((10, 10, 5, 20)).to_mask(r.rgb)
+    # An empty GrabCut result is told apart: nothing rendered in the box, or nothing that stands out
+    flat = np.full((60, 80, 3), 0.5, np.float32) + np.random.default_rng(0).normal(0, 0.01, (60, 80, 3))
+    with pytest.raises(ValidationError, match="selects nothing visible"):
+        BoxPrompt((20, 20, 40, 40)).to_mask(flat.astype(np.float32), np.zeros((60, 80)))
+    with pytest.raises(ValidationError, match="stands out from its surroundings; click on the object"):
+        BoxPrompt((20, 20, 40, 40)).to_mask(flat.astype(np.float32), np.ones((60, 80)))
 
 
 def test_point_prompt(view):

@@ -209,7 +209,13 @@ class BoxPrompt:
             init[np.asarray(alpha) < self.alpha_min] = cv2.GC_BGD
         mask = _grabcut(image, init, self.iterations)
         if not mask.any():
-            raise ValidationError(f"box {b.tolist()} selects nothing visible in the reference view")
+            if alpha is not None and not np.any(np.asarray(alpha)[iy0:iy1, ix0:ix1] >= self.alpha_min):
+                raise ValidationError(f"box {b.tolist()} selects nothing visible in the reference view")
+            # GrabCut's colour models found nothing in the box that differs from around it (a thin
+            # object filling a small part of its box, colours alike inside and out)
+            raise ValidationError(f"box {b.tolist()}: GrabCut found nothing inside the box that stands out from "
+                                  f"its surroundings; click on the object instead (a point prompt), give its "
+                                  f"mask, or draw the box a few pixels larger")
         return mask
 
 
