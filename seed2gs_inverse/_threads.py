@@ -1,7 +1,7 @@
 """Threads for the numpy / scipy parts (no Numba): how many, and two halves of work on two of them.
 
 The Numba kernels size their own thread pools (``NUMBA_NUM_THREADS``); the
-sparse passes, the per-pixel loss and the neighbour queries use at most two
+sparse passes, the per-pixel loss, the vote and the neighbour queries use at most two
 threads through this module. Dask workers set ``NUMBA_NUM_THREADS=1``
 (:func:`~seed2gs_inverse.batch.batch_client`), and this module follows it,
 so batch workers never oversubscribe their core.

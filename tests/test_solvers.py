@@ -65,6 +65,35 @@ def test_voting_matches_dense_votes_and_bias_rule(rng):
         solve(mats, masks, method="voting", bias=1.5)
 
 
+def test_voting_halves_on_two_threads_match_the_dense_votes_and_one_thread(rng, monkeypatch):
+    """Above PARALLEL_MIN_GAUSSIANS the arithmetic after the pass runs in two halves on two threads: q is
+    the same bit for bit as on one thread, and both are the dense vote (an odd N: halves of unequal size)."""
+    from seed2gs_inverse import _threads
+    from seed2gs_inverse.solvers import voting as voting_module
+
+    mats, masks = _random_problem(rng, n=41)
+    A = np.vstack([W.toarray() for W in mats]).astype(np.float64)
+    y = np.concatenate([m.ravel() for m in masks]).astype(np.float64)
+    k = ~np.isnan(y)
+    a1 = A[k].T @ y[k]
+    a0 = A[k].T @ (1 - y[k])
+    monkeypatch.setattr(voting_module, "PARALLEL_MIN_GAUSSIANS", 1)
+    calls = []
+    real = voting_module.run_both
+    monkeypatch.setattr(voting_module, "run_both", lambda fn, parallel: (calls.append(parallel), real(fn, parallel)))
+    got = {}
+    for threads in (1, 2):
+        monkeypatch.setattr(_threads, "n_threads", lambda t=threads: t)
+        got[threads] = solve(mats, masks, method="voting")
+    assert calls == [True, True]
+    np.testing.assert_array_equal(got[1].q, got[2].q)
+    assert got[1].info["total_votes"] == got[2].info["total_votes"]
+    seen = a0 + a1 > 0
+    np.testing.assert_allclose(got[2].q[seen], (a1 / (a0 + a1))[seen], rtol=1e-5)
+    assert np.all(got[2].q[~seen] == 0)
+    assert got[2].info["total_votes"] == pytest.approx((a0 + a1).sum(), rel=1e-5)
+
+
 def test_nan_pixels_carry_no_evidence(rng):
     mats, masks = _random_problem(rng)
     r1 = solve(mats, masks, method="voting")
