@@ -87,6 +87,33 @@ def test_culled_subset_is_exact_for_cameras_inside_the_scene(rng):
     assert min(kept) < 0.5  # it still culls
 
 
+def test_no_gaussian_that_reaches_the_roi_is_culled_where_the_bound_is_tight(rng):
+    """Opaque isotropic Gaussians of 2-15 px seen by a 100 degree camera: their footprints come close to
+    the bound (a full opacity puts the 1/255 cut-off at its full radius, the wide field of view stretches
+    off-axis footprints). Every Gaussian with a weight on a roi pixel in the full rasterization (the
+    reference) is kept, and the culled operator is the full one; a bound a little too tight (a smaller
+    cut-off radius, the mean instead of the largest eigenvalue) drops some."""
+    cam = Camera.from_fov(96, 64, 100.0)
+    n = 4000
+    kept_share = []
+    for roi in [(0, 0, 6, 6), (44, 28, 52, 36), (90, 20, 96, 44)]:
+        z = rng.uniform(0.1, 2.0, n)
+        u, v = rng.uniform(-60, 156, n), rng.uniform(-60, 124, n)
+        x, y = (u - cam.cx) / cam.fx * z, (v - cam.cy) / cam.fy * z
+        means = (np.stack([x, y, z], 1) - cam.translation) @ cam.rotation
+        log_s = np.repeat(np.log(z * rng.uniform(2.0, 15.0, n) / cam.fx)[:, None], 3, 1)
+        scene = GaussianScene(means, np.tile([1.0, 0, 0, 0], (n, 1)), log_s, np.full(n, 9.0), np.ones((n, 1, 3)))
+        full = build_operator(scene, cam, roi=roi)
+        reach = np.flatnonzero(np.asarray((full.W != 0).sum(axis=0)).ravel())
+        kept = cone_cull(scene, cam, roi)
+        assert reach.size > 20
+        np.testing.assert_array_equal(np.setdiff1d(reach, kept), [], err_msg=f"roi {roi}")
+        culled = build_operator(scene, cam, roi=roi, subset=kept)
+        assert (culled.W != full.W).nnz == 0
+        kept_share.append(kept.size / n)
+    assert max(kept_share) < 0.7  # it still culls
+
+
 def test_a_close_gaussian_beside_the_roi_is_kept():
     """One Gaussian 0.1 in front of the camera, off axis: its footprint reaches the corner roi."""
     scene = GaussianScene(np.array([[-0.3, 0.15, 0.1]]), np.array([[1.0, 0, 0, 0]]), np.log(np.full((1, 3), 0.085)),
