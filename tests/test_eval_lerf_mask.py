@@ -266,3 +266,47 @@ def test_a_rerun_scores_its_own_extractions_and_leaves_no_stale_prediction(datas
     assert len(list(masks.glob("*/sphere.png"))) == len(info["blocks"]["frames"])
     frames = sorted(info["blocks"]["frames"])
     assert [t for t in titles if "failed" in t] == [f"{f}: failed, IoU 0" for f in frames]
+
+
+def test_masks_smaller_than_the_cameras_and_frames_numbered_past_nine(dataset, tmp_path):
+    """Ground truth stored at half the cameras' resolution is scored with the cameras scaled to it (the
+    prediction rendered at the masks' size), and frames ``2`` and ``10`` come in natural order, so the
+    oracle seed is frame 2's mask."""
+    import cv2
+
+    from seed2gs_inverse.camera import Camera
+    from seed2gs_inverse.evaluation import evaluate_lerf_mask, read_gt_mask, read_lerf_mask
+    from seed2gs_inverse.io import write_cameras
+    from seed2gs_inverse.synthetic import render_label_masks
+
+    root, info = dataset
+    syn = info["blocks"]["synthetic"]
+    full = {name: info["blocks"]["frames"][f] for name, f in (("2", "orbit_002"), ("10", "orbit_003"))}
+    named = {k: Camera(c.width, c.height, c.fx, c.fy, c.cx, c.cy, c.world_to_camera, name=k)
+             for k, c in full.items()}
+    scene_dir = tmp_path / "data" / "half"
+    scene_dir.mkdir(parents=True)
+    write_cameras(scene_dir / "cameras.json", list(named.values()))
+    scenes = tmp_path / "scenes"
+    scenes.mkdir()
+    (scenes / "half.ply").write_bytes((root / "scenes" / "blocks.ply").read_bytes())
+    truth = {}
+    for k, c in named.items():
+        truth[k] = render_label_masks(syn.scene, [c.scaled(0.5)], syn.object_mask("sphere"))[0] > 0.5
+        (scene_dir / "test_mask" / k).mkdir(parents=True)
+        cv2.imwrite(str(scene_dir / "test_mask" / k / "sphere.png"), truth[k].astype(np.uint8) * 255)
+    (sc,) = read_lerf_mask(tmp_path / "data", scenes)
+    assert sc.frames == ["2", "10"] and sc.seed_frame("sphere") == "2"
+    for k, c in named.items():
+        half = c.scaled(0.5)
+        got = sc.cameras[k]
+        assert (got.width, got.height) == (half.width, half.height) == (48, 36)
+        np.testing.assert_allclose([got.fx, got.fy, got.cx, got.cy], [half.fx, half.fy, half.cx, half.cy])
+    rep = evaluate_lerf_mask(tmp_path / "data", scenes, tmp_path / "r", oracle_seed=True, options={"n_views": 6},
+                             client="sequential", progress=False)
+    (row,) = rep["queries"]
+    assert row["seed_frame"] == "2" and row["status"] == "done"
+    for k in named:
+        pred = read_gt_mask(tmp_path / "r" / "masks" / "half" / k / "sphere.png")
+        assert pred.shape == (36, 48)
+        assert row["frames"][k]["iou"] > 0.9, (k, row["frames"][k])
