@@ -310,3 +310,27 @@ def test_masks_smaller_than_the_cameras_and_frames_numbered_past_nine(dataset, t
         pred = read_gt_mask(tmp_path / "r" / "masks" / "half" / k / "sphere.png")
         assert pred.shape == (36, 48)
         assert row["frames"][k]["iou"] > 0.9, (k, row["frames"][k])
+
+
+def test_a_query_selects_q_strictly_above_its_threshold(dataset, tmp_path):
+    """score_frame renders the Gaussians with ``q > threshold`` of the job's report: q exactly at the
+    threshold (where a solver leaves Gaussians without evidence) selects nothing."""
+    from seed2gs_inverse.batch.worker import clear_scene_cache
+    from seed2gs_inverse.evaluation.lerf_mask import score_frame
+
+    root, info = dataset
+    sphere = info["blocks"]["synthetic"].object_mask("sphere")
+    frame = "orbit_002"
+    job = tmp_path / "job"
+    job.mkdir()
+    (job / "report.json").write_text(json.dumps({"threshold": 0.25}))
+    try:
+        for value, want in ((0.25, np.zeros_like(info["blocks"]["truth"][frame])),
+                            (np.nextafter(np.float32(0.25), np.float32(1)), info["blocks"]["truth"][frame])):
+            np.save(job / "q.npy", np.where(sphere, np.float32(value), np.float32(0)))
+            (rec,) = score_frame(root / "scenes" / "blocks.ply", info["blocks"]["frames"][frame], ["sphere"], [job],
+                                 [None])
+            assert np.array_equal(rec["pred"], want) and rec["iou"] is None
+        assert want.any()
+    finally:
+        clear_scene_cache()

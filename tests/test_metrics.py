@@ -78,6 +78,12 @@ def test_membership_scores_hand_counted():
     assert s["weighted_precision"] == pytest.approx(4 / 6) and s["weighted_recall"] == 1.0
     assert s["weighted_iou"] == pytest.approx(4 / 6)
     assert membership_scores(np.array([0.4, 0.6]), np.array([True, True]), threshold=0.3)["recall"] == 1.0
+    # q exactly at the threshold (an unobserved Gaussian started at 0.5) is not selected
+    tie = membership_scores(np.array([0.5, 0.5, 0.7]), np.array([True, False, True]))
+    assert (tie["tp"], tie["fp"], tie["fn"]) == (1, 0, 1)
+    # nothing selected and nothing true: 0/0 counts as a perfect score
+    none = membership_scores(np.zeros(3, bool), np.zeros(3, bool))
+    assert none["iou"] == 1.0 and (none["tp"], none["fp"], none["fn"]) == (0, 0, 0)
     with pytest.raises(ValidationError, match="labels must be bool"):
         membership_scores(sel, truth.astype(int))
     with pytest.raises(ValidationError, match="weights"):
