@@ -144,3 +144,48 @@ def test_the_ground_under_a_table_stays_out(yard):
     assert off.resolved["support"] == {"used": False, "reason": "support_background is off"}
     assert _held_out_ious(gs, truth, off.selected, held_out).min() < 0.9
     assert (off.selected & ~truth).sum() > (ex.selected & ~truth).sum()
+
+
+def test_support_level_from_hand_placed_splats():
+    """Splats placed by hand, one of each kind just outside a filter of the module docstring: the level and
+    spread are the median and normalised MAD of exactly the ones that pass every filter."""
+    from seed2gs_inverse.scene import GaussianScene
+
+    rng = np.random.default_rng(4)
+    R, o, up = 1.0, np.array([0.5, -0.2, 2.0]), np.array([0.0, 0.0, 1.0])
+    flat = np.log([0.05, 0.04, 0.002])  # flat: the smallest scale (z) < 0.3 x the middle one; normal = up
+    n_good = 31
+    ang = rng.uniform(0, 2 * np.pi, n_good)
+    rad = rng.uniform(1.05, 1.95, n_good) * R
+    hs = -0.8 + rng.normal(0, 0.03, n_good)
+    means = [o + np.c_[rad * np.cos(ang), rad * np.sin(ang), hs]]
+    scales = [np.tile(flat, (n_good, 1))]
+    quats = [np.tile([1.0, 0, 0, 0], (n_good, 1))]
+    opac = [np.full(n_good, 3.0)]
+    tilt = np.array([np.cos(np.radians(15)), np.sin(np.radians(15)), 0, 0])  # normal 30 degrees off: 0.87 < 0.9
+
+    def one(mean, log_s=flat, quat=(1.0, 0, 0, 0), logit=3.0):
+        means.append(o + np.asarray(mean, float)[None])
+        scales.append(np.asarray(log_s, float)[None])
+        quats.append(np.asarray(quat, float)[None])
+        opac.append(np.array([logit]))
+
+    one([0.95 * R, 0, -0.5])  # inside the inner radius
+    one([2.05 * R, 0, -0.5])  # beyond the outer radius
+    one([1.5 * R, 0, -2.05 * R])  # below the height window |h| <= 2R
+    one([0, 1.5 * R, -0.2], logit=-1.0)  # opacity 0.27 < 0.3
+    one([0, -1.5 * R, -0.2], log_s=np.log([0.05, 0.04, 0.03]))  # not flat
+    one([-1.5 * R, 0, -0.2], quat=tilt)  # tilted
+    one([1.2 * R, 0.3, -0.2])  # would pass, but is in G0
+    n = n_good + 7
+    scene = GaussianScene(np.concatenate(means), np.concatenate(quats), np.concatenate(scales),
+                          np.concatenate(opac), np.zeros((n, 1, 3)))
+    g0 = np.zeros(n, bool)
+    g0[-1] = True
+    s = support_surface(scene, g0, o, R, 2.0 * up, min_splats=20)
+    level = np.median(hs)
+    spread = 1.4826 * np.median(np.abs(hs - level))
+    assert s.n_splats == n_good
+    assert s.level == pytest.approx(level, abs=1e-6) and s.spread == pytest.approx(spread, rel=1e-5)
+    np.testing.assert_allclose(s.point, o + (level + max(0.05 * R, 2 * spread)) * up, atol=1e-6)
+    assert support_surface(scene, g0, o, R, up, min_splats=n_good + 1) is None
