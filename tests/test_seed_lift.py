@@ -99,3 +99,94 @@ def test_bad_masks(setup):
             seed_lift(scene, cam, sky, op.rendering.depth, W)
     with pytest.raises(ValidationError, match="shape"):
         seed_lift(scene, cam, truth2d[:-1], op.rendering.depth)
+
+
+def _brute_candidates(scene, cam, mask, depth, W, eps_rel=0.02, eps_sigma=2.0, min_membership=0.5, min_weight=1e-3,
+                      max_size_ratio=4.0, pixel=np.floor):
+    """The candidate rule of seed_lift's docstring, Gaussian by Gaussian from a dense W and the camera's
+    intrinsics: ``(candidates, before the size filter, passing all but the centre's depth test, sigma)``.
+    ``pixel`` turns the projected centre into its pixel (floor: the pixel it lies in)."""
+    D = W.toarray().astype(np.float64)
+    h, w = cam.image_shape
+    m, d = mask.ravel().astype(np.float64), depth.ravel().astype(np.float64)
+    p = scene.means.astype(np.float64) @ cam.rotation.T + cam.translation
+    sigma = scene.scales.astype(np.float64).max(1)
+    n = len(scene)
+    pre, all_but_centre = np.zeros(n, bool), np.zeros(n, bool)
+    for i in range(n):
+        x, y, z = p[i]
+        tot = D[:, i].sum()
+        if z <= cam.near or tot < min_weight or tot == 0:
+            continue
+        eps = eps_rel * abs(z) + eps_sigma * sigma[i]
+        rest = (D[:, i] * m).sum() / tot >= min_membership and (D[:, i] * np.abs(z - d)).sum() / tot <= eps
+        px, py = int(pixel(cam.fx * x / z + cam.cx)), int(pixel(cam.fy * y / z + cam.cy))
+        centre = 0 <= px < w and 0 <= py < h and d[py * w + px] > 0 and abs(z - d[py * w + px]) <= eps
+        pre[i] = rest and centre
+        all_but_centre[i] = rest and not centre
+    return pre & (sigma <= max_size_ratio * np.median(sigma[pre])), pre, all_but_centre
+
+
+def test_candidates_equal_the_rule_written_out(setup):
+    """A loose mask (the object dilated by 6 px) lets background splats peek into it: the candidates are
+    exactly those of the rule computed Gaussian by Gaussian. The scene holds Gaussians that only the
+    centre's depth test rejects, Gaussians whose fate the centre's pixel decides (rounding it instead
+    changes them) and Gaussians only the size filter drops, so every part of the rule is exercised."""
+    import cv2
+
+    scene, labels, info, cam, op, truth2d = setup
+    loose = cv2.dilate(truth2d.astype(np.uint8), np.ones((13, 13), np.uint8)) > 0
+    depth = op.rendering.depth
+    lift = seed_lift(scene, cam, loose, depth, op.W)
+    want, pre, all_but_centre = _brute_candidates(scene, cam, loose, depth, op.W)
+    np.testing.assert_array_equal(lift.candidates, want)
+    assert all_but_centre.any()
+    assert (_brute_candidates(scene, cam, loose, depth, op.W, pixel=np.round)[0] != want).any()
+    # the size filter, at a ratio just below the largest candidate's: it drops that one alone
+    sigma = scene.scales.astype(np.float64).max(1)
+    ratio = 0.99 * sigma[pre].max() / np.median(sigma[pre])
+    tight = seed_lift(scene, cam, loose, depth, op.W, max_size_ratio=ratio).candidates
+    want, pre, _ = _brute_candidates(scene, cam, loose, depth, op.W, max_size_ratio=ratio)
+    np.testing.assert_array_equal(tight, want)
+    assert 0 < (pre & ~want).sum() < pre.sum()
+
+
+def test_components_are_kept_by_their_mask_contribution_and_the_box_is_robust():
+    """Three separate clusters inside the seed: 40 faint splats (most Gaussians, little weight), 6 opaque
+    ones (the most weight) and 6 half-transparent ones. Components are scored by their summed mask
+    contribution (W^T m, from the dense W): the opaque cluster is the best, the half-transparent one keeps
+    more than keep_fraction of its score and stays, the faint one does not, although it has the most
+    Gaussians. The centre and radius come from the 2nd-98th percentile box of the support."""
+    from seed2gs_inverse.camera import Camera
+
+    rng = np.random.default_rng(2)
+    cam = Camera.from_fov(96, 72, 60.0)
+    groups = {"faint": ((-0.8, 0.0, 3.0), 40, -3.5, 0.02), "opaque": ((0.8, 0.0, 3.0), 6, 4.0, 0.05),
+              "half": ((0.0, 0.6, 3.0), 6, 0.0, 0.04)}
+    means, logit, size, group = [], [], [], []
+    for g, (c, k, a, s) in groups.items():
+        means.append(np.asarray(c) + rng.uniform(-0.08, 0.08, (k, 3)) * [1, 1, 0.2])
+        logit += [a] * k
+        size += [s] * k
+        group += [g] * k
+    means, group = np.concatenate(means), np.array(group)
+    n = len(group)
+    scene = GaussianScene(means, np.tile([1.0, 0, 0, 0], (n, 1)), np.log(np.repeat(np.array(size)[:, None], 3, 1)),
+                          np.array(logit), np.full((n, 1, 3), 1.0))
+    op = build_operator(scene, cam)
+    seed = np.ones(cam.image_shape, bool)
+    lift = seed_lift(scene, cam, seed, op.rendering.depth, op.W, keep_fraction=0.2)
+    assert lift.candidates.all()
+    inside = op.W.toarray().astype(np.float64).T @ seed.ravel()
+    score = {g: inside[group == g].sum() for g in groups}
+    assert max(score, key=score.get) == "opaque"  # the construction: weight and count disagree
+    assert 0.2 < score["half"] / score["opaque"] < 0.9 and score["faint"] / score["opaque"] < 0.2
+    np.testing.assert_array_equal(lift.support, group != "faint")
+    assert (lift.n_components, lift.kept_components) == (3, 2)
+    lo, hi = np.percentile(means[lift.support], [2, 98], axis=0)
+    np.testing.assert_allclose(lift.bbox, [lo, hi], atol=1e-6)
+    np.testing.assert_allclose(lift.center, 0.5 * (lo + hi), atol=1e-6)
+    assert lift.radius == pytest.approx(max(0.5 * np.linalg.norm(hi - lo), 3 * 0.05), rel=1e-6)
+    # keep_fraction above the half-transparent cluster's share keeps the best component alone
+    only = seed_lift(scene, cam, seed, op.rendering.depth, op.W, keep_fraction=0.95).support
+    np.testing.assert_array_equal(only, group == "opaque")
