@@ -334,3 +334,15 @@ def test_a_query_selects_q_strictly_above_its_threshold(dataset, tmp_path):
         assert want.any()
     finally:
         clear_scene_cache()
+
+
+def test_ground_truth_is_grey_above_128(tmp_path):
+    """The LERF-Mask evaluator's rule: a pixel is the object where its grey level exceeds 128."""
+    import cv2
+
+    from seed2gs_inverse.evaluation import read_gt_mask
+
+    grey = np.array([[0, 127, 128, 129, 255]], np.uint8)
+    cv2.imwrite(str(tmp_path / "m.png"), grey)
+    np.testing.assert_array_equal(read_gt_mask(tmp_path / "m.png"), [[False, False, False, True, True]])
+    np.testing.assert_array_equal(read_gt_mask(tmp_path / "m.png", threshold=127), [[False, False, True, True, True]])
