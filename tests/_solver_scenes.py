@@ -16,6 +16,23 @@ from seed2gs_inverse.camera import Camera
 from seed2gs_inverse.operators import OperatorStack, ViewOperator
 
 
+def random_views(rng, n=40, views=4, h=5, w=6, density=0.25, nan=0.15, binary=False):
+    """Random sparse float32 views with row sums <= 1 (compositing weights) and masks in [0, 1] (or 0/1 with
+    ``binary``) with a share ``nan`` of NaN (unknown) pixels: ``(mats, masks)``."""
+    mats, masks = [], []
+    for _ in range(views):
+        A = sp.random(h * w, n, density=density, random_state=rng, format="csr", dtype=np.float64)
+        rs = np.asarray(A.sum(1)).ravel()
+        scale = np.where(rs > 0, rng.uniform(0.3, 0.99, rs.size) / np.maximum(rs, 1e-12), 0)
+        mats.append(sp.csr_matrix(sp.diags(scale) @ A, dtype=np.float32))
+        m = rng.random((h, w)).astype(np.float32)
+        if binary:
+            m = (m > 0.5).astype(np.float32)
+        m[rng.random((h, w)) < nan] = np.nan
+        masks.append(m)
+    return mats, masks
+
+
 def splat_operator(points, radii, opacities, camera: Camera) -> sp.csr_matrix:
     """(H*W, N) float32 compositing weights of round splats (brute force)."""
     uv, z = camera.project(points)

@@ -8,7 +8,7 @@ import scipy.sparse as sp
 from scipy.optimize import lsq_linear
 from scipy.stats import beta as beta_dist
 
-from _solver_scenes import blob_stack
+from _solver_scenes import blob_stack, random_views as _random_problem
 from seed2gs_inverse.errors import ValidationError
 from seed2gs_inverse.metrics import iou
 from seed2gs_inverse.operators import ViewOperator
@@ -19,20 +19,6 @@ from seed2gs_inverse.solvers.voting import bias_to_threshold
 from seed2gs_inverse.solvers.weighted_bce import BCEObjective, view_weights
 
 METHODS = ("voting", "beta_bernoulli", "weighted_bce", "least_squares")
-
-
-def _random_problem(rng, n=40, views=4, h=5, w=6, density=0.25):
-    """Sparse views with row sums <= 1 (compositing weights) and soft masks with some NaN."""
-    mats, masks = [], []
-    for _ in range(views):
-        A = sp.random(h * w, n, density=density, random_state=rng, format="csr", dtype=np.float64)
-        rs = np.asarray(A.sum(1)).ravel()
-        scale = np.where(rs > 0, rng.uniform(0.3, 0.99, rs.size) / np.maximum(rs, 1e-12), 0)
-        mats.append(sp.csr_matrix(sp.diags(scale) @ A, dtype=np.float32))
-        m = rng.random((h, w)).astype(np.float32)
-        m[rng.random((h, w)) < 0.15] = np.nan
-        masks.append(m)
-    return mats, masks
 
 
 def test_registry_lists_all_methods():

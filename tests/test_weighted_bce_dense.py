@@ -12,32 +12,15 @@ from collections import deque
 
 import numpy as np
 import pytest
-import scipy.sparse as sp
 from scipy.optimize import minimize
 
 import seed2gs_inverse.solvers.weighted_bce as wb
 from seed2gs_inverse.solvers import prepare
 from seed2gs_inverse.solvers.weighted_bce import BCEObjective, view_weights, weighted_bce
 
-from _solver_scenes import blob_stack
+from _solver_scenes import blob_stack, random_views
 
 ALPHA_MIN = 1e-3
-
-
-def _views(rng, n=30, views=4, h=5, w=6, density=0.3, nan=0.15, binary=False):
-    """Sparse float32 views with row sums <= 1 and masks in [0, 1] with some NaN (unknown) pixels."""
-    mats, masks = [], []
-    for _ in range(views):
-        A = sp.random(h * w, n, density=density, random_state=rng, format="csr", dtype=np.float64)
-        rs = np.asarray(A.sum(1)).ravel()
-        scale = np.where(rs > 0, rng.uniform(0.3, 0.99, rs.size) / np.maximum(rs, 1e-12), 0)
-        mats.append(sp.csr_matrix(sp.diags(scale) @ A, dtype=np.float32))
-        m = rng.random((h, w)).astype(np.float32)
-        if binary:
-            m = (m > 0.5).astype(np.float32)
-        m[rng.random((h, w)) < nan] = np.nan
-        masks.append(m)
-    return mats, masks
 
 
 class Dense:
@@ -101,7 +84,7 @@ def _logit(p):
 def test_row_gradient_matches_finite_differences_of_the_dense_loss(rng, normalize, binary):
     """``loss_grad_rows`` (what weighted_bce calls: the logits of some Gaussians, the others fixed at their
     q) against central differences of Eq. 7 written densely, with the loss itself equal to it."""
-    mats, masks = _views(rng, binary=binary)
+    mats, masks = random_views(rng, n=30, density=0.3, binary=binary)
     prob = prepare(mats, masks)
     A = prob.matrix().astype(np.float64)  # float64 products: the comparison is not limited by float32
     prob = type(prob)(A=A, AT=A.T.tocsr(), y=prob.y, known=prob.known, offsets=prob.offsets,
@@ -133,7 +116,7 @@ def test_row_gradient_matches_finite_differences_of_the_dense_loss(rng, normaliz
 def test_the_fit_reaches_the_minimum_of_the_loss(rng, optimizer):
     """With fixed view weights Eq. 7 is convex in q on the box [0, 1]^N. Its minimum, found by scipy's
     bounded L-BFGS-B on the dense loss, is what weighted_bce's fit reaches, far below its start's loss."""
-    mats, masks = _views(rng, n=40)
+    mats, masks = random_views(rng, n=40, density=0.3)
     dense = Dense(mats, masks)
     omega = np.ones(len(mats))
     ev = dense.evidence
@@ -159,7 +142,7 @@ def test_view_weights_follow_the_running_residuals_and_weigh_the_fit(rng):
     """Each outer step: ``D <- m D + (1 - m) D(q)``, ``omega = Eq. 6(D)`` with the caller's ``r_min`` and
     ``lam``, and the next inner run minimises the loss under those weights (its reported loss is the dense
     weighted loss at its q)."""
-    mats, masks = _views(rng, n=40, views=5)
+    mats, masks = random_views(rng, n=40, views=5, density=0.3)
     dense = Dense(mats, masks)
     r_min, lam, m = 0.1, 0.8, 0.3
     prob = prepare(mats, masks)
@@ -226,7 +209,7 @@ def test_reweighting_recovers_the_object_despite_identity_switched_views():
 def test_the_start_is_the_documented_one(rng, start, init, expected):
     """The first logits L-BFGS-B receives: the clipped vote (observed Gaussians; the prior elsewhere), the
     clipped prior, or 0.5, on the Gaussians with evidence, computed densely."""
-    mats, masks = _views(rng, n=40)
+    mats, masks = random_views(rng, n=40, density=0.3)
     dense = Dense(mats, masks)
     support = np.zeros(40, bool)
     support[::3] = True
