@@ -138,7 +138,7 @@ def test_the_fit_reaches_the_minimum_of_the_loss(rng, optimizer):
 
 
 # -- the view weights (Eq. 6) and the running residuals --------------------------------------
-def test_view_weights_follow_the_running_residuals_and_weigh_the_fit(rng):
+def test_view_weights_follow_the_running_residuals_and_weigh_the_fit(rng, monkeypatch):
     """Each outer step: ``D <- m D + (1 - m) D(q)``, ``omega = Eq. 6(D)`` with the caller's ``r_min`` and
     ``lam``, and the next inner run minimises the loss under those weights (its reported loss is the dense
     weighted loss at its q)."""
@@ -154,12 +154,8 @@ def test_view_weights_follow_the_running_residuals_and_weigh_the_fit(rng):
         runs.append(res.x.copy())
         return res
 
-    mp = pytest.MonkeyPatch()
-    mp.setattr(wb, "minimize", spy)
-    try:
-        r = weighted_bce(prob, r_min=r_min, lam=lam, momentum=m, inner_iters=4, max_iter=12, weight_tol=0.0)
-    finally:
-        mp.undo()
+    monkeypatch.setattr(wb, "minimize", spy)
+    r = weighted_bce(prob, r_min=r_min, lam=lam, momentum=m, inner_iters=4, max_iter=12, weight_tol=0.0)
     rows = np.flatnonzero(dense.evidence)
     assert len(r.history) == len(runs) >= 2
     start = np.clip(dense.vote(np.zeros(dense.A.shape[1])), 0.1, 0.9)
@@ -206,7 +202,7 @@ def test_reweighting_recovers_the_object_despite_identity_switched_views():
 @pytest.mark.parametrize("start, init, expected", [
     ("auto", None, "vote"), ("vote", "support", "vote"), ("auto", "support", "prior"),
     ("prior", "support", "prior"), ("half", None, "half"), ("half", "support", "prior")])
-def test_the_start_is_the_documented_one(rng, start, init, expected):
+def test_the_start_is_the_documented_one(rng, monkeypatch, start, init, expected):
     """The first logits L-BFGS-B receives: the clipped vote (observed Gaussians; the prior elsewhere), the
     clipped prior, or 0.5, on the Gaussians with evidence, computed densely."""
     mats, masks = random_views(rng, n=40, density=0.3)
@@ -222,19 +218,15 @@ def test_the_start_is_the_documented_one(rng, start, init, expected):
         seen.append(np.array(x0))
         return real(fun, x0, **kw)
 
-    mp = pytest.MonkeyPatch()
-    mp.setattr(wb, "minimize", spy)
-    try:
-        weighted_bce(prepare(mats, masks, init=support if init else None), start=start, max_iter=1)
-    finally:
-        mp.undo()
+    monkeypatch.setattr(wb, "minimize", spy)
+    weighted_bce(prepare(mats, masks, init=support if init else None), start=start, max_iter=1)
     want = _logit(np.clip(q0, 0.1, 0.9))[dense.evidence]
     np.testing.assert_allclose(seen[0], want, rtol=1e-5, atol=1e-6)
 
 
 # -- the stability rule ----------------------------------------------------------------------
 @pytest.mark.parametrize("stable_iters, stable_tol", [(3, 0.0), (2, 0.02)])
-def test_the_stability_rule_stops_exactly_when_the_selection_held_still(stable_iters, stable_tol):
+def test_the_stability_rule_stops_exactly_when_the_selection_held_still(monkeypatch, stable_iters, stable_tol):
     """Replaying the selection ``x > 0`` after every iteration: the inner run ends at the first iteration
     that ends ``stable_iters`` iterations in a row each flipping at most ``stable_tol`` of the optimised
     Gaussians, not before, and ``selection_settled`` says whether the whole run flipped so few."""
@@ -255,13 +247,9 @@ def test_the_stability_rule_stops_exactly_when_the_selection_held_still(stable_i
         runs.append((xs, "callback" in str(res.message)))  # scipy's message when the callback stopped it
         return res
 
-    mp = pytest.MonkeyPatch()
-    mp.setattr(wb, "minimize", spy)
-    try:
-        r = weighted_bce(prepare(stack.subset(train), [masks[i] for i in train], init=support), start="prior",
-                         stable_iters=stable_iters, stable_tol=stable_tol, max_iter=60, inner_iters=30)
-    finally:
-        mp.undo()
+    monkeypatch.setattr(wb, "minimize", spy)
+    r = weighted_bce(prepare(stack.subset(train), [masks[i] for i in train], init=support), start="prior",
+                     stable_iters=stable_iters, stable_tol=stable_tol, max_iter=60, inner_iters=30)
     fired_any = False
     for (xs, stopped), h in zip(runs, r.history):
         n_flip = int(stable_tol * xs[0].size)
