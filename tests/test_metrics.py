@@ -88,3 +88,15 @@ def test_membership_scores_hand_counted():
         membership_scores(sel, truth.astype(int))
     with pytest.raises(ValidationError, match="weights"):
         membership_scores(sel, truth, weights=-w)
+
+
+def test_boundary_iou_default_width_on_a_larger_image():
+    """On 100x80 the default boundary is d = round(0.02 x 128.1) = 3 pixels wide (on the small images above
+    any ratio gives 1): the score equals the reference written from the definition."""
+    from _mask_scores import biou_reference
+
+    yy, xx = np.mgrid[0:80, 0:100]
+    a = (xx - 45) ** 2 + (yy - 40) ** 2 < 25 ** 2
+    b = (np.abs(xx - 52) < 22) & (np.abs(yy - 38) < 20)
+    assert boundary_iou(a, b) == pytest.approx(biou_reference(a, b), abs=1e-12)
+    assert boundary_iou(a, b) != pytest.approx(boundary_iou(a, b, dilation_ratio=0.01), abs=1e-3)
