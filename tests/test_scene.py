@@ -224,3 +224,27 @@ def test_copy_module_works_on_frozen_scenes(rng):
     assert d is not s and not np.shares_memory(d.means, s.means)
     np.testing.assert_array_equal(d.sh, s.sh)
     np.testing.assert_array_equal(d.extra["label"], s.extra["label"])
+
+
+def test_sh_basis_is_the_real_spherical_harmonics_of_scipy():
+    """Every degree up to 3, in the 3DGS order ``l*l + l + m``: the real SH built from scipy's complex
+    ``Y_l^|m|`` (Condon-Shortley phase included): ``Y`` for m = 0, ``sqrt(2) Re Y`` for m > 0 and
+    ``sqrt(2) Im Y`` for m < 0. The orthonormality above cannot see a sign or an order within a band; this
+    can, for numpy's basis and the rasterizer kernel's alike."""
+    from scipy.special import sph_harm_y
+
+    from seed2gs_inverse.raster._kernels import _sh_basis
+
+    rng = np.random.default_rng(5)
+    d = unit(rng, 64)
+    theta, phi = np.arccos(np.clip(d[:, 2], -1, 1)), np.arctan2(d[:, 1], d[:, 0])
+    want = np.empty((len(d), 16))
+    for l in range(4):
+        for m in range(-l, l + 1):
+            Y = sph_harm_y(l, abs(m), theta, phi)
+            want[:, l * l + l + m] = Y.real if m == 0 else np.sqrt(2) * (Y.real if m > 0 else Y.imag)
+    np.testing.assert_allclose(sh_basis(d, 3), want, atol=1e-12)
+    out = np.empty(16)
+    for i in range(len(d)):
+        _sh_basis(d[i, 0], d[i, 1], d[i, 2], 16, out)
+        np.testing.assert_allclose(out, want[i], atol=1e-6)
