@@ -66,7 +66,13 @@ def test_no_chunk_colour_and_sh_and_opacity_extremes(tmp_path):
 
 
 @pytest.mark.parametrize("degree, colors", [(0, True), (1, False), (3, True)])
-def test_independent_encoder_within_quantisation(tmp_path, rng, degree, colors):
+@pytest.mark.parametrize("block", [None, 256])
+def test_independent_encoder_within_quantisation(tmp_path, rng, monkeypatch, degree, colors, block):
+    """``block``: decode one chunk at a time (3 blocks), as a large file is decoded block by block."""
+    from seed2gs_inverse.io import compressed_ply
+
+    if block is not None:
+        monkeypatch.setattr(compressed_ply, "_BLOCK", block)
     n = 600  # three chunks, the last one partial
     scene = random_scene(rng, n=n, degree=degree)
     path = tmp_path / "e.compressed.ply"

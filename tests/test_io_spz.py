@@ -69,7 +69,13 @@ def test_known_bytes_v2_rotation(tmp_path):
 
 @pytest.mark.parametrize("version", [2, 3, 4])
 @pytest.mark.parametrize("degree", [0, 1, 3])
-def test_independent_encoder_within_quantisation(tmp_path, rng, version, degree):
+@pytest.mark.parametrize("block", [None, 16])
+def test_independent_encoder_within_quantisation(tmp_path, rng, monkeypatch, version, degree, block):
+    """``block``: decode 16 Gaussians at a time (4 blocks), as a large file is decoded block by block."""
+    from seed2gs_inverse.io import spz
+
+    if block is not None:
+        monkeypatch.setattr(spz, "_BLOCK", block)
     scene = random_scene(rng, n=60, degree=degree)
     path = tmp_path / "e.spz"
     path.write_bytes(encode_spz(scene, version=version))
