@@ -450,3 +450,33 @@ def test_colmap_binary_absurd_size(tmp_path):
     with pytest.raises(ValidationError, match=r"cameras\.bin \(record 0\): camera 1 \(PINHOLE\): "
                                               r"width must be at most 32768"):
         read_cameras(tmp_path)
+
+
+@pytest.mark.parametrize("form", ["text", "binary"])
+def test_colmap_models_by_their_parameter_layout(tmp_path, form):
+    """Each pinhole-like COLMAP model's parameters (COLMAP's camera_models.h): SIMPLE_PINHOLE (id 0)
+    ``f, cx, cy``; PINHOLE (1) ``fx, fy, cx, cy``; SIMPLE_RADIAL (2) ``f, cx, cy, k``; RADIAL (3)
+    ``f, cx, cy, k1, k2``; OPENCV (4) ``fx, fy, cx, cy, k1, k2, p1, p2``; every distortion 0 here."""
+    models = [(0, "SIMPLE_PINHOLE", [60.0, 33.0, 21.0], (60.0, 60.0, 33.0, 21.0)),
+              (1, "PINHOLE", [61.0, 66.0, 34.0, 22.0], (61.0, 66.0, 34.0, 22.0)),
+              (2, "SIMPLE_RADIAL", [62.0, 35.0, 23.0, 0.0], (62.0, 62.0, 35.0, 23.0)),
+              (3, "RADIAL", [55.0, 30.0, 22.0, 0.0, 0.0], (55.0, 55.0, 30.0, 22.0)),
+              (4, "OPENCV", [50.0, 57.0, 31.0, 23.0, 0.0, 0.0, 0.0, 0.0], (50.0, 57.0, 31.0, 23.0))]
+    if form == "text":
+        (tmp_path / "cameras.txt").write_text("".join(f"{k + 1} {name} 64 48 {' '.join(map(str, p))}\n"
+                                                      for k, name, p, _ in models))
+        (tmp_path / "images.txt").write_text("".join(f"{k + 1} 1 0 0 0 0 0 0 {k + 1} im{k}.png\n\n"
+                                                     for k, *_ in models))
+    else:
+        cams = struct.pack("<Q", len(models))
+        imgs = struct.pack("<Q", len(models))
+        for k, _, p, _ in models:
+            cams += struct.pack(f"<iiQQ{len(p)}d", k + 1, k, 64, 48, *p)
+            imgs += struct.pack("<i7di", k + 1, 1, 0, 0, 0, 0, 0, 0, k + 1) + f"im{k}.png".encode() + b"\0"
+            imgs += struct.pack("<Q", 0)
+        (tmp_path / "cameras.bin").write_bytes(cams)
+        (tmp_path / "images.bin").write_bytes(imgs)
+    got = {c.name: c for c in read_cameras(tmp_path)}
+    for k, name, _, want in models:
+        c = got[f"im{k}.png"]
+        assert (c.fx, c.fy, c.cx, c.cy) == want, name
