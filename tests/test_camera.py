@@ -33,6 +33,15 @@ def test_fov_and_intrinsics():
     half = cam.scaled(0.5)
     assert (half.width, half.height) == (100, 50)
     assert np.isclose(half.fx, 25.0) and np.isclose(half.cx, 50.0)
+    # known values with unequal focal lengths, an odd size, and unequal scale factors
+    assert Camera(200, 100, 50.0, 80.0, 100.0, 50.0).fov_x == pytest.approx(2 * np.arctan(2.0))
+    assert Camera(200, 100, 50.0, 80.0, 100.0, 50.0).fov_y == pytest.approx(2 * np.arctan(100 / 160))
+    odd = Camera.from_fov(201, 101, 60.0)
+    assert (odd.cx, odd.cy) == (100.5, 50.5)
+    c = Camera(1000, 3, 400.0, 300.0, 480.0, 1.2)
+    s = c.scaled(0.5)  # 500 x 2 (1.5 rounds to 2): sx = 0.5, sy = 2/3
+    assert (s.width, s.height) == (500, 2)
+    np.testing.assert_allclose([s.fx, s.fy, s.cx, s.cy], [200.0, 200.0, 240.0, 0.8])
 
 
 def test_pixel_centre_convention():
