@@ -147,3 +147,34 @@ def test_estimate_up_removes_the_camera_pitch():
     # No flat Gaussians: fall back to the camera's image-up.
     iso = dataclasses.replace(syn.scene, log_scales=np.full_like(syn.scene.log_scales, -3.0))
     np.testing.assert_allclose(estimate_up(iso, cam), cam.up)
+
+
+def test_spiral_about_an_explicit_up_with_fitted_intrinsics():
+    """What extract() asks for: an axis ``g`` that is not the reference's image-up, and ``fit_radius``.
+    About ``g`` each view's signed azimuth is 360 k / n and its elevation the reference's plus the pitch,
+    at the reference's distance; it looks at the centre upright (image-up along ``g``, no roll); its focal
+    length puts the tangent rays of the sphere of radius r on the edges of the smaller image side,
+    f tan(asin(r / d)) = min(W, H) / 2."""
+    ref, o = _reference()
+    g = np.array([0.1, -1.0, -0.25])
+    g /= np.linalg.norm(g)
+    assert abs(ref.up @ g) < 0.99
+    n, amp, r = 8, 28.0, 0.6
+    cams = spiral_orbit(ref, o, amp, n, fit_radius=r, up=g)
+    d0 = ref.center - o
+    dist = np.linalg.norm(d0)
+    e1 = d0 - (d0 @ g) * g
+    e1 /= np.linalg.norm(e1)
+    e0 = _elev(ref, o, g)
+    f = 0.5 * min(ref.width, ref.height) / np.tan(np.arcsin(r / dist))
+    assert cams[0] is ref
+    for k, cam in enumerate(cams[1:], start=1):
+        d = cam.center - o
+        hor = d - (d @ g) * g
+        ang = np.degrees(np.arctan2(np.cross(e1, hor) @ g, e1 @ hor)) % 360
+        assert ang == pytest.approx(360 * k / n, abs=1e-6)
+        assert _elev(cam, o, g) == pytest.approx(e0 + amp * k / (n - 1), abs=1e-6)
+        assert np.linalg.norm(d) == pytest.approx(dist, rel=1e-9)
+        assert cam.up @ g > 0 and cam.right @ g == pytest.approx(0, abs=1e-9)
+        np.testing.assert_allclose(cam.project(o[None])[0][0], [cam.cx, cam.cy], atol=1e-6)
+        np.testing.assert_allclose([cam.fx, cam.fy, cam.cx, cam.cy], [f, f, ref.width / 2, ref.height / 2])
