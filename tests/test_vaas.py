@@ -99,6 +99,11 @@ def test_support_visibility_depth_test():
     depth = np.full(cam.image_shape, 5.0)  # a wall at the depth of the first two points
     vis = support_visibility(pts, np.full(4, 0.01), cam, depth)
     assert vis == pytest.approx(0.5)  # 3rd is behind the wall, 4th is out of the image
+    # the tolerance 0.02 z + 2 sigma: 0.15 behind the wall at 5 is hidden for a point (0.10 < 0.15) and
+    # visible for a Gaussian of sigma 0.1 (0.1 + 0.2 >= 0.15)
+    behind = np.array([[0, 0, 0.15]])
+    assert support_visibility(behind, np.zeros(1), cam, depth) == 0.0
+    assert support_visibility(behind, np.full(1, 0.1), cam, depth) == 1.0
 
 
 def test_skip_rule_and_visibility_mean():
