@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from seed2gs_inverse.camera import Camera
 from seed2gs_inverse.errors import ValidationError
 from seed2gs_inverse.frontend.prompts import PointPrompt
 from seed2gs_inverse.synthetic.ground import make_ground_scene
@@ -57,9 +58,11 @@ def test_negative_click_on_the_skirt_keeps_it_out(table_view):
                                          & skirt_px).sum()
 
 
-def test_depth_normals_of_a_plane_match_its_normal():
+@pytest.mark.parametrize("fy_over_fx", [1.0, 1.6])
+def test_depth_normals_of_a_plane_match_its_normal(fy_over_fx):
     g = make_ground_scene(2, objects=("box",), clutter=(), uneven=0.0)
     cam = g.camera(g.ground_point, 0, 40, 3.0, 120, 90)
+    cam = Camera(cam.width, cam.height, cam.fx, cam.fx * fy_over_fx, cam.cx, cam.cy, cam.world_to_camera)
     # Analytic depth of the ground plane n.(X - p) = 0 along each pixel ray.
     xs = (np.arange(120) + 0.5 - cam.cx) / cam.fx
     ys = (np.arange(90) + 0.5 - cam.cy) / cam.fy

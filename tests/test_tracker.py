@@ -48,6 +48,33 @@ def test_warp_plane_translation_shifts_by_disparity():
     assert np.isnan(part[~ask]).all()
 
 
+@pytest.mark.parametrize("axis", [0, 1])
+def test_warp_with_non_square_pixels_shifts_by_each_axis_focal_length(axis):
+    """fx = 20, fy = 32: a camera moved by t along x (y) shifts a fronto-parallel plane at depth Z by
+    fx t / Z (fy t / Z) pixels along that axis only."""
+    z, t = 4.0, 0.5
+    src_cam = Camera(40, 30, 20.0, 32.0, 20.0, 15.0)
+    pose = np.eye(4)
+    pose[axis, 3] = -t
+    dst = _plane_frame(src_cam.with_pose(pose), z)
+    src = _plane_frame(src_cam, z)
+    lab = np.zeros((30, 40))
+    if axis == 0:
+        lab[:, 10:20] = 1.0
+    else:
+        lab[8:16, :] = 1.0
+    out = warp_labels(dst, src, lab)
+    shift = (20.0 if axis == 0 else 32.0) * t / z  # 2.5 or 4 px
+    n = 40 if axis == 0 else 30
+    s = np.floor(np.arange(n) + 0.5 + shift).astype(int)
+    lo, hi = (10, 20) if axis == 0 else (8, 16)
+    expect = np.where(s < n, ((s >= lo) & (s < hi)).astype(float), np.nan)
+    np.testing.assert_array_equal(out[0] if axis == 0 else out[:, 0], expect)
+    # nothing moves along the other axis
+    other = out[:, 25] if axis == 0 else out[5, :]  # source column 28 (outside the band), source row 9 (in it)
+    assert np.all(other[~np.isnan(other)] == (0.0 if axis == 0 else 1.0))
+
+
 def test_warp_z_test_marks_occluded_points_unknown():
     cam = Camera(20, 10, 10.0, 10.0, 10.0, 5.0)
     src = _plane_frame(cam, 2.0)  # something in front in the source
