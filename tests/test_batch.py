@@ -531,3 +531,23 @@ def test_the_embedded_workers_ignore_ctrl_c(dask_client):
     dask_client.wait_for_workers(2, timeout=60)
     ignored = dask_client.run(lambda: signal.getsignal(signal.SIGINT) is signal.SIG_IGN)
     assert len(ignored) == 2 and all(ignored.values())
+
+
+def test_camera_specs_split_as_read_camera_splits_them(tmp_path, monkeypatch):
+    """A job's camera file (what resume stamps, what a relative path resolves against) is found by
+    read_camera's rule: the longest existing prefix before a colon, so names may hold colons."""
+    from seed2gs_inverse.io.cameras import split_camera_spec
+
+    (tmp_path / "c.json").write_text("[]")
+    (tmp_path / "sparse").mkdir()
+    assert split_camera_spec(f"{tmp_path}/c.json:frame:1") == (f"{tmp_path}/c.json", "frame:1")
+    assert split_camera_spec(f"{tmp_path}/sparse:img.png") == (f"{tmp_path}/sparse", "img.png")
+    assert split_camera_spec(f"{tmp_path}/none.json:a") == (f"{tmp_path}/none.json", "a")
+    assert split_camera_spec(f"{tmp_path}/c.json") == (f"{tmp_path}/c.json", None)
+    elsewhere = tmp_path / "run"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)  # relative paths are the jobs file's, not the working directory's
+    (tmp_path / "jobs.toml").write_text('[[jobs]]\nname="x"\nscene="s.ply"\ncamera="c.json:frame:1"\nbox=[0,0,4,4]')
+    (job,) = read_jobs(tmp_path / "jobs.toml")
+    assert job.camera == f"{tmp_path / 'c.json'}:frame:1"
+    assert job.input_files()["camera"] == str(tmp_path / "c.json")

@@ -274,10 +274,10 @@ def _stamp(path: str):
 
 
 def _camera_file(spec: str) -> str:
-    """The file of a camera spec ``FILE[:NAME|INDEX]``."""
-    if os.path.exists(spec) or ":" not in spec:
-        return spec
-    return spec.rsplit(":", 1)[0]
+    """The file of a camera spec ``FILE[:NAME|INDEX]`` (the rule of ``read_camera``)."""
+    from ..io.cameras import split_camera_spec
+
+    return split_camera_spec(spec)[0]
 
 
 def _jsonable(value):
@@ -337,11 +337,11 @@ def _resolve(base: Path, value: str) -> str:
 
 
 def _resolve_camera(base: Path, value: str) -> str:
-    """Absolute camera spec; the ``:NAME`` selector stays as given."""
-    if os.path.exists(_resolve(base, value)) or ":" not in value:
-        return _resolve(base, value)
-    path, selector = value.rsplit(":", 1)
-    return f"{_resolve(base, path)}:{selector}"
+    """Absolute camera spec; the ``:NAME`` selector stays as given (split as ``read_camera`` splits it)."""
+    from ..io.cameras import split_camera_spec
+
+    path, selector = split_camera_spec(value, lambda s: os.path.exists(_resolve(base, s)))
+    return _resolve(base, path) if selector is None else f"{_resolve(base, path)}:{selector}"
 
 
 def _prompt_from_table(t: Mapping, where: str, base: Path):

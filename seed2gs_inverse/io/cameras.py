@@ -185,6 +185,23 @@ def _read_cameras(p: Path) -> list:
     return [_read_json_entry(p, i, entry) for i, entry in enumerate(doc)]
 
 
+def split_camera_spec(spec, exists=os.path.exists) -> tuple:
+    """``(FILE, NAME or INDEX or None)`` of a camera spec ``FILE[:NAME|INDEX]``, as :func:`read_camera` reads it.
+
+    A spec that exists is a file (or COLMAP directory) alone. Otherwise the
+    file is the longest prefix before a colon that exists, so names may hold
+    colons (``"cams.json:frame:1"``); with none, the last colon (a read then
+    names that missing file). ``exists`` lets a caller resolve relative
+    paths its own way.
+    """
+    spec = os.fspath(spec)
+    if exists(spec) or ":" not in spec:
+        return spec, None
+    cuts = [i for i, ch in enumerate(spec) if ch == ":"]
+    cut = next((i for i in reversed(cuts) if exists(spec[:i])), cuts[-1])
+    return spec[:cut], spec[cut + 1:]
+
+
 def read_camera(spec) -> Camera:
     """One camera from ``"FILE"``, ``"FILE:NAME"`` or ``"FILE:INDEX"``.
 
@@ -194,14 +211,7 @@ def read_camera(spec) -> Camera:
     the end). Without a selector the file must hold exactly one camera.
     Example: ``read_camera("cams.json:overview")``.
     """
-    spec = os.fspath(spec)
-    path, selector = spec, None
-    if not os.path.exists(spec) and ":" in spec:
-        # The file is the longest existing prefix before a colon, so names may hold colons
-        # ("cams.json:frame:1"); with none, the last colon (the error then names that file).
-        cuts = [i for i, ch in enumerate(spec) if ch == ":"]
-        cut = next((i for i in reversed(cuts) if os.path.isfile(spec[:i])), cuts[-1])
-        path, selector = spec[:cut], spec[cut + 1:]
+    path, selector = split_camera_spec(spec)
     cams = read_cameras(path)
     names = ", ".join(c.name or str(i) for i, c in enumerate(cams[:10]))
     names += ", ..." if len(cams) > 10 else ""
