@@ -16,7 +16,7 @@ from scipy.sparse.linalg import LinearOperator
 
 from ..errors import ValidationError
 from . import _passes, store
-from .view import ViewOperator, _Transposed, check_weights, view_label
+from .view import ViewOperator, _Transposed, view_label
 
 __all__ = ["OperatorStack", "as_stack"]
 
@@ -235,15 +235,18 @@ def _pair_view(i: int, item) -> ViewOperator:
     if len(shape) != 2 or W.ndim != 2 or W.shape[0] != shape[0] * shape[1]:
         raise ValidationError(f"view {i}: W has shape {W.shape}, which does not match "
                               f"image shape {shape} (rows must be H*W)")
-    return ViewOperator(_csr32(W, i), None, shape)
+    return _view(i, W, shape)
 
 
-def _csr32(W, i: int):
-    """View ``i``'s weights as CSR float32 (no copy when they already are), checked to lie in [0, 1]."""
+def _view(i: int, W, shape) -> ViewOperator:
+    """View ``i`` of matrix ``W`` (as CSR float32, no copy when it already is): the view checks it (weights
+    in [0, 1], rows), and its messages name the view's index."""
     if not (sp.issparse(W) and W.format == "csr" and W.dtype == np.float32):
         W = sp.csr_matrix(W, dtype=np.float32)
-    check_weights(W.data, f"view {i}")  # here, where the message can name the view's index
-    return W
+    try:
+        return ViewOperator(W, None, shape)
+    except ValidationError as exc:  # "view: ..." -> "view 3: ..."
+        raise ValidationError(f"view {i}: {str(exc).split(': ', 1)[-1]}") from None
 
 
 def as_stack(operators, masks=None) -> OperatorStack:
@@ -304,7 +307,7 @@ def as_stack(operators, masks=None) -> OperatorStack:
                 if shape[0] * shape[1] != v.shape[0]:
                     raise ValidationError(f"view {i}: mask has {ma.size} pixels (shape {ma.shape}) but the "
                                           f"operator has {v.shape[0]} rows")
-            views.append(ViewOperator(_csr32(v, i), None, shape))
+            views.append(_view(i, v, shape))
         elif isinstance(v, (tuple, list)) and len(v) == 2:
             views.append(_pair_view(i, v))
         else:

@@ -24,7 +24,7 @@ from scipy.sparse.linalg import LinearOperator
 from ..camera import Camera
 from ..errors import ValidationError
 
-__all__ = ["Rendering", "ViewOperator", "view_label", "check_weights"]
+__all__ = ["Rendering", "ViewOperator", "view_label"]
 
 # The per-view rendering arrays kept next to W (what the view looked like).
 RENDER_FIELDS = ("rgb", "alpha", "depth", "n_contrib")
@@ -72,7 +72,7 @@ def view_label(camera, index=None) -> str:
     return f"view {index}" + (f" ('{name}')" if name else "")
 
 
-def check_weights(data, label: str) -> None:
+def _check_weights(data, label: str) -> None:
     """Raise a ValidationError unless the weights ``data`` are finite and lie in [0, 1].
 
     Compositing weights ``alpha_i(u) T_i(u)`` always do; anything else (a
@@ -143,7 +143,7 @@ class ViewOperator(LinearOperator):
         if W.shape[0] != shape[0] * shape[1]:
             raise ValidationError(f"{label}: W has {W.shape[0]} rows but the image {shape} has "
                                   f"{shape[0] * shape[1]} pixels")
-        check_weights(W.data, label)
+        _check_weights(W.data, label)
         if rendering is not None and not isinstance(rendering, Rendering):
             raise ValidationError(f"{label}: rendering must be a Rendering or None, got {type(rendering).__name__}")
         super().__init__(np.float32, W.shape)
