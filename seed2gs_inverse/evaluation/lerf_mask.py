@@ -124,24 +124,23 @@ def read_gt_mask(path, threshold: int = 128) -> np.ndarray:
 
     128 is how the LERF-Mask evaluator reads its masks.
     """
-    from PIL import Image, UnidentifiedImageError
-
-    try:
-        with Image.open(path) as im:
-            return np.asarray(im.convert("L")) > threshold
-    except FileNotFoundError:
-        raise FileNotFoundError(2, "No such file", os.fspath(path)) from None
-    except (UnidentifiedImageError, OSError) as exc:
-        raise FormatError(f"{path}: not a readable mask image ({exc})") from None
+    return _read_mask_image(path, lambda im: np.asarray(im.convert("L")) > threshold)
 
 
 def _image_shape(path) -> tuple:
-    """(H, W) of an image file from its header; FormatError naming the file when it is no image."""
+    """(H, W) of a mask image from its header."""
+    return _read_mask_image(path, lambda im: (im.height, im.width))
+
+
+def _read_mask_image(path, read):
+    """``read(image)`` of the image file ``path`` (PIL); FormatError naming the file when it is no image."""
     from PIL import Image, UnidentifiedImageError
 
     try:
         with Image.open(path) as im:
-            return im.height, im.width
+            return read(im)
+    except FileNotFoundError:
+        raise FileNotFoundError(2, "No such file", os.fspath(path)) from None
     except (UnidentifiedImageError, OSError) as exc:
         raise FormatError(f"{path}: not a readable mask image ({exc})") from None
 
