@@ -60,7 +60,9 @@ def _subset_indices(subset, n: int) -> np.ndarray:
         raise ValidationError("subset must be a boolean mask (N,) or integer indices")
     if s.size and (s.min() < 0 or s.max() >= n):
         raise ValidationError(f"subset indices must lie in [0, {n}), got [{s.min()}, {s.max()}]")
-    return np.unique(s.astype(np.int64))
+    s = s.astype(np.int64)
+    # region_subset's indices are ascending already: skip the sort of np.unique
+    return s if np.all(s[1:] > s[:-1]) else np.unique(s)
 
 
 def region_subset(scene: GaussianScene, center, radius: float) -> np.ndarray:
@@ -125,31 +127,61 @@ def gaussian_graph(scene: GaussianScene, k: int = 10, *, subset=None, sigma_colo
     if kk < 1:
         return sp.csr_matrix((n, n), dtype=np.float64)
     x = scene.means[idx].astype(np.float64)
-    dist, nb = cKDTree(x).query(x, k=kk + 1, workers=n_threads())  # independent queries: any thread count
+    # Sliding-midpoint splits (balanced_tree=False) build and query faster than median splits on
+    # splat means (benchmarks/bench_graph.py) and find the same neighbours.
+    tree = cKDTree(x, balanced_tree=False)
+    dist, nb = tree.query(x, k=kk + 1, workers=n_threads())  # independent queries: any thread count
     dist, nb = dist[:, 1:], nb[:, 1:]  # drop self
     # Self-tuning scale: distance to the k-th neighbour (floored so that
     # coincident means do not divide by zero).
     rho = np.maximum(dist[:, -1], 1e-12 + 1e-6 * float(np.median(dist[:, -1])))
-    rows = np.repeat(np.arange(m), kk)
-    cols = nb.ravel()
-    d = dist.ravel()
-    logw = -(d ** 2) / (rho[rows] * rho[cols])
+    # log w_ij for each node i (row) and its neighbours nb[i] (columns), built in place in one
+    # (m, kk) buffer with one scratch buffer: with millions of edges every temporary is tens of MB
+    # of fresh pages, which cost more than the arithmetic (benchmarks/bench_graph.py).
+    logw = np.square(dist, out=dist)
+    logw /= rho[:, None]
+    scratch = np.take(rho, nb)
+    logw /= scratch
+    np.negative(logw, out=logw)
+
+    def pair_sum(a, op):
+        """``sum_ch op(a[i, ch], a[nb[i, j], ch])`` (m, kk), channel by channel on 1D gathers."""
+        total = None
+        for ch in range(a.shape[1]):
+            col = np.ascontiguousarray(a[:, ch])
+            op(col[:, None], np.take(col, nb, out=scratch), out=scratch)
+            total = scratch.copy() if total is None else np.add(total, scratch, out=total)
+        return total
+
     if sigma_color is not None:
         rgb = np.clip(0.5 + SH_C0 * scene.sh[idx, 0, :].astype(np.float64), 0.0, 1.0)
-        logw -= np.sum((rgb[rows] - rgb[cols]) ** 2, axis=1) / (2.0 * float(sigma_color) ** 2)
+        dc = pair_sum(rgb, lambda a, b, out: np.square(np.subtract(a, b, out=out), out=out))
+        dc /= 2.0 * float(sigma_color) ** 2
+        logw -= dc
     if sigma_normal is not None:
         s = np.sort(scene.scales[idx].astype(np.float64), axis=1)
         flat = np.clip(1.0 - s[:, 0] / np.maximum(s[:, 1], 1e-30), 0.0, 1.0)
         rot = quat_to_rotmat(scene.quats[idx])
         axis = np.argmin(scene.log_scales[idx], axis=1)
         normal = rot[np.arange(m), :, axis]  # column of the smallest scale
-        cos = np.abs(np.sum(normal[rows] * normal[cols], axis=1))
-        logw -= (1.0 - cos) / float(sigma_normal) * flat[rows] * flat[cols]
-    w = np.exp(logw)
-    g = sp.csr_matrix((w, (idx[rows], idx[cols])), shape=(n, n))
+        dn = pair_sum(normal, np.multiply)
+        np.abs(dn, out=dn)  # |n_i . n_j|
+        np.subtract(1.0, dn, out=dn)
+        dn /= float(sigma_normal)
+        dn *= flat[:, None]
+        dn *= np.take(flat, nb, out=scratch)
+        logw -= dn
+    w = np.exp(logw, out=logw)
+    # One row per node of the subset (CSR built directly); an edge to itself (a coincident mean
+    # listed before the node) is left out.
+    keep = nb != np.arange(m)[:, None]
+    indptr = np.zeros(n + 1, np.int64)
+    indptr[idx + 1] = np.count_nonzero(keep, axis=1)
+    np.cumsum(indptr, out=indptr)
+    g = sp.csr_matrix((w[keep], idx[nb[keep]], indptr), shape=(n, n))
     g = g.maximum(g.T).tocsr()
-    g.setdiag(0.0)
-    g.eliminate_zeros()
+    g.sort_indices()  # canonical, as callers may expect
+    g.eliminate_zeros()  # weights that underflowed to 0
     return g
 
 

@@ -166,3 +166,27 @@ def test_harmonic_extension_on_a_path_is_linear():
     fixed = np.array([True, False, False, False, True])
     q = harmonic_extension(sp.csr_matrix(w), fixed, np.array([1.0, 0, 0, 0, 0.0]))
     np.testing.assert_allclose(q, [1, 0.75, 0.5, 0.25, 0], atol=1e-7)
+
+
+def test_graph_coincident_means_and_subset_forms():
+    # Trained scenes hold splats with identical means: the k-d tree may list a twin before the
+    # node itself, and the node must then not be joined to itself.
+    sc = _scene(50, seed=3)
+    means = sc.means.copy()
+    means[10:20] = means[0:10]  # ten pairs of twins
+    sc = GaussianScene(means, sc.quats, sc.log_scales, sc.opacity_logits, sc.sh)
+    g = gaussian_graph(sc, 4)
+    assert g.has_canonical_format
+    assert np.all(g.diagonal() == 0)
+    check_graph(g, 50)
+    for i in range(10):  # each twin is a neighbour of the other at distance 0: weight from colour and normal only
+        assert g[i, i + 10] > 0
+    # the same subset as a boolean mask, as ascending indices and as shuffled indices with repeats
+    mask = np.zeros(50, bool)
+    mask[::2] = True
+    ref = gaussian_graph(sc, 4, subset=mask)
+    ids = np.flatnonzero(mask)
+    shuffled = np.random.default_rng(0).permutation(np.r_[ids, ids[:5]])
+    for sub in (ids, shuffled):
+        other = gaussian_graph(sc, 4, subset=sub)
+        assert (abs(other - ref)).nnz == 0
