@@ -186,7 +186,11 @@ def gaussian_graph(scene: GaussianScene, k: int = 10, *, subset=None, sigma_colo
 
 
 def check_graph(graph, n: int | None = None, name: str = "graph") -> sp.csr_matrix:
-    """Validate a weight matrix: square, (N, N) when ``n`` is given, symmetric, finite, >= 0."""
+    """Validate a weight matrix: square, (N, N) when ``n`` is given, symmetric, finite, >= 0.
+
+    Returns it as CSR float64 without stored zeros (a stored 0 is no edge: it
+    must not join two components); ``graph`` itself is not modified.
+    """
     if not sp.issparse(graph):
         raise ValidationError(f"{name} must be a scipy.sparse matrix (see gaussian_graph), "
                               f"got {type(graph).__name__}")
@@ -201,6 +205,9 @@ def check_graph(graph, n: int | None = None, name: str = "graph") -> sp.csr_matr
     asym = abs(g - g.T)
     if asym.nnz and asym.max() > 1e-9 * max(float(abs(g).max()), 1e-300):
         raise ValidationError(f"{name} must be symmetric (w_ij = w_ji); symmetrise it with g.maximum(g.T)")
+    if g.nnz and not np.all(g.data):
+        g = g.copy()  # (csr_matrix may share the caller's arrays)
+        g.eliminate_zeros()
     return g
 
 
@@ -210,7 +217,11 @@ def graph_laplacian(graph) -> sp.csr_matrix:
     Symmetric positive semi-definite for a symmetric non-negative ``G``:
     :math:`q^T L q = \tfrac12 \sum_{ij} w_{ij} (q_i - q_j)^2 \ge 0`.
     """
-    g = check_graph(graph)
+    return laplacian_of_checked(check_graph(graph))
+
+
+def laplacian_of_checked(g: sp.csr_matrix) -> sp.csr_matrix:
+    """:func:`graph_laplacian` of a graph :func:`check_graph` returned (not checked again)."""
     g = g - sp.diags(g.diagonal())  # self-loops do not change q^T L q
     deg = np.asarray(g.sum(axis=1)).ravel()
     return (sp.diags(deg) - g).tocsr()

@@ -190,3 +190,46 @@ def test_graph_coincident_means_and_subset_forms():
     for sub in (ids, shuffled):
         other = gaussian_graph(sc, 4, subset=sub)
         assert (abs(other - ref)).nnz == 0
+
+
+def test_stored_zero_weights_are_no_edges():
+    """A stored 0 must not join two components: the evidence-free pair {2, 3} keeps its prior node by
+    node, as it does once the zero is eliminated; the caller's matrix keeps its entries."""
+    r, c, w = [0, 1, 2, 3, 1, 2], [1, 0, 3, 2, 2, 1], [1.0, 1.0, 1.0, 1.0, 0.0, 0.0]
+    g = sp.csr_matrix((w, (r, c)), shape=(4, 4))
+    prior = np.array([0.0, 0.0, 0.2, 0.8])
+    for solver in ("direct", "cg"):
+        q = laplacian_smooth(np.array([1.0, 1.0, 0.0, 0.0]), np.array([1.0, 1.0, 0.0, 0.0]), g, 1.0,
+                             prior=prior, solver=solver)
+        np.testing.assert_allclose(q[2:], [0.2, 0.8])
+    h = harmonic_extension(g, np.array([True, True, False, False]), np.array([1.0, 1.0, 0.0, 0.0]), prior=prior)
+    np.testing.assert_allclose(h, [1.0, 1.0, 0.2, 0.8])
+    assert g.nnz == 6 and check_graph(g).nnz == 4
+
+
+def test_solve_checks_the_graph_before_the_method_runs(monkeypatch):
+    """A graph solve() cannot use is refused before any fitting (it used to be checked after the method)."""
+    from _solver_scenes import random_views
+
+    import seed2gs_inverse.solvers as solvers
+    from seed2gs_inverse.solvers import solve
+
+    mats, masks = random_views(np.random.default_rng(0))
+    n = mats[0].shape[1]
+    calls = []
+    real = solvers.get_method("voting")
+
+    def spy(problem, *, bias=0.0):
+        calls.append(1)
+        return real(problem, bias=bias)
+
+    monkeypatch.setitem(solvers._common._METHODS, "voting", spy)
+    bad = {"size": sp.identity(n + 1, format="csr"), "dense": np.zeros((n, n)),
+           "asymmetric": sp.csr_matrix(([1.0], ([0], [1])), shape=(n, n))}
+    for what, g in bad.items():
+        with pytest.raises(ValidationError, match="graph"):
+            solve(mats, masks, method="voting", smoothness=1.0, graph=g)
+    assert not calls
+    good = sp.csr_matrix(([1.0, 1.0], ([0, 1], [1, 0])), shape=(n, n))
+    solve(mats, masks, method="voting", smoothness=1.0, graph=good)
+    assert calls == [1]

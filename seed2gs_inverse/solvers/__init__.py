@@ -36,7 +36,8 @@ from ._common import (MethodResult, Problem, SolveResult, as_real, available_met
                       get_check, get_method, method_options, prepare, register_method)
 from . import beta_bernoulli, least_squares, voting, weighted_bce  # noqa: F401  (importing registers them)
 from ._progress import SolveProgress, reporting
-from .smoothing import harmonic_extension, laplacian_smooth
+from ..graph import check_graph
+from .smoothing import harmonic_extension, laplacian_smooth, smooth_checked
 
 __all__ = ["solve", "available_methods", "register_method", "get_method", "method_options", "SolveResult",
            "MethodResult", "Problem", "prepare", "SolveProgress", "COUNT_LIMITS", "check_method_options",
@@ -117,12 +118,15 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
     Raises
     ------
     ValidationError
-        Bad operators, masks, init, min_evidence or options (messages name
-        the view).
+        Bad operators, masks, init, min_evidence, options, or a ``graph``
+        that does not fit (messages name the view or argument), all before
+        the method runs.
     """
     fn = _check_request(operators, method, min_evidence, progress, options, smoothness, graph)
     t0 = time.perf_counter()
     problem = prepare(operators, masks, init)
+    if smoothness > 0:  # before the method runs: a wrong graph must not cost a whole fit
+        graph = check_graph(graph, problem.n_gaussians)
     # Solvers call BLAS on vectors of length N every iteration; a multi-threaded
     # OpenBLAS beside Numba's threads spends more on thread start-up than on
     # the work (measured: 51 ms vs 0.5 ms per L-BFGS-B iteration at N = 40k
@@ -152,8 +156,8 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
         with _one_blas_thread():
             # evidence only where the method fitted q (not where it left the prior: views beyond a
             # budget, weighted_bce's pixels below alpha_min)
-            q = laplacian_smooth(q, np.where(weak | unobserved, 0.0, problem.known_weight), graph, smoothness,
-                                 prior=problem.prior).astype(np.float32)
+            q = smooth_checked(q.astype(np.float64), np.where(weak | unobserved, 0.0, problem.known_weight),
+                               graph, float(smoothness), problem.prior).astype(np.float32)
     else:
         q[weak] = problem.prior[weak].astype(np.float32)
     t_smooth = time.perf_counter() - t_smooth

@@ -47,7 +47,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..errors import ValidationError
-from ..graph import check_graph, graph_laplacian
+from ..graph import check_graph, laplacian_of_checked
 
 __all__ = ["laplacian_smooth", "harmonic_extension"]
 
@@ -55,6 +55,9 @@ __all__ = ["laplacian_smooth", "harmonic_extension"]
 #: (SuperLU), larger ones use Jacobi-preconditioned conjugate gradients (the
 #: factor of a 3D kNN graph grows faster than the graph).
 DIRECT_MAX = 250_000
+
+#: The default ridge :math:`\epsilon` of :func:`laplacian_smooth`.
+RIDGE = 1e-6
 
 
 def _vector(name, v, n, lo=None, hi=None) -> np.ndarray:
@@ -96,7 +99,7 @@ def _spd_solve(A: sp.spmatrix, b: np.ndarray, x0: np.ndarray, method: str, rtol:
 
 
 def laplacian_smooth(q_hat, evidence, graph, smoothness: float = 1.0, prior=None, *,
-                     ridge: float = 1e-6, solver: str = "cg", rtol: float = 1e-5) -> np.ndarray:
+                     ridge: float = RIDGE, solver: str = "cg", rtol: float = 1e-5) -> np.ndarray:
     r"""Graph-regularised membership :math:`q^\star` (see the module docstring).
 
     Parameters
@@ -145,11 +148,18 @@ def laplacian_smooth(q_hat, evidence, graph, smoothness: float = 1.0, prior=None
     eps = float(ridge)
     if not (np.isfinite(eps) and eps > 0):
         raise ValidationError(f"ridge must be positive, got {ridge!r}")
+    return smooth_checked(q_hat, e, g, lam, p, eps, solver, rtol)
+
+
+def smooth_checked(q_hat, e, g, lam, p, eps=RIDGE, solver="cg", rtol=1e-5) -> np.ndarray:
+    """:func:`laplacian_smooth` on arguments already validated (float64 vectors, ``g`` from
+    :func:`~seed2gs_inverse.graph.check_graph`); for :func:`~seed2gs_inverse.solvers.solve`,
+    which checks the graph before the method runs."""
     # Closed form for every node first (exact for isolated nodes and for lam = 0).
     out = (e * q_hat + eps * p) / (e + eps)
     if lam == 0 or g.nnz == 0:
         return np.clip(out, 0.0, 1.0)
-    L = graph_laplacian(g)
+    L = laplacian_of_checked(g)
     # Nodes with at least one edge, in a graph component that holds evidence: the others keep the
     # closed form above (the prior where there is no evidence), not the ridge's smoothed prior.
     coupled = _reached(g, L.diagonal() > 0, e > 0)
@@ -213,7 +223,7 @@ def harmonic_extension(graph, fixed, values, prior=None, *, ridge: float = 1e-9,
     eps = float(ridge)
     if not (np.isfinite(eps) and eps > 0):
         raise ValidationError(f"ridge must be positive, got {ridge!r}")
-    L = graph_laplacian(g)
+    L = laplacian_of_checked(g)
     reached = np.zeros(n, bool)
     reached[_reached(g, L.diagonal() > 0, fixed)] = True
     return _harmonic(L, fixed, v, p, np.flatnonzero(~fixed & reached), eps, solver, rtol)
