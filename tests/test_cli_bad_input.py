@@ -134,7 +134,7 @@ BAD = [
     (["solve", "{d}/ops", "{d}/masks", "--option", "ftol=-1", "-o", "{d}/q.npy"],
      "ftol must be a finite number >= 0"),
     (["solve", "{d}/ops", "{d}/masks", "--method", "least_squares", "--option", "tol=1e400", "-o", "{d}/q.npy"],
-     "option tol must be a finite number, got inf"),
+     "tol must be a positive finite number, got inf"),
     (EXTRACT + ["--frobnicate", "-o", "{d}/o"], "unrecognized arguments: --frobnicate"),
     (["extract", "{d}/scene.ply", "--camera", "{d}/cameras.json", "-o", "{d}/o"], "give a prompt"),
     (["extract", "{d}/scene.ply", "--mask", "{d}/mask.png", "-o", "{d}/o"], "--camera FILE[:NAME|INDEX]"),
