@@ -874,3 +874,24 @@ def test_option_values_are_checked_before_any_work(rng, method, bad):
 
     with pytest.raises(ValidationError, match=name):
         get_method(method)(prepare(mats, masks), **bad)
+
+
+def test_problem_refuses_weights_summing_above_one_and_ambiguous_inputs(rng):
+    """Row sums above 1 are not compositing weights (weighted_bce's literal p = A q and least_squares'
+    b = alpha Y rely on alpha <= 1); a single (H, W) mask and a scalar init are refused, not reinterpreted."""
+    mats, masks = _random_problem(rng, views=3)
+    bad = mats[1].tolil()
+    bad[7, :] = 0.0
+    bad[7, :3] = 0.9  # pixel 7 of view 1 sums to 2.7
+    mats = [mats[0], bad.tocsr(), mats[2]]
+    for method in ("weighted_bce", "least_squares"):
+        with pytest.raises(ValidationError, match=r"view 1: the weights of pixel 7 sum to 2\.7"):
+            solve(mats, masks, method=method)
+    solve(mats, masks, method="voting")  # the vote reads no alpha
+    ok, masks = _random_problem(rng, views=1)
+    with pytest.raises(ValidationError, match=r"give a list with one mask per view \(\[mask\]"):
+        solve(ok, masks[0], method="voting")
+    with pytest.raises(ValidationError, match="single value 1"):
+        solve(ok, masks, method="voting", init=1)
+    r = solve(ok, masks, method="voting", init=[1])  # one index in a list is a support set
+    assert r.q.shape == (ok[0].shape[1],)

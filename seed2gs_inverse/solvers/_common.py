@@ -26,6 +26,10 @@ __all__ = ["Problem", "SolveResult", "MethodResult", "prepare", "normalize_mask"
 _METHODS: dict = {}
 _CHECKS: dict = {}
 
+#: How far above 1 a pixel's summed weight may lie (float32 sums of many weights) before
+#: :attr:`Problem.alpha` refuses the operator.
+ALPHA_TOL = 1e-3
+
 
 def register_method(name: str, fn, check=None) -> None:
     """Make ``fn`` available as ``solve(..., method=name)``.
@@ -278,12 +282,26 @@ class Problem:
 
     @property
     def alpha(self) -> np.ndarray:
-        """(P,) float32 rendered opacity ``A 1`` (row sums), computed once."""
+        """(P,) float32 rendered opacity ``A 1`` (row sums), computed once.
+
+        Raises a ValidationError naming the view when a row sums to more
+        than 1 (beyond float32 rounding, :data:`ALPHA_TOL`): compositing
+        weights cannot, and the methods that read alpha (``weighted_bce``,
+        ``least_squares``) rely on ``A q <= alpha <= 1``.
+        """
         if self._alpha is None:
             if hasattr(self.A, "row_sums"):
-                self._alpha = self.A.row_sums()
+                alpha = self.A.row_sums()
             else:
-                self._alpha = np.asarray(self.A.sum(axis=1), dtype=np.float32).ravel()
+                alpha = np.asarray(self.A.sum(axis=1), dtype=np.float32).ravel()
+            if alpha.size and alpha.max() > 1.0 + ALPHA_TOL:
+                u = int(np.argmax(alpha))
+                c = int(np.searchsorted(self.offsets, u, side="right")) - 1
+                raise ValidationError(
+                    f"{_label(c, self.names[c])}: the weights of pixel {u - int(self.offsets[c])} sum to "
+                    f"{float(alpha[u]):.6g} > 1; alpha-compositing weights of a pixel sum to its opacity, at "
+                    "most 1 (build the operator with the rasterizer, or scale its rows)")
+            self._alpha = alpha
         return self._alpha
 
     def matrix(self):
@@ -360,6 +378,9 @@ def prior_from_init(init, n: int) -> np.ndarray:
     if init is None:
         return np.zeros(n)
     a = np.asarray(init)
+    if a.ndim == 0:  # init=1 would be read as "Gaussian 1", not "everything foreground"
+        raise ValidationError(f"init must be an array (a support mask, indices or a prior q of shape ({n},)), "
+                              f"got the single value {init!r}; for one Gaussian's index give [{init!r}]")
     if a.dtype == bool or a.dtype.kind in "ui":
         from .._selection import support_mask
 
@@ -389,6 +410,9 @@ def prepare(operators, masks, init=None) -> Problem:
     """
     from ..operators import as_stack  # the operator core: numpy/scipy only
 
+    if isinstance(masks, np.ndarray) and masks.ndim == 2:
+        raise ValidationError(f"masks: got one {masks.shape} array; give a list with one mask per view "
+                              "([mask] for a single view) or a (V, H, W) array")
     try:  # a list once: a generator would be used up by as_stack (the image shapes of bare matrices)
         mask_list = list(masks) if not isinstance(masks, np.ndarray) or masks.ndim >= 2 else None
     except TypeError:

@@ -13,6 +13,13 @@ views ``S``
 ``order="given"`` uses the views in the order given (all of them, or the
 first ``budget``); the result does not depend on the order.
 
+Gaussians without evidence in the views used are reported unobserved, and
+:func:`~seed2gs_inverse.solvers.solve` gives them the ``init`` prior (0 by
+default), not the Beta prior's mean ``a0 / (a0 + b0)``, which a Gaussian
+with a trace of weight gets. With ``solve(..., smoothness=)`` the
+regulariser's evidence ``e_i`` is the known weight over every view, also
+those beyond the budget.
+
 ``order="eig"`` picks views greedily by expected information gain under a
 view ``budget``. With ``H(a, b)`` the differential entropy of ``Beta(a, b)``,
 

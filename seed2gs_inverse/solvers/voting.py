@@ -22,8 +22,10 @@ rule equals ``q > tau(bias)`` with
     tau(bias) = (1 + bias / sqrt(2 - bias^2)) / 2,
 
 which the result carries as its default threshold, so
-``result.selected()`` applies FlashSplat's rule exactly (``bias = 0`` gives
-``tau = 0.5``, a plain majority of weight).
+``result.selected()`` applies FlashSplat's rule (``bias = 0`` gives
+``tau = 0.5``, a plain majority of weight), up to the rounding of ``q`` to
+float32 in :func:`~seed2gs_inverse.solvers.solve`: a Gaussian whose vote
+lies within about 6e-8 of ``tau`` may fall on either side.
 """
 
 from __future__ import annotations
