@@ -124,3 +124,55 @@ def test_not_a_directory_or_empty(tmp_path):
         read_masks(tmp_path / "nope")
     with pytest.raises(FormatError, match="no masks named"):
         read_masks(tmp_path)
+
+
+def test_huge_view_numbers_cost_nothing(tmp_path):
+    """A gap report only looks below the number of files: one view_99999999 must not build a set of
+    a hundred million numbers (it used gigabytes, or got the process killed)."""
+    np.save(tmp_path / "view_000.npy", np.zeros((4, 6)))
+    np.save(tmp_path / "view_99999999999999999999.npy", np.zeros((4, 6)))
+    with pytest.raises(FormatError, match=r"view\(s\) 1 missing below view_99999999999999999999\.npy"):
+        read_masks(tmp_path)
+
+
+def test_npy_header_promising_more_than_the_file_holds(tmp_path):
+    """A 128-byte .npy claiming 10^11 float64 is refused from its header, before numpy allocates 745 GiB."""
+    header = "{'descr': '<f8', 'fortran_order': False, 'shape': (100000000000,), }"
+    header += " " * (118 - len(header)) + "\n"
+    (tmp_path / "view_000.npy").write_bytes(b"\x93NUMPY\x01\x00" + len(header).to_bytes(2, "little")
+                                            + header.encode())
+    with pytest.raises(FormatError, match=r"view_000\.npy: the header promises 800000000000 bytes of data but "
+                                          r"the file holds 0"):
+        read_masks(tmp_path)
+
+
+def test_decompression_bomb_is_a_format_error(tmp_path):
+    Image.new("1", (20000, 20000)).save(tmp_path / "view_000.png")  # 400 M pixels in a few KB
+    with pytest.raises(FormatError, match=r"view_000\.png: not a readable PNG \(.*decompression bomb"):
+        read_masks(tmp_path)
+
+
+def test_png_that_is_not_lossless_greyscale_content(tmp_path):
+    mask = np.zeros((4, 6), np.uint8)
+    mask[1:3, 2:5] = 255
+    Image.fromarray(mask).save(tmp_path / "view_000.png", format="JPEG")
+    with pytest.raises(FormatError, match=r"view_000\.png: a JPEG image under a \.png name"):
+        read_masks(tmp_path)
+    cutout = np.zeros((4, 6, 4), np.uint8)
+    cutout[..., 3] = mask  # the object in the alpha channel, black colour everywhere
+    Image.fromarray(cutout, "RGBA").save(tmp_path / "view_000.png")
+    with pytest.raises(FormatError, match="transparent in places"):
+        read_masks(tmp_path)
+    opaque = np.dstack([mask] * 3 + [np.full((4, 6), 255, np.uint8)])  # an opaque RGBA mask reads as its grey
+    Image.fromarray(opaque, "RGBA").save(tmp_path / "view_000.png")
+    np.testing.assert_array_equal(read_masks(tmp_path)[0], mask)
+
+
+@pytest.mark.parametrize("kw, what", [({"n_views": "2"}, "n_views"), ({"n_views": 0}, "n_views"),
+                                      ({"image_shapes": [("a", 2)]}, "image_shapes"),
+                                      ({"image_shapes": [None]}, "image_shapes"),
+                                      ({"image_shapes": [(4, 6, 1)]}, "image_shapes")])
+def test_bad_arguments_are_named(tmp_path, kw, what):
+    np.save(tmp_path / "view_000.npy", np.zeros((4, 6)))
+    with pytest.raises(ValidationError, match=f"read_masks: {what} must be"):
+        read_masks(tmp_path, **kw)

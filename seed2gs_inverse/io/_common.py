@@ -24,12 +24,42 @@ __all__: list[str] = []
 OPACITY_LOGIT_LIMIT = 40.0
 
 
+def npy_header(path, where: str) -> tuple:
+    """``(shape, dtype)`` from a ``.npy`` header, checked against the file size before any allocation.
+
+    Errors are FormatErrors starting with ``where``: an unreadable or
+    unsupported header, a dtype holding Python objects, or a header that
+    promises more data than the file holds (a 128-byte file must not ask
+    for 745 GiB).
+    """
+    fmt = np.lib.format
+    try:
+        with open(path, "rb") as fh:
+            version = fmt.read_magic(fh)
+            read = {(1, 0): fmt.read_array_header_1_0, (2, 0): fmt.read_array_header_2_0}.get(version)
+            if read is None:
+                raise ValueError(f"unsupported .npy version {version}")
+            shape, _, dtype = read(fh, max_header_size=10_000)
+            offset = fh.tell()
+    except (ValueError, OSError, EOFError, SyntaxError) as exc:
+        raise FormatError(f"{where}: not a readable .npy array ({exc})") from None
+    if dtype.hasobject:
+        raise FormatError(f"{where}: holds Python objects, which are never loaded; save a numeric or boolean array")
+    need = int(np.prod(shape, dtype=object)) * dtype.itemsize
+    have = os.stat(path).st_size - offset
+    if need > have:
+        raise FormatError(f"{where}: the header promises {need} bytes of data but the file holds {have}; the file "
+                          "is truncated or corrupt")
+    return shape, dtype
+
+
 def load_npy(path, label: str | None = None) -> np.ndarray:
     """A numeric array from a ``.npy`` file; never unpickles (numpy's own message would suggest it).
 
     Errors are FormatErrors that start with ``label`` (default: the path):
     a file that is not ``.npy`` at all (no magic bytes: numpy would call a
-    text file "pickled data"), an unreadable one, or one holding objects.
+    text file "pickled data"), an unreadable one, one holding objects, or
+    one whose header promises more data than it holds (:func:`npy_header`).
     """
     where = os.fspath(path) if label is None else label
     try:
@@ -39,15 +69,13 @@ def load_npy(path, label: str | None = None) -> np.ndarray:
         raise FormatError(f"{where}: cannot read it ({exc.strerror or exc})") from None
     if magic != b"\x93NUMPY":
         raise FormatError(f"{where}: not a .npy file (write the array with numpy.save)")
+    npy_header(path, where)
     try:
         arr = np.load(path, allow_pickle=False)
-    except ValueError as exc:
-        if "allow_pickle" in str(exc):
-            raise FormatError(f"{where}: holds Python objects, which are never loaded; save a numeric or "
-                              f"boolean array") from None
+    except (ValueError, OSError, EOFError) as exc:
         raise FormatError(f"{where}: not a readable .npy array ({exc})") from None
-    except (OSError, EOFError) as exc:
-        raise FormatError(f"{where}: not a readable .npy array ({exc})") from None
+    if not isinstance(arr, np.ndarray):  # pragma: no cover - the magic bytes rule out .npz archives
+        raise FormatError(f"{where}: not a .npy array")
     return arr
 
 

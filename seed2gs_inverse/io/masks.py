@@ -46,14 +46,16 @@ def _mask_files(d: Path, n_views: int | None = None) -> list[Path]:
                               f"{n_views} operator views (view_000 .. view_{n_views - 1:03d}); remove or "
                               f"renumber {'it' if len(extra) == 1 else 'them'}")
     if sorted(found) != list(range(len(found))):
-        missing = sorted(set(range(max(found) + 1)) - set(found))
+        # (below len(found), never up to the largest number: one view_99999999 must not cost gigabytes)
+        missing = [k for k in range(len(found)) if k not in found]
         raise FormatError(f"{d}: mask files must be numbered from view_000 without gaps; view(s) "
                           f"{', '.join(map(str, missing[:5]))}{', ...' if len(missing) > 5 else ''} missing "
                           f"below {found[max(found)].name}")
     return [found[k] for k in range(len(found))]
 
 
-def _read_one(f: Path) -> np.ndarray:
+def _read_one(f: Path, shape=None, k: int = 0) -> np.ndarray:
+    """Mask file ``f`` of view ``k``; ``shape`` (H, W), when known, is checked before a PNG is decoded."""
     if f.suffix.lower() == ".npy":
         arr = load_npy(f)
         if arr.dtype.kind not in "buif":
@@ -63,9 +65,34 @@ def _read_one(f: Path) -> np.ndarray:
 
     try:
         with Image.open(f) as im:
+            if im.format != "PNG":
+                raise FormatError(f"{f}: a {im.format} image under a .png name; masks are lossless PNG "
+                                  "(a lossy format blurs 0/255 into other values)")
+            if shape is not None and im.size != (shape[1], shape[0]):
+                raise _wrong_shape(f, (im.size[1], im.size[0]), shape, k)
+            if im.mode in ("RGBA", "LA", "PA") or "transparency" in im.info:
+                # a cut-out keeps its mask in the alpha channel, which converting to grey drops
+                lo, hi = im.convert("RGBA").getchannel("A").getextrema()
+                if lo != 255:
+                    raise FormatError(f"{f}: the PNG is transparent in places (mode {im.mode}); a cut-out's alpha "
+                                      "is not read as a mask: save the mask as 8-bit greyscale (0 = background, "
+                                      "255 = object)")
             return np.asarray(im.convert("L"))
-    except (UnidentifiedImageError, OSError) as exc:
+    except (UnidentifiedImageError, OSError, Image.DecompressionBombError) as exc:
         raise FormatError(f"{f}: not a readable PNG ({exc})") from None
+
+
+def _wrong_shape(f: Path, got, shape, k: int) -> ValidationError:
+    return ValidationError(f"{f}: mask has shape {tuple(got)} but view {k} is {tuple(shape)} (H, W); masks must "
+                           "be at the operator's resolution")
+
+
+def _count(value, name: str) -> int | None:
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValidationError(f"read_masks: {name} must be a positive whole number or None, got {value!r}")
+    return int(value)
 
 
 def read_masks(directory, n_views: int | None = None, image_shapes=None) -> list[np.ndarray]:
@@ -95,30 +122,39 @@ def read_masks(directory, n_views: int | None = None, image_shapes=None) -> list
     FormatError
         Not a directory, no masks, gaps in the numbering, two files for one
         view (e.g. ``view_000.png`` and ``view_000.npy``), an unreadable file, a mask that is neither
-        (H, W) nor flat, or of an unsupported dtype. The message names the file.
+        (H, W) nor flat, or of an unsupported dtype, a ``.png`` that is not a
+        PNG, or a PNG that is transparent anywhere (a cut-out, whose mask
+        would be its alpha). The message names the file.
     ValidationError
-        Wrong number of masks, or a mask whose shape differs from its view's
-        image (naming the file and the expected shape).
+        Bad ``n_views`` / ``image_shapes``, wrong number of masks, or a mask
+        whose shape differs from its view's image (naming the file and the
+        expected shape; a PNG is checked before it is decoded).
     """
     d = Path(directory)
+    n_views = _count(n_views, "n_views")
+    if image_shapes is not None:
+        try:
+            image_shapes = [tuple(int(s) for s in shape) for shape in image_shapes]
+        except (TypeError, ValueError):
+            image_shapes = None
+        if image_shapes is None or any(len(s) != 2 or min(s) < 1 for s in image_shapes):
+            raise ValidationError("read_masks: image_shapes must be a sequence of (H, W) pairs of positive "
+                                  "whole numbers (e.g. OperatorStack.image_shapes)")
     files = _mask_files(d, n_views)
     if n_views is not None and len(files) != n_views:
         raise ValidationError(f"{d}: {len(files)} masks for {n_views} operator views; give one mask per view")
     if image_shapes is not None:
-        image_shapes = [tuple(int(s) for s in shape) for shape in image_shapes]
         if len(image_shapes) != len(files):
             raise ValidationError(f"{d}: {len(files)} masks for {len(image_shapes)} image shapes; "
                                   "give one mask per view")
     masks = []
     for k, f in enumerate(files):
-        arr = _read_one(f)
+        shape = None if image_shapes is None else image_shapes[k]
+        arr = _read_one(f, shape, k)
         if arr.ndim not in (1, 2) or arr.size == 0:
             raise FormatError(f"{f}: a mask must be an (H, W) image (or its flat (H*W,) pixels), "
                               f"got shape {arr.shape}")
-        if image_shapes is not None:
-            h, w = image_shapes[k]
-            if arr.shape not in ((h, w), (h * w,)):
-                raise ValidationError(f"{f}: mask has shape {arr.shape} but view {k} is {(h, w)} (H, W); "
-                                      "masks must be at the operator's resolution")
+        if shape is not None and arr.shape not in (shape, (shape[0] * shape[1],)):
+            raise _wrong_shape(f, arr.shape, shape, k)
         masks.append(arr)
     return masks

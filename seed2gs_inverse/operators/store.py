@@ -27,6 +27,7 @@ import scipy.sparse as sp
 from .._atomic import atomic_path, not_an_earlier_output
 from ..camera import Camera
 from ..errors import FormatError, ValidationError
+from ..io._common import npy_header
 from .view import RENDER_FIELDS, Rendering, ViewOperator
 
 __all__ = ["save", "load", "check_target", "scene_fingerprint", "FORMAT_NAME", "FORMAT_VERSION"]
@@ -237,29 +238,6 @@ def _is_int(v) -> bool:
     return isinstance(v, int) and not isinstance(v, bool)
 
 
-def _npy_header(path: Path, label: str, key: str):
-    """``(shape, dtype)`` from a .npy header, checked against the file size before any allocation."""
-    fmt = np.lib.format
-    try:
-        with open(path, "rb") as fh:
-            version = fmt.read_magic(fh)
-            read = {(1, 0): fmt.read_array_header_1_0, (2, 0): fmt.read_array_header_2_0}.get(version)
-            if read is None:
-                raise ValueError(f"unsupported .npy version {version}")
-            shape, _, dtype = read(fh, max_header_size=10_000)
-            offset = fh.tell()
-    except (ValueError, OSError, EOFError, SyntaxError) as exc:
-        raise FormatError(f"{path}: not a readable .npy array ({label}, '{key}'): {exc}") from None
-    if dtype.hasobject:
-        raise FormatError(f"{path}: holds Python objects ({label}, '{key}'); operator arrays are numeric")
-    need = int(np.prod(shape, dtype=object)) * dtype.itemsize
-    have = path.stat().st_size - offset
-    if need > have:
-        raise FormatError(f"{path}: the header promises {need} bytes of data but the file holds {have} "
-                          f"({label}, '{key}'); the file is truncated or corrupt")
-    return shape, dtype
-
-
 def _load_array(d: Path, mpath: Path, label: str, files: dict, key: str, mmap: bool):
     fname = files.get(key)
     if not isinstance(fname, str) or not fname or Path(fname).name != fname or fname in (".", ".."):
@@ -270,7 +248,7 @@ def _load_array(d: Path, mpath: Path, label: str, files: dict, key: str, mmap: b
     if path.is_symlink() and d.resolve() not in path.resolve().parents:
         raise FormatError(f"{path}: a link to {path.resolve()}, outside the operator directory ({label}, "
                           f"'{key}'); operator directories must hold their own files")
-    _npy_header(path, label, key)
+    npy_header(path, f"{path} ({label}, '{key}')")
     try:
         arr = np.load(path, allow_pickle=False, mmap_mode="r" if mmap else None)
     except (ValueError, OSError, EOFError) as exc:
