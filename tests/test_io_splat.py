@@ -91,6 +91,25 @@ def test_bad_files(tmp_path, content, match):
     assert "bad.splat" in str(err.value)
 
 
+def test_gzip_magic_in_a_coordinate_is_not_gzip(tmp_path):
+    """A .splat has no magic: x = 2.5085 starts with the gzip bytes 1f 8b and is still read (it was
+    refused as SPZ); a real gzip stream under a .splat name is refused."""
+    import gzip
+
+    x = struct.unpack("<f", b"\x1f\x8b\x20\x40")[0]
+    rec = struct.pack("<3f3f4B4B", x, 0, 0, 1, 1, 1, 9, 9, 9, 200, 255, 128, 128, 128)
+    path = tmp_path / "s.splat"
+    path.write_bytes(rec)
+    assert read_scene(path).means[0, 0] == np.float32(x)
+    x8 = struct.unpack("<f", b"\x1f\x8b\x08\x40")[0]  # also the deflate byte: still no gzip stream
+    path.write_bytes(struct.pack("<3f3f4B4B", x8, 0, 0, 1, 1, 1, 9, 9, 9, 200, 255, 128, 128, 128))
+    assert read_scene(path).means[0, 0] == np.float32(x8)
+    payload = gzip.compress(b"NGSP" + b"\0" * 60)
+    path.write_bytes(payload + b"\0" * (-len(payload) % 32))  # even a size that fits 32-byte records
+    with pytest.raises(FormatError, match="looks like a gzip"):
+        read_scene(path)
+
+
 def test_nonpositive_scale_is_nonfinite(tmp_path):
     rec = b"".join(struct.pack("<3f3f4B4B", i, 0, 0, s, 1, 1, 9, 9, 9, 200, 255, 128, 128, 128)
                    for i, s in enumerate((1.0, 0.0, -1.0)))

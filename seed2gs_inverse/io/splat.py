@@ -35,8 +35,26 @@ __all__ = ["read_splat", "write_splat", "check_splat", "SPLAT_DTYPE"]
 
 SPLAT_DTYPE = np.dtype([("position", "<f4", (3,)), ("scale", "<f4", (3,)),
                         ("rgba", "u1", (4,)), ("rotation", "u1", (4,))])
-_MAGICS = {b"ply\n": "a PLY file", b"ply\r": "a PLY file", b"NGSP": "an SPZ file",
-           b"\x1f\x8b": "a gzip (SPZ) file"}
+_MAGICS = {b"ply\n": "a PLY file", b"ply\r": "a PLY file", b"NGSP": "an SPZ file"}
+
+
+def _is_gzip(path) -> bool:
+    """Whether the file starts with a gzip stream that decompresses (SPZ v2/v3 under a .splat name).
+
+    The two magic bytes alone are no proof: they are also the low bytes of
+    about one x coordinate in 65,536, and a .splat file has no magic of its own.
+    """
+    import zlib
+
+    with open(path, "rb") as fh:
+        head = fh.read(1 << 16)
+    if not head.startswith(b"\x1f\x8b\x08"):  # gzip magic and deflate
+        return False
+    try:
+        zlib.decompressobj(31).decompress(head, 64)
+    except zlib.error:
+        return False
+    return True
 
 
 def check_splat(path) -> int:
@@ -50,10 +68,11 @@ def check_splat(path) -> int:
         raise fail(path, "file is empty")
     with open(path, "rb") as fh:
         head = fh.read(4)
-    for magic, what in _MAGICS.items():
-        if head.startswith(magic):
-            raise fail(path, f"this looks like {what}, not a .splat file; rename it "
-                             f"with the right extension")
+    what = next((w for magic, w in _MAGICS.items() if head.startswith(magic)), None)
+    if what is None and _is_gzip(path):
+        what = "a gzip (SPZ) file"
+    if what is not None:
+        raise fail(path, f"this looks like {what}, not a .splat file; rename it with the right extension")
     if size % SPLAT_DTYPE.itemsize:
         raise fail(path, f"file size {size} is not a multiple of {SPLAT_DTYPE.itemsize} bytes "
                          f"(truncated or not a .splat file)")
