@@ -480,3 +480,26 @@ def test_colmap_models_by_their_parameter_layout(tmp_path, form):
     for k, name, _, want in models:
         c = got[f"im{k}.png"]
         assert (c.fx, c.fy, c.cx, c.cy) == want, name
+
+
+def test_colmap_images_txt_without_points_lines_and_duplicate_cameras(tmp_path):
+    """An images.txt written without its POINTS2D lines lost every second image silently; a camera id
+    given twice silently kept the last definition."""
+    (tmp_path / "cameras.txt").write_text("1 PINHOLE 64 48 50 50 32 24\n")
+    (tmp_path / "images.txt").write_text("".join(f"{i} 1 0 0 0 0 0 {i} 1 img{i}.png\n" for i in range(1, 5)))
+    with pytest.raises(FormatError, match=r"images\.txt: line 2: expected the POINTS2D line .*'2 1 0 0 0 0 0 2 1 "):
+        read_cameras(tmp_path)
+    (tmp_path / "images.txt").write_text("1 1 0 0 0 0 0 1 1 a.png\n1 2\n")  # not (X, Y, ID) triples
+    with pytest.raises(FormatError, match="line 2: expected the POINTS2D line"):
+        read_cameras(tmp_path)
+    (tmp_path / "images.txt").write_text("1 1 0 0 0 0 0 1 1 a.png\n1.5 2.5 -1 3 4 7\n2 1 0 0 0 0 0 2 1 b.png\n")
+    assert [c.name for c in read_cameras(tmp_path)] == ["a.png", "b.png"]  # the last image may end the file
+    (tmp_path / "cameras.txt").write_text("1 PINHOLE 64 48 50 50 32 24\n1 PINHOLE 640 480 500 500 320 240\n")
+    with pytest.raises(FormatError, match=r"cameras\.txt: line 2: camera 1 is defined twice \(also line 1\)"):
+        read_cameras(tmp_path)
+    _write_colmap_binary(tmp_path / "bin")
+    cams = (tmp_path / "bin" / "cameras.bin").read_bytes()
+    twice = struct.pack("<Q", 3) + cams[8:] + cams[8:8 + struct.calcsize("<iiQQ4d")]
+    (tmp_path / "bin" / "cameras.bin").write_bytes(twice)
+    with pytest.raises(FormatError, match=r"cameras\.bin: record 2: camera 1 is defined twice \(also record 0\)"):
+        read_cameras(tmp_path / "bin")

@@ -475,8 +475,11 @@ def _colmap_cameras_txt(path) -> dict:
             raise fail(path, f"line {lineno}: model {model} takes {_COLMAP_NPARAMS[model]} "
                              f"parameters, found {len(words) - 4}")
         size = _floats(path, lineno, words[2:4])
-        out[int(words[0])] = (model, size[0], size[1], _floats(path, lineno, words[4:]),
-                              f"line {lineno}")
+        cam_id = int(words[0])
+        if cam_id in out:
+            raise fail(path, f"line {lineno}: camera {cam_id} is defined twice (also {out[cam_id][4]}); "
+                             "camera ids are unique")
+        out[cam_id] = (model, size[0], size[1], _floats(path, lineno, words[4:]), f"line {lineno}")
     return out
 
 
@@ -497,8 +500,27 @@ def _colmap_images_txt(path) -> list:
                              f"with whole-number ids, got {lines[i - 1].strip()[:60]!r}")
         vals = _floats(path, lineno, words[1:8])
         out.append((int(words[0]), vals[:4], vals[4:], int(words[8]), " ".join(words[9:])))
+        if i < len(lines):
+            _points2d_line(path, i + 1, lines[i])
         i += 1
     return out
+
+
+def _points2d_line(path, lineno: int, line: str) -> None:
+    """Check that the line after an image line is its POINTS2D list ``X Y POINT3D_ID ...`` (possibly empty).
+
+    Without the check, a file written without those lines lost every second image silently.
+    """
+    words = line.split()
+    ok = len(words) % 3 == 0
+    if ok:
+        try:
+            [float(w) for w in words]
+        except ValueError:
+            ok = False
+    if not ok:
+        raise fail(path, f"line {lineno}: expected the POINTS2D line of the image above ('X Y POINT3D_ID ...', "
+                         f"possibly empty), got {line.strip()[:60]!r}; each image line is followed by one")
 
 
 class _Reader:
@@ -552,6 +574,9 @@ def _colmap_cameras_bin(path) -> dict:
         if model_id not in _COLMAP_MODELS:
             raise fail(path, f"camera {cam_id} has unknown model id {model_id}")
         model, nparams = _COLMAP_MODELS[model_id]
+        if cam_id in out:
+            raise fail(path, f"record {record}: camera {cam_id} is defined twice (also {out[cam_id][4]}); "
+                             "camera ids are unique")
         out[cam_id] = (model, float(width), float(height), list(r.take(f"<{nparams}d")),
                        f"record {record}")
     r.done()
