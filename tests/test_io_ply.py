@@ -478,3 +478,27 @@ def test_guitar_as_splat_transform_writes_it(shared_data, tmp_path):
     assert len(got) == len(packed) == 90854
     np.testing.assert_array_equal(got.opacity_logits, packed.opacity_logits)
     np.testing.assert_array_equal(got.means, packed.means)
+
+
+def test_zero_padded_f_rest_names(tmp_path):
+    """f_rest_00 .. f_rest_08 are the f_rest_0 .. f_rest_8 of an exporter that pads; they used to reach the
+    reader's catch-all error. f_rest_1 next to f_rest_01 is ambiguous and refused."""
+    props = "x y z f_dc_0 f_dc_1 f_dc_2 opacity scale_0 scale_1 scale_2 rot_0 rot_1 rot_2 rot_3".split()
+    head = "ply\nformat binary_little_endian 1.0\nelement vertex 1\n"
+
+    def write(rest_names):
+        row = np.zeros(len(props) + len(rest_names), "<f4")
+        row[10] = 1.0
+        row[len(props):] = np.arange(len(rest_names)) + 0.5  # f_rest_k = k + 0.5, in file order
+        text = head + "".join(f"property float {q}\n" for q in props + rest_names) + "end_header\n"
+        (tmp_path / "a.ply").write_bytes(text.encode() + row.tobytes())
+
+    write([f"f_rest_{i:02d}" for i in range(9)])
+    sh = read_scene(tmp_path / "a.ply").sh
+    # f_rest_k is coefficient 1 + k % 3 of channel k // 3 (the 3DGS layout: channel-major)
+    np.testing.assert_array_equal(sh[0, 1:, :].T.ravel(), np.arange(9) + 0.5)
+    write([f"f_rest_{i}" for i in range(9)][::-1])  # any order of the properties in the file
+    np.testing.assert_array_equal(read_scene(tmp_path / "a.ply").sh[0, 1:, :].T.ravel(), 8.5 - np.arange(9))
+    write([f"f_rest_{i}" for i in range(8)] + ["f_rest_01"])
+    with pytest.raises(FormatError, match="9 f_rest_\\* properties"):
+        read_scene(tmp_path / "a.ply")

@@ -386,7 +386,9 @@ def read_standard_ply(path, header: PlyHeader, drop_nonfinite: bool = False) -> 
     if missing:
         raise fail(path, f"PLY 'vertex' element lacks the 3DGS properties {missing} "
                          f"(is this a point cloud rather than a Gaussian splat file?)")
-    rest_idx = sorted(int(m.group(1)) for m in map(_REST_RE.match, names) if m)
+    rest_found = [m for m in map(_REST_RE.match, names) if m]
+    rest_idx = sorted(int(m.group(1)) for m in rest_found)  # repeats kept (f_rest_1 and f_rest_01): refused below
+    rest_names = {int(m.group(1)): m.group(0) for m in rest_found}
     if rest_idx != list(range(len(rest_idx))) or len(rest_idx) not in (0, 9, 24, 45):
         raise fail(path, f"PLY file has {len(rest_idx)} f_rest_* properties "
                          f"(indices {rest_idx[:3]}...); a 3DGS file has 0, 9, 24 or 45 "
@@ -394,7 +396,7 @@ def read_standard_ply(path, header: PlyHeader, drop_nonfinite: bool = False) -> 
     vert = read_ply_elements(path, header, ["vertex"])["vertex"]
     n = vertex.count
     k = 1 + len(rest_idx) // 3
-    rest = [f"f_rest_{i}" for i in range(len(rest_idx))]
+    rest = [rest_names[i] for i in range(len(rest_idx))]  # as named in the file (f_rest_00 is f_rest_0)
     sh = np.empty((n, k, 3), np.float32)
     sh[:, 0, :] = columns(vert, ["f_dc_0", "f_dc_1", "f_dc_2"])
     if rest:
