@@ -361,3 +361,21 @@ def test_fuzz_mutator_is_deterministic_and_changes_data():
     assert a == _fuzz_mutate(data, np.random.default_rng(5))
     changed = sum(_fuzz_mutate(data, np.random.default_rng(s))[0] != data for s in range(50))
     assert changed >= 45
+
+
+def test_pipes_and_directories_are_refused_not_read(tmp_path):
+    """A FIFO named like a scene or camera file blocked the reader for ever; a directory gave a raw OS error."""
+    import os
+
+    from seed2gs_inverse.io import read_cameras
+
+    for name in ("s.ply", "s.splat", "s.spz"):
+        os.mkfifo(tmp_path / name)
+        with pytest.raises(FormatError, match=f"{name}: not a regular file"):
+            read_scene(tmp_path / name)
+    (tmp_path / "d.ply").mkdir()
+    with pytest.raises(FormatError, match=r"d\.ply: not a regular file"):
+        read_scene(tmp_path / "d.ply")
+    os.mkfifo(tmp_path / "c.json")
+    with pytest.raises(FormatError, match=r"c\.json: not a regular file"):
+        read_cameras(tmp_path / "c.json")

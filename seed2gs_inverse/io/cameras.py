@@ -167,6 +167,8 @@ def _read_cameras(p: Path) -> list:
     if p.suffix.lower() != ".json":
         raise fail(p, "unknown camera file (expected a .json file, a COLMAP cameras/images "
                       "file or a directory holding a COLMAP model)")
+    if p.exists() and not p.is_file():  # a pipe would block the read for ever
+        raise fail(p, "not a regular file (a pipe or device); give the camera file itself")
     with open(p, "rb") as fh:
         raw = fh.read()
     try:

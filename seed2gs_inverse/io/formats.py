@@ -39,6 +39,10 @@ _EXTENSIONS = ".ply, .compressed.ply, .splat, .spz"
 
 
 def _family(path) -> str:
+    """The format family by extension, for an existing regular file (FormatError for a directory, a FIFO
+    or a device, which reading would fail on or block on; a missing file is left to ``open``)."""
+    if os.path.exists(path) and not os.path.isfile(path):
+        raise fail(path, "not a regular file (a directory, pipe or device); give the scene file itself")
     name = Path(path).name.lower()
     for ext, fam in ((".ply", "ply"), (".splat", "splat"), (".spz", "spz")):
         if name.endswith(ext):
