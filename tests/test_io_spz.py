@@ -285,3 +285,16 @@ def test_real_spz_memory(shared_data):
                                  scene.opacity_logits, scene.sh))
     # output + decompressed streams + one block of temporaries
     assert peak < out + 2 * path.stat().st_size + 16 * 2 ** 20, (peak, out)
+
+
+def test_fractional_bits_beyond_the_fixed_point_width(tmp_path):
+    """Positions are 24-bit fixed point: 24 fractional bits still decode (x = 2^22 / 2^24 = 0.25), more
+    would round every position to 0 and are refused as a corrupt header."""
+    pos = bytes([0x00, 0x00, 0x40]) + bytes(6)  # x = 0x400000 = 2^22
+    rest = [bytes([128]), bytes([128, 128, 128]), bytes([160, 160, 160]), struct.pack("<I", (3 << 30))]
+    path = tmp_path / "f.spz"
+    path.write_bytes(_v3_file(1, [pos] + rest, frac=24))
+    assert read_scene(path).means[0, 0] == 0.25
+    path.write_bytes(_v3_file(1, [pos] + rest, frac=25))
+    with pytest.raises(FormatError, match=r"f\.spz: fractionalBits is 25"):
+        read_scene(path)

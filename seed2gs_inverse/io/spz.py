@@ -172,6 +172,9 @@ _BLOCK = 1 << 14  # Gaussians decoded at a time: bounds the float64 temporaries
 def _decode(path, buf: np.ndarray, n: int, sh_degree: int, frac: int, version: int,
             drop_nonfinite: bool) -> GaussianScene:
     """Decode the attribute arrays held in the uint8 buffer ``buf`` (see the module docstring)."""
+    if frac > 24:  # 24-bit fixed point: beyond 24 fractional bits every position would round to 0
+        raise fail(path, f"fractionalBits is {frac}; positions are 24-bit fixed point, so at most 24 make sense "
+                         "(writers use about 12): the header is corrupt")
     sizes = _sizes(n, sh_degree, version)
     starts = np.concatenate([[0], np.cumsum(sizes)])
     pos_b, alpha_b, color_b, scale_b, rot_b, sh_b = (buf[int(o):int(o) + s]
