@@ -503,3 +503,27 @@ def test_colmap_images_txt_without_points_lines_and_duplicate_cameras(tmp_path):
     (tmp_path / "bin" / "cameras.bin").write_bytes(twice)
     with pytest.raises(FormatError, match=r"cameras\.bin: record 2: camera 1 is defined twice \(also record 0\)"):
         read_cameras(tmp_path / "bin")
+
+
+def test_json_types_and_index_selectors_are_strict(tmp_path):
+    """Strings and booleans where numbers belong were converted silently (a width of "640" was refused, a
+    position of ["1", "2", "3"] was not); a null img_name made a camera named "None"; "1_0" selected
+    camera 10 and " 1 " camera 1."""
+    good = {"id": 0, "img_name": "a", "width": 64, "height": 48, "position": [0, 0, 0],
+            "rotation": np.eye(3).tolist(), "fx": 50, "fy": 50}
+    path = tmp_path / "c.json"
+    for key, value in (("position", ["1", "2", "3"]), ("rotation", [[True, False, False], [0, 1, 0], [0, 0, 1]])):
+        path.write_text(json.dumps([{**good, key: value}]))
+        with pytest.raises(FormatError, match=f"'{key}' must be a 3"):
+            read_cameras(path)
+    path.write_text(json.dumps([{**good, "img_name": None, "id": 7}]))
+    assert read_cameras(path)[0].name == "7"
+    path.write_text(json.dumps([{**good, "img_name": ["x"]}]))
+    with pytest.raises(FormatError, match="its name must be a string or a number"):
+        read_cameras(path)
+    path.write_text(json.dumps([{**good, "img_name": f"v{i}"} for i in range(12)]))
+    assert read_camera(f"{path}:10").name == "v10"
+    assert read_camera(f"{path}:-1").name == "v11"
+    for sel in ("1_0", " 1 ", "\uff11"):
+        with pytest.raises(ValidationError, match="has no camera named"):
+            read_camera(f"{path}:{sel}")

@@ -70,6 +70,14 @@ def _number(label, key, value) -> float:
 def _matrix(label, key, value, shapes) -> np.ndarray:
     """``value`` as a float64 array whose shape is one of ``shapes``, else FormatError."""
     want = " or ".join("x".join(map(str, sh)) for sh in shapes)
+
+    def numbers(v) -> bool:  # JSON numbers only: numpy would also take "1" and true
+        if isinstance(v, list):
+            return all(numbers(x) for x in v)
+        return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+    if not numbers(value):
+        raise FormatError(f"{label}: '{key}' must be a {want} array of numbers, got {str(value)[:60]}")
     try:
         arr = np.array(value, dtype=np.float64)
     except OverflowError:  # a JSON integer beyond float range
@@ -228,10 +236,10 @@ def read_camera(spec) -> Camera:
                               f"{', '.join(map(str, named[:10]))}); pick one by index, {path}:INDEX")
     if named:
         return cams[named[0]]
-    try:
-        index = int(selector)
-    except ValueError:
-        raise ValidationError(f"{path} has no camera named '{selector}' (names: {names})") from None
+    # an index is plain ASCII digits (int() would also read "1_0" as 10 and " 1 " or full-width digits)
+    if not re.fullmatch(r"-?[0-9]+", selector):
+        raise ValidationError(f"{path} has no camera named '{selector}' (names: {names})")
+    index = int(selector)
     if not -len(cams) <= index < len(cams):
         raise ValidationError(f"{path} holds {len(cams)} cameras; index {index} is out of range")
     return cams[index]
@@ -270,7 +278,11 @@ def write_cameras(path, cameras) -> None:
 def _read_json_entry(path, index, entry) -> Camera:
     if not isinstance(entry, dict):
         raise fail(path, f"camera {index} is a {type(entry).__name__}, not an object")
-    name = str(entry.get("img_name", entry.get("name", entry.get("id", index))))
+    # the first of img_name, name, id that is given (null counts as not given: no camera named "None")
+    name = next((entry[k] for k in ("img_name", "name", "id") if entry.get(k) is not None), index)
+    if isinstance(name, bool) or not isinstance(name, (str, int)):
+        raise fail(path, f"camera {index}: its name must be a string or a number, got {str(name)[:60]!r}")
+    name = str(name)
     label = _label(path, index, name)
     if "world_to_camera" in entry:
         try:
