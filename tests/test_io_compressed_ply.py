@@ -177,3 +177,20 @@ def test_real_compressed_ply_memory(shared_data):
                                  scene.opacity_logits, scene.sh))
     # the decoded scene is ~15x the packed file; beyond it only the records and one block
     assert peak < out + 2 * path.stat().st_size + 16 * 2 ** 20, (peak, out)
+
+
+def test_partial_colour_ranges_and_extra_vertex_properties(tmp_path):
+    """Five of the six chunk colour ranges decoded every colour without ranges, silently; vertex properties
+    the format does not have were dropped silently."""
+    chunk = [0] * 12 + [0, 0, 0, 1, 1, 1]
+    vert = (0, 3 << 30, 0, (255 << 24) | 255)
+    path = tmp_path / "c.compressed.ply"
+    _write(path, [chunk[:-1]], [vert], CHUNK + COLOR[:-1])
+    with pytest.raises(FormatError, match=r"lacks \['max_b'\]; all six or none"):
+        read_scene(path)
+    chunk_arr = np.array([tuple(chunk)], dtype=[(n, "<f4") for n in CHUNK + COLOR])
+    vertex = np.array([vert + (np.nan,)], dtype=[(n, "<u4") for n in PACKED] + [("foo", "<f4")])
+    plyfile.PlyData([plyfile.PlyElement.describe(chunk_arr, "chunk"),
+                     plyfile.PlyElement.describe(vertex, "vertex")]).write(str(path))
+    with pytest.warns(UserWarning, match=r"vertex properties \['foo'\] are not part of the format"):
+        assert len(read_scene(path)) == 1

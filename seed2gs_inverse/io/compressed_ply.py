@@ -26,6 +26,9 @@ those of the PlayCanvas engine (``gsplat-compressed-data.js``).
 
 from __future__ import annotations
 
+import os
+import warnings
+
 import numpy as np
 
 from ..scene import GaussianScene
@@ -76,7 +79,11 @@ def read_compressed_ply(path, header: PlyHeader, drop_nonfinite: bool = False) -
     if bad_types:
         raise fail(path, f"compressed PLY properties {bad_types} have the wrong type "
                          f"(packed_* must be uint, chunk ranges float)")
-    has_color = all(p in chunk_el.names for p in _CHUNK_COLOR)
+    color_props = [p for p in _CHUNK_COLOR if p in chunk_el.names]
+    has_color = len(color_props) == len(_CHUNK_COLOR)
+    if color_props and not has_color:  # decoding without the ranges would shift every colour silently
+        raise fail(path, f"compressed PLY chunk element has the colour ranges {color_props} but lacks "
+                         f"{[p for p in _CHUNK_COLOR if p not in chunk_el.names]}; all six or none")
     n = vertex_el.count
     n_chunks = -(-n // CHUNK_SIZE)
     if chunk_el.count != n_chunks:
@@ -92,6 +99,11 @@ def read_compressed_ply(path, header: PlyHeader, drop_nonfinite: bool = False) -
                              f"M = 9, 24 or 45; found {sh_el.names[:4]}... ({m} properties)")
         if sh_el.count != n:
             raise fail(path, f"compressed PLY has {sh_el.count} SH rows for {n} Gaussians")
+    extra = [p for p in vertex_el.names if p not in _PACKED]
+    if extra:  # the format holds no per-Gaussian extras: they are not decoded
+        warnings.warn(f"{os.fspath(path)}: compressed PLY vertex properties {extra[:5]}"
+                      f"{'...' if len(extra) > 5 else ''} are not part of the format and are ignored",
+                      stacklevel=3)
     wanted = ["chunk", "vertex"] + (["sh"] if sh_el is not None else [])
     data = read_ply_elements(path, header, wanted)
     # Corrupt chunk ranges may overflow float32; such Gaussians are reported
