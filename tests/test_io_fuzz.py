@@ -379,3 +379,33 @@ def test_pipes_and_directories_are_refused_not_read(tmp_path):
     os.mkfifo(tmp_path / "c.json")
     with pytest.raises(FormatError, match=r"c\.json: not a regular file"):
         read_cameras(tmp_path / "c.json")
+
+
+def test_trailing_data_is_named_in_a_warning_by_every_reader(tmp_path):
+    """Binary PLY already warned about bytes after its last element; SPZ (gzip and v4) and ASCII PLY
+    ignored trailing data silently."""
+    import warnings
+
+    from _io_encoders import encode_spz, random_scene
+
+    scene = random_scene(np.random.default_rng(0), n=5)
+    for version, what in ((3, "after the gzip stream"), (4, "after the last stream")):
+        path = tmp_path / f"t{version}.spz"
+        path.write_bytes(encode_spz(scene, version=version) + b"\0" * 7)
+        with pytest.warns(UserWarning, match=f"ignoring 7 bytes {what}"):
+            read_scene(path)
+        path.write_bytes(encode_spz(scene, version=version))
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            read_scene(path)
+    props = "x y z f_dc_0 f_dc_1 f_dc_2 opacity scale_0 scale_1 scale_2 rot_0 rot_1 rot_2 rot_3".split()
+    head = "ply\nformat ascii 1.0\nelement vertex 1\n" + "".join(f"property float {q}\n" for q in props)
+    row = "0 0 0 0 0 0 0 0 0 0 1 0 0 0\n"
+    path = tmp_path / "a.ply"
+    path.write_text(head + "end_header\n" + row + row)
+    with pytest.warns(UserWarning, match="ignoring the lines after the last PLY element"):
+        assert len(read_scene(path)) == 1
+    path.write_text(head + "end_header\n" + row + "\n\n")  # blank lines are padding, not data
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read_scene(path)

@@ -174,7 +174,15 @@ def gzip_into(path, data, out: np.ndarray, stop_when_full: bool = False) -> int:
     if not d.eof and not stop_when_full:
         raise fail(path, f"file is truncated: the gzip stream ends early "
                          f"after {got} decompressed bytes")
+    if not stop_when_full:
+        warn_trailing(path, len(d.unused_data) + len(src) - pos, "the gzip stream")
     return got
+
+
+def warn_trailing(path, nbytes: int, what: str) -> None:
+    """Warn that ``nbytes`` bytes after ``what`` are ignored (padding, or a sign of a damaged file)."""
+    if nbytes > 0:
+        warnings.warn(f"{os.fspath(path)}: ignoring {nbytes} bytes after {what}", stacklevel=4)
 
 
 def zstd_into(path, data, out: np.ndarray, what: str) -> None:

@@ -285,6 +285,10 @@ def _read_ascii(path, header, needed, wanted) -> dict:
                     raise fail(path, f"file is truncated: element '{el.name}' needs {el.count} "
                                      f"lines but the file holds only {el.count - left}")
                 left -= got
+        if needed and needed[-1] is header.elements[-1] and lines.take(1):
+            # as the binary reader does for bytes after the last element
+            warnings.warn(f"{os.fspath(path)}: ignoring the lines after the last PLY element (the header "
+                          f"promises {needed[-1].count} '{needed[-1].name}' rows)", stacklevel=4)
     return out
 
 

@@ -47,7 +47,7 @@ import numpy as np
 
 from ..scene import GaussianScene
 from ._common import (bounded_gzip, check_compression_ratio, fail, finish_scene, gzip_into,
-                      logit_from_unorm, zstd_into)
+                      logit_from_unorm, warn_trailing, zstd_into)
 
 __all__ = ["read_spz", "check_spz", "SPZ_MAGIC"]
 
@@ -155,6 +155,7 @@ def _read_v4(path, data: bytes, size: int, drop_nonfinite: bool) -> GaussianScen
             raise fail(path, f"file is truncated: stream '{name}' needs {comp} bytes at "
                              f"offset {offset} but the file has {size}")
         offset += comp
+    warn_trailing(path, size - offset, "the last stream")
     total = sum(expected)
     check_compression_ratio(path, total, size, f"{n} Gaussians of SH degree {sh_degree}")
     raw = np.empty(total, np.uint8)
