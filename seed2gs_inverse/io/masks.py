@@ -1,8 +1,9 @@
 """Reading a directory of per-view supervision masks.
 
 A masks directory holds one file per view, in view order: ``view_000.png``
-(8-bit greyscale; 0/255 become 0/1 in the solvers, colour images are
-converted to grey) or ``view_000.npy`` (float in [0, 1] with NaN for
+(8-bit greyscale; 0/255 become 0/1 in the solvers, opaque colour images are
+converted to grey; a transparent cut-out is refused, since its mask would be
+the alpha channel) or ``view_000.npy`` (float in [0, 1] with NaN for
 unknown pixels, bool or integer 0/1, uint8 0/255). Views may use different
 formats (a PNG where the mask is binary, an .npy where it has unknown
 pixels), but each view has exactly one file.
