@@ -73,8 +73,9 @@ def register(subparsers) -> None:
     p.add_argument("--up", default=None, metavar="auto|level|camera|X,Y,Z",
                    help="orbit axis: 'auto' (default: the support plane under the object, the scene's "
                         "plane, the camera's roll and --cameras; report.json's 'up' says which and how "
-                        "sure), 'level' (the camera's up without its pitch), 'camera' (the image up) or a "
-                        "world direction X,Y,Z")
+                        "sure), 'level' (the camera's up, its pitch read from the dominant flat surface in view: "
+                        "right when that is the ground), 'camera' (the image up: right for a level "
+                        "view) or a world direction X,Y,Z")
     p.add_argument("--cameras", metavar="FILE", default=None,
                    help="the scene's capture cameras (cameras.json / COLMAP / transforms.json): with "
                         "--up auto their level right vectors fix the world up")

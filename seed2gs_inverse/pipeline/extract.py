@@ -516,7 +516,7 @@ def orbit_axis(up, scene: GaussianScene, base: Camera, ref: ReferenceView, lift:
                                cameras=up_cameras)
         if est.weak:
             warnings.warn(est.warning(), stacklevel=4)
-        return est.summary()
+        return {**est.summary(), "warning": est.warning()}
     if isinstance(up, str) and up == "level":
         axis = estimate_up(scene, base, weights=np.asarray(ref.operator.W.sum(axis=0)).ravel())
         return {"axis": np.asarray(axis, float).tolist(), "method": "level", "confidence": None, "details": {}}
@@ -909,7 +909,9 @@ def extract(scene: GaussianScene, camera: Camera, prompt, grounder=None, tracker
                 "n_weak_evidence": sel.n_weak_evidence, "n_disconnected": sel.n_disconnected,
                 "support": support_info,
                 "smoothness": smoothness, "tracker": type(tracker).__name__,
-                "grounder": None if grounder is None else type(grounder).__name__, "warnings": notes}
+                "grounder": None if grounder is None else type(grounder).__name__,
+                # the orbit axis's warning was given when it was chosen; the report keeps it with the others
+                "warnings": [w for w in [orbits.up_info.get("warning")] if w] + notes}
     return Extraction(scene, sel.q, sel.selected, sel.threshold, seed, prompt_info, camera, reference, lift,
                       orbits.plan, [f.camera for f, _ in labelled], [f.clip for f, _ in labelled], masks, stack,
                       sel.result, timer.seconds, s, resolved, orbits.up_info)

@@ -128,6 +128,13 @@ UP_DEFAULTS = {"local_factor": 3.0, "max_below": 3.0, "max_roll_deg": 20.0, "max
 
 _CHECK_DEG = 8.0
 _FRACTION_FULL = 0.15
+#: When neither plane holds this share of its points there is no ground in sight (an object scanned
+#: alone: the best "planes" of a person or a guitar hold 1-3 %) and neither is used: the axis comes
+#: from the cameras, the normals or the image-up.
+_FRACTION_MIN = 0.05
+#: The normals fallback is taken only within this angle of the image-up (a view pitched further with
+#: no plane in sight is less likely than a dominant flat surface that is not the ground).
+_NORMALS_MAX_PITCH_DEG = 45.0
 
 
 def angle_deg(u, v) -> float:
@@ -169,8 +176,9 @@ class UpEstimate:
             return None
         return (f"the orbit axis is uncertain (method {self.method}, confidence {self.confidence:.2f}); "
                 f"if the far side of the object is missing, give the world up direction with "
-                f"--up X,Y,Z (or up=(x, y, z)), or pass the capture cameras with --cameras FILE "
-                f"(up_cameras=...)")
+                f"--up X,Y,Z (or up=(x, y, z)), use --up camera when the reference view is level "
+                f"(its image-up is the world's), or pass capture cameras seen from several directions "
+                f"with --cameras FILE (up_cameras=...)")
 
     def summary(self) -> dict:
         return {"axis": [float(v) for v in self.axis], "method": self.method,
@@ -505,13 +513,19 @@ def estimate_up_axis(scene, reference: Camera, support=None, center=None, radius
         local_u = fit(local_idx, False, True, opt["seed"] + 2) if local_ok else None
         glob_u = fit(glob_idx, False, local_ok, opt["seed"] + 3)
         best_u = local_u if local_u is not None else glob_u
-        if best_u is not None and (best is None or best_u.n_inliers >= 2 * best.n_inliers):
+        # Overriding the user's level view takes a convincing plane: a small flat patch of an object
+        # scanned without ground (a person, a guitar face) is no reason to orbit on its side.
+        if best_u is not None and best_u.fraction >= _FRACTION_FULL and (
+                best is None or best_u.n_inliers >= 2 * best.n_inliers):
             local, glob = local_u, glob_u
             method_suffix = "; roll prior dropped"
     if local is not None:
         details["support_plane"] = local.summary()
     if glob is not None:
         details["scene_plane"] = glob.summary()
+    if max((f.fraction for f in (local, glob) if f is not None), default=1.0) < _FRACTION_MIN:
+        details["planes_rejected"] = f"no plane holds {_FRACTION_MIN:.0%} of its points: no ground in sight"
+        local = glob = None
     if cam_axis is not None:
         details["cameras"] = {"axis": cam_axis.tolist(), "quality": cam_quality, "n": len(list(cameras))}
 
@@ -562,6 +576,6 @@ def estimate_up_axis(scene, reference: Camera, support=None, center=None, radius
 
     axis = np.asarray(estimate_up(scene, reference), dtype=np.float64)
     axis /= np.linalg.norm(axis)
-    if angle_deg(axis, a) < 1e-9:
-        return UpEstimate(axis, "image-up", 0.1, details)
+    if angle_deg(axis, a) < 1e-9 or angle_deg(axis, a) > _NORMALS_MAX_PITCH_DEG:
+        return UpEstimate(a.copy(), "image-up", 0.1, details)
     return UpEstimate(axis, "normals", 0.2, details)
