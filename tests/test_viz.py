@@ -298,3 +298,20 @@ def test_cli_view_usage_shows_one_up_vector(monkeypatch, capsys):
     assert cli.main(["view", "--help"]) == 0
     out = capsys.readouterr().out
     assert "[--up X,Y,Z]" in out and "X,Y,Z ..." not in out
+
+
+def test_cli_view_shows_minus_y_up_by_default(offscreen, rng, tmp_path, monkeypatch):
+    """Without --camera and --up the command uses render --look-at's default up, -y (VTK's own +z showed
+    COLMAP-trained scenes from under the floor); with --camera it passes no up."""
+    io = pytest.importorskip("seed2gs_inverse.io")
+    io.write_scene(tmp_path / "s.ply", _cloud(rng, n=30))
+    io.write_cameras(tmp_path / "cams.json", [Camera.look_at([0, 0, -3], [0, 0, 0], [0, -1, 0], 50.0, 32, 24)])
+    seen = []
+    import seed2gs_inverse.viz as viz
+
+    monkeypatch.setattr(viz, "membership_plot", lambda *a, **k: seen.append(k.get("up")) or np.zeros((2, 2, 3)))
+    for i, extra in enumerate(([], ["--up", "0,0,1"], ["--camera", str(tmp_path / "cams.json")])):
+        args = _parser().parse_args(["view", str(tmp_path / "s.ply"), "--screenshot", str(tmp_path / f"v{i}.png")]
+                                    + extra)
+        args.func(args)
+    assert seen == [[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], None]

@@ -46,7 +46,8 @@ def register(subparsers) -> None:
     p.add_argument("--view", default=None, metavar="NAME|INDEX",
                    help="deprecated: write --camera FILE:NAME")
     p.add_argument("--up", nargs="+", default=None, metavar="X,Y,Z",
-                   help="without --camera: world direction shown upwards (COLMAP-like scenes: 0,-1,0)")
+                   help="without --camera: world direction shown upwards (default 0,-1,0, the usual up "
+                        "of COLMAP-trained scenes, as in render --look-at)")
     p.add_argument("--size", default=None, metavar="WxH",
                    help="window/screenshot size (default: the camera's, else 1024x768)")
     p.add_argument("--screenshot", metavar="OUT.png", help="write a PNG instead of opening a window")
@@ -131,7 +132,9 @@ def run(args) -> int:
         raise ValidationError(f"--screenshot {args.screenshot}: the file name must end in .png")
     out = None if args.screenshot is None else check_output(args.screenshot, "--screenshot", force=args.force)
     size = _parse_size(args.size)
-    up = None if args.up is None else parse_vector("--up", args.up[0] if len(args.up) == 1 else args.up).tolist()
+    # without a camera, the same default up as render --look-at (VTK's own, +z, shows these scenes upside down)
+    up = None if args.camera is not None else [0.0, -1.0, 0.0] if args.up is None else \
+        parse_vector("--up", args.up[0] if len(args.up) == 1 else args.up).tolist()
     camera = None if args.camera is None else _camera(args.camera, args.view)
     scene = _read_scene(args.scene)
     q = None if args.membership is None else _load_membership(args.membership, len(scene))
