@@ -84,6 +84,12 @@ def test_point_prompt(view):
         PointPrompt([(500, 5)]).to_mask(r.rgb)
     with pytest.raises(ValidationError, match="positive"):
         PointPrompt([p], [0]).to_mask(r.rgb)
+    # a click where nothing renders is named as such (GrabCut's disc alone used to become a seed of
+    # nothing, which the seed lift then called a mask that touches no Gaussian)
+    empty = np.where(r.alpha > 0.5, 1.0, 0.0)
+    empty[:5, :5] = 0.0
+    with pytest.raises(ValidationError, match=r"click\(s\) \[\(2, 2\)\] fall on empty background"):
+        PointPrompt([(2, 2)]).to_mask(r.rgb, r.depth, empty)
 
 
 def test_point_prompt_keeps_only_the_clicked_lookalike():

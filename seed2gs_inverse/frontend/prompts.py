@@ -265,6 +265,10 @@ class PointPrompt:
         h, w = img.shape[:2]
         pts, labels = self._checked(h, w)
         solid = np.ones((h, w), bool) if alpha is None else np.asarray(alpha) >= self.alpha_min
+        clicks = [(int(x), int(y)) for (x, y), lab in zip(pts, labels) if lab == 1]
+        if not any(solid[y, x] for x, y in clicks):  # else GrabCut's disc alone becomes a seed of nothing
+            raise ValidationError(f"point prompt: the click(s) {clicks} fall on empty background (the scene renders "
+                                  f"nothing there in the reference view); click on the object")
         # Edges that stop the region growing: depth jumps between 4-neighbours.
         barrier = ~solid
         if depth is not None:
