@@ -502,3 +502,15 @@ def test_zero_padded_f_rest_names(tmp_path):
     write([f"f_rest_{i}" for i in range(8)] + ["f_rest_01"])
     with pytest.raises(FormatError, match="9 f_rest_\\* properties"):
         read_scene(tmp_path / "a.ply")
+
+
+def test_an_spz_file_named_ply_is_named(tmp_path):
+    import gzip
+
+    path = tmp_path / "biker.ply"
+    path.write_bytes(gzip.compress(b"NGSP" + bytes(60)))  # SPZ v2/v3: a gzip stream
+    with pytest.raises(FormatError, match="starts like an SPZ file .*: rename it .spz"):
+        read_scene(path)
+    path.write_bytes(b"NGSP" + bytes(60))
+    with pytest.raises(FormatError, match="rename it .spz"):
+        read_scene(path)
