@@ -148,3 +148,61 @@ def test_culling_for_the_projection_keeps_the_weights_exact(table_view):
         assert len(idx) < len(g.scene)
         part = build_operator(g.scene, cam, roi=roi, subset=idx)
         assert abs(full.W - part.W).max() == 0 and full.W.nnz == part.W.nnz
+
+
+def _bench_scene():
+    """A grey ground (z = 0, up +z) and a brown bench 2.0 x 0.3 x 0.3 on it with a white end cap: a click on
+    the cap seeds a region a seventh of the bench's length."""
+    from seed2gs_inverse.scene import GaussianScene
+    from seed2gs_inverse.sh import SH_C0
+
+    rng = np.random.default_rng(0)
+    ground = rng.uniform([-2, -2, 0], [2, 2, 0], (20000, 3))
+    bench = rng.uniform([-1.0, -0.15, 0.05], [1.0, 0.15, 0.35], (12000, 3))
+    cap = bench[:, 0] > 0.8
+    means = np.vstack([ground, bench]).astype(np.float32)
+    flat = np.tile([0.03, 0.03, 0.003], (20000, 1))
+    log_scales = np.log(np.vstack([flat, np.full((12000, 3), 0.025)])).astype(np.float32)
+    rgb = np.vstack([np.full((20000, 3), 0.5), np.where(cap[:, None], 0.95, [0.45, 0.25, 0.1])])
+    n = len(means)
+    scene = GaussianScene(means, np.tile([1.0, 0, 0, 0], (n, 1)).astype(np.float32), log_scales,
+                          np.full(n, 4.0, np.float32), ((rgb - 0.5) / SH_C0)[:, None, :].astype(np.float32))
+    return scene, np.r_[np.zeros(20000, bool), np.ones(12000, bool)]
+
+
+def test_growth_region_doubles_until_the_object_closes():
+    """A click on the bench's end cap: the first growth region (twice the cap's radius) holds a quarter of
+    the bench; doubling it while the object reaches its edge returns most of the bench, and no ground."""
+    from seed2gs_inverse.raster import render
+
+    scene, bench = _bench_scene()
+    cam = Camera.look_at([0.3, -3.0, 1.6], [0.0, 0.0, 0.2], [0, 0, 1], 50.0, 320, 240)
+    ref = render(scene, cam)
+    uv, _ = cam.project(np.array([[0.9, -0.15, 0.2]]))
+    click = tuple(int(v) for v in uv[0])
+    once = point_object_mask(scene, cam, [click], rendering=ref, max_expansions=0)
+    po = point_object_mask(scene, cam, [click], rendering=ref)
+    assert (once.selected & bench).sum() < 0.35 * bench.sum()
+    assert po.info["growth"]["expansions"] >= 2 and (po.selected & bench).sum() >= 0.75 * bench.sum()
+    assert not (po.selected & ~bench).any()
+    with pytest.raises(ValidationError, match="max_expansions"):
+        point_object_mask(scene, cam, [click], rendering=ref, max_expansions=-1)
+
+
+def test_firepit_chair_click_returns_the_chair_and_the_fire_pit_does_not_leak(shared_data):
+    """A click on the right chair's seat grew to a third of the chair before the growth region could
+    double; a click on the fire pit, whose growth never closes, keeps its first growth."""
+    from seed2gs_inverse.io import read_camera, read_scene
+    from seed2gs_inverse.raster import render
+
+    scene = read_scene(shared_data / "firepit_562k_sh0.ply")
+    cam = read_camera(str(shared_data / "firepit_cameras.json") + ":overview")
+    ref = render(scene, cam)
+    chair = point_object_mask(scene, cam, [(750, 380)], rendering=ref)
+    ys, xs = np.nonzero(chair.mask)
+    # the chair-right box of benchmarks/bench_batch.py: (660, 330, 840, 440)
+    assert xs.min() <= 670 and xs.max() >= 830 and ys.min() <= 340 and ys.max() >= 430
+    assert xs.max() - xs.min() <= 200 and chair.info["growth"]["expansions"] >= 1
+    pit = point_object_mask(scene, cam, [(475, 300)], rendering=ref)
+    assert pit.info["growth"]["expansions"] == 0 and "leaking" in pit.info["growth"]["expansion"]
+    assert pit.mask.sum() < 5000

@@ -50,7 +50,14 @@ found from geometry, in four steps:
    Creases are crossed in 3D (a table's top and skirt meet at a right
    angle); only the support plane and spatial gaps stop the growth.
    Negative clicks are lifted the same way and their Gaussians removed
-   from the graph.
+   from the graph. The click's region may be a small part of the object
+   (a chair's backrest): while the grown object reaches the edge of the
+   growth region (a Gaussian beyond 0.9 of its radius), the radius doubles,
+   at most ``max_expansions`` times; an object that still reaches the edge
+   after the last doubling is leaking into the scene, and the first growth
+   is kept (``tests/test_point_object.py``: a click on a chair of the
+   firepit grows to the whole chair, one on its fire pit leaks and keeps
+   its first growth).
 4. **Project back.** The mask is where the grown Gaussians render with
    weight above one half: :math:`(W \mathbf 1_{obj})(u) > 0.5` with the
    reference operator ``W`` over the box of their projection, so occlusion
@@ -76,7 +83,11 @@ __all__ = ["PointObject", "point_object_mask", "surface_patch", "depth_normals",
 #: Defaults of :func:`point_object_mask`.
 POINT_OBJECT_DEFAULTS = {"depth_tol": 0.03, "normal_tol_deg": 30.0, "alpha_min": 0.5,
                          "growth_factor": 2.0, "k_neighbors": 10, "link_factor": 2.0, "overlap": 1.0,
-                         "keep_fraction": 0.2, "min_band": 0.03, "min_opacity": 0.2}
+                         "keep_fraction": 0.2, "min_band": 0.03, "min_opacity": 0.2, "max_expansions": 3}
+
+#: The grown object "reaches the edge" of its growth region when a Gaussian lies beyond this share of
+#: the region's radius.
+_EDGE = 0.9
 
 
 @dataclass
@@ -317,6 +328,9 @@ def point_object_mask(scene, camera: Camera, points, labels=None, rendering=None
         raise ValidationError(f"point_object_mask: unknown options {sorted(unknown)}; "
                               f"valid: {sorted(POINT_OBJECT_DEFAULTS)}")
     opt = {**POINT_OBJECT_DEFAULTS, **options}
+    m = opt["max_expansions"]
+    if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or not 0 <= m <= 10:
+        raise ValidationError(f"point_object_mask: max_expansions must be a whole number in 0..10, got {m!r}")
     if not isinstance(scene, GaussianScene) or len(scene) == 0:
         raise ValidationError("point_object_mask: scene must be a non-empty GaussianScene")
     if not isinstance(camera, Camera):
@@ -372,10 +386,30 @@ def point_object_mask(scene, camera: Camera, points, labels=None, rendering=None
         except ValidationError:
             blocked = None
     plane, plane_info = _support_plane(scene, camera, seeds, lift.center, lift.radius, opt["min_band"])
-    selected, grow_info = grow_object(
-        scene, seeds, center=lift.center, radius=opt["growth_factor"] * lift.radius, plane=plane,
-        blocked=blocked, k_neighbors=opt["k_neighbors"], link_factor=opt["link_factor"], overlap=opt["overlap"],
-        keep_fraction=opt["keep_fraction"], min_opacity=opt["min_opacity"])
+    # The click's region may be a small part of the object (a chair's backrest): while the grown
+    # object reaches the edge of the growth region, the region doubles, at most max_expansions times.
+    # An object the growth closes around stops short of the edge; one that still reaches it after
+    # every doubling leaks into the scene (a fire pit on a patio through its clutter), and the first
+    # growth is kept.
+    radius = opt["growth_factor"] * lift.radius
+    first = None
+    for expansions in range(int(opt["max_expansions"]) + 1):
+        selected, grow_info = grow_object(
+            scene, seeds, center=lift.center, radius=radius, plane=plane,
+            blocked=blocked, k_neighbors=opt["k_neighbors"], link_factor=opt["link_factor"], overlap=opt["overlap"],
+            keep_fraction=opt["keep_fraction"], min_opacity=opt["min_opacity"])
+        first = (selected, grow_info) if first is None else first
+        reach = np.linalg.norm(scene.means[selected].astype(np.float64) - lift.center, axis=1).max(initial=0.0)
+        if reach < _EDGE * radius:
+            grow_info["expansions"] = expansions
+            break
+        radius *= 2.0
+    else:
+        selected, grow_info = first
+        grow_info["expansions"] = 0
+        if opt["max_expansions"]:
+            grow_info["expansion"] = (f"still at the edge of the growth region after {int(opt['max_expansions'])} "
+                                      "doublings (leaking into the scene): the first growth is kept")
     mask = np.zeros((h, w), bool)
     if selected.any():
         uv, z = camera.project(scene.means[selected])
