@@ -233,3 +233,22 @@ def test_solve_checks_the_graph_before_the_method_runs(monkeypatch):
     good = sp.csr_matrix(([1.0, 1.0], ([0, 1], [1, 0])), shape=(n, n))
     solve(mats, masks, method="voting", smoothness=1.0, graph=good)
     assert calls == [1]
+
+
+def test_regulariser_evidence_comes_from_the_views_a_budget_used():
+    """beta_bernoulli with budget=1 fits Gaussian 1 from a trace of weight (0.001) in view 0; view 1, beyond
+    the budget, sees it strongly. Its evidence for the regulariser is what view 0 gave (it used to be the
+    known weight of both views, which pinned its uninformed q to the fit instead of its neighbours)."""
+    import scipy.sparse as sp
+
+    from seed2gs_inverse.solvers import solve
+
+    w0 = sp.csr_matrix(np.array([[0.9, 0, 0], [0, 0.001, 0], [0, 0, 0.9]], np.float32))
+    w1 = sp.csr_matrix(np.tile(np.array([[0, 0.9, 0]], np.float32), (10, 1)))
+    masks = [np.ones((1, 3), np.float32), np.ones((1, 10), np.float32)]
+    g = sp.csr_matrix(np.array([[0, 1, 0], [1, 0, 1], [0, 1, 0]], float))
+    fit = solve([w0, w1], masks, method="beta_bernoulli", budget=1)
+    r = solve([w0, w1], masks, method="beta_bernoulli", budget=1, smoothness=1.0, graph=g)
+    e_used = np.asarray(w0.sum(axis=0), np.float64).ravel()  # every pixel known
+    np.testing.assert_allclose(r.q, laplacian_smooth(fit.q, e_used, g, 1.0), atol=1e-6)
+    assert abs(r.q[1] - r.q[0]) < 1e-3  # Gaussian 1 follows its neighbours

@@ -91,8 +91,10 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
         Common to every method: ``lambda`` of the graph-Laplacian
         regulariser applied to the method's ``q``
         (:func:`~seed2gs_inverse.solvers.smoothing.laplacian_smooth` with
-        evidence ``e_i = k_i``, set to 0 below ``min_evidence`` and where the
-        method reports the Gaussian unobserved, and the
+        evidence ``e_i = k_i``, or the known weight in the views the method
+        used when it used fewer (``beta_bernoulli``'s ``budget``), set to 0
+        below ``min_evidence`` and where the method reports the Gaussian
+        unobserved, and the
         prior): Gaussians without evidence take the harmonic extension of
         their neighbours on ``graph`` instead of the prior, those with
         evidence stay close to the fit. ``0``: off (the ``min_evidence``
@@ -155,8 +157,9 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
         # thread settings (a Dask worker runs with one BLAS thread).
         with _one_blas_thread():
             # evidence only where the method fitted q (not where it left the prior: views beyond a
-            # budget, weighted_bce's pixels below alpha_min)
-            q = smooth_checked(q.astype(np.float64), np.where(weak | unobserved, 0.0, problem.known_weight),
+            # budget, weighted_bce's pixels below alpha_min), and only from the views it used
+            used = problem.known_weight if out.evidence is None else np.asarray(out.evidence, np.float64)
+            q = smooth_checked(q.astype(np.float64), np.where(weak | unobserved, 0.0, used),
                                graph, float(smoothness), problem.prior).astype(np.float32)
     else:
         q[weak] = problem.prior[weak].astype(np.float32)

@@ -153,6 +153,10 @@ class MethodResult:
     observed : (N,) bool or None
         The Gaussians the method had evidence for, when it used fewer views
         (or pixels) than given; None means :attr:`Problem.observed`.
+    evidence : (N,) float or None
+        Each Gaussian's known weight in the views the method used, when
+        fewer than given (the regulariser's ``e_i``); None means
+        :attr:`Problem.known_weight`.
     """
 
     q: np.ndarray
@@ -162,6 +166,7 @@ class MethodResult:
     threshold: float = 0.5
     info: dict = field(default_factory=dict)
     observed: np.ndarray | None = None
+    evidence: np.ndarray | None = None
 
 
 @dataclass

@@ -17,8 +17,7 @@ Gaussians without evidence in the views used are reported unobserved, and
 :func:`~seed2gs_inverse.solvers.solve` gives them the ``init`` prior (0 by
 default), not the Beta prior's mean ``a0 / (a0 + b0)``, which a Gaussian
 with a trace of weight gets. With ``solve(..., smoothness=)`` the
-regulariser's evidence ``e_i`` is the known weight over every view, also
-those beyond the budget.
+regulariser's evidence ``e_i`` is the known weight in the views absorbed.
 
 ``order="eig"`` picks views greedily by expected information gain under a
 view ``budget``. With ``H(a, b)`` the differential entropy of ``Beta(a, b)``,
@@ -150,8 +149,10 @@ def beta_bernoulli(problem: Problem, *, a0: float = 1.0, b0: float = 1.0, order:
         report_progress(len(chosen), budget, entropy)
     weights = np.zeros(V)
     weights[chosen] = 1.0
+    # the known weight of the views absorbed: a - a0 + b - b0 (the regulariser's evidence)
     return MethodResult(q=a / (a + b), iterations=len(chosen), history=history, view_weights=weights,
-                        observed=seen, info={"order": chosen, "budget": budget, "a0": a0, "b0": b0})
+                        observed=seen, evidence=(a - a0) + (b - b0),
+                        info={"order": chosen, "budget": budget, "a0": a0, "b0": b0})
 
 
 register_method("beta_bernoulli", beta_bernoulli, check=_check)
