@@ -285,3 +285,33 @@ def test_splat_output_warnings_name_the_users_path(files, capsys, tmp_path):
     err = capsys.readouterr().err
     assert f"{out / 'object.splat'}: the .splat format cannot store SH bands 1-3" in err, err
     assert ".tmp" not in err
+
+
+def test_extract_from_a_look_at_camera(files, capsys, tmp_path):
+    """A scene without a camera file: --look-at EYE TARGET (with --look-up, --fov, --size) makes the
+    reference camera, report.json records it, and --from-report repeats the run."""
+    d, cam = files["dir"], files["cam"]
+    eye, target = cam.center, cam.center + cam.forward
+    fov = float(np.degrees(2 * np.arctan(0.5 * cam.height / cam.fy)))
+    look = ["--look-at", ",".join(map(str, eye)), ",".join(map(str, target)),
+            "--look-up", ",".join(map(str, cam.up)), "--fov", fov, "--size", f"{cam.width}x{cam.height}"]
+    first, again = tmp_path / "first", tmp_path / "again"
+    assert _run(["extract", d / "scene.ply", *look, "--mask", d / "mask.png", "--views", 4, "--no-progress",
+                 "--option", "max_iter=12", "-o", first]) == 0, capsys.readouterr().err
+    rep = json.loads((first / "report.json").read_text())
+    rec = rep["run"]["camera"]
+    assert rec["spec"] is None and rec["camera"]["name"] == "look-at"
+    assert (rec["camera"]["width"], rec["camera"]["height"]) == (cam.width, cam.height)
+    np.testing.assert_allclose(rec["camera"]["fy"], cam.fy, rtol=1e-9)
+    assert _run(["extract", "--from-report", first / "report.json", "-o", again]) == 0
+    np.testing.assert_array_equal(np.load(first / "q.npy"), np.load(again / "q.npy"))
+    capsys.readouterr()
+    for args, msg in ((["--camera", f"{d / 'cameras.json'}:0", *look], "give the reference camera once"),
+                      (["--camera", f"{d / 'cameras.json'}:0", "--fov", 40], "--fov go with --look-at"),
+                      ([], "or --look-at EYE TARGET"),
+                      (["--look-at", "0,0,0", "0,0,0"], "--look-at / --look-up / --fov"),
+                      (["--look-at", "1,2", "0,0,0"], "expected three numbers")):
+        assert _run(["extract", d / "scene.ply", *args, "--mask", d / "mask.png", "-o", tmp_path / "bad"]) == 2
+        assert msg in capsys.readouterr().err and not (tmp_path / "bad").exists()
+    assert _run(["extract", "--from-report", first / "report.json", "--fov", 30, "-o", tmp_path / "bad"]) == 2
+    assert "cannot be combined with --fov" in capsys.readouterr().err

@@ -115,6 +115,43 @@ def parse_vector(option: str, values) -> np.ndarray:
     return v
 
 
+def parse_size(option: str, text: str) -> tuple[int, int]:
+    """``(width, height)`` from ``WxH``, each in 1..16384."""
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise ValidationError(f"{option} {text!r}: expected WIDTHxHEIGHT, e.g. 960x540") from None
+    if not (0 < w <= 16384 and 0 < h <= 16384):
+        raise ValidationError(f"{option} {text!r}: width and height must be in 1..16384")
+    return w, h
+
+
+def look_at_camera(look_at, up=None, fov=None, size=None, *, up_option: str = "--up",
+                   size_option: str = "--size"):
+    """The camera of ``--look-at EYE TARGET`` (each ``x,y,z``): up ``0,-1,0`` (the usual up of
+    COLMAP-trained scenes), a 60 degree vertical field of view and 960x540 unless given."""
+    from ..camera import Camera
+
+    w, h = parse_size(size_option, size or "960x540")
+    eye, target = (parse_point("--look-at", v) for v in look_at)
+    try:
+        return Camera.look_at(eye, target, parse_vector(up_option, up or "0,-1,0"), 60.0 if fov is None else fov,
+                              w, h, name="look-at")
+    except ValidationError as exc:
+        raise ValidationError(f"--look-at / {up_option} / --fov: {str(exc).removeprefix('look_at: ')}") from None
+
+
+def parse_point(option: str, text) -> np.ndarray:
+    """Three finite numbers from ``x,y,z`` (a point or a colour; zero allowed)."""
+    try:
+        vals = [float(v) for v in str(text).split(",")]
+    except ValueError:
+        vals = []
+    if len(vals) != 3 or not np.all(np.isfinite(vals)):
+        raise ValidationError(f"{option} {text!r}: expected three numbers 'x,y,z'")
+    return np.array(vals)
+
+
 def _method_lines() -> str:
     from ..solvers import available_methods, method_options
 

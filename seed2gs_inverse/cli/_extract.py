@@ -22,8 +22,8 @@ import numpy as np
 from .._atomic import atomic_path
 from .._memory import peak_rss_mb
 from ..errors import FormatError, ValidationError
-from ._common import (DEFAULT_VIEWS, add_method_arguments, check_input_file, check_output, parse_options,
-                      progress_enabled)
+from ._common import (DEFAULT_VIEWS, add_method_arguments, check_input_file, check_output, look_at_camera,
+                      parse_options, progress_enabled)
 
 __all__ = ["register", "write_outputs", "settings_from_args", "seed_summary_line"]
 
@@ -33,7 +33,8 @@ _SETTING_FLAGS = {"method": "--method", "views": "--views", "orbit_scale": "--or
                   "smoothness": "--smoothness", "completion": "--completion", "keep_islands": "--keep-islands",
                   "no_support_background": "--no-support-background"}
 _PROMPT_FLAGS = {"mask": "--mask", "box": "--box", "point": "--point", "prompt": "--prompt",
-                 "negative": "--negative", "camera": "--camera", "cameras": "--cameras"}
+                 "negative": "--negative", "camera": "--camera", "cameras": "--cameras", "look_at": "--look-at",
+                 "look_up": "--look-up", "fov": "--fov", "size": "--size"}
 
 
 def register(subparsers) -> None:
@@ -47,6 +48,15 @@ def register(subparsers) -> None:
                         "optional: the scene to use instead of the recorded path (same content)")
     p.add_argument("--camera", metavar="FILE[:NAME|INDEX]",
                    help="reference camera: cameras.json / COLMAP / transforms.json, with :NAME or :INDEX")
+    p.add_argument("--look-at", nargs=2, metavar=("EYE", "TARGET"),
+                   help="reference camera without a camera file: its position and the point it looks at, "
+                        "each 'x,y,z' (as seed2gs render --look-at; see --look-up, --fov, --size)")
+    p.add_argument("--look-up", default=None, metavar="X,Y,Z",
+                   help="with --look-at: world direction shown upwards (default 0,-1,0, the usual up of "
+                        "COLMAP-trained scenes)")
+    p.add_argument("--fov", type=float, default=None, metavar="DEG",
+                   help="with --look-at: vertical field of view in degrees (default 60)")
+    p.add_argument("--size", default=None, metavar="WxH", help="with --look-at: image size (default 960x540)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--mask", metavar="PNG", help="seed mask image at the camera's resolution (non-zero = object)")
     g.add_argument("--box", nargs=4, type=float, metavar=("X0", "Y0", "X1", "Y1"),
@@ -369,6 +379,22 @@ def _from_report(args):
     return scene_path, camera, spec, prompt, settings, args.models or run.get("models"), fmt, run
 
 
+def _reference_camera(args):
+    """The camera of ``--look-at`` (None with ``--camera``, read later with the other inputs)."""
+    look = [flag for name, flag in (("look_up", "--look-up"), ("fov", "--fov"), ("size", "--size"))
+            if getattr(args, name) is not None]
+    if args.camera is not None and args.look_at is not None:
+        raise ValidationError("give the reference camera once: --camera FILE[:NAME|INDEX] or --look-at EYE TARGET")
+    if args.look_at is None:
+        if args.camera is None:
+            raise ValidationError("give the reference camera: --camera FILE[:NAME|INDEX], or --look-at EYE TARGET "
+                                  "for a scene without a camera file")
+        if look:
+            raise ValidationError(f"{', '.join(look)} go with --look-at; with --camera the camera file gives them")
+        return None
+    return look_at_camera(args.look_at, args.look_up, args.fov, args.size, up_option="--look-up")
+
+
 def run(args) -> int:
     from .. import __version__
     from ..frontend.prompts import GRABCUT_SEED
@@ -386,13 +412,13 @@ def run(args) -> int:
     else:
         if args.scene is None:
             raise ValidationError("give the SCENE file (or --from-report REPORT.json)")
-        if args.camera is None:
-            raise ValidationError("give the reference camera: --camera FILE[:NAME|INDEX]")
+        camera = _reference_camera(args)
         settings = settings_from_args(args)
         scene_path, spec, fmt, models_path = args.scene, args.camera, args.format or "ply", args.models
         check_input_file(scene_path, "scene")
         prompt = _prompt_from_args(args)
-        camera = read_camera(args.camera)
+        if camera is None:
+            camera = read_camera(args.camera)
     cameras_path = args.cameras if recorded is None else (recorded.get("up_cameras") or {}).get("path")
     up_cameras = _up_cameras(cameras_path, "--cameras" if recorded is None else "run.up_cameras:")
     models = _models(models_path)

@@ -10,7 +10,7 @@ import numpy as np
 
 from .._atomic import write_files
 from ..errors import ValidationError
-from ._common import check_output, parse_vector
+from ._common import check_output, look_at_camera, parse_point
 
 __all__ = ["register"]
 
@@ -55,27 +55,6 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def _triple(option, text):
-    try:
-        vals = [float(v) for v in str(text).split(",")]
-    except ValueError:
-        vals = []
-    if len(vals) != 3 or not np.all(np.isfinite(vals)):
-        raise ValidationError(f"{option} {text!r}: expected three numbers 'x,y,z'")
-    return np.array(vals)
-
-
-
-def _size(text):
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise ValidationError(f"--size {text!r}: expected WIDTHxHEIGHT, e.g. 960x540") from None
-    if not (0 < w <= 16384 and 0 < h <= 16384):
-        raise ValidationError(f"--size {text!r}: width and height must be in 1..16384")
-    return w, h
-
-
 def _camera(args):
     from ..camera import Camera
 
@@ -88,13 +67,7 @@ def _camera(args):
                                   f"them (--scale changes the resolution)")
         cam = read_camera(args.camera)
     else:
-        w, h = _size(args.size or "960x540")
-        eye, target = (_triple("--look-at", v) for v in args.look_at)
-        fov = 60.0 if args.fov is None else args.fov
-        try:
-            cam = Camera.look_at(eye, target, parse_vector("--up", args.up or "0,-1,0"), fov, w, h, name="look-at")
-        except ValidationError as exc:
-            raise ValidationError(f"--look-at / --up / --fov: {str(exc).removeprefix('look_at: ')}") from None
+        cam = look_at_camera(args.look_at, args.up, args.fov, args.size)
     if args.near is not None:
         cam = Camera(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, cam.world_to_camera,
                      cam.name, args.near)
@@ -146,7 +119,7 @@ def run(args) -> int:
     paths = [p for p in (out, depth_path, alpha_path) if p is not None]
     if len({p.resolve() for p in paths}) != len(paths):
         raise ValidationError("-o, --depth and --alpha must name different files")
-    bg = _triple("--background", args.background)
+    bg = parse_point("--background", args.background)
     if bg.min() < 0 or bg.max() > 1:
         raise ValidationError(f"--background {args.background!r}: values must be in [0, 1]")
     if not (np.isfinite(args.scale) and args.scale > 0):
