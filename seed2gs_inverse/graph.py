@@ -127,10 +127,9 @@ def gaussian_graph(scene: GaussianScene, k: int = 10, *, subset=None, sigma_colo
     if kk < 1:
         return sp.csr_matrix((n, n), dtype=np.float64)
     x = scene.means[idx].astype(np.float64)
-    # Sliding-midpoint splits (balanced_tree=False) build and query faster than median splits on
-    # splat means (benchmarks/bench_graph.py) and find the same neighbours.
-    tree = cKDTree(x, balanced_tree=False)
-    dist, nb = tree.query(x, k=kk + 1, workers=n_threads())  # independent queries: any thread count
+    # (scipy's default median splits: another tree picks other neighbours among tied distances, which
+    # the fixed-point means of SPZ and compressed scenes have, and the graph would change)
+    dist, nb = cKDTree(x).query(x, k=kk + 1, workers=n_threads())  # independent queries: any thread count
     dist, nb = dist[:, 1:], nb[:, 1:]  # drop self
     # Self-tuning scale: distance to the k-th neighbour (floored so that
     # coincident means do not divide by zero).

@@ -252,3 +252,28 @@ def test_regulariser_evidence_comes_from_the_views_a_budget_used():
     e_used = np.asarray(w0.sum(axis=0), np.float64).ravel()  # every pixel known
     np.testing.assert_allclose(r.q, laplacian_smooth(fit.q, e_used, g, 1.0), atol=1e-6)
     assert abs(r.q[1] - r.q[0]) < 1e-3  # Gaussian 1 follows its neighbours
+
+
+def test_min_evidence_and_method_evidence_under_a_budget(monkeypatch):
+    """min_evidence measures the views a budget used, as the regulariser does; a method's evidence of the
+    wrong shape, negative or not finite is refused."""
+    import scipy.sparse as sp
+
+    import seed2gs_inverse.solvers as solvers
+    from seed2gs_inverse.solvers import MethodResult, get_method, solve
+
+    w0 = sp.csr_matrix(np.array([[0.9, 0, 0], [0, 0.001, 0], [0, 0, 0.9]], np.float32))
+    w1 = sp.csr_matrix(np.tile(np.array([[0, 0.9, 0]], np.float32), (10, 1)))
+    masks = [np.ones((1, 3), np.float32), np.ones((1, 10), np.float32)]
+    r = solve([w0, w1], masks, method="beta_bernoulli", budget=1, min_evidence=0.01)
+    one = solve([w0], masks[:1], method="beta_bernoulli", min_evidence=0.01)  # the same fit, no budget
+    np.testing.assert_array_equal(r.q, one.q)
+    assert r.q[1] == 0.0 and r.info["n_weak_evidence"] == 1
+    real = get_method("voting")
+    for bad in (np.array([5.0]), -np.ones(3), np.full(3, np.nan)):
+        def method(problem, *, bias=0.0, bad=bad):
+            return MethodResult(q=real(problem).q, evidence=bad)
+
+        monkeypatch.setitem(solvers._common._METHODS, "voting", method)
+        with pytest.raises(RuntimeError, match="invalid evidence"):
+            solve([w0, w1], masks, method="voting")

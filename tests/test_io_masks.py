@@ -131,7 +131,8 @@ def test_huge_view_numbers_cost_nothing(tmp_path):
     a hundred million numbers (it used gigabytes, or got the process killed)."""
     np.save(tmp_path / "view_000.npy", np.zeros((4, 6)))
     np.save(tmp_path / "view_99999999999999999999.npy", np.zeros((4, 6)))
-    with pytest.raises(FormatError, match=r"view\(s\) 1 missing below view_99999999999999999999\.npy"):
+    with pytest.raises(FormatError, match=r"view\(s\) 1, 2, 3, 4, 5, \.\.\. missing below "
+                                          r"view_99999999999999999999\.npy"):
         read_masks(tmp_path)
 
 
@@ -161,11 +162,20 @@ def test_png_that_is_not_lossless_greyscale_content(tmp_path):
     cutout = np.zeros((4, 6, 4), np.uint8)
     cutout[..., 3] = mask  # the object in the alpha channel, black colour everywhere
     Image.fromarray(cutout, "RGBA").save(tmp_path / "view_000.png")
-    with pytest.raises(FormatError, match="transparent in places"):
+    with pytest.raises(FormatError, match="transparency marks other pixels than its grey values"):
         read_masks(tmp_path)
     opaque = np.dstack([mask] * 3 + [np.full((4, 6), 255, np.uint8)])  # an opaque RGBA mask reads as its grey
     Image.fromarray(opaque, "RGBA").save(tmp_path / "view_000.png")
     np.testing.assert_array_equal(read_masks(tmp_path)[0], mask)
+    Image.fromarray(mask).save(tmp_path / "view_000.png", transparency=0)  # greyscale, black transparent
+    np.testing.assert_array_equal(read_masks(tmp_path)[0], mask)
+
+
+def test_gap_report_names_the_missing_views(tmp_path):
+    for k in (0, 1, 5):
+        np.save(tmp_path / f"view_{k:03d}.npy", np.zeros((4, 6)))
+    with pytest.raises(FormatError, match=r"view\(s\) 2, 3, 4 missing below view_005\.npy"):
+        read_masks(tmp_path)
 
 
 @pytest.mark.parametrize("kw, what", [({"n_views": "2"}, "n_views"), ({"n_views": 0}, "n_views"),

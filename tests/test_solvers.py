@@ -891,7 +891,13 @@ def test_problem_refuses_weights_summing_above_one_and_ambiguous_inputs(rng):
     ok, masks = _random_problem(rng, views=1)
     with pytest.raises(ValidationError, match=r"give a list with one mask per view \(\[mask\]"):
         solve(ok, masks[0], method="voting")
-    with pytest.raises(ValidationError, match="single value 1"):
+    with pytest.raises(ValidationError, match=r"single value 1; for one Gaussian's index give \[1\]"):
         solve(ok, masks, method="voting", init=1)
+    with pytest.raises(ValidationError, match=r"single value 0\.5\)?$"):
+        solve(ok, masks, method="voting", init=0.5)
+    # a (V, H*W) array of flat masks, one row per view, is still read as such
+    mats4, masks4 = _random_problem(rng, views=4)
+    flat = solve(mats4, np.stack([m.ravel() for m in masks4]), method="voting")
+    np.testing.assert_array_equal(flat.q, solve(mats4, masks4, method="voting").q)
     r = solve(ok, masks, method="voting", init=[1])  # one index in a list is a support set
     assert r.q.shape == (ok[0].shape[1],)

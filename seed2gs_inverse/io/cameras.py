@@ -280,7 +280,7 @@ def _read_json_entry(path, index, entry) -> Camera:
         raise fail(path, f"camera {index} is a {type(entry).__name__}, not an object")
     # the first of img_name, name, id that is given (null counts as not given: no camera named "None")
     name = next((entry[k] for k in ("img_name", "name", "id") if entry.get(k) is not None), index)
-    if isinstance(name, bool) or not isinstance(name, (str, int)):
+    if isinstance(name, bool) or not isinstance(name, (str, int, float)):
         raise fail(path, f"camera {index}: its name must be a string or a number, got {str(name)[:60]!r}")
     name = str(name)
     label = _label(path, index, name)
@@ -527,9 +527,9 @@ def _points2d_line(path, lineno: int, line: str) -> None:
     """
     words = line.split()
     ok = len(words) % 3 == 0
-    if ok:
+    if ok:  # the first triple is enough to tell an image line (a name, ids) from points
         try:
-            [float(w) for w in words]
+            [float(w) for w in words[:3]]
         except ValueError:
             ok = False
     if not ok:

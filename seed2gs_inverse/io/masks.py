@@ -47,8 +47,9 @@ def _mask_files(d: Path, n_views: int | None = None) -> list[Path]:
                               f"{n_views} operator views (view_000 .. view_{n_views - 1:03d}); remove or "
                               f"renumber {'it' if len(extra) == 1 else 'them'}")
     if sorted(found) != list(range(len(found))):
-        # (below len(found), never up to the largest number: one view_99999999 must not cost gigabytes)
-        missing = [k for k in range(len(found)) if k not in found]
+        # (a few beyond the file count at most, never up to the largest number: one view_99999999 must
+        # not cost gigabytes)
+        missing = [k for k in range(min(max(found), len(found) + 5)) if k not in found]
         raise FormatError(f"{d}: mask files must be numbered from view_000 without gaps; view(s) "
                           f"{', '.join(map(str, missing[:5]))}{', ...' if len(missing) > 5 else ''} missing "
                           f"below {found[max(found)].name}")
@@ -71,14 +72,17 @@ def _read_one(f: Path, shape=None, k: int = 0) -> np.ndarray:
                                   "(a lossy format blurs 0/255 into other values)")
             if shape is not None and im.size != (shape[1], shape[0]):
                 raise _wrong_shape(f, (im.size[1], im.size[0]), shape, k)
+            grey = np.asarray(im.convert("L"))
             if im.mode in ("RGBA", "LA", "PA") or "transparency" in im.info:
-                # a cut-out keeps its mask in the alpha channel, which converting to grey drops
-                lo, hi = im.convert("RGBA").getchannel("A").getextrema()
-                if lo != 255:
-                    raise FormatError(f"{f}: the PNG is transparent in places (mode {im.mode}); a cut-out's alpha "
-                                      "is not read as a mask: save the mask as 8-bit greyscale (0 = background, "
-                                      "255 = object)")
-            return np.asarray(im.convert("L"))
+                # A cut-out keeps its mask in the alpha channel, which converting to grey drops: refused
+                # unless the grey values mark the same pixels as the alpha (a mask saved with a
+                # transparent background)
+                alpha = np.asarray(im.convert("RGBA").getchannel("A"))
+                if alpha.min() < 255 and np.any((grey > 0) != (alpha > 0)):
+                    raise FormatError(f"{f}: the PNG's transparency marks other pixels than its grey values "
+                                      f"(mode {im.mode}: a cut-out?); save the mask itself as 8-bit greyscale "
+                                      "(0 = background, 255 = object)")
+            return grey
     except (UnidentifiedImageError, OSError, Image.DecompressionBombError) as exc:
         raise FormatError(f"{f}: not a readable PNG ({exc})") from None
 

@@ -83,7 +83,8 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
     min_evidence : float, default 0
         Common to every method: a Gaussian whose summed weight over the
         known (non-NaN) pixels of all views, ``k_i = sum_u A[u, i] [u known]``
-        (:attr:`Problem.known_weight`), is below this has no real evidence
+        (:attr:`Problem.known_weight`; of the views used, when a method uses
+        fewer, ``beta_bernoulli``'s ``budget``), is below this has no real evidence
         and keeps the prior, ``q_i = q0_i`` (an unregularised fit can drive
         such Gaussians anywhere on a trace of weight). ``0`` only gives the
         unobserved Gaussians (``k_i = 0``) the prior.
@@ -146,10 +147,15 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
     observed = np.asarray(problem.observed if out.observed is None else out.observed, dtype=bool)
     unobserved = ~observed
     q = np.where(unobserved, problem.prior, np.clip(q, 0.0, 1.0)).astype(np.float32)
+    # The known weight of the views the method used (all, unless a view budget left some out).
+    used = problem.known_weight if out.evidence is None else np.asarray(out.evidence, np.float64).reshape(-1)
+    if used.shape != (problem.n_gaussians,) or not np.all(np.isfinite(used)) or used.min(initial=0.0) < 0:
+        raise RuntimeError(f"method '{method}' returned an invalid evidence (shape {used.shape}; finite, >= 0 "
+                           "expected)")
     # Gaussians seen (almost) only on unknown pixels carry no evidence: the
     # prior, or with the regulariser their neighbours' values (weak evidence
     # counts as none).
-    weak = problem.known_weight < min_evidence
+    weak = used < min_evidence
     t_smooth = time.perf_counter()
     if smoothness > 0:
         # One BLAS thread here too: the factorisation's dense kernels round
@@ -158,7 +164,6 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
         with _one_blas_thread():
             # evidence only where the method fitted q (not where it left the prior: views beyond a
             # budget, weighted_bce's pixels below alpha_min), and only from the views it used
-            used = problem.known_weight if out.evidence is None else np.asarray(out.evidence, np.float64)
             q = smooth_checked(q.astype(np.float64), np.where(weak | unobserved, 0.0, used),
                                graph, float(smoothness), problem.prior).astype(np.float32)
     else:

@@ -384,8 +384,9 @@ def prior_from_init(init, n: int) -> np.ndarray:
         return np.zeros(n)
     a = np.asarray(init)
     if a.ndim == 0:  # init=1 would be read as "Gaussian 1", not "everything foreground"
+        hint = f"; for one Gaussian's index give [{init!r}]" if a.dtype.kind in "ui" else ""
         raise ValidationError(f"init must be an array (a support mask, indices or a prior q of shape ({n},)), "
-                              f"got the single value {init!r}; for one Gaussian's index give [{init!r}]")
+                              f"got the single value {init!r}{hint}")
     if a.dtype == bool or a.dtype.kind in "ui":
         from .._selection import support_mask
 
@@ -415,9 +416,12 @@ def prepare(operators, masks, init=None) -> Problem:
     """
     from ..operators import as_stack  # the operator core: numpy/scipy only
 
-    if isinstance(masks, np.ndarray) and masks.ndim == 2:
-        raise ValidationError(f"masks: got one {masks.shape} array; give a list with one mask per view "
-                              "([mask] for a single view) or a (V, H, W) array")
+    views = getattr(operators, "views", operators)
+    if isinstance(masks, np.ndarray) and masks.ndim == 2 and isinstance(views, (list, tuple)) \
+            and masks.shape[0] != len(views):
+        # (a (V, H*W) array of flat masks is fine; one (H, W) mask would be read row by row)
+        raise ValidationError(f"masks: got one {masks.shape} array for {len(views)} views; give a list with one "
+                              "mask per view ([mask] for a single view) or a (V, H, W) array")
     try:  # a list once: a generator would be used up by as_stack (the image shapes of bare matrices)
         mask_list = list(masks) if not isinstance(masks, np.ndarray) or masks.ndim >= 2 else None
     except TypeError:
