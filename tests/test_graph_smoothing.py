@@ -277,3 +277,11 @@ def test_min_evidence_and_method_evidence_under_a_budget(monkeypatch):
         monkeypatch.setitem(solvers._common._METHODS, "voting", method)
         with pytest.raises(RuntimeError, match="invalid evidence"):
             solve([w0, w1], masks, method="voting")
+
+
+def test_subset_ascending_with_repeats_is_deduplicated():
+    sc = _scene(40, seed=4)
+    ids = np.arange(0, 40, 3)
+    ref = gaussian_graph(sc, 4, subset=ids)
+    repeated = np.sort(np.r_[ids, ids[:4]])  # ascending, with repeats: must not be taken as unique
+    assert abs(gaussian_graph(sc, 4, subset=repeated) - ref).nnz == 0
