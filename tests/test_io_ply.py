@@ -509,7 +509,7 @@ def test_an_spz_file_named_ply_is_named(tmp_path):
 
     path = tmp_path / "biker.ply"
     path.write_bytes(gzip.compress(b"NGSP" + bytes(60)))  # SPZ v2/v3: a gzip stream
-    with pytest.raises(FormatError, match="starts like an SPZ file .*: rename it .spz"):
+    with pytest.raises(FormatError, match="starts like an SPZ file .*: if it is one, rename it .spz"):
         read_scene(path)
     path.write_bytes(b"NGSP" + bytes(60))
     with pytest.raises(FormatError, match="rename it .spz"):

@@ -115,14 +115,14 @@ def parse_vector(option: str, values) -> np.ndarray:
     return v
 
 
-def parse_size(option: str, text: str) -> tuple[int, int]:
-    """``(width, height)`` from ``WxH``, each in 1..16384."""
+def parse_size(option: str, text: str, limit: int = 16384) -> tuple[int, int]:
+    """``(width, height)`` from ``WxH``, each in 1..``limit``."""
     try:
         w, h = (int(v) for v in text.lower().split("x"))
     except ValueError:
         raise ValidationError(f"{option} {text!r}: expected WIDTHxHEIGHT, e.g. 960x540") from None
-    if not (0 < w <= 16384 and 0 < h <= 16384):
-        raise ValidationError(f"{option} {text!r}: width and height must be in 1..16384")
+    if not (0 < w <= limit and 0 < h <= limit):
+        raise ValidationError(f"{option} {text!r}: width and height must be in 1..{limit}")
     return w, h
 
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from .._atomic import atomic_path
 from ..errors import ValidationError
-from ._common import check_output, parse_vector
+from ._common import check_output, parse_size, parse_vector
 
 __all__ = ["register"]
 
@@ -105,18 +105,6 @@ def _pick_camera(cams, which):
                           f"{len(cams)} cameras: {names}{', ...' if len(cams) > 10 else ''}")
 
 
-def _parse_size(text):
-    if text is None:
-        return None
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise ValidationError(f"--size {text!r}: expected WIDTHxHEIGHT, e.g. 800x600") from None
-    if w <= 0 or h <= 0 or w > 8192 or h > 8192:
-        raise ValidationError(f"--size {text!r}: width and height must be in 1..8192")
-    return (w, h)
-
-
 def run(args) -> int:
     from ..viz import has_display, membership_plot
 
@@ -131,7 +119,7 @@ def run(args) -> int:
     if args.screenshot is not None and Path(args.screenshot).suffix.lower() != ".png":
         raise ValidationError(f"--screenshot {args.screenshot}: the file name must end in .png")
     out = None if args.screenshot is None else check_output(args.screenshot, "--screenshot", force=args.force)
-    size = _parse_size(args.size)
+    size = None if args.size is None else parse_size("--size", args.size, limit=8192)  # a window
     # without a camera, the same default up as render --look-at (VTK's own, +z, shows these scenes upside down)
     up = None if args.camera is not None else [0.0, -1.0, 0.0] if args.up is None else \
         parse_vector("--up", args.up[0] if len(args.up) == 1 else args.up).tolist()

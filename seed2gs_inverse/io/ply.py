@@ -100,7 +100,7 @@ def read_ply_header(path) -> PlyHeader:
         first = fh.readline(16)
         if first.rstrip(b"\r\n") != b"ply":
             # name what it looks like instead, when its magic bytes say so
-            hint = ("; it starts like an SPZ file (gzip or 'NGSP'): rename it .spz"
+            hint = ("; it starts like an SPZ file (gzip or 'NGSP'): if it is one, rename it .spz"
                     if first[:2] == b"\x1f\x8b" or first[:4] == b"NGSP" else "")
             raise fail(path, f"not a PLY file (it does not start with the 'ply' magic line){hint}")
         total = len(first)
