@@ -221,6 +221,8 @@ def graph_laplacian(graph) -> sp.csr_matrix:
 
 def laplacian_of_checked(g: sp.csr_matrix) -> sp.csr_matrix:
     """:func:`graph_laplacian` of a graph :func:`check_graph` returned (not checked again)."""
-    g = g - sp.diags(g.diagonal())  # self-loops do not change q^T L q
+    d = g.diagonal()
+    if d.any():  # self-loops do not change q^T L q (gaussian_graph has none: no subtraction then)
+        g = g - sp.diags(d)
     deg = np.asarray(g.sum(axis=1)).ravel()
     return (sp.diags(deg) - g).tocsr()

@@ -285,3 +285,10 @@ def test_subset_ascending_with_repeats_is_deduplicated():
     ref = gaussian_graph(sc, 4, subset=ids)
     repeated = np.sort(np.r_[ids, ids[:4]])  # ascending, with repeats: must not be taken as unique
     assert abs(gaussian_graph(sc, 4, subset=repeated) - ref).nnz == 0
+
+
+def test_laplacian_ignores_self_loops():
+    g = sp.csr_matrix(np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 2.0], [0.0, 2.0, 0.0]]))
+    loops = g + sp.diags([0.5, 0.0, 3.0])
+    np.testing.assert_array_equal(graph_laplacian(loops).toarray(), graph_laplacian(g).toarray())
+    np.testing.assert_array_equal(graph_laplacian(g).toarray(), [[1, -1, 0], [-1, 3, -2], [0, -2, 2]])

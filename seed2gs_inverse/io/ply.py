@@ -37,7 +37,7 @@ import numpy as np
 
 from ..errors import ValidationError
 from ..scene import GaussianScene
-from ._common import atomic_write, fail, file_size, finish_scene
+from ._common import atomic_write, fail, file_size, finish_scene, warn_trailing
 
 __all__ = ["PlyHeader", "PlyElement", "read_ply_header", "read_ply_elements",
            "read_standard_ply", "write_standard_ply", "ply_field_names"]
@@ -189,8 +189,7 @@ def read_ply_elements(path, header: PlyHeader, wanted) -> dict:
                          f"({sum(sizes)} bytes of data) but only {available} bytes follow the header")
     if last == len(header.elements) - 1 and not any(el.lists for el in header.elements) \
             and available > sum(sizes):
-        warnings.warn(f"{os.fspath(path)}: ignoring {available - sum(sizes)} bytes after the "
-                      f"last PLY element", stacklevel=3)
+        warn_trailing(path, available - sum(sizes), "the last PLY element")
     out = {}
     offset = header.data_offset
     native = "<" if np.little_endian else ">"

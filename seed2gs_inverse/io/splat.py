@@ -26,10 +26,10 @@ import warnings
 
 import numpy as np
 
-from ..errors import ValidationError
+from ..errors import FormatError, ValidationError
 from ..scene import GaussianScene
 from ..sh import SH_C0
-from ._common import atomic_write, fail, file_size, finish_scene, logit_from_unorm
+from ._common import atomic_write, bounded_gzip, fail, file_size, finish_scene, logit_from_unorm
 
 __all__ = ["read_splat", "write_splat", "check_splat", "SPLAT_DTYPE"]
 
@@ -44,15 +44,13 @@ def _is_gzip(path) -> bool:
     The two magic bytes alone are no proof: they are also the low bytes of
     about one x coordinate in 65,536, and a .splat file has no magic of its own.
     """
-    import zlib
-
     with open(path, "rb") as fh:
         head = fh.read(1 << 16)
     if not head.startswith(b"\x1f\x8b\x08"):  # gzip magic and deflate
         return False
     try:
-        zlib.decompressobj(31).decompress(head, 64)
-    except zlib.error:
+        bounded_gzip(path, head, header_bytes=4)  # (the SPZ reader's own header peek)
+    except FormatError:
         return False
     return True
 

@@ -398,7 +398,8 @@ def point_object_mask(scene, camera: Camera, points, labels=None, rendering=None
             scene, seeds, center=lift.center, radius=radius, plane=plane,
             blocked=blocked, k_neighbors=opt["k_neighbors"], link_factor=opt["link_factor"], overlap=opt["overlap"],
             keep_fraction=opt["keep_fraction"], min_opacity=opt["min_opacity"])
-        first = (selected, grow_info) if first is None else first
+        if expansions == 0:
+            first = selected, grow_info
         reach = np.linalg.norm(scene.means[selected].astype(np.float64) - lift.center, axis=1).max(initial=0.0)
         if reach < _EDGE * radius:
             grow_info["expansions"] = expansions
