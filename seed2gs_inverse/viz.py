@@ -10,6 +10,7 @@ reports.
 
 from __future__ import annotations
 
+import operator
 import os
 import sys
 import warnings
@@ -17,6 +18,7 @@ import warnings
 import numpy as np
 
 from .errors import ValidationError
+from .geometry import unit_vector
 from .scene import GaussianScene, quat_to_rotmat
 from .sh import SH_C0
 
@@ -58,7 +60,7 @@ def check_membership(q, n: int, name: str = "membership q") -> np.ndarray:
     if arr.dtype.kind not in "biuf":
         raise ValidationError(f"{name} has dtype {arr.dtype}; expected numbers")
     arr = arr.astype(np.float64)
-    if not np.all(np.isfinite(arr)) or arr.min() < 0 or arr.max() > 1:
+    if not np.all(np.isfinite(arr) & (arr >= 0) & (arr <= 1)):  # also for n = 0
         raise ValidationError(f"{name}: values must be finite and in [0, 1]")
     return arr
 
@@ -105,7 +107,7 @@ def membership_plot(scene: GaussianScene, q=None, mode: str = "points", threshol
     threshold : float, optional
         Show only Gaussians with ``q > threshold`` (needs ``q``).
     screenshot : path, optional
-        Write a PNG there and return the image.
+        Write a PNG to this path (which must end in ``.png``) and return the image.
     off_screen : bool, optional
         Default: off-screen when there is no display (then EGL is used and
         only screenshots are possible).
@@ -121,8 +123,8 @@ def membership_plot(scene: GaussianScene, q=None, mode: str = "points", threshol
     max_glyphs : int
         Cap on ellipsoids.
     glyph_sigma, point_size, cmap, window_size, background, scalar_bar
-        Drawing options; ``window_size`` is ``(width, height)``, default
-        ``(1024, 768)``; ``scalar_bar`` shows the colormap legend when ``q``
+        Drawing options; ``window_size`` is ``(width, height)``, each in
+        1..8192, default the camera's image size or ``(1024, 768)``; ``scalar_bar`` shows the colormap legend when ``q``
         is given.
     min_opacity : float
         Hide Gaussians with activated opacity below this (real scenes carry
@@ -152,6 +154,12 @@ def membership_plot(scene: GaussianScene, q=None, mode: str = "points", threshol
         raise ValidationError(f"glyph_sigma must be positive, got {glyph_sigma!r}")
     if not (np.isfinite(min_opacity) and 0 <= min_opacity <= 1):
         raise ValidationError(f"min_opacity must be in [0, 1], got {min_opacity!r}")
+    up = None if up is None else unit_vector("up", up)
+    if window_size is None and camera is not None:
+        window_size = _window_size((camera.width, camera.height), "the camera's image size (pass window_size)")
+    window_size = _window_size((1024, 768) if window_size is None else window_size)
+    if screenshot is not None and not str(screenshot).lower().endswith(".png"):
+        raise ValidationError(f"screenshot {str(screenshot)!r}: must be a .png path (the image is written as PNG)")
     if off_screen is None:
         off_screen = not has_display()
     if not off_screen and screenshot is None and not has_display():
@@ -172,9 +180,36 @@ def membership_plot(scene: GaussianScene, q=None, mode: str = "points", threshol
         idx = np.sort(np.random.default_rng(seed).choice(idx, size=int(max_glyphs), replace=False))
         caption = f"ellipsoids for {idx.size} of {int(keep.sum())} Gaussians (random subset)"
         warnings.warn(caption + "; raise max_glyphs to draw more", stacklevel=2)
-    if window_size is None:
-        window_size = (camera.width, camera.height) if camera is not None else (1024, 768)
-    pl = pv.Plotter(off_screen=bool(off_screen), window_size=[int(window_size[0]), int(window_size[1])])
+    pl = pv.Plotter(off_screen=bool(off_screen), window_size=list(window_size))
+    try:
+        _draw(pl, scene, qv, idx, mode, caption, camera, up, glyph_sigma, point_size, cmap, background,
+              scalar_bar)
+        img = None if screenshot is None else pl.screenshot(str(screenshot), return_img=True)
+    except BaseException:
+        pl.close()  # no off-screen plotter (and its GL context) left behind
+        raise
+    if screenshot is None:
+        return pl
+    pl.close()
+    return img
+
+
+def _window_size(size, what: str = "window_size") -> list:
+    """``[width, height]`` from a pair of integers in 1..8192 (a ValidationError naming ``what`` otherwise)."""
+    try:
+        w, h = (operator.index(v) for v in size)
+    except (TypeError, ValueError):
+        raise ValidationError(f"{what} must be two integers (width, height), got {size!r}") from None
+    if not (0 < w <= 8192 and 0 < h <= 8192):
+        raise ValidationError(f"{what} {tuple(size)!r}: width and height must be in 1..8192")
+    return [int(w), int(h)]
+
+
+def _draw(pl, scene, qv, idx, mode, caption, camera, up, glyph_sigma, point_size, cmap, background,
+          scalar_bar) -> None:
+    """Fill the plotter ``pl`` for :func:`membership_plot` (its arguments, checked)."""
+    import pyvista as pv
+
     pl.set_background(background)
     if qv is not None:
         color_kw = dict(scalars=qv[idx], cmap=cmap, clim=(0.0, 1.0), show_scalar_bar=bool(scalar_bar),
@@ -212,21 +247,13 @@ def membership_plot(scene: GaussianScene, q=None, mode: str = "points", threshol
         pl.view_isometric()
         if up is not None:
             # Oblique view from above along the scene's own "up" (VTK assumes +z).
-            u = np.asarray(up, dtype=np.float64)
-            u = u / np.linalg.norm(u)
+            u = up
             side = np.cross(u, [1.0, 0.0, 0.0] if abs(u[0]) < 0.9 else [0.0, 1.0, 0.0])
             side /= np.linalg.norm(side)
             focal = np.asarray(pl.camera.focal_point)
             pl.camera.position = tuple(focal + pl.camera.distance * (0.8 * side + 0.6 * u))
             pl.camera.up = tuple(u)
             pl.reset_camera()
-    if screenshot is None:
-        return pl
-    try:
-        img = pl.screenshot(str(screenshot), return_img=True)
-    finally:
-        pl.close()
-    return img
 
 
 def view_grid(images, masks=None, titles=None, ncols: int | None = None, mask_color=(1.0, 0.1, 0.1),

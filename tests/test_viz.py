@@ -116,6 +116,30 @@ def test_membership_plot_validates(rng):
         membership_plot(scene, mode="voxels", screenshot="x.png")
     assert not os.path.exists("x.png")
 
+    for size in [(0, 0), (-5, 10), (10,), (9000, 10), (1.5, 2)]:
+        with pytest.raises(ValidationError, match="window_size"):
+            membership_plot(scene, screenshot="x.png", window_size=size)
+    for up in [(0, 0, 0), (np.nan, 0, 0), (0, 1)]:
+        with pytest.raises(ValidationError, match="'up' must be a finite non-zero 3-vector"):
+            membership_plot(scene, screenshot="x.png", up=up)
+    for path in ["x.jpg", "shot"]:
+        with pytest.raises(ValidationError, match=r"\.png path"):
+            membership_plot(scene, screenshot=path)
+    assert not os.path.exists("x.png") and not os.path.exists("shot.png")
+
+
+def test_membership_plot_empty_scene_and_no_plotter_left_after_an_error(offscreen, rng, tmp_path):
+    from pyvista.plotting.plotter import _ALL_PLOTTERS
+
+    empty = _cloud(rng, n=5).subset(np.zeros(5, bool))
+    img = membership_plot(empty, np.zeros(0), screenshot=tmp_path / "e.png", window_size=(32, 24))
+    assert img.shape == (24, 32, 3) and (tmp_path / "e.png").is_file()  # the "no Gaussians" caption
+    open_before = sum(not pl._closed for pl in _ALL_PLOTTERS.values())
+    with pytest.raises(ValueError):
+        membership_plot(_cloud(rng, n=5), np.zeros(5), cmap="no-such-colormap", screenshot=tmp_path / "f.png")
+    assert sum(not pl._closed for pl in _ALL_PLOTTERS.values()) == open_before
+    assert not (tmp_path / "f.png").exists()
+
 
 def test_view_grid_overlays_masks():
     img = np.full((8, 10, 3), 0.5)
