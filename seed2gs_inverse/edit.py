@@ -127,9 +127,13 @@ def recolour(scene: GaussianScene, selected, rgb, keep_view_dependence: bool = F
 
     Parameters
     ----------
+    selected : bool (N,) mask or integer indices
+        The Gaussians to recolour, each once; row ``k`` of an (M, 3) ``rgb``
+        goes to the ``k``-th selected Gaussian (in ascending order for a
+        mask, in the given order for indices).
     rgb : (3,) or (M, 3) array in [0, 1], or callable
         The new colour; a callable receives the current base colours (M, 3)
-        (``SH_C0 * dc + 0.5``) and returns new ones (tinting, hue shifts).
+        (``SH_C0 * dc + 0.5``, rows as above) and returns new ones (tinting, hue shifts).
     keep_view_dependence : bool
         False (default): higher SH bands are zeroed, so the object shows
         exactly ``rgb`` from every direction. True: only the DC term
@@ -138,11 +142,16 @@ def recolour(scene: GaussianScene, selected, rgb, keep_view_dependence: bool = F
     The DC coefficient is set so that the degree-0 colour is
     ``SH_C0 * dc + 0.5 = rgb`` (3DGS convention).
     """
-    mask = selection_mask(scene, selected)
-    m = int(mask.sum())
+    mask = selection_mask(scene, selected)  # checks either form
+    given = np.asarray(selected)
+    # rows of rgb follow the selection: ascending for a mask, in the given order for indices
+    idx = np.flatnonzero(mask) if given.dtype == bool or given.size == 0 else given.astype(np.int64)
+    m = idx.size
     if m == 0:
         raise ValidationError("recolour: the selection is empty")
-    base = SH_C0 * scene.sh[mask, 0].astype(np.float64) + 0.5
+    if m != np.count_nonzero(mask):
+        raise ValidationError("recolour: a Gaussian is selected more than once; give each index once")
+    base = SH_C0 * scene.sh[idx, 0].astype(np.float64) + 0.5
     new = np.asarray(rgb(base) if callable(rgb) else rgb, dtype=np.float64)
     if new.shape == (3,):
         new = np.broadcast_to(new, (m, 3))
@@ -152,9 +161,9 @@ def recolour(scene: GaussianScene, selected, rgb, keep_view_dependence: bool = F
         # (a callable maps the current colours, which real scenes hold slightly outside [0, 1] too)
         raise ValidationError(f"recolour: rgb must lie in [0, 1], got values in [{new.min():.3g}, {new.max():.3g}]")
     sh = scene.sh.copy()  # scene arrays are read-only; the new scene validates the copy
-    sh[mask, 0] = ((new - 0.5) / SH_C0).astype(np.float32)
+    sh[idx, 0] = ((new - 0.5) / SH_C0).astype(np.float32)
     if not keep_view_dependence:
-        sh[mask, 1:] = 0.0
+        sh[idx, 1:] = 0.0
     return dataclasses.replace(scene, sh=sh)
 
 

@@ -179,6 +179,12 @@ class GaussianScene:
             object.__setattr__(self, name, _read_only(arr))
         object.__setattr__(self, "extra", MappingProxyType(extra))
 
+    def __reduce__(self):
+        # pickling (multiprocessing, joblib): rebuild through __init__, whose checks make the arrays
+        # read-only and ``extra`` a read-only mapping again (a mappingproxy itself cannot be pickled)
+        return (GaussianScene, (self.means, self.quats, self.log_scales, self.opacity_logits, self.sh,
+                                dict(self.extra)))
+
     # -- basic facts -------------------------------------------------------
     def __len__(self) -> int:
         return int(self.means.shape[0])
@@ -299,8 +305,12 @@ class GaussianScene:
         if not (np.isfinite(scale) and scale > 0):
             raise ValidationError(f"scale must be a positive finite number, got {scale!r}")
         means = (scale * (self.means.astype(np.float64) @ rot.T) + t).astype(np.float32)
-        quats = quat_multiply(rotmat_to_quat(rot), self.rotations.astype(np.float64)).astype(np.float32)
-        log_scales = (self.log_scales.astype(np.float64) + np.log(scale)).astype(np.float32)
-        sh = rotate_sh(self.sh, rot).astype(np.float32) if self.sh.shape[1] > 1 else self.sh.copy()
+        turned = not np.array_equal(rot, np.eye(3))
+        # without a rotation the stored quaternions (normalised or not) are kept bit for bit
+        quats = (quat_multiply(rotmat_to_quat(rot), self.rotations.astype(np.float64)).astype(np.float32)
+                 if turned else self.quats.copy())
+        log_scales = (self.log_scales.astype(np.float64) + np.log(scale)).astype(np.float32) if scale != 1 else \
+            self.log_scales.copy()
+        sh = rotate_sh(self.sh, rot).astype(np.float32) if turned and self.sh.shape[1] > 1 else self.sh.copy()
         return GaussianScene(means, quats, log_scales, self.opacity_logits.copy(), sh,
                              {k: v.copy() for k, v in self.extra.items()})

@@ -86,6 +86,20 @@ def test_recolour(rng):
         recolour(s, np.ones(3, bool), [1, 0, 0])
 
 
+
+def test_recolour_rows_follow_the_given_indices_and_empty_lists_select_nothing(rng):
+    s = _scene(rng)
+    out = recolour(s, [7, 2], [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # 7 red, 2 green
+    np.testing.assert_allclose(SH_C0 * out.sh[[7, 2], 0].astype(np.float64) + 0.5, [[1, 0, 0], [0, 1, 0]], atol=1e-6)
+    seen = []
+    recolour(s, [7, 2], lambda rgb: seen.append(rgb.copy()) or rgb)
+    np.testing.assert_array_equal(seen[0], SH_C0 * s.sh[[7, 2], 0].astype(np.float64) + 0.5)
+    with pytest.raises(ValidationError, match="more than once"):
+        recolour(s, [2, 2], [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    np.testing.assert_array_equal(remove(s, []).means, s.means)  # [] is float64 to numpy
+    with pytest.raises(ValidationError, match="empty"):
+        recolour(s, [], [1.0, 0.0, 0.0])
+
 def test_edits_round_trip_through_ply(rng, tmp_path):
     from seed2gs_inverse.io import read_scene, write_scene
 
@@ -96,3 +110,20 @@ def test_edits_round_trip_through_ply(rng, tmp_path):
     np.testing.assert_allclose(back.means, out.means)
     np.testing.assert_allclose(back.sh, out.sh, atol=1e-6)
     assert set(back.extra) >= {"nx", "tag"}
+
+
+def test_translation_only_keeps_the_stored_quaternions_and_scenes_pickle(rng):
+    import pickle
+
+    s = _scene(rng)  # unnormalised quaternions, as files may hold them
+    out = move(s, np.arange(5), translation=[1.0, 0.0, 0.0])
+    np.testing.assert_array_equal(out.quats, s.quats)
+    np.testing.assert_array_equal(out.log_scales, s.log_scales)
+    np.testing.assert_array_equal(out.sh, s.sh)
+    np.testing.assert_allclose(out.means[:5], s.means[:5] + np.float32([1, 0, 0]), atol=1e-6)
+    back = pickle.loads(pickle.dumps(s))
+    for name in ("means", "quats", "log_scales", "opacity_logits", "sh"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(s, name))
+        assert not getattr(back, name).flags.writeable
+    assert dict(back.extra).keys() == dict(s.extra).keys() and not back.extra["tag"].flags.writeable
+    np.testing.assert_array_equal(back.extra["tag"], s.extra["tag"])
