@@ -155,15 +155,18 @@ def atomic_path(target, directory: bool = False):
         raise ValidationError(f"{target}: the directory {parent} does not exist (create it first)")
     clean_stale_temps(target)
     prefix = _temp_prefix(target.name)
-    if directory:
-        tmp = Path(tempfile.mkdtemp(prefix=prefix, suffix=".tmp", dir=parent))
-        mode = 0o777
-    else:
-        # keep the extension: some writers (image libraries) choose the format by it
-        fd, name = tempfile.mkstemp(prefix=prefix, suffix=".tmp" + target.suffix, dir=parent)
-        os.close(fd)
-        tmp = Path(name)
-        mode = 0o666
+    try:
+        if directory:
+            tmp = Path(tempfile.mkdtemp(prefix=prefix, suffix=".tmp", dir=parent))
+            mode = 0o777
+        else:
+            # keep the extension: some writers (image libraries) choose the format by it
+            fd, name = tempfile.mkstemp(prefix=prefix, suffix=".tmp" + target.suffix, dir=parent)
+            os.close(fd)
+            tmp = Path(name)
+            mode = 0o666
+    except OSError as exc:  # a read-only or full directory: name the target, not the temporary
+        raise _WriteError(exc.errno, f"{exc.strerror or exc} while writing {target}") from exc
     try:
         yield tmp
         os.chmod(tmp, mode & ~_umask())
@@ -183,11 +186,19 @@ def atomic_path(target, directory: bool = False):
             shutil.rmtree(tmp, ignore_errors=True)
         elif tmp.exists():
             tmp.unlink()
+        if isinstance(exc, _WriteError):
+            # from an atomic write inside our temporary directory: name that file's final place
+            raise _WriteError(exc.errno, str(exc.strerror).replace(os.fspath(tmp), os.fspath(target))) \
+                from exc.__cause__
         if isinstance(exc, OSError) and exc.errno is not None and (
                 exc.filename is None or os.fspath(exc.filename).startswith(os.fspath(tmp))):
             # a full disk or a refused rename: name what was being written, not its temporary
-            raise OSError(exc.errno, f"{exc.strerror or exc} while writing {target}") from exc
+            raise _WriteError(exc.errno, f"{exc.strerror or exc} while writing {target}") from exc
         raise
+
+
+class _WriteError(OSError):
+    """An OSError of :func:`atomic_path` whose message names the file being written (once)."""
 
 
 def write_files(items) -> None:

@@ -191,3 +191,26 @@ def test_errors_name_the_target_not_its_temporary(tmp_path, monkeypatch):
     monkeypatch.undo()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["d"]
     assert (tmp_path / "d" / "keep").read_text() == "x"
+
+
+def test_nested_and_refused_writes_name_the_final_file_once(tmp_path, monkeypatch):
+    import errno
+
+    out = tmp_path / "out"
+    with pytest.raises(OSError) as exc:
+        with atomic_path(out, directory=True) as tmpdir:
+            with atomic_path(tmpdir / "remainder.ply") as tmp:  # as extract writes its folder
+                raise OSError(errno.ENOSPC, "No space left on device", str(tmp))
+    msg = str(exc.value)
+    assert exc.value.errno == errno.ENOSPC and msg.count("while writing") == 1, msg
+    assert f"while writing {out / 'remainder.ply'}" in msg and ".tmp" not in msg
+    assert list(tmp_path.iterdir()) == []
+
+    def refuse(*args, **kwargs):  # what a read-only directory answers (root ignores permission bits)
+        raise OSError(errno.EROFS, "Read-only file system", os.fspath(tmp_path / ".x.ply.tmp"))
+
+    monkeypatch.setattr(_atomic.tempfile, "mkstemp", refuse)
+    with pytest.raises(OSError, match=r"Read-only file system while writing .*x\.ply$") as exc:
+        with atomic_path(tmp_path / "x.ply"):
+            pass
+    assert ".tmp" not in str(exc.value)
