@@ -319,6 +319,37 @@ def test_nonzero_normals_are_kept(tmp_path, rng):
     np.testing.assert_array_equal(got.extra["ny"], cols["ny"])
 
 
+def test_negative_zero_normals_are_kept_bit_for_bit(tmp_path, rng):
+    scene = random_scene(rng, n=4)
+    cols = dict(standard_columns(scene))
+    cols["nx"] = np.array([0.0, -0.0, 0.0, 0.0], np.float32)  # trainers' normals: zeros, some signed
+    rec = np.empty(4, dtype=[(n, "f4") for n in cols])
+    for n, vals in cols.items():
+        rec[n] = vals
+    path = tmp_path / "n.ply"
+    plyfile.PlyData([plyfile.PlyElement.describe(rec, "vertex")]).write(str(path))
+    got = read_scene(path)
+    np.testing.assert_array_equal(got.extra["nx"].view(np.uint32), cols["nx"].view(np.uint32))
+    write_scene(tmp_path / "out.ply", got)
+    back = plyfile.PlyData.read(str(tmp_path / "out.ply"))["vertex"].data
+    np.testing.assert_array_equal(back["nx"].view(np.uint32), cols["nx"].view(np.uint32))
+
+
+def test_doubles_beyond_float32_are_read_rounded_with_a_warning(tmp_path, rng):
+    scene = random_scene(rng, n=5)
+    path = tmp_path / "d.ply"
+    write_ply_plyfile(path, scene, dtype="f8")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # exactly float32 values: nothing to say
+        read_scene(path)
+    rec = plyfile.PlyData.read(str(path))["vertex"].data.copy()
+    rec["x"][0] = 1000000.123456789
+    plyfile.PlyData([plyfile.PlyElement.describe(rec, "vertex")]).write(str(path))
+    with pytest.warns(UserWarning, match=r"d\.ply: x hold values beyond float32"):
+        got = read_scene(path)
+    assert got.means[0, 0] == np.float32(1000000.123456789)
+
+
 # --------------------------------------------------------------------------
 # ASCII memory (issue 12, item 2)
 

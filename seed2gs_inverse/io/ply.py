@@ -382,6 +382,13 @@ _NORMALS = ["nx", "ny", "nz"]
 _REST_RE = re.compile(r"^f_rest_(\d+)$")
 
 
+def _rounded(values) -> bool:
+    """Whether a finite float32 rounding of ``values`` (wider numbers) changes one (overflow is non-finite)."""
+    with np.errstate(over="ignore"):
+        f32 = values.astype(np.float32)
+    return bool(np.any((f32 != values) & np.isfinite(f32)))
+
+
 def read_standard_ply(path, header: PlyHeader, drop_nonfinite: bool = False) -> GaussianScene:
     """Decode a standard 3DGS PLY file (see the module docstring)."""
     vertex = header.element("vertex")
@@ -408,8 +415,15 @@ def read_standard_ply(path, header: PlyHeader, drop_nonfinite: bool = False) -> 
     if rest:
         # f_rest is channel-major: column c*(k-1) + j is coefficient j+1 of channel c.
         sh[:, 1:, :] = columns(vert, rest).reshape(n, 3, k - 1).transpose(0, 2, 1)
+    narrowed = [name for name in _REQUIRED + rest if vert.dtype[name].itemsize > 4 and _rounded(vert[name])]
+    if narrowed:
+        warnings.warn(f"{os.fspath(path)}: {', '.join(narrowed[:4])}{' ...' if len(narrowed) > 4 else ''} "
+                      f"hold values beyond float32; 3DGS scenes are float32, so they are read rounded to it "
+                      f"(a relative change of up to 6e-8)", stacklevel=4)
     extra = {}
-    zero_normals = not any(np.any(vert[name]) for name in _NORMALS if name in names)
+    # all-zero normals carry nothing (dropped); a -0.0 counts as stored, so a copy keeps every bit
+    zero_normals = not any(np.any(vert[name]) or np.any(np.signbit(vert[name]))
+                           for name in _NORMALS if name in names)
     for name in names:
         if name in _REQUIRED or name in rest:
             continue
