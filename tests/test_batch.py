@@ -551,3 +551,38 @@ def test_camera_specs_split_as_read_camera_splits_them(tmp_path, monkeypatch):
     (job,) = read_jobs(tmp_path / "jobs.toml")
     assert job.camera == f"{tmp_path / 'c.json'}:frame:1"
     assert job.input_files()["camera"] == str(tmp_path / "c.json")
+
+
+def test_the_dashboard_of_an_existing_scheduler_is_named_only_when_it_serves_its_page():
+    import threading
+    from http.server import BaseHTTPRequestHandler, HTTPServer
+
+    from seed2gs_inverse.batch.runner import _dashboard
+
+    class Page(BaseHTTPRequestHandler):
+        def do_GET(self):  # noqa: N802 - http.server's name
+            self.send_response(200 if self.path == "/status" else 404)
+            self.end_headers()
+
+        def log_message(self, *args):
+            pass
+
+    server = HTTPServer(("127.0.0.1", 0), Page)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    base = f"http://127.0.0.1:{server.server_port}"
+
+    class Client:  # an existing scheduler's client: no embedded cluster
+        cluster = None
+
+        def __init__(self, path):
+            self.dashboard_link = base + path
+
+        def scheduler_info(self):
+            return {"services": {"dashboard": server.server_port}}  # listed even with --no-dashboard
+
+    try:
+        assert _dashboard(Client("/status")) == base + "/status"
+        assert _dashboard(Client("/missing")) is None  # dask scheduler --no-dashboard answers 404
+    finally:
+        server.shutdown()
+        server.server_close()

@@ -184,15 +184,21 @@ def _dashboard(client) -> str | None:
 
     The scheduler's HTTP server always runs (health, metrics); its dashboard
     pages need bokeh, which for an embedded cluster is this environment's.
+    An existing scheduler (``dask scheduler --no-dashboard``, or one without
+    bokeh) is asked for the page itself, once, with a short timeout.
     """
     try:
         info = client.scheduler_info()
         if "dashboard" not in info.get("services", {}):
             return None
-        if getattr(client, "cluster", None) is not None and not _has_dashboard():
-            return None
-        return client.dashboard_link
-    except Exception:  # noqa: BLE001 - only a courtesy line
+        if getattr(client, "cluster", None) is not None:
+            return client.dashboard_link if _has_dashboard() else None
+        from urllib.request import urlopen
+
+        link = client.dashboard_link
+        with urlopen(link, timeout=2) as page:  # noqa: S310 - the scheduler's own http(s) address
+            return link if page.status == 200 else None
+    except Exception:  # noqa: BLE001 - only a courtesy line (a 404 without the dashboard raises)
         return None
 
 
