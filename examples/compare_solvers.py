@@ -21,10 +21,11 @@ make the identity switch realistic)::
     python examples/compare_solvers.py
 
 Real data: insert an object file into a scene file (composites give exact
-truth: the inserted Gaussians are the object) and orbit around it::
+truth: the inserted Gaussians are the object) and orbit around it; here the
+unicorn stands on the firepit's white table::
 
     python examples/compare_solvers.py --scene firepit.ply --insert unicorn.ply \
-        --at 0.55 2.1 -0.35 --height 0.5
+        --at 0.93 1.4 -1.22 --height 0.4
 """
 
 from __future__ import annotations
