@@ -508,9 +508,8 @@ def _run_on_dask(client, todo, out, retries, record) -> None:
     which the scheduler keeps in its own queue and hands out, in submission
     order, as threads come free. Extraction jobs take from a second to a
     minute, so placing them early let a worker sit idle while another held
-    queued jobs behind a long one (``benchmarks/bench_batch.py``: 2 workers
-    took 28.0 s for 47.3 s of task time, 1.08 s per job idle or in
-    overhead). So every job's key starts with the same name
+    queued jobs behind a long one (``benchmarks/bench_batch.py`` showed
+    workers idle for about a second per job that way). So every job's key starts with the same name
     (``("seed2gs-extract", job name, attempt, token)``) and all are
     submitted in one call: one group from the start. The scheduler sees
     the whole batch, so an adaptive cluster scales to it.

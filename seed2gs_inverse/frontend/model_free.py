@@ -315,9 +315,9 @@ class GeometricTracker:
         Measured on benchmarks/bench_extract.py (13 cases, mean held-out
         mIoU / mBIoU) with the defaults of ``extract`` when the support
         rule landed (``min_weight`` 0.01, weighted_bce ``max_iter`` 30):
-        1 pass without refill 0.973 / 0.913,
-        ``refill=True, fill_passes=2`` 0.970 / 0.905 (worst case 0.925 vs
-        0.924). Before the support rule refill won (CHANGELOG, issue 10):
+        1 pass without refill 0.973 / 0.913 (load 1.2-1.4); ``refill=True,
+        fill_passes=2`` scored a little lower on both, with the same worst
+        case. Before the support rule refill won (CHANGELOG, issue 10):
         it was the first remedy for the errors at contact lines that the
         support rule now stops; it also loses on a back view of the plush
         scene of tests/test_unseen_surfaces.py (below its 0.9 bound).

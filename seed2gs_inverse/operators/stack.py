@@ -155,9 +155,9 @@ class OperatorStack(LinearOperator):
     def stacked_transpose(self) -> sp.csc_matrix:
         """``stacked().T`` (N, sum of pixels) as a CSC matrix: a view of the stacked CSR, no copy; cached.
 
-        An explicit CSR transpose was no faster for the adjoint product on the
-        firepit benchmark (23.6 vs 24.2 ms per pass over 35.5M weights) but
-        cost 1.6-1.9 s and a second copy of every weight.
+        An explicit CSR transpose was not faster for the adjoint product on the
+        firepit benchmark, and it costs a second copy of every weight and
+        seconds to build.
         """
         if self._stacked_T is None:
             self._stacked_T = self.stacked().T

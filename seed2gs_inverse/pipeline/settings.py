@@ -26,11 +26,12 @@ __all__ = ["ExtractSettings", "SOLVER_DEFAULTS", "MODES", "PROFILES", "LIMITS", 
 #: Solver options extract() uses unless told otherwise: the weighted BCE
 #: selection settles within a couple of dozen L-BFGS-B iterations when
 #: started from G0, and the iterations dominate the solve's time. On
-#: benchmarks/bench_extract.py (13 cases, load 1.2-1.4) 20 iterations gave
-#: mean held-out mIoU / mBIoU / 3D IoU 0.973 / 0.913 / 0.928, no case's mIoU
-#: lower than with 30 (0.973 / 0.913 / 0.927); 200 (the solver's own
-#: default) scored as 30 on the procedural scenes and the firepit+unicorn
-#: benchmark when 30 was chosen.
+#: benchmarks/bench_extract.py (13 cases, load 1.2-1.4) 20 iterations gave,
+#: when chosen, no case's mIoU lower than 30 (mean held-out mIoU / mBIoU / 3D
+#: IoU 0.973 / 0.913 / 0.928 against 0.973 / 0.913 / 0.927); the suite gives
+#: 0.974 / 0.917 / 0.928 today (load 1.0-1.4). 200 (the solver's own default)
+#: scored as 30 on the procedural scenes and the firepit+unicorn benchmark
+#: when 30 was chosen.
 SOLVER_DEFAULTS = {"weighted_bce": {"max_iter": 20}}
 
 #: Rasterization modes and spiral profiles extract accepts.
@@ -159,9 +160,11 @@ class ExtractSettings:
         960x540 reference). The orbit views are object-centric (zoomed), so
         even this resolution puts a few thousand pixels on the object, and
         the operators (non-zeros) dominate time and memory: on the
-        firepit+unicorn benchmark 160k pixels per view cost 3x the time for
-        the same accuracy (mIoU 0.900 vs 0.894 on pose 0). None: no cap;
-        else in 64..2**24.
+        firepit + unicorn extraction of benchmarks/bench_speed.py, 160k
+        pixels per view (``--set max_view_pixels=160000``, load 0.1-0.5)
+        took 7.1 s per extraction with held-out mIoU 0.963, against 3.1 s
+        and 0.985 with the default (load 0.4-1.0). None: no cap; else in
+        64..2**24.
     max_reference_pixels : int or None
         The reference view (seed lift, frame 0 of both clips, first
         supervision view) keeps the camera's resolution up to this many

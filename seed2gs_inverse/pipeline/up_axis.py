@@ -77,9 +77,9 @@ confidence :math:`c` below (method ``"scene-plane"``; the disagreement
 stays one of its checks, so such an answer is usually weak and warns): a
 local "plane" can
 be a flat patch of the object's own unseen side, denser than the ground
-(on yard-unicorn-15 of benchmarks/bench_extract.py, 2 % of the local points
-on the unicorn's back, 63 degrees off, against 20 % of the scene on the
-lawn). When the scene plane agrees with it within ``agree_deg`` (5 degrees) they
+(on yard-unicorn-15 of benchmarks/bench_extract.py, a patch on the
+unicorn's back, far off the vertical, against the lawn that holds a much
+larger share of the scene). When the scene plane agrees with it within ``agree_deg`` (5 degrees) they
 are the same surface seen at two extents, and the axis is their
 inlier-weighted mean normal :math:`(k_l n_l + k_g n_g) / \|\cdot\|`
 (method ``"support-plane+scene-plane"``): a local patch of uneven ground is
@@ -129,8 +129,8 @@ UP_DEFAULTS = {"local_factor": 3.0, "max_below": 3.0, "max_roll_deg": 20.0, "max
 _CHECK_DEG = 8.0
 _FRACTION_FULL = 0.15
 #: When neither plane holds this share of its points there is no ground in sight (an object scanned
-#: alone: the best "planes" of a person or a guitar hold 1-3 %) and neither is used: the axis comes
-#: from the cameras, the normals or the image-up.
+#: alone: the best "planes" of a scanned person or guitar hold a few percent) and neither is used: the
+#: axis comes from the cameras, the normals or the image-up.
 _FRACTION_MIN = 0.05
 #: The normals fallback is taken only within this angle of the image-up (a view pitched further with
 #: no plane in sight is less likely than a dominant flat surface that is not the ground).
