@@ -309,8 +309,8 @@ class GaussianScene:
         # without a rotation the stored quaternions (normalised or not) are kept bit for bit
         quats = (quat_multiply(rotmat_to_quat(rot), self.rotations.astype(np.float64)).astype(np.float32)
                  if turned else self.quats.copy())
-        log_scales = (self.log_scales.astype(np.float64) + np.log(scale)).astype(np.float32) if scale != 1 else \
-            self.log_scales.copy()
+        log_scales = (self.log_scales.copy() if scale == 1
+                      else (self.log_scales.astype(np.float64) + np.log(scale)).astype(np.float32))
         sh = rotate_sh(self.sh, rot).astype(np.float32) if turned and self.sh.shape[1] > 1 else self.sh.copy()
         return GaussianScene(means, quats, log_scales, self.opacity_logits.copy(), sh,
                              {k: v.copy() for k, v in self.extra.items()})

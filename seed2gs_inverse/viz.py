@@ -124,8 +124,8 @@ def membership_plot(scene: GaussianScene, q=None, mode: str = "points", threshol
         Cap on ellipsoids.
     glyph_sigma, point_size, cmap, window_size, background, scalar_bar
         Drawing options; ``window_size`` is ``(width, height)``, each in
-        1..8192, default the camera's image size or ``(1024, 768)``; ``scalar_bar`` shows the colormap legend when ``q``
-        is given.
+        1..8192, default the camera's image size or ``(1024, 768)``;
+        ``scalar_bar`` shows the colormap legend when ``q`` is given.
     min_opacity : float
         Hide Gaussians with activated opacity below this (real scenes carry
         many invisible ones that clutter the view).
@@ -246,13 +246,12 @@ def _draw(pl, scene, qv, idx, mode, caption, camera, up, glyph_sigma, point_size
     elif idx.size:
         pl.view_isometric()
         if up is not None:
-            # Oblique view from above along the scene's own "up" (VTK assumes +z).
-            u = up
-            side = np.cross(u, [1.0, 0.0, 0.0] if abs(u[0]) < 0.9 else [0.0, 1.0, 0.0])
+            # Oblique view from above along the scene's own "up" (a unit vector; VTK assumes +z).
+            side = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
             side /= np.linalg.norm(side)
             focal = np.asarray(pl.camera.focal_point)
-            pl.camera.position = tuple(focal + pl.camera.distance * (0.8 * side + 0.6 * u))
-            pl.camera.up = tuple(u)
+            pl.camera.position = tuple(focal + pl.camera.distance * (0.8 * side + 0.6 * up))
+            pl.camera.up = tuple(up)
             pl.reset_camera()
 
 

@@ -509,8 +509,9 @@ def _run_on_dask(client, todo, out, retries, record) -> None:
     order, as threads come free. Extraction jobs take from a second to a
     minute, so placing them early let a worker sit idle while another held
     queued jobs behind a long one (``benchmarks/bench_batch.py`` showed
-    workers idle for about a second per job that way). So every job's key starts with the same name
-    (``("seed2gs-extract", job name, attempt, token)``) and all are
+    workers idle for about a second per job that way). So every job's key
+    starts with the same name (``("seed2gs-extract", job name, attempt,
+    token)``) and all are
     submitted in one call: one group from the start. The scheduler sees
     the whole batch, so an adaptive cluster scales to it.
     """

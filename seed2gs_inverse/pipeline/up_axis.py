@@ -79,7 +79,8 @@ local "plane" can
 be a flat patch of the object's own unseen side, denser than the ground
 (on yard-unicorn-15 of benchmarks/bench_extract.py, a patch on the
 unicorn's back, far off the vertical, against the lawn that holds a much
-larger share of the scene). When the scene plane agrees with it within ``agree_deg`` (5 degrees) they
+larger share of the scene). When the scene plane agrees with it within
+``agree_deg`` (5 degrees) they
 are the same surface seen at two extents, and the axis is their
 inlier-weighted mean normal :math:`(k_l n_l + k_g n_g) / \|\cdot\|`
 (method ``"support-plane+scene-plane"``): a local patch of uneven ground is
