@@ -451,7 +451,6 @@ def test_embedded_cluster_sizes_numba_threads(dask_client):
     assert set(env.values()) == {(str(want), "PASSIVE")}
 
 
-
 def test_threads_per_worker_sets_the_workers_threads_and_is_checked():
     from seed2gs_inverse.batch import batch_client
 

@@ -86,7 +86,6 @@ def test_recolour(rng):
         recolour(s, np.ones(3, bool), [1, 0, 0])
 
 
-
 def test_recolour_rows_follow_the_given_indices_and_empty_lists_select_nothing(rng):
     s = _scene(rng)
     out = recolour(s, [7, 2], [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # 7 red, 2 green
