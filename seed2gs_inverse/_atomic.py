@@ -166,7 +166,7 @@ def atomic_path(target, directory: bool = False):
             tmp = Path(name)
             mode = 0o666
     except OSError as exc:  # a read-only or full directory: name the target, not the temporary
-        raise _WriteError(exc.errno, f"{exc.strerror or exc} while writing {target}") from exc
+        raise _naming(exc, target) from exc
     try:
         yield tmp
         os.chmod(tmp, mode & ~_umask())
@@ -186,19 +186,26 @@ def atomic_path(target, directory: bool = False):
             shutil.rmtree(tmp, ignore_errors=True)
         elif tmp.exists():
             tmp.unlink()
-        if isinstance(exc, _WriteError):
+        if getattr(exc, "_seed2gs_target", None) is not None:
             # from an atomic write inside our temporary directory: name that file's final place
-            raise _WriteError(exc.errno, str(exc.strerror).replace(os.fspath(tmp), os.fspath(target))) \
-                from exc.__cause__
+            inner = os.fspath(exc._seed2gs_target)
+            raise _naming(exc, inner.replace(os.fspath(tmp), os.fspath(target), 1)) from exc.__cause__
         if isinstance(exc, OSError) and exc.errno is not None and (
                 exc.filename is None or os.fspath(exc.filename).startswith(os.fspath(tmp))):
             # a full disk or a refused rename: name what was being written, not its temporary
-            raise _WriteError(exc.errno, f"{exc.strerror or exc} while writing {target}") from exc
+            raise _naming(exc, target) from exc
         raise
 
 
-class _WriteError(OSError):
-    """An OSError of :func:`atomic_path` whose message names the file being written (once)."""
+def _naming(exc: OSError, target) -> OSError:
+    """``exc`` again as ``"<reason> while writing <target>"``, of the errno's own OSError subclass
+    (PermissionError, FileNotFoundError, ...), marked with its reason and target so that an
+    enclosing write names its own final path instead."""
+    reason = getattr(exc, "_seed2gs_reason", None) or exc.strerror or str(exc)
+    err = OSError(exc.errno, f"{reason} while writing {target}") if exc.errno is not None else \
+        OSError(f"{reason} while writing {target}")
+    err._seed2gs_reason, err._seed2gs_target = reason, target
+    return err
 
 
 def write_files(items) -> None:

@@ -203,6 +203,9 @@ def test_nested_and_refused_writes_name_the_final_file_once(tmp_path, monkeypatc
                 raise OSError(errno.ENOSPC, "No space left on device", str(tmp))
     msg = str(exc.value)
     assert exc.value.errno == errno.ENOSPC and msg.count("while writing") == 1, msg
+    with pytest.raises(PermissionError, match=r"Permission denied while writing .*out$"):  # the errno's class
+        with atomic_path(out, directory=True) as tmpdir:
+            raise OSError(errno.EACCES, "Permission denied", str(tmpdir / "x"))
     assert f"while writing {out / 'remainder.ply'}" in msg and ".tmp" not in msg
     assert list(tmp_path.iterdir()) == []
 
