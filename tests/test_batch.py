@@ -552,21 +552,31 @@ def test_camera_specs_split_as_read_camera_splits_them(tmp_path, monkeypatch):
     assert job.input_files()["camera"] == str(tmp_path / "c.json")
 
 
-def test_the_dashboard_of_an_existing_scheduler_is_named_only_when_it_serves_its_page():
+def test_the_dashboard_of_an_existing_scheduler_is_named_only_when_it_serves_its_page(monkeypatch):
     import threading
-    from http.server import BaseHTTPRequestHandler, HTTPServer
+    import time
+    from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
     from seed2gs_inverse.batch.runner import _dashboard
 
+    slow_started = [0.0]
+
     class Page(BaseHTTPRequestHandler):
         def do_GET(self):  # noqa: N802 - http.server's name
+            if self.path == "/slow":  # headers a byte at a time: each read within a timeout of 2 s
+                slow_started[0] = time.perf_counter()
+                for byte in b"HTTP/1.0 200 OK\r\n":
+                    self.wfile.write(bytes([byte]))
+                    self.wfile.flush()
+                    time.sleep(0.25)
+                return
             self.send_response(200 if self.path == "/status" else 404)
             self.end_headers()
 
         def log_message(self, *args):
             pass
 
-    server = HTTPServer(("127.0.0.1", 0), Page)
+    server = ThreadingHTTPServer(("127.0.0.1", 0), Page)
     threading.Thread(target=server.serve_forever, daemon=True).start()
     base = f"http://127.0.0.1:{server.server_port}"
 
@@ -582,6 +592,14 @@ def test_the_dashboard_of_an_existing_scheduler_is_named_only_when_it_serves_its
     try:
         assert _dashboard(Client("/status")) == base + "/status"
         assert _dashboard(Client("/missing")) is None  # dask scheduler --no-dashboard answers 404
+        monkeypatch.setenv("http_proxy", "http://127.0.0.1:9")  # a proxy that answers nothing: not asked
+        monkeypatch.setenv("no_proxy", "")
+        assert _dashboard(Client("/status")) == base + "/status"
+        assert _dashboard(Client("/slow")) is None  # within the limit, however the server trickles
+        assert 1.0 < time.perf_counter() - slow_started[0] < 2.9
+        relative = Client("/status")
+        relative.dashboard_link = "/user/me/proxy/8787/status"  # JupyterHub: given as configured
+        assert _dashboard(relative) == "/user/me/proxy/8787/status"
     finally:
         server.shutdown()
         server.server_close()

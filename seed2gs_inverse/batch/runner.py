@@ -185,7 +185,9 @@ def _dashboard(client) -> str | None:
     The scheduler's HTTP server always runs (health, metrics); its dashboard
     pages need bokeh, which for an embedded cluster is this environment's.
     An existing scheduler (``dask scheduler --no-dashboard``, or one without
-    bokeh) is asked for the page itself, once, with a short timeout.
+    bokeh) is asked for the page itself (:func:`_serves`); a link that is
+    not an http(s) address (a relative JupyterHub proxy path) is given as
+    configured.
     """
     try:
         info = client.scheduler_info()
@@ -193,13 +195,33 @@ def _dashboard(client) -> str | None:
             return None
         if getattr(client, "cluster", None) is not None:
             return client.dashboard_link if _has_dashboard() else None
-        from urllib.request import urlopen
-
         link = client.dashboard_link
-        with urlopen(link, timeout=2) as page:  # noqa: S310 - the scheduler's own http(s) address
-            return link if page.status == 200 else None
-    except Exception:  # noqa: BLE001 - only a courtesy line (a 404 without the dashboard raises)
+        return link if not link.startswith(("http://", "https://")) or _serves(link) else None
+    except Exception:  # noqa: BLE001 - only a courtesy line
         return None
+
+
+def _serves(link: str, seconds: float = 2.0) -> bool:
+    """Whether ``link`` answers 200 within ``seconds`` in all (no proxy: it is the cluster's own address).
+
+    Asked on a daemon thread, so a slow server or name lookup cannot hold the batch up longer.
+    """
+    import threading
+    from urllib.request import ProxyHandler, build_opener
+
+    answer = []
+
+    def ask():
+        try:
+            with build_opener(ProxyHandler({})).open(link, timeout=seconds) as page:
+                answer.append(page.status == 200)
+        except Exception:  # noqa: BLE001 - a 404 (no dashboard), a refused connection, a bad certificate
+            answer.append(False)
+
+    asker = threading.Thread(target=ask, daemon=True, name="seed2gs-dashboard-probe")
+    asker.start()
+    asker.join(seconds)
+    return bool(answer and answer[0])
 
 
 def _as_jobs(jobs) -> list[Job]:
@@ -511,8 +533,7 @@ def _run_on_dask(client, todo, out, retries, record) -> None:
     queued jobs behind a long one (``benchmarks/bench_batch.py`` showed
     workers idle for about a second per job that way). So every job's key
     starts with the same name (``("seed2gs-extract", job name, attempt,
-    token)``) and all are
-    submitted in one call: one group from the start. The scheduler sees
+    token)``) and all are submitted in one call: one group from the start. The scheduler sees
     the whole batch, so an adaptive cluster scales to it.
     """
     import uuid
