@@ -54,9 +54,14 @@ def unit_vector(name: str, v) -> np.ndarray:
         arr = np.asarray(v, dtype=np.float64)
     except (TypeError, ValueError):
         arr = None
-    if arr is None or arr.shape != (3,) or not np.all(np.isfinite(arr)) or np.linalg.norm(arr) < 1e-12:
-        raise ValidationError(f"'{name}' must be a finite non-zero 3-vector, got {np.asarray(v).tolist()!r}")
-    return arr / np.linalg.norm(arr)
+    if arr is None or arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        raise ValidationError(f"'{name}' must be a finite non-zero 3-vector, got {v!r}")
+    big = np.max(np.abs(arr)) > 1e150  # entries whose squares overflow: scale first
+    arr = arr / np.max(np.abs(arr)) if big else arr
+    norm = np.linalg.norm(arr)
+    if norm < 1e-12:
+        raise ValidationError(f"'{name}' must be a finite non-zero 3-vector, got {v!r}")
+    return arr / norm
 
 
 def cross_matrix(v) -> np.ndarray:

@@ -10,10 +10,11 @@ reports.
 
 from __future__ import annotations
 
-import operator
+import numbers
 import os
 import sys
 import warnings
+from pathlib import Path
 
 import numpy as np
 
@@ -155,10 +156,11 @@ def membership_plot(scene: GaussianScene, q=None, mode: str = "points", threshol
     if not (np.isfinite(min_opacity) and 0 <= min_opacity <= 1):
         raise ValidationError(f"min_opacity must be in [0, 1], got {min_opacity!r}")
     up = None if up is None else unit_vector("up", up)
-    if window_size is None and camera is not None:
-        window_size = _window_size((camera.width, camera.height), "the camera's image size (pass window_size)")
-    window_size = _window_size((1024, 768) if window_size is None else window_size)
-    if screenshot is not None and not str(screenshot).lower().endswith(".png"):
+    if window_size is not None:
+        window_size = _window_size(window_size)
+    else:  # a camera's image size is checked with the camera
+        window_size = [camera.width, camera.height] if camera is not None else [1024, 768]
+    if screenshot is not None and Path(screenshot).suffix.lower() != ".png":
         raise ValidationError(f"screenshot {str(screenshot)!r}: must be a .png path (the image is written as PNG)")
     if off_screen is None:
         off_screen = not has_display()
@@ -182,8 +184,49 @@ def membership_plot(scene: GaussianScene, q=None, mode: str = "points", threshol
         warnings.warn(caption + "; raise max_glyphs to draw more", stacklevel=2)
     pl = pv.Plotter(off_screen=bool(off_screen), window_size=list(window_size))
     try:
-        _draw(pl, scene, qv, idx, mode, caption, camera, up, glyph_sigma, point_size, cmap, background,
-              scalar_bar)
+        pl.set_background(background)
+        if qv is not None:
+            color_kw = dict(scalars=qv[idx], cmap=cmap, clim=(0.0, 1.0), show_scalar_bar=bool(scalar_bar),
+                            scalar_bar_args={"title": "q", "n_labels": 3, "fmt": "%.1f", "vertical": True,
+                                             "position_x": 0.86, "position_y": 0.15,
+                                             "width": 0.08, "height": 0.7})
+        else:
+            rgb = np.clip(SH_C0 * scene.sh[idx, 0, :].astype(np.float64) + 0.5, 0.0, 1.0)
+            color_kw = dict(scalars=(rgb * 255).astype(np.uint8), rgb=True)
+        if idx.size == 0:
+            pl.add_text("no Gaussians to show", font_size=10, color="black")
+        elif mode == "points":
+            cloud = pv.PolyData(scene.means[idx].astype(np.float64))
+            pl.add_mesh(cloud, style="points", point_size=point_size, lighting=False,
+                        render_points_as_spheres=False, **color_kw)
+        else:
+            pts, faces, v = _ellipsoid_mesh(scene.means[idx].astype(np.float64),
+                                            quat_to_rotmat(scene.quats[idx]),
+                                            glyph_sigma * scene.scales[idx].astype(np.float64))
+            mesh = pv.PolyData(pts, faces)
+            color_kw["scalars"] = np.repeat(color_kw["scalars"], v, axis=0)
+            pl.add_mesh(mesh, smooth_shading=False, **color_kw)
+        if caption:
+            pl.add_text(caption, font_size=8, color="black")
+        if camera is not None:
+            pl.camera.position = tuple(camera.center)
+            pl.camera.focal_point = tuple(camera.center + camera.forward)
+            pl.camera.up = tuple(camera.up)
+            pl.camera.view_angle = float(np.degrees(camera.fov_y))
+            # VTK centres the optical axis; shift the window so it lands on (cx, cy).
+            pl.camera.SetWindowCenter(1.0 - 2.0 * camera.cx / camera.width,
+                                      2.0 * camera.cy / camera.height - 1.0)
+            pl.reset_camera_clipping_range()
+        elif idx.size:
+            pl.view_isometric()
+            if up is not None:
+                # Oblique view from above along the scene's own "up" (a unit vector; VTK assumes +z).
+                side = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+                side /= np.linalg.norm(side)
+                focal = np.asarray(pl.camera.focal_point)
+                pl.camera.position = tuple(focal + pl.camera.distance * (0.8 * side + 0.6 * up))
+                pl.camera.up = tuple(up)
+                pl.reset_camera()
         img = None if screenshot is None else pl.screenshot(str(screenshot), return_img=True)
     except BaseException:
         pl.close()  # no off-screen plotter (and its GL context) left behind
@@ -194,65 +237,19 @@ def membership_plot(scene: GaussianScene, q=None, mode: str = "points", threshol
     return img
 
 
-def _window_size(size, what: str = "window_size") -> list:
-    """``[width, height]`` from a pair of integers in 1..8192 (a ValidationError naming ``what`` otherwise)."""
+def _window_size(size) -> list:
+    """``[width, height]`` from two whole numbers in 1..8192 (a ValidationError otherwise)."""
     try:
-        w, h = (operator.index(v) for v in size)
-    except (TypeError, ValueError):
-        raise ValidationError(f"{what} must be two integers (width, height), got {size!r}") from None
+        vals = list(size)
+    except TypeError:
+        vals = []
+    if len(vals) != 2 or not all(isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_))
+                                 and float(v).is_integer() for v in vals):
+        raise ValidationError(f"window_size must be two whole numbers (width, height), got {size!r}")
+    w, h = (int(v) for v in vals)
     if not (0 < w <= 8192 and 0 < h <= 8192):
-        raise ValidationError(f"{what} {tuple(size)!r}: width and height must be in 1..8192")
-    return [int(w), int(h)]
-
-
-def _draw(pl, scene, qv, idx, mode, caption, camera, up, glyph_sigma, point_size, cmap, background,
-          scalar_bar) -> None:
-    """Fill the plotter ``pl`` for :func:`membership_plot` (its arguments, checked)."""
-    import pyvista as pv
-
-    pl.set_background(background)
-    if qv is not None:
-        color_kw = dict(scalars=qv[idx], cmap=cmap, clim=(0.0, 1.0), show_scalar_bar=bool(scalar_bar),
-                        scalar_bar_args={"title": "q", "n_labels": 3, "fmt": "%.1f", "vertical": True,
-                                         "position_x": 0.86, "position_y": 0.15,
-                                         "width": 0.08, "height": 0.7})
-    else:
-        rgb = np.clip(SH_C0 * scene.sh[idx, 0, :].astype(np.float64) + 0.5, 0.0, 1.0)
-        color_kw = dict(scalars=(rgb * 255).astype(np.uint8), rgb=True)
-    if idx.size == 0:
-        pl.add_text("no Gaussians to show", font_size=10, color="black")
-    elif mode == "points":
-        cloud = pv.PolyData(scene.means[idx].astype(np.float64))
-        pl.add_mesh(cloud, style="points", point_size=point_size, lighting=False,
-                    render_points_as_spheres=False, **color_kw)
-    else:
-        pts, faces, v = _ellipsoid_mesh(scene.means[idx].astype(np.float64),
-                                        quat_to_rotmat(scene.quats[idx]),
-                                        glyph_sigma * scene.scales[idx].astype(np.float64))
-        mesh = pv.PolyData(pts, faces)
-        color_kw["scalars"] = np.repeat(color_kw["scalars"], v, axis=0)
-        pl.add_mesh(mesh, smooth_shading=False, **color_kw)
-    if caption:
-        pl.add_text(caption, font_size=8, color="black")
-    if camera is not None:
-        pl.camera.position = tuple(camera.center)
-        pl.camera.focal_point = tuple(camera.center + camera.forward)
-        pl.camera.up = tuple(camera.up)
-        pl.camera.view_angle = float(np.degrees(camera.fov_y))
-        # VTK centres the optical axis; shift the window so it lands on (cx, cy).
-        pl.camera.SetWindowCenter(1.0 - 2.0 * camera.cx / camera.width,
-                                  2.0 * camera.cy / camera.height - 1.0)
-        pl.reset_camera_clipping_range()
-    elif idx.size:
-        pl.view_isometric()
-        if up is not None:
-            # Oblique view from above along the scene's own "up" (a unit vector; VTK assumes +z).
-            side = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
-            side /= np.linalg.norm(side)
-            focal = np.asarray(pl.camera.focal_point)
-            pl.camera.position = tuple(focal + pl.camera.distance * (0.8 * side + 0.6 * up))
-            pl.camera.up = tuple(up)
-            pl.reset_camera()
+        raise ValidationError(f"window_size {(w, h)!r}: width and height must be in 1..8192")
+    return [w, h]
 
 
 def view_grid(images, masks=None, titles=None, ncols: int | None = None, mask_color=(1.0, 0.1, 0.1),

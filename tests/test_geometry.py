@@ -99,6 +99,9 @@ def test_unit_vector_rejects_bad_input_naming_it(bad):
 
 def test_unit_vector_normalises():
     np.testing.assert_allclose(unit_vector("v", [3, 0, 4]), [0.6, 0, 0.8])
+    np.testing.assert_allclose(unit_vector("v", [1e308] * 3), np.full(3, 3 ** -0.5))  # |v| overflows
+    with pytest.raises(ValidationError, match=r"'v' must be a finite non-zero 3-vector, got \[1, \[2\], 3\]"):
+        unit_vector("v", [1, [2], 3])  # ragged: the message shows it as given
 
 
 # ---------------------------------------------------------------------------

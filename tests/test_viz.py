@@ -104,7 +104,8 @@ def test_scene_colours_and_ellipsoid_cap(offscreen, rng, tmp_path):
     assert img.shape == (H, W, 3) and _foreground(img).any()
 
 
-def test_membership_plot_validates(rng):
+def test_membership_plot_validates(rng, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # a check that regressed would write its screenshot here
     scene = _cloud(rng, n=10)
     with pytest.raises(ValidationError, match=r"shape \(10,\)"):
         membership_plot(scene, np.ones(9), screenshot="x.png")
@@ -116,13 +117,13 @@ def test_membership_plot_validates(rng):
         membership_plot(scene, mode="voxels", screenshot="x.png")
     assert not os.path.exists("x.png")
 
-    for size in [(0, 0), (-5, 10), (10,), (9000, 10), (1.5, 2)]:
+    for size in [(0, 0), (-5, 10), (10,), (9000, 10), (1.5, 2), (True, True), ("64", "48"), 7]:
         with pytest.raises(ValidationError, match="window_size"):
             membership_plot(scene, screenshot="x.png", window_size=size)
     for up in [(0, 0, 0), (np.nan, 0, 0), (0, 1)]:
         with pytest.raises(ValidationError, match="'up' must be a finite non-zero 3-vector"):
             membership_plot(scene, screenshot="x.png", up=up)
-    for path in ["x.jpg", "shot"]:
+    for path in ["x.jpg", "shot", ".png"]:
         with pytest.raises(ValidationError, match=r"\.png path"):
             membership_plot(scene, screenshot=path)
     assert not os.path.exists("x.png") and not os.path.exists("shot.png")
@@ -132,7 +133,7 @@ def test_membership_plot_empty_scene_and_no_plotter_left_after_an_error(offscree
     from pyvista.plotting.plotter import _ALL_PLOTTERS
 
     empty = _cloud(rng, n=5).subset(np.zeros(5, bool))
-    img = membership_plot(empty, np.zeros(0), screenshot=tmp_path / "e.png", window_size=(32, 24))
+    img = membership_plot(empty, np.zeros(0), screenshot=tmp_path / "e.png", window_size=(32.0, np.int64(24)))
     assert img.shape == (24, 32, 3) and (tmp_path / "e.png").is_file()  # the "no Gaussians" caption
     open_before = sum(not pl._closed for pl in _ALL_PLOTTERS.values())
     with pytest.raises(ValueError):
