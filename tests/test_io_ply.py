@@ -345,9 +345,22 @@ def test_doubles_beyond_float32_are_read_rounded_with_a_warning(tmp_path, rng):
     rec = plyfile.PlyData.read(str(path))["vertex"].data.copy()
     rec["x"][0] = 1000000.123456789
     plyfile.PlyData([plyfile.PlyElement.describe(rec, "vertex")]).write(str(path))
-    with pytest.warns(UserWarning, match=r"d\.ply: x hold values beyond float32"):
+    with pytest.warns(UserWarning, match=r"d\.ply: x holds values beyond float32") as caught:
         got = read_scene(path)
     assert got.means[0, 0] == np.float32(1000000.123456789)
+    assert caught[0].filename == __file__  # the caller's line, not the reader's
+    rec["x"][0] = 0.0
+    rec["opacity"][1] = 1e300  # beyond float32's range: non-finite, reported as such, not as rounded
+    plyfile.PlyData([plyfile.PlyElement.describe(rec, "vertex")]).write(str(path))
+    with pytest.warns(UserWarning) as caught:
+        read_scene(path)
+    assert not any("beyond float32" in str(w.message) for w in caught)
+    rec1 = rec[:1].copy()
+    rec1["x"][0] = 0.1  # ASCII writers print float32 data at its shortest: not flagged
+    plyfile.PlyData([plyfile.PlyElement.describe(rec1, "vertex")], text=True).write(str(path))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read_scene(path)
 
 
 # --------------------------------------------------------------------------

@@ -18,6 +18,23 @@ from ..scene import GaussianScene
 
 __all__: list[str] = []
 
+_PACKAGE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # .../seed2gs_inverse
+
+
+def warn_caller(message: str) -> None:
+    """``warnings.warn(message)`` attributed to the first caller outside this package.
+
+    The readers are reached through different call depths (``read_scene``,
+    the element readers, the CLI), so a fixed ``stacklevel`` points at a
+    line of the package half of the time.
+    """
+    import sys
+
+    level, frame = 1, sys._getframe(0)
+    while frame is not None and frame.f_code.co_filename.startswith(_PACKAGE):
+        frame, level = frame.f_back, level + 1
+    warnings.warn(message, UserWarning, stacklevel=level)
+
 # Opacity logit used for a stored opacity of exactly 0 or 1 (8-bit formats
 # store sigmoid(logit) and cannot represent the infinities). Same value as the
 # PlayCanvas engine's decoder, so scenes decoded here match it.
@@ -180,7 +197,7 @@ def gzip_into(path, data, out: np.ndarray, stop_when_full: bool = False) -> int:
 def warn_trailing(path, nbytes: int, what: str) -> None:
     """Warn that ``nbytes`` bytes after ``what`` are ignored (padding, or a sign of a damaged file)."""
     if nbytes > 0:
-        warnings.warn(f"{os.fspath(path)}: ignoring {nbytes} bytes after {what}", stacklevel=4)
+        warn_caller(f"{os.fspath(path)}: ignoring {nbytes} bytes after {what}")
 
 
 def zstd_into(path, data, out: np.ndarray, what: str) -> None:
@@ -239,8 +256,8 @@ def saturate_opacity(path, opacity_logits: np.ndarray, field: str = "opacity") -
     n_pos = int(np.count_nonzero(inf & (opacity_logits > 0)))
     n_neg = int(np.count_nonzero(inf)) - n_pos
     out = np.where(inf, np.copysign(OPACITY_LOGIT_LIMIT, opacity_logits), opacity_logits)
-    warnings.warn(f"{os.fspath(path)}: {n_pos} '{field}' logits are +inf and {n_neg} are -inf; "
-                  f"read as +-{OPACITY_LOGIT_LIMIT:g} (saturated opacity 1 or 0)", stacklevel=4)
+    warn_caller(f"{os.fspath(path)}: {n_pos} '{field}' logits are +inf and {n_neg} are -inf; "
+                f"read as +-{OPACITY_LOGIT_LIMIT:g} (saturated opacity 1 or 0)")
     return out.astype(opacity_logits.dtype, copy=False)
 
 
@@ -293,8 +310,7 @@ def finish_scene(path, means, quats, log_scales, opacity_logits, sh, extra=None,
                              f"line: seed2gs convert --drop-nonfinite IN OUT writes a cleaned copy; the "
                              f"Gaussians after a dropped one move up, so q and labels of the cleaned "
                              f"copy index it, not this file)")
-        warnings.warn(f"{os.fspath(path)}: dropped {nbad} of {n} invalid Gaussians: {what}",
-                      stacklevel=3)
+        warn_caller(f"{os.fspath(path)}: dropped {nbad} of {n} invalid Gaussians: {what}")
         keep = ~bad
         means, quats, log_scales = means[keep], quats[keep], log_scales[keep]
         opacity_logits, sh = opacity_logits[keep], sh[keep]

@@ -38,7 +38,6 @@ import math
 import os
 import re
 import struct
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -46,7 +45,7 @@ import numpy as np
 from ..camera import Camera
 from ..errors import FormatError, Seed2GSError, ValidationError
 from ..scene import quat_to_rotmat
-from ._common import atomic_write, fail
+from ._common import atomic_write, fail, warn_caller
 
 __all__ = ["read_cameras", "read_camera", "write_cameras"]
 
@@ -360,8 +359,8 @@ def _read_nerfstudio(path, doc) -> list:
         c2w = m[:3, :3] * np.array([1.0, -1.0, -1.0])  # OpenGL -> OpenCV camera axes
         cams.append(_camera(label, name, w, h, fx, fy, cx, cy, c2w, m[:3, 3]))
     if distorted:
-        warnings.warn(f"{os.fspath(path)}: lens distortion of {distorted} frames is ignored "
-                      f"(pinhole projection is used)", stacklevel=3)
+        warn_caller(f"{os.fspath(path)}: lens distortion of {distorted} frames is ignored "
+                    f"(pinhole projection is used)")
     return cams
 
 
@@ -447,8 +446,8 @@ def _read_colmap(d: Path, ext: str) -> list:
         rot = quat_to_rotmat(q)  # world-to-camera
         cams.append(_camera(label, name, width, height, fx, fy, cx, cy, rot.T, -rot.T @ t))
     if distorted:
-        warnings.warn(f"{os.fspath(cam_path)}: lens distortion of {distorted} images is ignored "
-                      f"(pinhole projection is used)", stacklevel=4)
+        warn_caller(f"{os.fspath(cam_path)}: lens distortion of {distorted} images is ignored "
+                    f"(pinhole projection is used)")
     return cams
 
 

@@ -27,13 +27,12 @@ those of the PlayCanvas engine (``gsplat-compressed-data.js``).
 from __future__ import annotations
 
 import os
-import warnings
 
 import numpy as np
 
 from ..scene import GaussianScene
 from ..sh import SH_C0
-from ._common import fail, finish_scene, logit_from_unorm
+from ._common import fail, finish_scene, logit_from_unorm, warn_caller
 from .ply import PlyHeader, columns, read_ply_elements
 
 __all__ = ["is_compressed_ply", "read_compressed_ply"]
@@ -101,9 +100,8 @@ def read_compressed_ply(path, header: PlyHeader, drop_nonfinite: bool = False) -
             raise fail(path, f"compressed PLY has {sh_el.count} SH rows for {n} Gaussians")
     extra = [p for p in vertex_el.names if p not in _PACKED]
     if extra:  # the format holds no per-Gaussian extras: they are not decoded
-        warnings.warn(f"{os.fspath(path)}: compressed PLY vertex properties {extra[:5]}"
-                      f"{'...' if len(extra) > 5 else ''} are not part of the format and are ignored",
-                      stacklevel=3)
+        warn_caller(f"{os.fspath(path)}: compressed PLY vertex properties {extra[:5]}"
+                    f"{'...' if len(extra) > 5 else ''} are not part of the format and are ignored")
     wanted = ["chunk", "vertex"] + (["sh"] if sh_el is not None else [])
     data = read_ply_elements(path, header, wanted)
     # Corrupt chunk ranges may overflow float32; such Gaussians are reported

@@ -37,7 +37,7 @@ import numpy as np
 
 from ..errors import ValidationError
 from ..scene import GaussianScene
-from ._common import atomic_write, fail, file_size, finish_scene, warn_trailing
+from ._common import atomic_write, fail, file_size, finish_scene, warn_caller, warn_trailing
 
 __all__ = ["PlyHeader", "PlyElement", "read_ply_header", "read_ply_elements",
            "read_standard_ply", "write_standard_ply", "ply_field_names"]
@@ -289,8 +289,8 @@ def _read_ascii(path, header, needed, wanted) -> dict:
                 left -= got
         if needed and needed[-1] is header.elements[-1] and lines.take(1):
             # as the binary reader does for bytes after the last element
-            warnings.warn(f"{os.fspath(path)}: ignoring the lines after the last PLY element (the header "
-                          f"promises {needed[-1].count} '{needed[-1].name}' rows)", stacklevel=4)
+            warn_caller(f"{os.fspath(path)}: ignoring the lines after the last PLY element (the header "
+                        f"promises {needed[-1].count} '{needed[-1].name}' rows)")
     return out
 
 
@@ -415,11 +415,13 @@ def read_standard_ply(path, header: PlyHeader, drop_nonfinite: bool = False) -> 
     if rest:
         # f_rest is channel-major: column c*(k-1) + j is coefficient j+1 of channel c.
         sh[:, 1:, :] = columns(vert, rest).reshape(n, 3, k - 1).transpose(0, 2, 1)
-    narrowed = [name for name in _REQUIRED + rest if vert.dtype[name].itemsize > 4 and _rounded(vert[name])]
+    # binary files only: an ASCII file declaring doubles may print float32 data at its shortest
+    narrowed = [name for name in _REQUIRED + rest if header.format != "ascii"
+                and vert.dtype[name] != np.float32 and _rounded(vert[name])]
     if narrowed:
-        warnings.warn(f"{os.fspath(path)}: {', '.join(narrowed[:4])}{' ...' if len(narrowed) > 4 else ''} "
-                      f"hold values beyond float32; 3DGS scenes are float32, so they are read rounded to it "
-                      f"(a relative change of up to 6e-8)", stacklevel=4)
+        warn_caller(f"{os.fspath(path)}: {', '.join(narrowed[:4])}{' ...' if len(narrowed) > 4 else ''} "
+                    f"{'holds' if len(narrowed) == 1 else 'hold'} values beyond float32; 3DGS scenes are "
+                    f"float32, so they are read rounded to it (a relative change of up to 6e-8)")
     extra = {}
     # all-zero normals carry nothing (dropped); a -0.0 counts as stored, so a copy keeps every bit
     zero_normals = not any(np.any(vert[name]) or np.any(np.signbit(vert[name]))

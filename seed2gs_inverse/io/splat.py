@@ -22,14 +22,14 @@ On reading, opacity bytes 0 and 255 become logits -40 and +40.
 from __future__ import annotations
 
 import os
-import warnings
 
 import numpy as np
 
 from ..errors import FormatError, ValidationError
 from ..scene import GaussianScene
 from ..sh import SH_C0
-from ._common import atomic_write, bounded_gzip, fail, file_size, finish_scene, logit_from_unorm
+from ._common import (atomic_write, bounded_gzip, fail, file_size, finish_scene, logit_from_unorm,
+                      warn_caller)
 
 __all__ = ["read_splat", "write_splat", "check_splat", "SPLAT_DTYPE"]
 
@@ -128,8 +128,8 @@ def write_splat(path, scene: GaussianScene) -> None:
     if scene.extra:
         dropped.append(f"extra properties {sorted(scene.extra)}")
     if dropped:
-        warnings.warn(f"{os.fspath(path)}: the .splat format cannot store "
-                      f"{' and '.join(dropped)}; they are dropped", stacklevel=3)
+        warn_caller(f"{os.fspath(path)}: the .splat format cannot store "
+                    f"{' and '.join(dropped)}; they are dropped")
     rec = np.empty(n, dtype=SPLAT_DTYPE)
     rec["position"] = scene.means
     with np.errstate(over="ignore"):

@@ -41,13 +41,12 @@ from __future__ import annotations
 
 import os
 import struct
-import warnings
 
 import numpy as np
 
 from ..scene import GaussianScene
 from ._common import (bounded_gzip, check_compression_ratio, fail, finish_scene, gzip_into,
-                      logit_from_unorm, warn_trailing, zstd_into)
+                      logit_from_unorm, warn_caller, warn_trailing, zstd_into)
 
 __all__ = ["read_spz", "check_spz", "SPZ_MAGIC"]
 
@@ -186,8 +185,8 @@ def _decode(path, buf: np.ndarray, n: int, sh_degree: int, frac: int, version: i
     dim = _SH_DIM[sh_degree]
     keep = min(dim, 15)
     if dim > 15:
-        warnings.warn(f"{os.fspath(path)}: SH degree 4 is not supported; "
-                      f"the degree-4 band is dropped", stacklevel=4)
+        warn_caller(f"{os.fspath(path)}: SH degree 4 is not supported; "
+                    f"the degree-4 band is dropped")
     sh_b = sh_b.reshape(n, dim, 3)
 
     means = np.empty((n, 3), np.float32)
