@@ -21,7 +21,7 @@ def support_mask(values, n: int, name: str) -> np.ndarray:
         if a.shape != (n,):
             raise ValidationError(f"{name}: a bool mask must have shape ({n},), got {a.shape}")
         return a.copy()
-    if a.shape == (0,):  # an empty list (numpy makes it float64): no Gaussian
+    if a.shape == (0,) and a.dtype.kind in "iuf":  # an empty list (numpy makes it float64): none
         return np.zeros(n, bool)
     if a.dtype.kind not in "iu" or a.ndim != 1:
         raise ValidationError(f"{name} must be a bool mask of length {n} or 1-D integer indices, "

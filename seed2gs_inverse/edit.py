@@ -145,7 +145,7 @@ def recolour(scene: GaussianScene, selected, rgb, keep_view_dependence: bool = F
     mask = selection_mask(scene, selected)  # checks either form
     given = np.asarray(selected)
     # rows of rgb follow the selection: ascending for a mask, in the given order for indices
-    idx = np.flatnonzero(mask) if given.dtype == bool or given.size == 0 else given.astype(np.int64)
+    idx = np.flatnonzero(mask) if given.dtype == bool else given.astype(np.int64)
     m = idx.size
     if m == 0:
         raise ValidationError("recolour: the selection is empty")

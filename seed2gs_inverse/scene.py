@@ -182,8 +182,8 @@ class GaussianScene:
     def __reduce__(self):
         # pickling (multiprocessing, joblib): rebuild through __init__, whose checks make the arrays
         # read-only and ``extra`` a read-only mapping again (a mappingproxy itself cannot be pickled)
-        return (GaussianScene, (self.means, self.quats, self.log_scales, self.opacity_logits, self.sh,
-                                dict(self.extra)))
+        return (type(self), (self.means, self.quats, self.log_scales, self.opacity_logits, self.sh,
+                             dict(self.extra)))
 
     # -- basic facts -------------------------------------------------------
     def __len__(self) -> int:
