@@ -26,6 +26,7 @@ This package needs only numpy and scipy (never the rasterizer or Numba).
 
 from __future__ import annotations
 
+import sys
 import time
 
 import numpy as np
@@ -50,15 +51,21 @@ COUNT_LIMITS = {"max_iter": 100_000, "inner_iters": 100_000, "maxcor": 1_000, "p
                 "budget": 1_000_000}
 
 
-_controller = None
+_controller, _modules_seen = None, -1
 
 
 def _one_blas_thread():
-    """A context with BLAS limited to one thread (the libraries are inspected once per process;
-    ``threadpool_limits`` inspects them on every call)."""
-    global _controller
-    if _controller is None:
-        _controller = ThreadpoolController()
+    """A context with BLAS limited to one thread.
+
+    The loaded libraries are inspected again only when a module was imported
+    since the last look (a new BLAS comes with a new extension module):
+    ``threadpool_limits`` inspects them on every call, and a controller kept
+    for the whole process would leave a BLAS loaded after the first solve
+    unlimited.
+    """
+    global _controller, _modules_seen
+    if _controller is None or len(sys.modules) != _modules_seen:
+        _controller, _modules_seen = ThreadpoolController(), len(sys.modules)
     return _controller.limit(limits=1, user_api="blas")
 
 
