@@ -51,9 +51,10 @@ far above the median (occlusion, tracker drift, a wrong identity) fall to
 the floor ``r_min``. The default floor 0.05 (before normalisation) was
 chosen on the firepit + unicorn benchmark with 25% identity-switched views,
 where it kept more of the object in 3D than a floor of 0.2 and beat the
-vote. Today's ``benchmarks/bench_solvers.py``
-(load 1.4-1.6) gives 0.985 / 0.878 with scipy's L-BFGS-B and 0.995 / 0.870
-with ``optimizer="lbfgs"`` (voting 0.866 / 0.809).
+vote. On that case today's ``benchmarks/bench_solvers.py`` (load 1.4-1.6)
+gives held-out mIoU / visibility-weighted 3D IoU 0.985 / 0.878 with
+scipy's L-BFGS-B and 0.995 / 0.870 with ``optimizer="lbfgs"`` (voting
+0.866 / 0.809).
 
 Optimisation: over the logits of the Gaussians with evidence only (weight
 on at least one usable pixel; the others keep the prior and are reported
