@@ -18,7 +18,7 @@ from ..scene import GaussianScene
 
 __all__: list[str] = []
 
-_PACKAGE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # .../seed2gs_inverse
+_PACKAGE = os.path.dirname(os.path.dirname(os.path.abspath(__file__))) + os.sep  # .../seed2gs_inverse/
 
 
 def warn_caller(message: str) -> None:
