@@ -110,6 +110,9 @@ def duplicate(scene: GaussianScene, selected, translation=None, rotation=None, p
               scale: float = 1.0) -> GaussianScene:
     """The scene plus a moved copy of the selected Gaussians, appended at the end.
 
+    The copies follow the scene's order (ascending indices), one per selected
+    Gaussian, however the selection is given.
+
     The copy is placed by :func:`move`'s transform (translation, rotation about
     ``pivot`` = the selection centroid by default, scale); extras are copied.
     """
