@@ -56,8 +56,9 @@ def unit_vector(name: str, v) -> np.ndarray:
         arr = None
     if arr is None or arr.shape != (3,) or not np.all(np.isfinite(arr)):
         raise ValidationError(f"'{name}' must be a finite non-zero 3-vector, got {v!r}")
-    big = np.max(np.abs(arr)) > 1e150  # entries whose squares overflow: scale first
-    arr = arr / np.max(np.abs(arr)) if big else arr
+    top = np.max(np.abs(arr))
+    if top > 1e150:  # entries whose squares overflow: scale first
+        arr = arr / top
     norm = np.linalg.norm(arr)
     if norm < 1e-12:
         raise ValidationError(f"'{name}' must be a finite non-zero 3-vector, got {v!r}")

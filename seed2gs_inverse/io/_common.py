@@ -35,6 +35,7 @@ def warn_caller(message: str) -> None:
         frame, level = frame.f_back, level + 1
     warnings.warn(message, UserWarning, stacklevel=level)
 
+
 # Opacity logit used for a stored opacity of exactly 0 or 1 (8-bit formats
 # store sigmoid(logit) and cannot represent the infinities). Same value as the
 # PlayCanvas engine's decoder, so scenes decoded here match it.
@@ -97,6 +98,13 @@ def load_npy(path, label: str | None = None) -> np.ndarray:
 def fail(path, message: str) -> FormatError:
     """A FormatError whose message starts with the file name."""
     return FormatError(f"{os.fspath(path)}: {message}")
+
+
+def check_regular(path, what: str) -> None:
+    """FormatError unless ``path`` is a regular file or missing (a missing file is left to ``open``):
+    a directory fails to read, and a FIFO or device would block the read for ever."""
+    if os.path.exists(path) and not os.path.isfile(path):
+        raise fail(path, f"not a regular file (a directory, pipe or device); give the {what} itself")
 
 
 def file_size(path) -> int:

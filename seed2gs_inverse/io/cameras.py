@@ -45,7 +45,7 @@ import numpy as np
 from ..camera import Camera
 from ..errors import FormatError, Seed2GSError, ValidationError
 from ..scene import quat_to_rotmat
-from ._common import atomic_write, fail, warn_caller
+from ._common import atomic_write, check_regular, fail, warn_caller
 
 __all__ = ["read_cameras", "read_camera", "write_cameras"]
 
@@ -174,8 +174,7 @@ def _read_cameras(p: Path) -> list:
     if p.suffix.lower() != ".json":
         raise fail(p, "unknown camera file (expected a .json file, a COLMAP cameras/images "
                       "file or a directory holding a COLMAP model)")
-    if p.exists() and not p.is_file():  # a pipe would block the read for ever
-        raise fail(p, "not a regular file (a pipe or device); give the camera file itself")
+    check_regular(p, "camera file")
     with open(p, "rb") as fh:
         raw = fh.read()
     try:

@@ -24,7 +24,7 @@ from pathlib import Path
 
 from ..errors import FormatError, ValidationError
 from ..scene import GaussianScene
-from ._common import fail
+from ._common import check_regular, fail
 from .compressed_ply import is_compressed_ply, read_compressed_ply
 from .ply import read_ply_header, read_standard_ply, write_standard_ply
 from .splat import check_splat, read_splat, write_splat
@@ -39,10 +39,8 @@ _EXTENSIONS = ".ply, .compressed.ply, .splat, .spz"
 
 
 def _family(path) -> str:
-    """The format family by extension, for an existing regular file (FormatError for a directory, a FIFO
-    or a device, which reading would fail on or block on; a missing file is left to ``open``)."""
-    if os.path.exists(path) and not os.path.isfile(path):
-        raise fail(path, "not a regular file (a directory, pipe or device); give the scene file itself")
+    """The format family by extension, for a regular file (:func:`~._common.check_regular`)."""
+    check_regular(path, "scene file")
     name = Path(path).name.lower()
     for ext, fam in ((".ply", "ply"), (".splat", "splat"), (".spz", "spz")):
         if name.endswith(ext):
