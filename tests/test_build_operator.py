@@ -150,6 +150,11 @@ def test_bad_arguments(scene_and_camera):
         build_operator(scene, cam, roi=np.ones((h + 1, w), bool))
     with pytest.raises(ValidationError, match="roi mask"):
         build_operator(scene, cam, roi=np.ones((h, w), np.float32))
+    with pytest.raises(ValidationError, match="roi mask selects no pixel"):  # as a box outside the image
+        build_operator(scene, cam, roi=np.zeros((h, w), bool))
+    for bg in ("red", [1, "x", 0], {"r": 1}):
+        with pytest.raises(ValidationError, match="background"):
+            render(scene, cam, background=bg)
     for scale in (0, -1, float("nan"), "half"):
         with pytest.raises(ValidationError, match="scale"):
             build_operator(scene, cam, scale=scale)
@@ -252,6 +257,12 @@ def test_bad_subset(scene_and_camera):
                 np.array([0.5, 1.0])):
         with pytest.raises(ValidationError, match="subset"):
             build_operator(scene, cam, subset=bad)
+    # integer 0/1 labels would be read as the indices {0, 1}
+    labels = (np.arange(n) % 2).astype(np.int64)
+    with pytest.raises(ValidationError, match="look like a 0/1 mask"):
+        build_operator(scene, cam, subset=labels)
+    np.testing.assert_array_equal(build_operator(scene, cam, subset=labels.astype(bool)).W.toarray(),
+                                  build_operator(scene, cam, subset=np.flatnonzero(labels)).W.toarray())
 
 
 @pytest.mark.parametrize("sh_degree", [0, 2])

@@ -69,6 +69,47 @@ def test_view_operator_rejects_bad_W(rng, bad, match):
         ViewOperator(bad(v.W), v.camera, v.image_shape)
 
 
+def _raw_csr(data, indices, indptr, shape):
+    """A CSR matrix from its arrays as given: scipy checks none of them here."""
+    return sp.csr_matrix((np.float32(data), np.asarray(indices, np.int32), np.asarray(indptr, np.int32)),
+                         shape=shape)
+
+
+@pytest.mark.parametrize("indices, indptr, match", [
+    ([7, 0], [0, 1, 2], "column indices"),  # read as garbage by the forward pass
+    ([100_000_000, 0], [0, 1, 2], "column indices"),  # the adjoint wrote out of bounds: a segmentation fault
+    ([-1, 0], [0, 1, 2], "column indices"),
+    ([1, 2], [0, 2, 1], "indptr"),  # decreasing (scipy refuses a wrong start or end itself)
+])
+def test_view_operator_rejects_broken_csr_arrays(indices, indptr, match):
+    W = _raw_csr([0.5, 0.5], indices, indptr, (2, 3))
+    with pytest.raises(ValidationError, match=match):
+        ViewOperator(W, None, (1, 2))
+    from seed2gs_inverse.operators import as_stack
+
+    with pytest.raises(ValidationError, match=match):
+        as_stack([W])
+
+
+@pytest.mark.parametrize("field, value, match", [
+    ("rgb", np.zeros((2, 2, 3), np.float32), "shape"),
+    ("rgb", np.zeros((6, 8), np.float32), "shape"),
+    ("depth", np.full((6, 8), np.nan, np.float32), "non-finite"),
+    ("n_contrib", np.zeros((6, 8), np.float32), "integer"),
+    ("alpha", -np.ones((6, 8), np.float32), "lie in"),
+])
+def test_view_operator_rejects_a_rendering_a_saved_stack_could_not_load(rng, tmp_path, field, value, match):
+    """A view accepted in memory saves as a stack that loads: the rendering follows the loader's rules."""
+    from seed2gs_inverse.operators import Rendering
+
+    v = _random_view(rng, h=6, w=8)
+    with pytest.raises(ValidationError, match=match):
+        ViewOperator(v.W, v.camera, v.image_shape, Rendering(**{field: value}))
+    ok = Rendering(rgb=np.zeros((6, 8, 3)), depth=np.ones((6, 8), np.float32), n_contrib=np.zeros((6, 8), np.uint16))
+    OperatorStack([ViewOperator(v.W, v.camera, v.image_shape, ok)]).save(tmp_path / "ops")
+    assert OperatorStack.load(tmp_path / "ops")[0].rendering.n_contrib.dtype == np.uint16
+
+
 def test_view_operator_rejects_shape_mismatch(rng):
     v = _random_view(rng, h=6, w=8)
     with pytest.raises(ValidationError, match="camera"):
@@ -186,6 +227,19 @@ def test_fingerprint_checks_scene(rng, tmp_path):
         OperatorStack.load(tmp_path / "ops", scene=moved)
     with pytest.raises(ValidationError, match="Gaussians"):
         OperatorStack.load(tmp_path / "ops", scene=_scene(rng, n=49))
+    with pytest.raises(ValidationError, match="GaussianScene or a FrozenScene"):
+        OperatorStack.load(tmp_path / "ops", scene=scene.means)
+
+
+def test_fingerprint_takes_a_frozen_scene(rng, tmp_path):
+    """A FrozenScene, accepted wherever the rasterizer takes a scene, is its scene here too."""
+    from seed2gs_inverse.raster import FrozenScene
+
+    scene = _scene(rng)
+    frozen = FrozenScene(scene)
+    assert scene_fingerprint(frozen) == scene_fingerprint(scene)
+    OperatorStack(_stack(rng).views, fingerprint=scene_fingerprint(scene)).save(tmp_path / "ops")
+    assert OperatorStack.load(tmp_path / "ops", scene=frozen).fingerprint == scene_fingerprint(scene)
 
 
 def test_save_refuses_a_stack_the_disk_cannot_hold(rng, tmp_path, monkeypatch):

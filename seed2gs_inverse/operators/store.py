@@ -28,7 +28,8 @@ from .._atomic import atomic_path, not_an_earlier_output
 from ..camera import Camera
 from ..errors import FormatError, ValidationError
 from ..io._common import npy_header
-from .view import RENDER_FIELDS, Rendering, ViewOperator
+from ..scene import GaussianScene
+from .view import RENDER_FIELDS, Rendering, ViewOperator, rendering_problem
 
 __all__ = ["save", "load", "check_target", "scene_fingerprint", "FORMAT_NAME", "FORMAT_VERSION"]
 
@@ -39,8 +40,6 @@ _CSR_FILES = ("data", "indices", "indptr")
 # is a camera image (the camera readers' limit of 32,768 px a side).
 _MAX_GAUSSIANS = np.iinfo(np.int32).max
 _MAX_SIDE = 32768
-# dtype kind each rendering array must have ("f" float, "iu" integer).
-_RENDER_KINDS = {"rgb": "f", "alpha": "f", "depth": "f", "n_contrib": "iu"}
 
 
 def scene_fingerprint(scene) -> str:
@@ -54,18 +53,28 @@ def scene_fingerprint(scene) -> str:
 
     Parameters
     ----------
-    scene : GaussianScene
+    scene : GaussianScene or FrozenScene
 
     Returns
     -------
     str
         16 lowercase hex digits.
     """
+    scene = _geometry(scene, "scene_fingerprint")
     h = hashlib.sha256()
     h.update(f"n={len(scene)};geometry+opacity;".encode())
     for arr in (scene.means, scene.quats, scene.log_scales, scene.opacity_logits):
         h.update(memoryview(np.ascontiguousarray(arr, dtype=np.float32)).cast("B"))
     return h.hexdigest()[:16]
+
+
+def _geometry(scene, what: str) -> GaussianScene:
+    """The GaussianScene of ``scene``: itself, or the one a :class:`~seed2gs_inverse.raster.FrozenScene`
+    holds (taken by its ``scene`` attribute: this layer does not import the rasterizer)."""
+    inner = getattr(scene, "scene", scene)
+    if not isinstance(inner, GaussianScene):
+        raise ValidationError(f"{what}: scene must be a GaussianScene or a FrozenScene, got {type(scene).__name__}")
+    return inner
 
 
 def save(views, fingerprint, directory, overwrite: bool = False) -> Path:
@@ -177,8 +186,13 @@ def load(directory, mmap: bool = True, scene=None) -> tuple:
     ----------
     directory : path
     mmap : bool
-        Memory-map the arrays (read-only) instead of reading them.
-    scene : GaussianScene, optional
+        Memory-map the arrays (read-only) instead of reading them. The
+        package's passes only read them; scipy calls that canonicalise a
+        matrix in place (``W.max()``, ``W > t``, ``W.sum_duplicates()``: the
+        rows are stored in compositing order, not column order) raise
+        ``ValueError`` on a read-only map: use ``W.copy()`` or ``mmap=False``
+        for those.
+    scene : GaussianScene or FrozenScene, optional
         When given, the stack must have been built from this scene (same
         Gaussian count and :func:`scene_fingerprint`).
 
@@ -220,6 +234,7 @@ def load(directory, mmap: bool = True, scene=None) -> tuple:
     if not isinstance(entries, list) or not entries:
         raise FormatError(f"{mpath}: 'views' must be a non-empty list")
     if scene is not None:
+        scene = _geometry(scene, f"{d}")
         if len(scene) != n:
             raise ValidationError(f"{d}: operators were built for {n} Gaussians but the scene has "
                                   f"{len(scene)}; rebuild the operators for this scene")
@@ -312,26 +327,14 @@ def _load_view(d: Path, mpath: Path, i: int, entry, n: int, mmap: bool) -> ViewO
     extra = {k: _load_array(d, mpath, label, files, k, mmap) for k in RENDER_FIELDS if k in files}
     if extra:
         for k, arr in extra.items():
-            want = shape + ((3,) if k == "rgb" else ())
-            if arr.shape != want or arr.dtype.kind not in _RENDER_KINDS[k]:
-                kind = "a float" if _RENDER_KINDS[k] == "f" else "an integer"
-                raise FormatError(f"{d / files[k]} ({label}): rendering '{k}' must be {kind} array of shape "
-                                  f"{want}, got {arr.dtype} {arr.shape}")
-            if k != "n_contrib" and not np.all(np.isfinite(arr)):
-                raise FormatError(f"{d / files[k]} ({label}): rendering '{k}' holds non-finite values")
-            lo, hi = _RENDER_RANGES.get(k, (-np.inf, np.inf))
-            if arr.size and (float(arr.min()) < lo or float(arr.max()) > hi):
-                raise FormatError(f"{d / files[k]} ({label}): rendering '{k}' must lie in [{lo:g}, {hi:g}]")
+            problem = rendering_problem(k, arr, shape)
+            if problem:
+                raise FormatError(f"{d / files[k]} ({label}): {problem}")
         rendering = Rendering(**extra)
     try:  # the view checks its weights (finite, in [0, 1]) itself: the error names the file too
         return ViewOperator(W, camera, shape, rendering)
     except ValidationError as exc:  # its message starts with the view's label, which `where` already has
         raise FormatError(f"{where}: {str(exc).split(': ', 1)[-1]}") from None
-
-
-#: What a rendering can hold: sums of non-negative weights, depths in front of the camera, counts. (No
-#: upper bound on alpha: a saved stack may hold operators other than the rasterizer's.)
-_RENDER_RANGES = {"alpha": (0.0, np.inf), "depth": (0.0, np.inf), "n_contrib": (0, np.inf)}
 
 
 def _has_duplicate_columns(indices, indptr, n: int) -> bool:

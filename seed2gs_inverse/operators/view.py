@@ -28,6 +28,30 @@ __all__ = ["Rendering", "ViewOperator", "view_label"]
 
 # The per-view rendering arrays kept next to W (what the view looked like).
 RENDER_FIELDS = ("rgb", "alpha", "depth", "n_contrib")
+# What each can hold: its dtype kind ("f" float, "iu" integer) and its range (sums of non-negative
+# weights, depths in front of the camera, counts; no upper bound on alpha: a view may hold an
+# operator other than the rasterizer's).
+_RENDER_KINDS = {"rgb": "f", "alpha": "f", "depth": "f", "n_contrib": "iu"}
+_RENDER_RANGES = {"alpha": (0.0, np.inf), "depth": (0.0, np.inf), "n_contrib": (0, np.inf)}
+
+
+def rendering_problem(key: str, arr, image_shape) -> str | None:
+    """What is wrong with the rendering array ``key`` of a view of ``image_shape`` (H, W), or None.
+
+    The one rule for :class:`ViewOperator` and for a saved stack's files, so
+    that a view accepted in memory saves as a stack that loads.
+    """
+    arr = np.asarray(arr)
+    want = tuple(image_shape) + ((3,) if key == "rgb" else ())
+    if arr.shape != want or arr.dtype.kind not in _RENDER_KINDS[key]:
+        kind = "a float" if _RENDER_KINDS[key] == "f" else "an integer"
+        return f"rendering '{key}' must be {kind} array of shape {want}, got {arr.dtype} {arr.shape}"
+    if key != "n_contrib" and not np.all(np.isfinite(arr)):
+        return f"rendering '{key}' holds non-finite values"
+    lo, hi = _RENDER_RANGES.get(key, (-np.inf, np.inf))
+    if arr.size and (float(arr.min()) < lo or float(arr.max()) > hi):
+        return f"rendering '{key}' must lie in [{lo:g}, {hi:g}]"
+    return None
 
 
 @dataclass(eq=False)
@@ -89,6 +113,26 @@ def _check_weights(data, label: str) -> None:
                               f"weights), got values from {lo} to {hi}; rebuild it from the scene")
 
 
+def _check_structure(W, label: str) -> None:
+    """Raise a ValidationError unless ``W``'s CSR arrays describe a valid matrix.
+
+    scipy does not check them when a matrix is made from ``(data, indices,
+    indptr)``, and the passes hand them to its unchecked kernels: a column
+    index out of range gave garbage, or a segmentation fault in the adjoint.
+    O(rows + nnz), like the weight check.
+    """
+    indptr, indices = np.asarray(W.indptr), np.asarray(W.indices)
+    rows, n = W.shape
+    if (indptr.shape != (rows + 1,) or indices.shape != np.shape(W.data) or indptr[0] != 0
+            or indptr[-1] != indices.size or np.any(np.diff(indptr) < 0)):
+        raise ValidationError(f"{label}: W's indptr must have one entry per row plus one, start at 0, never "
+                              "decrease and end at its number of weights; rebuild the matrix (or call "
+                              "W.check_format() to see what scipy makes of it)")
+    if indices.size and (int(indices.min()) < 0 or int(indices.max()) >= n):
+        raise ValidationError(f"{label}: W's column indices must lie in [0, {n}), got values from "
+                              f"{int(indices.min())} to {int(indices.max())}")
+
+
 class ViewOperator(LinearOperator):
     """The linear forward model of one view, ``P = W q``, as a ``LinearOperator``.
 
@@ -143,9 +187,17 @@ class ViewOperator(LinearOperator):
         if W.shape[0] != shape[0] * shape[1]:
             raise ValidationError(f"{label}: W has {W.shape[0]} rows but the image {shape} has "
                                   f"{shape[0] * shape[1]} pixels")
+        _check_structure(W, label)
         _check_weights(W.data, label)
-        if rendering is not None and not isinstance(rendering, Rendering):
-            raise ValidationError(f"{label}: rendering must be a Rendering or None, got {type(rendering).__name__}")
+        if rendering is not None:
+            if not isinstance(rendering, Rendering):
+                raise ValidationError(f"{label}: rendering must be a Rendering or None, "
+                                      f"got {type(rendering).__name__}")
+            for key in RENDER_FIELDS:
+                arr = getattr(rendering, key)
+                problem = None if arr is None else rendering_problem(key, arr, shape)
+                if problem:
+                    raise ValidationError(f"{label}: {problem}")
         super().__init__(np.float32, W.shape)
         self.W = W
         self.camera = camera

@@ -64,6 +64,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
+from .._selection import support_mask
 from ..errors import ValidationError
 from ..operators.view import Rendering, ViewOperator
 from . import _kernels
@@ -84,6 +85,8 @@ def _roi_mask(roi, shape):
                                   "(at the operator's scale)")
         if arr.dtype != bool:
             raise ValidationError(f"roi mask must be boolean, got dtype {arr.dtype}")
+        if not arr.any():  # as a box with no pixel in the image: nothing would be composited
+            raise ValidationError("roi mask selects no pixel; pass None for the whole image")
         return arr.astype(np.uint8)
     if arr.shape != (4,) or arr.dtype.kind not in "iuf" or not np.all(np.isfinite(arr)):
         raise ValidationError(f"roi must be a box (x0, y0, x1, y1) or an (H, W) bool mask, got {roi!r}")
@@ -105,7 +108,10 @@ def _roi_mask(roi, shape):
 def _check_background(background):
     if background is None:
         return np.zeros(3)
-    bg = np.asarray(background, dtype=np.float64)
+    try:
+        bg = np.asarray(background, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValidationError(f"background must be a finite RGB triple or scalar, got {background!r}") from None
     if bg.shape == ():
         bg = np.full(3, float(bg))
     if bg.shape != (3,) or not np.all(np.isfinite(bg)):
@@ -170,24 +176,15 @@ def _tile_box(roi_mask):
 
 
 def _subset_index(subset, n):
-    """Ascending unique int64 indices from an index array or a bool mask (None: all)."""
+    """Ascending unique int64 indices from an index array or a bool mask (None: all).
+
+    The package's one rule for Gaussian selections
+    (:func:`~seed2gs_inverse._selection.support_mask`): an integer 0/1 array of
+    length ``n`` is refused, since it would select Gaussians 0 and 1 only.
+    """
     if subset is None:
         return np.arange(n, dtype=np.int64)
-    sel = np.asarray(subset)
-    if sel.dtype == bool:
-        if sel.shape != (n,):
-            raise ValidationError(f"subset mask has shape {sel.shape}; expected ({n},), one per Gaussian")
-        return np.flatnonzero(sel).astype(np.int64)
-    if sel.ndim != 1 or (sel.size and sel.dtype.kind not in "iu"):
-        raise ValidationError(f"subset must be a 1-D integer index array or a ({n},) bool mask, "
-                              f"got shape {sel.shape} dtype {sel.dtype}")
-    sel = sel.astype(np.int64)
-    if sel.size and (sel.min() < 0 or sel.max() >= n):
-        raise ValidationError(f"subset indices must lie in [0, {n}) (the scene's Gaussians), "
-                              f"got range [{sel.min()}, {sel.max()}]")
-    if sel.size > 1 and not np.all(sel[1:] > sel[:-1]):
-        sel = np.unique(sel)
-    return sel
+    return np.flatnonzero(support_mask(subset, n, "subset")).astype(np.int64)
 
 
 def _rasterize(scene, frozen, camera, background, mode, roi, min_weight, build_w, stats=None, subset=None):
