@@ -95,3 +95,14 @@ def test_3d_ovs_layout(ovs, tmp_path):
         p.write_bytes(keep)
     with pytest.raises(ValidationError, match="classes.txt"):
         read_3d_ovs(root / "data" / "room", root / "scenes")
+    seg = root / "data" / "room" / "segmentations"
+    (seg / ".ipynb_checkpoints").mkdir()  # a hidden folder is no frame
+    try:
+        assert read_3d_ovs(root / "data", root / "scenes")[0].frames == sc.frames
+        (seg / "\u00b2").mkdir()  # str.isdigit() is True for "²", and int() refused it
+        with pytest.raises(ValidationError, match="frame folders must be image numbers"):
+            read_3d_ovs(root / "data", root / "scenes")
+    finally:
+        for d in (".ipynb_checkpoints", "\u00b2"):
+            if (seg / d).exists():
+                (seg / d).rmdir()

@@ -228,6 +228,43 @@ def test_eval_layout_warnings_and_the_oracle_seed_of_empty_masks(dataset, tmp_pa
         read_lerf_mask(data / "blocks", root / "scenes")
 
 
+def test_a_scene_without_mask_images_is_refused_before_any_extraction(dataset, tmp_path):
+    """Masks the reader skips are named; a scene left with none, or a query given twice, is an error.
+
+    A scene whose frame folders held no readable mask was accepted with no
+    query, and the evaluation crashed with a KeyError after every other
+    scene's extractions.
+    """
+    import shutil
+
+    from seed2gs_inverse.evaluation import read_lerf_mask
+
+    root, _ = dataset
+    data = tmp_path / "data"
+    shutil.copytree(root / "data", data)
+    blocks = data / "blocks" / "test_mask"
+    frame = sorted(p for p in blocks.iterdir())[0]
+    (frame / "notes.txt").write_text("x")
+    (frame / ".DS_Store").write_bytes(b"\0")  # hidden: the OS's, skipped without a word
+    with pytest.warns(UserWarning, match=r"1 file\(s\) skipped, not a mask image \(.png, .jpg, .jpeg\): notes.txt$"):
+        read_lerf_mask(data, root / "scenes", scenes=["blocks"])
+    (frame / "notes.txt").unlink()
+    shutil.copy(frame / "sphere.png", frame / "sphere.jpg")
+    with pytest.raises(ValidationError, match=r"two masks for the query 'sphere' \(sphere.jpg and sphere.png\)"):
+        read_lerf_mask(data, root / "scenes", scenes=["blocks"])
+    (frame / "sphere.jpg").unlink()
+    for f in blocks.iterdir():  # masks in a format the protocol does not read: none left
+        for m in f.glob("*.png"):
+            m.rename(m.with_suffix(".bmp"))
+    with pytest.warns(UserWarning, match="skipped"), \
+            pytest.raises(ValidationError, match=r"blocks/test_mask: no mask images in its frame folders"):
+        read_lerf_mask(data, root / "scenes")
+    shutil.rmtree(blocks)
+    blocks.write_text("not a folder")
+    with pytest.raises(ValidationError, match=r"blocks/test_mask: not a folder"):
+        read_lerf_mask(data, root / "scenes", scenes=["blocks"])
+
+
 def test_a_rerun_scores_its_own_extractions_and_leaves_no_stale_prediction(dataset, tmp_path, monkeypatch):
     """A copied report directory scores its own job folders (not those its summary was written from); a
     query that fails on a re-run loses its earlier predicted masks and is titled as failed in the grid."""

@@ -49,6 +49,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import FormatError, ValidationError
+from ..io._common import warn_caller
 
 __all__ = ["LerfScene", "read_lerf_mask", "read_gt_mask", "lerf_jobs", "evaluate_lerf_mask", "evaluate_scenes",
            "score_frame", "check_models"]
@@ -213,8 +214,7 @@ def _scene_names(data_dir: Path, scenes_dir: Path, scenes, marker: str, layout: 
         skipped = sorted(p.name for p in data_dir.iterdir()
                          if p.is_dir() and not p.name.startswith(".") and p.name not in names)
         if skipped:
-            warnings.warn(f"{data_dir}: skipping {', '.join(skipped)}: no {marker} (not a {layout} scene)",
-                          stacklevel=3)
+            warn_caller(f"{data_dir}: skipping {', '.join(skipped)}: no {marker} (not a {layout} scene)")
     if scenes is not None:
         missing = sorted(set(scenes) - set(names))
         if missing:
@@ -225,6 +225,10 @@ def _scene_names(data_dir: Path, scenes_dir: Path, scenes, marker: str, layout: 
                 if (data_dir / marker).exists() else "")
         raise ValidationError(f"{data_dir}: no {layout} found{hint}")
     return names
+
+
+#: The mask images a frame folder is read for (case-insensitive); other files are skipped with a warning.
+_MASK_SUFFIXES = (".png", ".jpg", ".jpeg")
 
 
 def read_lerf_mask(data_dir, scenes_dir, scenes=None) -> list:
@@ -244,6 +248,8 @@ def read_lerf_mask(data_dir, scenes_dir, scenes=None) -> list:
     out = []
     for name in names:
         root = data_dir / name
+        if not (root / "test_mask").is_dir():
+            raise ValidationError(f"{root / 'test_mask'}: not a folder; expected <frame>/<query>.png inside it")
         frames = sorted((p.name for p in (root / "test_mask").iterdir() if p.is_dir()), key=_natural)
         if not frames:
             raise ValidationError(f"{root / 'test_mask'}: no frame folders")
@@ -256,14 +262,22 @@ def read_lerf_mask(data_dir, scenes_dir, scenes=None) -> list:
             test = [c for i, c in enumerate(cams) if i % _LLFF_HOLD == 0]
         gt, cameras, queries = {}, {}, set()
         for f in frames:
-            files = sorted(p for p in (root / "test_mask" / f).iterdir()
-                           if p.is_file() and p.suffix.lower() in (".png", ".jpg", ".jpeg"))
+            where = f"{root / 'test_mask' / f}"
+            present = [p for p in (root / "test_mask" / f).iterdir() if p.is_file() and not p.name.startswith(".")]
+            files = sorted(p for p in present if p.suffix.lower() in _MASK_SUFFIXES)
+            skipped = sorted(p.name for p in present if p.suffix.lower() not in _MASK_SUFFIXES)
+            if skipped:
+                warn_caller(f"{where}: {len(skipped)} file(s) skipped, not a mask image "
+                            f"({', '.join(_MASK_SUFFIXES)}): {', '.join(skipped[:5])}"
+                            + (" ..." if len(skipped) > 5 else ""))
             if not files:
                 continue
-            where = f"{root / 'test_mask' / f}"
             shapes = {}
             for p in files:
                 q = p.stem
+                if (f, q) in gt:
+                    raise ValidationError(f"{where}: two masks for the query {q!r} ({gt[(f, q)].name} and "
+                                          f"{p.name}); keep one")
                 gt[(f, q)] = p
                 queries.add(q)
                 shapes[p.name] = _image_shape(p)
@@ -271,13 +285,15 @@ def read_lerf_mask(data_dir, scenes_dir, scenes=None) -> list:
                 raise ValidationError(f"{where}: masks of one frame differ in size: {shapes}")
             cameras[f] = _at_size(_frame_camera(f, cams, test, where), next(iter(shapes.values())), where)
         frames = [f for f in frames if f in cameras]
+        if not frames:
+            raise ValidationError(f"{root / 'test_mask'}: no mask images in its frame folders (read: "
+                                  f"{', '.join(_MASK_SUFFIXES)}); expected <frame>/<query>.png")
         by_case = {}
         for q in sorted(queries):
             by_case.setdefault(q.casefold(), []).append(q)
         for same in (v for v in by_case.values() if len(v) > 1):
-            warnings.warn(f"{root / 'test_mask'}: queries {' and '.join(map(repr, same))} differ only in case "
-                          f"and are scored as different objects; if they are one, rename the mask files",
-                          stacklevel=2)
+            warn_caller(f"{root / 'test_mask'}: queries {' and '.join(map(repr, same))} differ only in case "
+                        f"and are scored as different objects; if they are one, rename the mask files")
         out.append(LerfScene(name, _scene_file(scenes_dir, name), frames, sorted(queries), cameras, gt))
     return out
 

@@ -27,6 +27,7 @@ empty, and a class empty in every frame is no query.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 from ..errors import ValidationError
@@ -95,8 +96,10 @@ def read_3d_ovs(data_dir, scenes_dir, scenes=None) -> list:
         root = data_dir / name
         seg = root / "segmentations"
         classes = _classes(seg / "classes.txt")
-        folders = sorted((p for p in seg.iterdir() if p.is_dir()), key=lambda p: p.name)
-        bad = [p.name for p in folders if not p.name.isdigit()]
+        # hidden folders (.ipynb_checkpoints) are no frame; a frame is ASCII digits (str.isdigit takes "²")
+        folders = sorted((p for p in seg.iterdir() if p.is_dir() and not p.name.startswith(".")),
+                         key=lambda p: p.name)
+        bad = [p.name for p in folders if not re.fullmatch(r"[0-9]+", p.name)]
         if bad:
             raise ValidationError(f"{seg}: frame folders must be image numbers (NN), found {bad}")
         if not folders:
