@@ -52,7 +52,7 @@ from ..graph import check_graph, laplacian_of_checked
 __all__ = ["laplacian_smooth", "harmonic_extension"]
 
 #: With ``solver="auto"``, systems up to this many unknowns are factorised
-#: (SuperLU), larger ones use Jacobi-preconditioned conjugate gradients (the
+#: (SuperLU), larger ones use Jacobi-scaled conjugate gradients (the
 #: factor of a 3D kNN graph grows faster than the graph).
 DIRECT_MAX = 250_000
 
@@ -89,13 +89,28 @@ def _spd_solve(A: sp.spmatrix, b: np.ndarray, x0: np.ndarray, method: str, rtol:
         return np.asarray(spla.spsolve(A.tocsc(), b), dtype=np.float64)
     if method != "cg":
         raise ValidationError(f"linear solver must be 'auto', 'direct' or 'cg', got {method!r}")
-    d = A.diagonal()
-    M = sp.diags(1.0 / d)
-    x, info = spla.cg(A, b, x0=x0, rtol=rtol, maxiter=20 * n + 100, M=M)
+    # CG on the Jacobi-scaled system S A S y = S b, x = S y, S = diag(A)^-1/2: the iterates of
+    # Jacobi-preconditioned CG, stopped on the scaled residual |S r| <= rtol |S b|. Unscaled,
+    # |r| <= rtol |b| let the rows of large evidence set the tolerance of all, and the Gaussians
+    # without evidence (what the regulariser decides) were solved loosely when evidence was large.
+    s = 1.0 / np.sqrt(A.diagonal())
+    S = sp.diags(s)
+    y, info = spla.cg((S @ A @ S).tocsr(), s * b, x0=x0 / s, rtol=rtol, maxiter=20 * n + 100)
     if info != 0:
         # Not converged within the budget: fall back to the exact factorisation.
-        x = spla.spsolve(A.tocsc(), b)
-    return np.asarray(x, dtype=np.float64)
+        return np.asarray(spla.spsolve(A.tocsc(), b), dtype=np.float64)
+    return np.asarray(s * y, dtype=np.float64)
+
+
+def _rtol(rtol) -> float:
+    """The CG tolerance as a float in (0, 1), else a ValidationError."""
+    try:
+        r = float(rtol)
+    except (TypeError, ValueError):
+        r = float("nan")
+    if not 0.0 < r < 1.0:  # NaN fails too
+        raise ValidationError(f"rtol must be a number in (0, 1), got {rtol!r}")
+    return r
 
 
 def laplacian_smooth(q_hat, evidence, graph, smoothness: float = 1.0, prior=None, *,
@@ -148,7 +163,7 @@ def laplacian_smooth(q_hat, evidence, graph, smoothness: float = 1.0, prior=None
     eps = float(ridge)
     if not (np.isfinite(eps) and eps > 0):
         raise ValidationError(f"ridge must be positive, got {ridge!r}")
-    return smooth_checked(q_hat, e, g, lam, p, eps, solver, rtol)
+    return smooth_checked(q_hat, e, g, lam, p, eps, solver, _rtol(rtol))
 
 
 def smooth_checked(q_hat, e, g, lam, p, eps=RIDGE, solver="cg", rtol=1e-5) -> np.ndarray:
@@ -218,11 +233,15 @@ def harmonic_extension(graph, fixed, values, prior=None, *, ridge: float = 1e-9,
     fixed = np.asarray(fixed)
     if fixed.dtype != bool or fixed.shape != (n,):
         raise ValidationError(f"fixed must be a boolean mask of shape ({n},), got {fixed.dtype} {fixed.shape}")
+    values = np.asarray(values, dtype=np.float64)
+    if values.shape != (n,):  # np.where would broadcast a single value to every seed
+        raise ValidationError(f"values must have shape ({n},), one per node, got {values.shape}")
     v = _vector("values", np.where(fixed, values, 0.0), n, 0.0, 1.0)
     p = np.zeros(n) if prior is None else _vector("prior", prior, n, 0.0, 1.0)
     eps = float(ridge)
     if not (np.isfinite(eps) and eps > 0):
         raise ValidationError(f"ridge must be positive, got {ridge!r}")
+    rtol = _rtol(rtol)
     L = laplacian_of_checked(g)
     reached = np.zeros(n, bool)
     reached[_reached(g, L.diagonal() > 0, fixed)] = True
