@@ -6,8 +6,8 @@ positive definite system ``(E + lambda L + eps I) q = E q_hat + eps p`` over
 the Gaussians of the object's graph region. This benchmark takes that system
 from a real extraction (bench_speed's scene: the firepit with the unicorn,
 default settings) and solves it with each linear solver of
-``laplacian_smooth``: SuperLU (``direct``, exact) and Jacobi-preconditioned
-CG warm-started from the Dirichlet limit (``cg``). Larger systems come from
+``laplacian_smooth``: SuperLU (``direct``, exact) and CG on the
+Jacobi-scaled system warm-started from the Dirichlet limit (``cg``). Larger systems come from
 the same extraction with the graph region grown (``region`` x 1, 2, 3).
 
 Printed per size: unknowns, seconds of each solver, and how many Gaussians

@@ -33,15 +33,22 @@ def _pair(pred, truth, name: str = "masks") -> tuple:
         raise ValidationError(f"{name}: prediction shape {p.shape} differs from truth shape {t.shape}")
     for label, a in (("prediction", p), ("truth", t)):
         if a.dtype != bool and (a.dtype.kind not in "uif" or (a.size and np.any(np.isnan(a)))):
-            raise ValidationError(f"{name}: {label} must be a boolean (or 0/1) mask without NaN")
+            raise ValidationError(f"{name}: {label} must be a boolean (or 0/1, 0/255) mask without NaN")
+        # Grey levels would count as object wherever they are nonzero; the protocol reads its
+        # ground truth as grey > 128, so the two would disagree on soft edges without a word.
+        if a.dtype != bool and a.size and not np.all((a == 0) | (a == 1) | (a == 255)):
+            raise ValidationError(f"{name}: {label} holds values other than 0 and 1 (or 255); pass a boolean "
+                                  f"mask (grey-level ground truth is object where grey > 128 in the LERF-Mask "
+                                  f"protocol: seed2gs_inverse.evaluation.read_gt_mask reads it so)")
     return p.astype(bool), t.astype(bool)
 
 
 def iou(pred, truth) -> float:
     """Intersection over union of two binary masks of any shape.
 
-    ``|pred & truth| / |pred | truth|``; 1.0 when both are empty. Non-bool
-    inputs are cast (nonzero = True).
+    ``|pred & truth| / |pred | truth|``; 1.0 when both are empty. Numeric
+    masks may hold 0 and 1, or 0 and 255 (nonzero = True); grey levels are
+    refused (threshold them first: the protocol's ground truth is grey > 128).
     """
     p, t = _pair(pred, truth, "iou")
     union = np.count_nonzero(p | t)

@@ -100,3 +100,14 @@ def test_boundary_iou_default_width_on_a_larger_image():
     b = (np.abs(xx - 52) < 22) & (np.abs(yy - 38) < 20)
     assert boundary_iou(a, b) == pytest.approx(biou_reference(a, b), abs=1e-12)
     assert boundary_iou(a, b) != pytest.approx(boundary_iou(a, b, dilation_ratio=0.01), abs=1e-3)
+
+
+def test_grey_level_masks_are_refused_not_read_as_nonzero():
+    """A raw 0..255 mask counted every nonzero grey as object; the protocol's ground truth is grey > 128."""
+    grey = np.array([[0, 100, 255], [0, 200, 0]], np.uint8)
+    for fn in (iou, boundary_iou):
+        with pytest.raises(ValidationError, match=r"values other than 0 and 1 \(or 255\).*grey > 128"):
+            fn(grey, grey > 128)
+        with pytest.raises(ValidationError, match="truth holds values other than 0 and 1"):
+            fn(grey > 128, grey.astype(np.float32) / 255)
+    assert iou(np.array([[0, 1, 1]], np.uint8), np.array([[0.0, 1.0, 0.0]])) == 0.5  # 0/1 numbers are masks

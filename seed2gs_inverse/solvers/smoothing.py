@@ -134,18 +134,21 @@ def laplacian_smooth(q_hat, evidence, graph, smoothness: float = 1.0, prior=None
         :math:`\epsilon > 0`.
     solver : {"cg", "direct", "auto"}
         Linear solver for the coupled nodes: ``cg`` (default),
-        Jacobi-preconditioned conjugate gradients warm-started from the
-        Dirichlet limit, to ``rtol``; ``direct`` factorises with SuperLU
+        conjugate gradients on the Jacobi-scaled system (the iterates of
+        Jacobi-preconditioned CG) warm-started from the Dirichlet limit,
+        to ``rtol``; ``direct`` factorises with SuperLU
         (exact, slower: ``benchmarks/bench_smoothing.py`` prints both);
         ``auto`` factorises up to :data:`DIRECT_MAX` unknowns and uses CG
         beyond.
     rtol : float
-        CG relative tolerance (only used with CG). ``benchmarks/bench_smoothing.py
-        --rtol 1e-6,1e-5,1e-4`` prints the time and the labels that fall on the
-        other side of 0.5 than in the exact solve: on the firepit + unicorn
-        system grown to 471k unknowns, 22 labels differ at 1e-5 (1.46 s)
-        against 12 at 1e-6 (2.24 s; load 1.2); the 13-case extraction suite
-        scores the same with either.
+        CG relative tolerance, in (0, 1) (only used with CG), on the scaled
+        residual: ``|S r| <= rtol |S b|`` with ``S = diag(A)^-1/2``, so
+        large evidence does not loosen the solve where there is none.
+        ``benchmarks/bench_smoothing.py --rtol 1e-6,1e-5,1e-4`` prints the
+        time and the labels that fall on the other side of 0.5 than in the
+        exact solve: on the firepit + unicorn system grown to 471k unknowns,
+        21 labels differ at 1e-5 (1.28 s) against 4 at 1e-6 (2.50 s) and 33
+        at 1e-4 (1.06 s; load 0.9).
 
     Returns
     -------
