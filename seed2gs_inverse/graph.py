@@ -23,7 +23,12 @@ with
 * :math:`\rho_i` the distance from ``i`` to its ``k``-th neighbour (the
   self-tuning local scale of Zelnik-Manor and Perona, 2004): the graph
   adapts to the sampling density, which varies by orders of magnitude in a
-  trained scene;
+  trained scene. Where ``k + 1`` or more means coincide (duplicated or
+  quantised splats) that distance is 0, floored at a tiny fraction of the
+  median: edges into such a group from outside it underflow to 0, and a
+  node whose neighbours all lie in the group can be left without an edge.
+  Keep ``k`` above the largest group of coincident means (the default 10
+  is);
 * :math:`c_i` the view-independent colour ``0.5 + C_0 \cdot SH_{DC}``
   (clipped to [0, 1]);
 * :math:`n_i` the axis of the smallest scale (the normal of a flat splat)
@@ -40,6 +45,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
+from ._selection import support_mask
 from ._threads import n_threads
 from .errors import ValidationError
 from .scene import GaussianScene, quat_to_rotmat
@@ -49,20 +55,11 @@ __all__ = ["gaussian_graph", "graph_laplacian", "check_graph", "region_subset"]
 
 
 def _subset_indices(subset, n: int) -> np.ndarray:
+    """Ascending unique indices of ``subset`` (None: all), by the package's selection rule
+    (:func:`~seed2gs_inverse._selection.support_mask`: integer 0/1 labels are refused)."""
     if subset is None:
         return np.arange(n)
-    s = np.asarray(subset)
-    if s.dtype == bool:
-        if s.shape != (n,):
-            raise ValidationError(f"subset: a boolean mask needs shape ({n},), got {s.shape}")
-        return np.flatnonzero(s)
-    if s.ndim != 1 or s.dtype.kind not in "iu":
-        raise ValidationError("subset must be a boolean mask (N,) or integer indices")
-    if s.size and (s.min() < 0 or s.max() >= n):
-        raise ValidationError(f"subset indices must lie in [0, {n}), got [{s.min()}, {s.max()}]")
-    s = s.astype(np.int64)
-    # region_subset's indices are ascending already: skip the sort of np.unique
-    return s if np.all(s[1:] > s[:-1]) else np.unique(s)
+    return np.flatnonzero(support_mask(subset, n, "subset"))
 
 
 def region_subset(scene: GaussianScene, center, radius: float) -> np.ndarray:

@@ -226,6 +226,9 @@ def test_graph_coincident_means_and_subset_forms():
     for sub in (ids, shuffled):
         other = gaussian_graph(sc, 4, subset=sub)
         assert (abs(other - ref)).nnz == 0
+    # integer 0/1 labels would be read as the indices {0, 1}: a graph of two nodes
+    with pytest.raises(ValidationError, match="look like a 0/1 mask"):
+        gaussian_graph(sc, 4, subset=mask.astype(np.int64))
 
 
 def test_stored_zero_weights_are_no_edges():
