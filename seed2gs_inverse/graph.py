@@ -27,8 +27,7 @@ with
   quantised splats) that distance is 0, floored at a tiny fraction of the
   median: edges into such a group from outside it underflow to 0, and a
   node whose neighbours all lie in the group can be left without an edge.
-  Keep ``k`` above the largest group of coincident means (the default 10
-  is);
+  Keep ``k`` above the size of the largest group of coincident means;
 * :math:`c_i` the view-independent colour ``0.5 + C_0 \cdot SH_{DC}``
   (clipped to [0, 1]);
 * :math:`n_i` the axis of the smallest scale (the normal of a flat splat)
