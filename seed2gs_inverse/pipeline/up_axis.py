@@ -253,7 +253,7 @@ def _plane_ls(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def fit_plane(points, *, normals=None, threshold: float | None = None, admissible=None,
               n_hypotheses: int = 400, max_points: int = 6000, seed: int = 0,
-              robust_scale: float = 0.0) -> PlaneFit | None:
+              robust_scale: float = 0.0, keep_normal=None) -> PlaneFit | None:
     r"""RANSAC plane with admissibility filter, refined by least squares.
 
     Parameters
@@ -277,6 +277,12 @@ def fit_plane(points, *, normals=None, threshold: float | None = None, admissibl
         0: least squares on the inliers only. > 0: then Cauchy-weighted
         least squares at scale ``robust_scale * threshold`` over the points
         within 3 scales (the mean plane of an undulating surface).
+    keep_normal : callable or None
+        ``keep_normal(n (3,)) -> bool``: whether the refined plane's normal
+        is still allowed (e.g. the orientation part of ``admissible``; the
+        refinement moves the plane's point, so point conditions do not
+        carry over). When it is not, the RANSAC hypothesis the refinement
+        started from is returned instead.
 
     Returns
     -------
@@ -328,8 +334,9 @@ def fit_plane(points, *, normals=None, threshold: float | None = None, admissibl
         j = int(np.argmax(score))
         if score[j] > best_score:
             best, best_score = start + j, int(score[j])
-    n, c = hn[best], hp[best]
+    n0, c0 = n, c = hn[best], hp[best]
     inl = np.abs((p - c) @ n) <= threshold
+    inl0 = inl
     for _ in range(2):
         if inl.sum() < 3:
             break
@@ -353,6 +360,10 @@ def fit_plane(points, *, normals=None, threshold: float | None = None, admissibl
             n_new = np.linalg.svd(d, full_matrices=False)[2][2]
             n = n_new if n_new @ n >= 0 else -n_new
         # ``inl`` stays the RANSAC band's: it measures the support found.
+    if keep_normal is not None and not keep_normal(n):
+        # The refinement turned the plane out of the orientations the caller allows (the unseen
+        # back cap of an object scanned alone, refined towards the line of sight): the hypothesis stands.
+        n, c, inl = n0, c0, inl0
     return PlaneFit(n, c, inl, float(threshold), m)
 
 
@@ -442,18 +453,19 @@ def estimate_up_axis(scene, reference: Camera, support=None, center=None, radius
     cos_pitch = np.cos(np.radians(opt["max_pitch_deg"]))
     cos_cam = np.cos(np.radians(opt["max_camera_deg"]))
 
+    def oriented(n, use_prior: bool):
+        """Which of the unit normals ``n`` (H, 3), oriented with ``n . a >= 0``, the prior allows."""
+        if not use_prior:
+            return n @ a >= cos_pitch
+        if cam_axis is not None:
+            return n @ cam_axis >= cos_cam
+        return (np.abs(n @ r) <= sin_roll) & (n @ a >= cos_pitch)
+
     def make_filter(use_prior: bool, below: bool):
         def admissible(hn, hp):
             sign = np.where(hn @ a >= 0, 1.0, -1.0)
             n = hn * sign[:, None]
-            ok = np.ones(len(n), bool)
-            if use_prior:
-                if cam_axis is not None:
-                    ok &= n @ cam_axis >= cos_cam
-                else:
-                    ok &= (np.abs(n @ r) <= sin_roll) & (n @ a >= cos_pitch)
-            else:
-                ok &= n @ a >= cos_pitch
+            ok = oriented(n, use_prior)
             if below:
                 h = np.einsum("ij,ij->i", n, o - hp)
                 ok &= (h > 0) & (h <= opt["max_below"] * radius)
@@ -485,7 +497,8 @@ def estimate_up_axis(scene, reference: Camera, support=None, center=None, radius
         nrm = np.where(flat[:, None], nrm, 0.0)  # non-flat splats give no 1-point hypothesis
         f = fit_plane(means[idx], normals=nrm, admissible=make_filter(use_prior, below),
                       n_hypotheses=opt["n_hypotheses"], max_points=opt["max_points"], seed=seed,
-                      robust_scale=opt["robust_scale"])
+                      robust_scale=opt["robust_scale"],
+                      keep_normal=lambda n: n @ a > 0 and bool(oriented(n[None], use_prior)[0]))
         if f is None or f.n_inliers < opt["min_inliers"]:
             return None
         return f
@@ -520,6 +533,12 @@ def estimate_up_axis(scene, reference: Camera, support=None, center=None, radius
                 best is None or best_u.n_inliers >= 2 * best.n_inliers):
             local, glob = local_u, glob_u
             method_suffix = "; roll prior dropped"
+    if local is not None and glob is not None and local_ok and np.mean(
+            np.linalg.norm(means[glob_idx] - o, axis=1) > opt["local_factor"] * radius) < 0.1:
+        # The scene is (almost) only the object's neighbourhood (an object scanned alone): its plane
+        # is fitted on the same points as the local one, and their agreement would be no check.
+        details["scene_plane"] = "the support plane's points: the scene holds little else"
+        glob = None
     if local is not None:
         details["support_plane"] = local.summary()
     if glob is not None:
