@@ -510,8 +510,16 @@ def orbit_axis(up, scene: GaussianScene, base: Camera, ref: ReferenceView, lift:
     if isinstance(up, str) and up == "auto":
         from .up_axis import estimate_up_axis
 
-        if up_cameras is not None and not all(isinstance(c, Camera) for c in up_cameras):
-            raise ValidationError("up_cameras must be a sequence of Camera")
+        if up_cameras is not None:
+            if isinstance(up_cameras, Camera):
+                raise ValidationError("up_cameras must be a sequence of Camera, got one Camera; pass [camera]")
+            try:
+                up_cameras = list(up_cameras)  # once: a generator would be exhausted by the check below
+            except TypeError:
+                raise ValidationError(f"up_cameras must be a sequence of Camera, got "
+                                      f"{type(up_cameras).__name__}") from None
+            if not all(isinstance(c, Camera) for c in up_cameras):
+                raise ValidationError("up_cameras must be a sequence of Camera")
         est = estimate_up_axis(scene, base, support=lift.support, center=lift.center, radius=lift.radius,
                                cameras=up_cameras)
         if est.weak:
@@ -523,7 +531,14 @@ def orbit_axis(up, scene: GaussianScene, base: Camera, ref: ReferenceView, lift:
     if isinstance(up, str) and up == "camera":
         return {"axis": base.up.tolist(), "method": "camera", "confidence": None, "details": {}}
     axis = np.asarray(up, dtype=np.float64)  # validated by ExtractSettings
-    return {"axis": (axis / np.linalg.norm(axis)).tolist(), "method": "user", "confidence": None, "details": {}}
+    axis = axis / np.linalg.norm(axis)
+    if axis @ base.up < 0:
+        # y-up against y-down (OpenGL against OpenCV/COLMAP) is an easy mistake, and a support
+        # "below" an upside-down object would be looked for above it
+        warnings.warn(f"up {np.round(axis, 3).tolist()} points down in the reference view; the orbits "
+                      f"and the support surface take it as given (negate it if the scene's up is the "
+                      f"other way)", stacklevel=4)
+    return {"axis": axis.tolist(), "method": "user", "confidence": None, "details": {}}
 
 
 def _clip_frame(op, clip: str, index: int) -> ClipFrame:
@@ -601,7 +616,7 @@ def support_band(scene: GaussianScene, lift: SeedLift, orbits: OrbitViews, setti
         surface = support_surface(scene, lift.support, lift.center, lift.radius, orbits.up, **SUPPORT_DEFAULTS)
         if surface is not None:
             return surface, {"used": True, **surface.summary()}
-        reason = "no level surface around the object"
+        reason = "no level surface below the object"
     return None, {"used": False, "reason": reason}
 
 

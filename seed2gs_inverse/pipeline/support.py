@@ -37,8 +37,9 @@ band reaches up to
     t = \hat h + \max(\text{margin}\, R,\; 2 s),
 
 and :attr:`SupportSurface.point` is :math:`o + t u`. Fewer than
-``min_splats`` such Gaussians: no support surface (None), and the tracker
-works as before.
+``min_splats`` such Gaussians, or a level :math:`\hat h \ge 0` (not below
+the object's centre: an axis pointing down): no support surface (None),
+and the tracker works as before.
 """
 
 from __future__ import annotations
@@ -145,6 +146,10 @@ def support_surface(scene, support, center, radius: float, axis, *, inner: float
     if level_h.size < min_splats:
         return None
     level = float(np.median(level_h))
+    if level >= 0:
+        # A level at or above the object's centre is nothing it rests on: the axis points down (a
+        # y-up / y-down mix-up), and the band would take in the object itself.
+        return None
     spread = 1.4826 * float(np.median(np.abs(level_h - level)))
     top = level + max(margin * radius, 2.0 * spread)
     return SupportSurface(u, o + top * u, level, spread, int(level_h.size))

@@ -441,9 +441,14 @@ def estimate_up_axis(scene, reference: Camera, support=None, center=None, radius
     if not (np.isfinite(radius) and radius > 0):
         raise ValidationError(f"radius must be a positive distance, got {radius!r}")
 
-    cam_axis, cam_quality = None, 0.0
+    cam_axis, cam_quality, cams = None, 0.0, []
     if cameras is not None:
-        cams = list(cameras)
+        if isinstance(cameras, Camera):
+            raise ValidationError("cameras must be a sequence of Camera, got one Camera; pass [camera]")
+        try:
+            cams = list(cameras)  # once: a generator is read here, not exhausted by a later count
+        except TypeError:
+            raise ValidationError(f"cameras must be a sequence of Camera, got {type(cameras).__name__}") from None
         if cams:
             cam_axis, cam_quality = cameras_up(cams)
             if cam_quality < 0.05:
@@ -547,7 +552,7 @@ def estimate_up_axis(scene, reference: Camera, support=None, center=None, radius
         details["planes_rejected"] = f"no plane holds {_FRACTION_MIN:.0%} of its points: no ground in sight"
         local = glob = None
     if cam_axis is not None:
-        details["cameras"] = {"axis": cam_axis.tolist(), "quality": cam_quality, "n": len(list(cameras))}
+        details["cameras"] = {"axis": cam_axis.tolist(), "quality": cam_quality, "n": len(cams)}
 
     def checks(axis, other_plane):
         th = []
