@@ -124,3 +124,18 @@ def test_culled_orbit_operators_are_exact(syn):
     for x, y in zip(a.operators, b.operators):
         assert x.W.shape == y.W.shape and abs(x.W - y.W).max() == 0
         np.testing.assert_array_equal(x.rendering.rgb, y.rendering.rgb)
+
+
+def test_report_gives_the_orbit_views_shape_and_the_references_apart():
+    """``view_shape`` was the reference view's (frame 0, at its own resolution), not the orbit views'."""
+    from _pipeline_scenes import reference_camera, sphere_scene
+
+    from seed2gs_inverse.pipeline import extract
+    from seed2gs_inverse.raster import build_operator
+
+    scene, labels, info = sphere_scene(n_sphere=400, n_ground=400)
+    cam = reference_camera(info)  # 96x72; orbit views at orbit_scale 0.5
+    seed = (build_operator(scene, cam).W @ labels.astype(np.float32)).reshape(cam.image_shape) > 0.5
+    rep = extract(scene, cam, seed, n_views=4, progress=False).report()
+    assert rep["reference_shape"] == [72, 96] and rep["view_shape"] == [36, 48]
+    assert rep["n_views"] == 1 + 2 * (4 - 1)

@@ -165,8 +165,9 @@ class Extraction:
             "prompt": self.prompt_info,
             "lift": self.lift.summary(),
             "vaas": self.vaas.summary(),
-            "n_views": len(self.views),
-            "view_shape": list(self.views[0].image_shape),
+            "n_views": len(self.views),  # supervision views: the reference and both clips' other frames
+            "reference_shape": list(self.views[0].image_shape),
+            "view_shape": list(self.views[min(1, len(self.views) - 1)].image_shape),  # the orbit views
             "unknown_pixels_per_view": n_unknown,
             "solver": {"method": self.result.method, "iterations": int(self.result.iterations),
                        "n_unobserved": int(np.sum(self.result.unobserved)),
@@ -191,9 +192,11 @@ def _resize_mask(mask: np.ndarray, shape: tuple) -> np.ndarray:
 
 
 def _view_scale(camera: Camera, scale: float, max_pixels: int | None) -> float:
-    """``scale``, lowered so that ``camera.scaled(scale)`` has at most ``max_pixels`` pixels (None: no cap).
+    """``scale``, lowered so that ``camera.scaled(scale)`` has about ``max_pixels`` pixels (None: no cap).
 
-    Both are validated by :class:`ExtractSettings`.
+    ``Camera.scaled`` rounds each side to whole pixels, so the count may pass
+    ``max_pixels`` by up to a row and a column. Both are validated by
+    :class:`ExtractSettings`.
     """
     s = float(scale)
     if max_pixels is not None:
