@@ -206,3 +206,18 @@ def test_firepit_chair_click_returns_the_chair_and_the_fire_pit_does_not_leak(sh
     pit = point_object_mask(scene, cam, [(475, 300)], rendering=ref)
     assert pit.info["growth"]["expansions"] == 0 and "leaking" in pit.info["growth"]["expansion"]
     assert pit.mask.sum() < 5000
+
+
+def test_the_prompts_region_settings_grow_each_click(table_view):
+    """extract's object mode passes the PointPrompt itself: its colour_tol, radius, ... were ignored."""
+    from seed2gs_inverse.pipeline.extract import seed_from_prompt
+
+    g, cam, ref, truth, skirt_px, click = table_view
+    default = point_object_mask(g.scene, cam, [click], rendering=ref)
+    wide = point_object_mask(g.scene, cam, [click], rendering=ref, region=PointPrompt([click], color_tol=0.5, radius=10))
+    assert wide.info["patch_pixels"] > default.info["patch_pixels"]
+    _, info = seed_from_prompt(PointPrompt([click], color_tol=0.5, radius=10), ref, point_mode="object",
+                               scene=g.scene, camera=cam)
+    assert info["patch_pixels"] == wide.info["patch_pixels"]
+    with pytest.raises(ValidationError, match="region must be a PointPrompt"):
+        point_object_mask(g.scene, cam, [click], rendering=ref, region={"color_tol": 0.5})

@@ -457,7 +457,8 @@ def seed_from_prompt(prompt, reference, grounder=None, *, point_mode: str = "reg
 
         if scene is None or camera is None:
             raise ValidationError("seed_from_prompt: point_mode='object' needs the scene and the reference camera")
-        po = point_object_mask(scene, camera, prompt.points, prompt.labels, rendering=reference, mode=mode)
+        po = point_object_mask(scene, camera, prompt.points, prompt.labels, rendering=reference, mode=mode,
+                               region=prompt)
         seed, info = po.mask, po.info
     elif point_mode not in ("object", "region"):
         raise ValidationError(f"point_mode must be 'object' or 'region', got {point_mode!r}")

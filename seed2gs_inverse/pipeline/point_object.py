@@ -70,7 +70,7 @@ the growth yields nothing the patch itself is the mask.
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -297,7 +297,7 @@ def _support_plane(scene, camera, seeds, center, radius, min_band):
 
 
 def point_object_mask(scene, camera: Camera, points, labels=None, rendering=None, *,
-                      mode: str = "classic", **options) -> PointObject:
+                      mode: str = "classic", region=None, **options) -> PointObject:
     """The object under positive clicks, as a seed mask (see the module docstring).
 
     Parameters
@@ -311,6 +311,11 @@ def point_object_mask(scene, camera: Camera, points, labels=None, rendering=None
         The reference rendering (``depth``, ``alpha``); rendered when None.
     mode : str
         Rasterization mode.
+    region : PointPrompt or None
+        Its colour-and-depth region settings (``color_tol``, ``depth_tol``,
+        ``radius``, ``iterations``, ``alpha_min``) grow each click's region;
+        None: :class:`~seed2gs_inverse.frontend.prompts.PointPrompt`'s
+        defaults. Its clicks are not read (``points`` and ``labels`` are).
     **options
         Any of :data:`POINT_OBJECT_DEFAULTS`.
 
@@ -345,6 +350,10 @@ def point_object_mask(scene, camera: Camera, points, labels=None, rendering=None
     out = (pts[:, 0] < 0) | (pts[:, 0] >= w) | (pts[:, 1] < 0) | (pts[:, 1] >= h)
     if out.any():
         raise ValidationError(f"click {pts[np.argmax(out)].tolist()} is outside the {w}x{h} reference image")
+    if region is None:
+        region = PointPrompt([(0, 0)])
+    elif not isinstance(region, PointPrompt):
+        raise ValidationError(f"point_object_mask: region must be a PointPrompt or None, got {type(region).__name__}")
     ref = render(scene, camera, mode=mode) if rendering is None else rendering
     depth = _check_depth(camera, ref.depth, "rendering depth")
     alpha = np.asarray(ref.alpha)
@@ -355,7 +364,7 @@ def point_object_mask(scene, camera: Camera, points, labels=None, rendering=None
         # growth; the smooth geometric patch stands in when it is empty.
         x, y = int(click[0]), int(click[1])
         try:
-            m = PointPrompt([(x, y)], [1]).to_mask(ref.rgb, depth=depth, alpha=alpha)
+            m = replace(region, points=[(x, y)], labels=[1]).to_mask(ref.rgb, depth=depth, alpha=alpha)
             how = "region"
         except ValidationError:
             m = np.zeros((h, w), bool)
