@@ -78,6 +78,8 @@ def test_defaults_are_those_of_the_old_extract_but_issue_10s():
     ("smoothness", float("inf"), "smoothness must be finite"),
     ("smoothness", "1", "smoothness must be a number or None"),
     ("completion", "both", "completion must be None, 'reference' or 'tracked'"),
+    ("completion", np.array([1, 2]), "completion must be None, 'reference' or 'tracked'"),  # was numpy's error
+    ("a_max_deg", 10 ** 400, "a_max_deg must be finite"),  # was an OverflowError from float()
     ("seed_connected", 1, "seed_connected must be True or False"),
     ("support_background", "yes", "support_background must be True or False"),
     ("graph_options", {"kk": 3}, r"object_graph has no option\(s\) \['kk'\]"),
@@ -210,3 +212,18 @@ def test_extract_settings_and_overrides(tiny):
     assert rep["resolved"]["tracker"] == "GeometricTracker" and rep["resolved"]["grounder"] is None
     assert rep["resolved"]["threshold"] == ex.threshold and rep["resolved"]["reference_scale"] == 1.0
     assert rep["resolved"]["n_weak_evidence"] == ex.result.info["n_weak_evidence"]
+
+
+@pytest.mark.parametrize("name, value", [
+    ("fill_radius", float("nan")), ("fill_radius", 0.0), ("fill_sigma_color", 0), ("min_support", float("nan")),
+    ("min_support", 1.5), ("color_tol", -1.0), ("color_tol", float("nan")), ("max_sources", 2.5),
+    ("max_sources", 0), ("boundary_band", -1), ("boundary_band", True),
+])
+def test_the_model_free_tracker_refuses_what_switched_its_fill_off(name, value):
+    """A NaN fill radius or support and a zero colour sigma switched the 2D fill off without a word; a
+    negative colour tolerance copied no label; max_sources=2.5 became 2."""
+    from seed2gs_inverse.frontend.model_free import GeometricTracker
+
+    with pytest.raises(ValidationError, match=name):
+        GeometricTracker(**{name: value})
+    GeometricTracker(color_tol=None, min_support=0.0, boundary_band=np.int64(2), max_sources=np.int32(3))

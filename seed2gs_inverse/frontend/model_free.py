@@ -111,6 +111,7 @@ spiral; other references count as observed.
 
 from __future__ import annotations
 
+import numbers
 import weakref
 from typing import Any, Sequence
 
@@ -334,6 +335,18 @@ class GeometricTracker:
             raise ValidationError(f"depth_tol must be positive, got {depth_tol!r}")
         if not 0 <= decisive < 0.5:
             raise ValidationError(f"decisive must be in [0, 0.5), got {decisive!r}")
+        # NaN fails every comparison below: it is refused like any other value out of range (a NaN
+        # fill radius or support used to switch the fill off without a word).
+        for name, v in (("fill_radius", fill_radius), ("fill_sigma_color", fill_sigma_color)):
+            if not (isinstance(v, numbers.Real) and 0 < v < np.inf):
+                raise ValidationError(f"{name} must be a positive number, got {v!r}")
+        if not (isinstance(min_support, numbers.Real) and 0 <= min_support < 1):
+            raise ValidationError(f"min_support must be in [0, 1), got {min_support!r}")
+        if color_tol is not None and not (isinstance(color_tol, numbers.Real) and 0 <= color_tol < np.inf):
+            raise ValidationError(f"color_tol must be a number >= 0 or None, got {color_tol!r}")
+        for name, v, lo in (("max_sources", max_sources, 1), ("boundary_band", boundary_band, 0)):
+            if isinstance(v, bool) or not isinstance(v, numbers.Integral) or v < lo:
+                raise ValidationError(f"{name} must be a whole number >= {lo}, got {v!r}")
         self.alpha_min = float(alpha_min)
         self.depth_tol = float(depth_tol)
         self.fill = bool(fill)
@@ -341,10 +354,8 @@ class GeometricTracker:
         self.fill_sigma_color = float(fill_sigma_color)
         self.decisive = float(decisive)
         self.min_support = float(min_support)
-        if int(max_sources) < 1:
-            raise ValidationError(f"max_sources must be >= 1, got {max_sources!r}")
         self.max_sources = int(max_sources)
-        self.boundary_band = max(int(boundary_band), 0)
+        self.boundary_band = int(boundary_band)
         self.color_tol = None if color_tol is None else float(color_tol)
         if not fill_depth_jump > 0:
             raise ValidationError(f"fill_depth_jump must be positive, got {fill_depth_jump!r}")

@@ -753,7 +753,8 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
         if scene is None:
             raise ValidationError("solve_selection: settings.seed_connected needs the scene (scene=, for its "
                                   "Gaussian means); pass it or set seed_connected=False")
-        island = (q > tau) & ~seed_connected(scene.means, q > tau, lift.support)
+        graph_kw = {k: settings.lift_options[k] for k in ("k_neighbors", "link_factor") if k in settings.lift_options}
+        island = (q > tau) & ~seed_connected(scene.means, q > tau, lift.support, **graph_kw)  # the lift's graph
         # islands hold no G0 Gaussian: they take the prior of the Gaussians outside G0 (0)
         q = np.where(island, np.float32(0), q)
         n_removed = int(island.sum())

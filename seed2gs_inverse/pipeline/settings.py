@@ -46,7 +46,10 @@ def _real(name, value, *, lo=None, hi=None, lo_open=False, optional=False) -> fl
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
         kind = "a number or None" if optional else "a number"
         raise ValidationError(f"{name} must be {kind}, got {value!r} ({type(value).__name__})")
-    v = float(value)
+    try:
+        v = float(value)
+    except OverflowError:  # an int beyond float's range (10**400)
+        v = math.inf
     if not math.isfinite(v):
         raise ValidationError(f"{name} must be finite, got {value!r}")
     if lo is not None and (v <= lo if lo_open else v < lo):
@@ -389,7 +392,7 @@ class ExtractSettings:
         set_("progress", None if self.progress is None else bool(self.progress))
         set_("point_mode", _choice("point_mode", self.point_mode, POINT_MODES))
         set_("smoothness", _real("smoothness", self.smoothness, lo=0.0, optional=True))
-        if self.completion not in COMPLETIONS:
+        if not (self.completion is None or isinstance(self.completion, str)) or self.completion not in COMPLETIONS:
             raise ValidationError(f"completion must be None, 'reference' or 'tracked', got {self.completion!r}")
         set_("graph_options", _graph_options(self.graph_options))
         for name in ("seed_connected", "support_background"):
