@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import ValidationError
-from .geometry import axis_angle
+from .geometry import axis_angle, unit_vector
 
 __all__ = ["Camera", "MAX_IMAGE_SIDE", "look_at_orbit", "orbit_directions"]
 
@@ -145,12 +145,14 @@ class Camera:
         eye = _finite("eye", eye, (3,))
         target = _finite("target", target, (3,))
         up = _finite("up", up, (3,))
+        unit_vector("up", up)  # refuses a zero up
         fwd = target - eye
         if np.linalg.norm(fwd) < 1e-12:
             raise ValidationError("look_at: eye and target coincide")
         z = fwd / np.linalg.norm(fwd)
         x = np.cross(z, up)  # camera x = down x forward = forward x up
-        if np.linalg.norm(x) < 1e-9:
+        m = np.max(np.abs(up))  # the sine of the angle, whatever |up| is (scaled: no overflow)
+        if np.linalg.norm(x / m) < 1e-6 * np.linalg.norm(up / m):  # within 1e-6 rad: no image right
             raise ValidationError("look_at: 'up' is parallel to the viewing direction")
         x /= np.linalg.norm(x)
         y = np.cross(z, x)
@@ -163,6 +165,8 @@ class Camera:
     @classmethod
     def from_camera_to_world(cls, width, height, fx, fy, cx, cy, camera_to_world, **kw) -> "Camera":
         c2w = _finite("camera_to_world", camera_to_world, (4, 4))
+        if not np.allclose(c2w[3], [0, 0, 0, 1]):  # a scale or projective row would be dropped here
+            raise ValidationError(f"camera_to_world last row must be [0, 0, 0, 1], got {c2w[3].tolist()}")
         rot = c2w[:3, :3]
         w2c = np.eye(4)
         w2c[:3, :3] = rot.T
@@ -228,6 +232,9 @@ class Camera:
     def world_to_view(self, points: np.ndarray) -> np.ndarray:
         """Camera-frame coordinates (M, 3) float64 of world points (M, 3)."""
         p = np.asarray(points, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 3:
+            raise ValidationError(f"points must be an (M, 3) array, got shape {p.shape}; "
+                                  f"for one point pass [point]")
         return p @ self.rotation.T + self.translation
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -300,6 +307,11 @@ def orbit_directions(axis, start, azimuths, elevations) -> np.ndarray:
     """
     u = _finite("orbit axis", axis, (3,))
     s = _finite("orbit start", start, (3,))
+    # the preconditions are checked, not repaired: a repair would move the callers' orbits by a rounding
+    if abs(np.linalg.norm(u) - 1) > 1e-6 or abs(np.linalg.norm(s) - 1) > 1e-6 or abs(u @ s) > 1e-6:
+        raise ValidationError(f"orbit: axis and start must be unit vectors, start perpendicular to the axis; got "
+                              f"|axis| = {np.linalg.norm(u):.6g}, |start| = {np.linalg.norm(s):.6g}, "
+                              f"axis . start = {u @ s:.3g}")
     az = np.asarray(azimuths, dtype=np.float64).ravel()
     el = np.asarray(elevations, dtype=np.float64).ravel()
     if az.shape != el.shape:

@@ -86,10 +86,13 @@ def rotation_between(a, b) -> np.ndarray:
 
     :math:`R = I + [a \times b]_\times + [a \times b]_\times^2 / (1 + a \cdot b)`, with
     :math:`1 + a \cdot b = |a + b|^2 / 2` evaluated that way for obtuse pairs
-    (accurate as ``b`` nears ``-a``); for opposite vectors
-    (:math:`|a + b|^2 / 2 < 10^{-20}`) a half turn
+    (``1 + c`` itself loses every digit as ``b`` nears ``-a``); for opposite
+    vectors (:math:`|a + b|^2 / 2 < 10^{-20}`) a half turn
     :math:`2 n n^T - I` about the axis ``n`` perpendicular to ``a`` built
-    from the world axis least aligned with ``a``.
+    from the world axis least aligned with ``a``. Near-opposite pairs are
+    still ill-conditioned: the axis :math:`a \times b` carries an absolute
+    rounding error of about :math:`10^{-16}`, so ``R`` (its ``R a - b`` and
+    its orthonormality) is accurate to about :math:`10^{-16} / |a + b|`.
     """
     a = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
@@ -113,9 +116,12 @@ def frame_for_up(up) -> np.ndarray:
 
     The local x axis is the world axis least aligned with ``up``, made
     orthogonal to it (Gram-Schmidt), and local y = up x x, so the frame is
-    right-handed and ``up = -y`` gives local x = world x.
+    right-handed and ``up = -y`` gives local x = world x. ``up`` must be a
+    unit vector (ValidationError otherwise: the frame would not be a rotation).
     """
     up = np.asarray(up, dtype=np.float64)
+    if up.shape != (3,) or not np.all(np.isfinite(up)) or abs(np.linalg.norm(up) - 1) > 1e-6:
+        raise ValidationError(f"frame_for_up: up must be a finite unit 3-vector, got {up.tolist()}")
     a = np.eye(3)[int(np.argmin(np.abs(up)))]
     x = a - np.dot(a, up) * up
     x /= np.linalg.norm(x)

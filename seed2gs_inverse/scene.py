@@ -245,6 +245,8 @@ class GaussianScene:
     def subset(self, selection) -> "GaussianScene":
         """The Gaussians picked by an index array or a boolean mask of length N."""
         sel = np.asarray(selection)
+        if sel.shape == (0,) and sel.dtype.kind == "f":  # an empty list: numpy makes it float64
+            sel = sel.astype(np.int64)
         if sel.dtype == bool:
             if sel.shape != (len(self),):
                 raise ValidationError(f"boolean selection has shape {sel.shape}; expected ({len(self)},)")

@@ -114,3 +114,37 @@ def test_from_dict_overflow_is_validation_error():
     d = Camera(10, 10, 5.0, 5.0, 5.0, 5.0).to_dict()
     with pytest.raises(ValidationError, match="near is not finite"):
         Camera.from_dict({**d, "near": 10 ** 400})
+
+
+def test_look_at_judges_up_by_its_direction_not_its_length():
+    short = Camera.look_at([0, 0, 5], [0, 0, 0], [0, 1e-10, 0], 60, 64, 48)  # was "parallel"
+    unit = Camera.look_at([0, 0, 5], [0, 0, 0], [0, 1, 0], 60, 64, 48)
+    np.testing.assert_allclose(short.world_to_camera, unit.world_to_camera, atol=1e-15)
+    with pytest.raises(ValidationError, match="parallel"):  # a long up nearly along the view was taken
+        Camera.look_at([0, 0, 5], [0, 0, 0], [1e-8, 0, -1e3], 60, 64, 48)
+
+
+def test_camera_to_world_needs_a_rigid_last_row_and_points_are_m_by_3():
+    c2w = np.eye(4)
+    c2w[3] = [0.3, 0, 0, 7]
+    with pytest.raises(ValidationError, match="last row"):
+        Camera.from_camera_to_world(64, 48, 50, 50, 32, 24, c2w)
+    cam = Camera.from_camera_to_world(64, 48, 50, 50, 32, 24, np.eye(4))
+    with pytest.raises(ValidationError, match=r"\(M, 3\) array.*\[point\]"):
+        cam.project([0, 0, 1])
+    uv, z = cam.project([[0, 0, 1]])
+    np.testing.assert_allclose(uv, [[32, 24]])
+    np.testing.assert_allclose(z, [1])
+
+
+def test_orbit_helpers_check_their_unit_vectors():
+    from seed2gs_inverse.camera import orbit_directions
+    from seed2gs_inverse.geometry import frame_for_up
+
+    d = orbit_directions([0, 0, 1], [1, 0, 0], [0.0, 1.0], [0.0, 0.5])
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0)
+    for axis, start in (([0, 0, 2], [1, 0, 0]), ([0, 0, 1], [1, 0, 0.1]), ([0, 0, 1], [2, 0, 0])):
+        with pytest.raises(ValidationError, match="unit vectors"):  # axis [0, 0, 2] gave a direction of length 3.6
+            orbit_directions(axis, start, [1.0], [1.0])
+    with pytest.raises(ValidationError, match="unit 3-vector"):
+        frame_for_up([0, 0, 2])

@@ -248,3 +248,13 @@ def test_sh_basis_is_the_real_spherical_harmonics_of_scipy():
     for i in range(len(d)):
         _sh_basis(d[i, 0], d[i, 1], d[i, 2], 16, out)
         np.testing.assert_allclose(out, want[i], atol=1e-6)
+
+
+def test_subset_of_an_empty_list_is_an_empty_scene():
+    """numpy makes [] float64: it was refused, while the edits took it."""
+    rng = np.random.default_rng(0)
+    scene = GaussianScene(rng.normal(size=(5, 3)), rng.normal(size=(5, 4)), np.zeros((5, 3)), np.zeros(5),
+                          np.zeros((5, 1, 3)))
+    assert len(scene.subset([])) == 0 and len(scene.subset(np.array([], np.int64))) == 0
+    with pytest.raises(ValidationError):
+        scene.subset([0.5])

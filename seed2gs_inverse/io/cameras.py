@@ -16,8 +16,10 @@ COLMAP sparse model (``cameras`` + ``images``, ``.txt`` or ``.bin``)
     translation; cameras the model and its parameters. Pinhole-like models
     (SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV) give ``fx, fy,
     cx, cy``; their distortion is ignored with a warning (undistort the
-    images with COLMAP for exact results). Cameras are sorted by image name,
-    as in the 3DGS trainer.
+    images with COLMAP for exact results). Cameras are sorted as the 3DGS
+    trainer sorts them, by its ``image_name``: the file name without folders,
+    up to its first dot (:func:`trainer_name`). They keep COLMAP's full name;
+    ``FILE:NAME`` also takes the trainer's name.
 nerfstudio ``transforms.json``
     ``frames[i].transform_matrix`` is camera-to-world in OpenGL axes (x right,
     y up, z back); its y and z columns are negated to get OpenCV axes.
@@ -210,12 +212,17 @@ def split_camera_spec(spec, exists=os.path.exists) -> tuple:
     return spec[:cut], spec[cut + 1:]
 
 
+def trainer_name(name: str) -> str:
+    """The 3DGS trainer's ``image_name`` of an image file name: no folders, up to the first dot."""
+    return os.path.basename(name).split(".")[0]
+
+
 def read_camera(spec) -> Camera:
     """One camera from ``"FILE"``, ``"FILE:NAME"`` or ``"FILE:INDEX"``.
 
     A name matches the camera's ``name`` (it may hold colons: the file is the
     longest existing path before one; a name several cameras share is an
-    error); otherwise an integer selects by position (negative counts from
+    error), else its :func:`trainer_name`; otherwise an integer selects by position (negative counts from
     the end). Without a selector the file must hold exactly one camera.
     Example: ``read_camera("cams.json:overview")``.
     """
@@ -229,6 +236,8 @@ def read_camera(spec) -> Camera:
         raise ValidationError(f"{path} holds {len(cams)} cameras; pick one with {path}:NAME or "
                               f"{path}:INDEX (names: {names})")
     named = [i for i, cam in enumerate(cams) if cam.name == selector]
+    if not named:  # the 3DGS trainer's name of a COLMAP image ("images/a.png" is "a" in its cameras.json)
+        named = [i for i, cam in enumerate(cams) if cam.name and trainer_name(cam.name) == selector]
     if len(named) > 1:
         raise ValidationError(f"{path} holds {len(named)} cameras named '{selector}' (indices "
                               f"{', '.join(map(str, named[:10]))}); pick one by index, {path}:INDEX")
@@ -249,7 +258,8 @@ def write_cameras(path, cameras) -> None:
     Each entry is ``{id, img_name, width, height, position, rotation, fx,
     fy}`` with the camera-to-world rotation written row by row; ``cx`` and
     ``cy`` are added only when the principal point is not the image centre.
-    Reading the file back gives the same cameras (``near`` is not stored).
+    Reading the file back gives the same cameras (``near`` is not stored,
+    and a camera without a name comes back named by its id, ``camera_<i>``).
     """
     cams = list(cameras)
     if not cams:
@@ -427,7 +437,9 @@ def _read_colmap(d: Path, ext: str) -> list:
         raise fail(img_path, "holds no images")
     cams = []
     distorted = 0
-    for index, (image_id, qvec, tvec, cam_id, name) in enumerate(sorted(images, key=lambda r: r[4])):
+    # the 3DGS trainer's order: by image_name = the file name up to its first dot, ties in file order
+    # (a full-name sort put "a-1.png" before "a.png", and FILE:INDEX picked another view than training)
+    for index, (image_id, qvec, tvec, cam_id, name) in enumerate(sorted(images, key=lambda r: trainer_name(r[4]))):
         label = f"{os.fspath(img_path)}: image {image_id} ('{name}')"
         if cam_id not in intr:
             raise FormatError(f"{label}: refers to camera {cam_id}, which {cam_path.name} lacks")
