@@ -31,12 +31,17 @@ camera, about 13 degrees from what VAAS gets by default there), ``garden``
 wall and grass), both from :func:`~seed2gs_inverse.synthetic.ground.make_ground_scene`
 in random world rotations. Objects: the real unicorn plush
 (``unicorn_49k_sh3.ply``) and the procedural table (top, skirt, legs), box,
-vase and plush.
+vase and plush. ``--extra`` runs four more cases instead, with real objects
+scanned alone stood on the patio: a guitar on its stand
+(``guitar_90k.compressed.ply``: thin parts, a stand the neighbour graph
+leaves apart from the body) and a person holding a helmet
+(``biker_152k.spz``), each from a low and a higher pitch.
 
 Usage::
 
     python benchmarks/bench_extract.py [--cases 0,3,garden] [--quick] [--report DIR] [--no-timing]
         [--set KEY=VALUE ...]   # extract() keywords, e.g. --set up=truth --set method=voting
+        [--extra]               # the real scanned objects (guitar, biker) instead of the 13 cases
 
 ``--set`` values are parsed as JSON when they can be (numbers, true/false,
 null, lists, dicts), else kept as strings; ``up=truth`` passes each case's
@@ -110,8 +115,20 @@ CASES = [
     Case("firepit-unicorn-50", "firepit", "unicorn", 50, 12000, 20, 4),
 ]
 
+# Real objects scanned alone (shared data), stood on the patio: a guitar on its stand (thin parts,
+# a stand apart from the body) and a person holding a helmet. Run with --extra; the 13 cases above
+# stay the suite whose means the CHANGELOG compares.
+EXTRA_CASES = [
+    Case("firepit-guitar-20", "firepit", "guitar", 20, 6000, 100, 0),
+    Case("firepit-guitar-45", "firepit", "guitar", 45, 4000, 250, 2),
+    Case("firepit-biker-15", "firepit", "biker", 15, 12000, 40, 1),
+    Case("firepit-biker-40", "firepit", "biker", 40, 8000, 200, 2),
+]
+
 CLUTTER = {"garden": ("grass", "bushes"), "yard": ("fence", "wall", "grass")}
 PROCEDURAL = ("table", "box", "vase", "plush")
+SCANNED = {"guitar": ("guitar_90k.compressed.ply", (0.0, -1.0, 0.0), 1.6),
+           "biker": ("biker_152k.spz", (0.0, 1.0, 0.0), 2.6)}
 
 
 def _unit(v):
@@ -221,6 +238,13 @@ class Built:
         """(object scene, its up in its own coordinates, height in world units)."""
         if kind == "unicorn":
             return cache["unicorn"], (0.0, -1.0, 0.0), 0.8 if firepit_units else 0.45
+        if kind in SCANNED:  # (file, its up in its own coordinates, height in firepit units)
+            name, up, height = SCANNED[kind]
+            if kind not in cache:
+                from seed2gs_inverse import read_scene
+
+                cache[kind] = read_scene(DATA / name)
+            return cache[kind], up, height * (1.0 if firepit_units else 0.6)
         # A procedural object cut out of a ground scene; its up is that scene's up.
         from seed2gs_inverse.synthetic.ground import make_ground_scene
 
@@ -352,25 +376,28 @@ def main(argv=None) -> int:
     p.add_argument("--no-timing", action="store_true",
                    help="skip the per-case baselines (a 960x540 render, two sparse passes) and stage lines")
     p.add_argument("--json", default=None, metavar="FILE", help="write the per-case numbers as JSON")
+    p.add_argument("--extra", action="store_true",
+                   help="the real scanned objects (EXTRA_CASES: guitar, biker) instead of the 13-case suite")
     args = p.parse_args(argv)
     options = _parse_set(args.set)
 
-    cases = list(enumerate(CASES))
+    pool = EXTRA_CASES if args.extra else CASES
+    cases = list(enumerate(pool))
     if args.cases:
         want = [s.strip() for s in args.cases.split(",") if s.strip()]
         # a case's index selects that case alone; other text every case whose name contains it
         cases = [(i, c) for i, c in cases
-                 if any(w == str(i) if w.isdigit() and int(w) < len(CASES) else w in c.name for w in want)]
+                 if any(w == str(i) if w.isdigit() and int(w) < len(pool) else w in c.name for w in want)]
         if not cases:
             print(f"bench_extract: no case matches {args.cases!r}; cases: "
-                  + ", ".join(f"{i}:{c.name}" for i, c in enumerate(CASES)))
+                  + ", ".join(f"{i}:{c.name}" for i, c in enumerate(pool)))
             return 2
     have_data = (DATA / "firepit_562k_sh0.ply").is_file() and (DATA / "unicorn_49k_sh3.ply").is_file()
     if not have_data:
-        skipped = [c.name for _, c in cases if c.background == "firepit" or c.obj == "unicorn"]
+        skipped = [c.name for _, c in cases if c.background == "firepit" or c.obj in ("unicorn", *SCANNED)]
         print(f"bench_extract: shared data not found in {DATA} (set SEED2GS_DATA); skipping "
               f"{len(skipped)} case(s) that need it: {', '.join(skipped) or 'none'}")
-        cases = [(i, c) for i, c in cases if not (c.background == "firepit" or c.obj == "unicorn")]
+        cases = [(i, c) for i, c in cases if not (c.background == "firepit" or c.obj in ("unicorn", *SCANNED))]
         if not cases:
             return 0
 
