@@ -86,6 +86,33 @@ def test_seed_connected_removes_exactly_the_large_islands(fraction):
     assert want[460:464].any() == (fraction * 400 > 4)
 
 
+@pytest.mark.parametrize("share", [0.5, 0.89, 0.91, 1.0])
+def test_an_island_the_masks_call_object_stays(share):
+    """The guitar's stand: a large island apart from the body that view after view labels object.
+
+    The piece of 60 (an island at the default fraction) takes an object share of its decided weight
+    of ``share``; it stays exactly when the share reaches ``island_vote`` (0.9). The piece of 4 has no
+    decided weight: the size rule alone decides it (it is small: it stays).
+    """
+    means, selected, support = _cloud()
+    rng = np.random.default_rng(0)
+    decided = rng.uniform(0.5, 2.0, len(means))
+    decided[460:464] = 0.0
+    obj = 0.97 * decided
+    piece = slice(400, 460)
+    obj[piece] = share * decided[piece] * rng.uniform(0.9, 1.1, 60)
+    obj[piece] *= share * decided[piece].sum() / obj[piece].sum()  # the piece's share, exactly
+    got = seed_connected(means, selected, support, votes=(obj, decided))
+    plain = seed_connected(means, selected, support)
+    assert not plain[piece].any()
+    assert got[piece].all() == (share >= 0.9) and got[piece].any() == (share >= 0.9)
+    np.testing.assert_array_equal(np.delete(got, np.r_[400:460]), np.delete(plain, np.r_[400:460]))
+    with pytest.raises(ValidationError, match="votes must be two"):
+        seed_connected(means, selected, support, votes=(obj, -decided))
+    with pytest.raises(ValidationError, match="island_vote"):
+        seed_connected(means, selected, support, votes=(obj, decided), island_vote=1.5)
+
+
 def test_seed_connected_keeps_a_selection_it_cannot_anchor():
     means, selected, support = _cloud()
     np.testing.assert_array_equal(seed_connected(means, selected, np.zeros(len(means), bool)), selected)

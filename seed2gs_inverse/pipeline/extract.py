@@ -736,7 +736,8 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     ``tau`` is ``settings.threshold`` or the solver's own. ``progress``: the
     solver's per-iteration hook (``solve(..., progress=)``). With
     ``settings.seed_connected`` (default) the Gaussians above ``tau`` in
-    islands apart from G0 (:func:`~.seed_lift.seed_connected`) get ``q = 0``,
+    islands apart from G0 that the masks do not call object
+    (:func:`~.seed_lift.seed_connected` with the masks' votes) get ``q = 0``,
     the prior of Gaussians outside G0 (``result.q`` keeps the solver's
     values). ``scene``: the scene of the operators, needed for that rule
     (its means).
@@ -754,12 +755,21 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
             raise ValidationError("solve_selection: settings.seed_connected needs the scene (scene=, for its "
                                   "Gaussian means); pass it or set seed_connected=False")
         graph_kw = {k: settings.lift_options[k] for k in ("k_neighbors", "link_factor") if k in settings.lift_options}
-        island = (q > tau) & ~seed_connected(scene.means, q > tau, lift.support, **graph_kw)  # the lift's graph
+        island = (q > tau) & ~seed_connected(scene.means, q > tau, lift.support, votes=_votes(stack, masks),
+                                             **graph_kw)  # the lift's graph
         # islands hold no G0 Gaussian: they take the prior of the Gaussians outside G0 (0)
         q = np.where(island, np.float32(0), q)
         n_removed = int(island.sum())
     selected = q > tau
     return Selection(result, q, tau, selected, n_removed)
+
+
+def _votes(stack, masks) -> tuple:
+    """``(A^T (k y), A^T k)``: each Gaussian's weight on object pixels and on decided pixels (two passes)."""
+    y = np.concatenate([np.asarray(m, np.float32).ravel() for m in masks])
+    decided = ~np.isnan(y)
+    return (stack.rmatvec(np.where(decided, y, np.float32(0))),
+            stack.rmatvec(decided.astype(np.float32)))
 
 
 # -- Algorithm 1 --------------------------------------------------------------------------------

@@ -282,7 +282,9 @@ class ExtractSettings:
         (:func:`~seed2gs_inverse.pipeline.seed_lift.seed_connected`: the
         lift's neighbour graph over the selection; components without a G0
         Gaussian holding at least 0.5 % as many Gaussians as those with
-        one); their ``q`` becomes 0. Default True. A few wrong mask pixels
+        one, unless the masks call them object: 90 % of their weight on
+        decided pixels lies on object pixels); their ``q`` becomes 0.
+        Default True. A few wrong mask pixels
         below an object's edge can make the solver (and the regulariser
         after it) select a mostly hidden background surface under the
         object, apart from it. The count is ``resolved["n_disconnected"]``.
