@@ -76,3 +76,27 @@ def test_tracked_membership_fixes_confident_evidence_and_extends_it():
     np.testing.assert_allclose(q, prior, atol=1e-12)  # no Gaussian has evidence 2: nothing fixed
     with pytest.raises(Exception, match="confident"):
         tracked_membership(G, [v1, v2], [m1, m2], prior, confident=0.5)
+
+
+def test_completions_stop_their_cg_at_the_regularisers_tolerance(monkeypatch):
+    """harmonic_extension's own rtol (1e-10) kept CG running for many minutes on a large graph."""
+    from seed2gs_inverse.pipeline import completion
+    from seed2gs_inverse.solvers import smoothing
+
+    seen = []
+    real_cg = smoothing.spla.cg
+
+    def cg(*args, **kw):
+        seen.append(kw["rtol"])
+        return real_cg(*args, **kw)
+
+    monkeypatch.setattr(smoothing.spla, "cg", cg)
+    monkeypatch.setattr(smoothing, "DIRECT_MAX", 2)  # CG for this small graph too
+    n = 12
+    w = np.zeros((n, n))
+    for i in range(n - 1):
+        w[i, i + 1] = w[i + 1, i] = 1.0
+    support = np.arange(n) < 2
+    q = completion.complete_membership(sp.csr_matrix(w), support, np.r_[np.ones(2), np.zeros(n - 3), 1.0],
+                                       np.r_[np.ones(2), np.zeros(n - 2)])
+    assert seen == [completion.COMPLETION_RTOL] and q[0] == 1.0 and q[-1] == 0.0

@@ -82,8 +82,16 @@ def object_graph(scene, center, radius: float, *, k: int = GRAPH_DEFAULTS["k"],
                           min_opacity=min_opacity)
 
 
+#: CG tolerance of the completions' random walker on graphs beyond
+#: :data:`~seed2gs_inverse.solvers.smoothing.DIRECT_MAX` unknowns (smaller ones are factorised):
+#: the regulariser's default. harmonic_extension's own 1e-10 kept CG running for
+#: many minutes on the large graph of a person (``bench_extract.py --extra``).
+COMPLETION_RTOL = 1e-5
+
+
 def complete_membership(graph, support, reference_weight, reference_membership, *,
-                        min_weight: float = 0.1, max_background_membership: float = 0.1) -> np.ndarray:
+                        min_weight: float = 0.1, max_background_membership: float = 0.1,
+                        rtol: float = COMPLETION_RTOL) -> np.ndarray:
     r"""Random-walker membership from the reference view's labels alone.
 
     Parameters
@@ -99,6 +107,9 @@ def complete_membership(graph, support, reference_weight, reference_membership, 
     min_weight, max_background_membership : float
         Background seeds: visible in the reference (weight >= ``min_weight``)
         and outside the seed (membership <= ``max_background_membership``).
+    rtol : float
+        CG tolerance of :func:`~seed2gs_inverse.solvers.smoothing.harmonic_extension`
+        (used beyond its ``DIRECT_MAX`` unknowns).
 
     Returns
     -------
@@ -115,7 +126,8 @@ def complete_membership(graph, support, reference_weight, reference_membership, 
                               f"got {w.shape} and {mu.shape}")
     bg = ~support & (w >= min_weight) & (mu <= max_background_membership)
     fixed = support | bg
-    return harmonic_extension(graph, fixed, support.astype(np.float64), prior=support.astype(np.float64))
+    return harmonic_extension(graph, fixed, support.astype(np.float64), prior=support.astype(np.float64),
+                              rtol=rtol)
 
 
 def fill_unknown(operators, masks, q, *, decisive: float = 0.2, alpha_min: float = 0.5) -> list:
@@ -156,7 +168,7 @@ def fill_unknown(operators, masks, q, *, decisive: float = 0.2, alpha_min: float
 
 
 def tracked_membership(graph, operators, masks, prior=None, *, min_evidence: float = 0.5,
-                       confident: float = 0.2) -> np.ndarray:
+                       confident: float = 0.2, rtol: float = COMPLETION_RTOL) -> np.ndarray:
     r"""Random-walker membership seeded by every decided pixel of every view.
 
     Each Gaussian's label estimate from the known pixels,
@@ -170,6 +182,7 @@ def tracked_membership(graph, operators, masks, prior=None, *, min_evidence: flo
     or :math:`\ge 1 -` ``confident``); the others (unseen surfaces, and
     silhouette Gaussians whose pixels disagree) take the harmonic extension
     :math:`L_{UU} q_U = -L_{UB} \hat q_B`; those no fixed node reaches keep ``prior``.
+    ``rtol``: as in :func:`complete_membership`.
 
     Returns
     -------
@@ -194,4 +207,4 @@ def tracked_membership(graph, operators, masks, prior=None, *, min_evidence: flo
         qhat = np.where(den > 0, num / np.maximum(den, 1e-30), 0.0)
     qhat = np.clip(qhat, 0.0, 1.0)
     fixed = (den >= min_evidence) & ((qhat <= confident) | (qhat >= 1.0 - confident))
-    return harmonic_extension(graph, fixed, qhat, prior=prior)
+    return harmonic_extension(graph, fixed, qhat, prior=prior, rtol=rtol)
