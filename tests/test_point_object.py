@@ -214,7 +214,8 @@ def test_the_prompts_region_settings_grow_each_click(table_view):
 
     g, cam, ref, truth, skirt_px, click = table_view
     default = point_object_mask(g.scene, cam, [click], rendering=ref)
-    wide = point_object_mask(g.scene, cam, [click], rendering=ref, region=PointPrompt([click], color_tol=0.5, radius=10))
+    wide = point_object_mask(g.scene, cam, [click], rendering=ref,
+                             region=PointPrompt([click], color_tol=0.5, radius=10))
     assert wide.info["patch_pixels"] > default.info["patch_pixels"]
     _, info = seed_from_prompt(PointPrompt([click], color_tol=0.5, radius=10), ref, point_mode="object",
                                scene=g.scene, camera=cam)

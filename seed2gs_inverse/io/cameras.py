@@ -222,8 +222,9 @@ def read_camera(spec) -> Camera:
 
     A name matches the camera's ``name`` (it may hold colons: the file is the
     longest existing path before one; a name several cameras share is an
-    error), else its :func:`trainer_name`; otherwise an integer selects by position (negative counts from
-    the end). Without a selector the file must hold exactly one camera.
+    error), else its :func:`trainer_name`; otherwise an integer selects by
+    position (negative counts from the end). Without a selector the file
+    must hold exactly one camera.
     Example: ``read_camera("cams.json:overview")``.
     """
     path, selector = split_camera_spec(spec)

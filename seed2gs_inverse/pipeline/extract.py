@@ -512,18 +512,10 @@ def orbit_axis(up, scene: GaussianScene, base: Camera, ref: ReferenceView, lift:
     import warnings
 
     if isinstance(up, str) and up == "auto":
-        from .up_axis import estimate_up_axis
+        from .up_axis import camera_list, estimate_up_axis
 
         if up_cameras is not None:
-            if isinstance(up_cameras, Camera):
-                raise ValidationError("up_cameras must be a sequence of Camera, got one Camera; pass [camera]")
-            try:
-                up_cameras = list(up_cameras)  # once: a generator would be exhausted by the check below
-            except TypeError:
-                raise ValidationError(f"up_cameras must be a sequence of Camera, got "
-                                      f"{type(up_cameras).__name__}") from None
-            if not all(isinstance(c, Camera) for c in up_cameras):
-                raise ValidationError("up_cameras must be a sequence of Camera")
+            up_cameras = camera_list(up_cameras, "up_cameras")  # read once: a generator too
         est = estimate_up_axis(scene, base, support=lift.support, center=lift.center, radius=lift.radius,
                                cameras=up_cameras)
         if est.weak:

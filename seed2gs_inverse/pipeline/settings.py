@@ -161,7 +161,8 @@ class ExtractSettings:
     max_view_pixels : int or None
         ... capped at about this many pixels per view (40k; the sides are
         rounded to whole pixels, which may pass the cap by a row or a
-        column: 267x150 = 40,050 for a 960x540 reference). The orbit views are object-centric (zoomed), so
+        column: 267x150 = 40,050 for a 960x540 reference). The orbit views
+        are object-centric (zoomed), so
         even this resolution puts a few thousand pixels on the object, and
         the operators (non-zeros) dominate time and memory: on the
         firepit + unicorn extraction of benchmarks/bench_speed.py, 160k
@@ -172,7 +173,8 @@ class ExtractSettings:
     max_reference_pixels : int or None
         The reference view (seed lift, frame 0 of both clips, first
         supervision view) keeps the camera's resolution up to about this
-        many pixels (1M, rounded as above), composited only in a box around the seed. Clip frames
+        many pixels (1M, rounded as above), composited only in a box around
+        the seed. Clip frames
         therefore differ in size between frame 0 and the rest. None: no
         cap; else in 64..2**26.
     roi_margin : float or None

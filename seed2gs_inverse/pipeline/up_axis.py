@@ -221,6 +221,19 @@ def roll_basis(reference: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return a, b, reference.right / np.linalg.norm(reference.right)
 
 
+def camera_list(cameras, name: str) -> list:
+    """``cameras`` (any iterable of Camera, read once: a generator too) as a list; ``name`` heads the errors."""
+    if isinstance(cameras, Camera):
+        raise ValidationError(f"{name} must be a sequence of Camera, got one Camera; pass [camera]")
+    try:
+        cams = list(cameras)
+    except TypeError:
+        raise ValidationError(f"{name} must be a sequence of Camera, got {type(cameras).__name__}") from None
+    if not all(isinstance(c, Camera) for c in cams):
+        raise ValidationError(f"{name} must be a sequence of Camera")
+    return cams
+
+
 def cameras_up(cameras) -> tuple[np.ndarray, float]:
     r"""World up from capture cameras without roll, and its quality.
 
@@ -443,12 +456,7 @@ def estimate_up_axis(scene, reference: Camera, support=None, center=None, radius
 
     cam_axis, cam_quality, cams = None, 0.0, []
     if cameras is not None:
-        if isinstance(cameras, Camera):
-            raise ValidationError("cameras must be a sequence of Camera, got one Camera; pass [camera]")
-        try:
-            cams = list(cameras)  # once: a generator is read here, not exhausted by a later count
-        except TypeError:
-            raise ValidationError(f"cameras must be a sequence of Camera, got {type(cameras).__name__}") from None
+        cams = camera_list(cameras, "cameras")
         if cams:
             cam_axis, cam_quality = cameras_up(cams)
             if cam_quality < 0.05:
