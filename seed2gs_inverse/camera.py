@@ -232,9 +232,8 @@ class Camera:
     def world_to_view(self, points: np.ndarray) -> np.ndarray:
         """Camera-frame coordinates (M, 3) float64 of world points (M, 3)."""
         p = np.asarray(points, dtype=np.float64)
-        if p.ndim != 2 or p.shape[1] != 3:
-            raise ValidationError(f"points must be an (M, 3) array, got shape {p.shape}; "
-                                  f"for one point pass [point]")
+        if p.ndim not in (1, 2) or p.shape[-1] != 3:
+            raise ValidationError(f"points must be an (M, 3) array, got shape {p.shape}")
         return p @ self.rotation.T + self.translation
 
     def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -242,6 +241,9 @@ class Camera:
 
         Points behind the camera get non-finite pixel coordinates.
         """
+        if np.ndim(points) != 2:  # world_to_view also takes a lone (3,) point; this returns (M, 2) and (M,)
+            raise ValidationError(f"points must be an (M, 3) array, got shape {np.shape(points)}; "
+                                  f"for one point pass [point]")
         v = self.world_to_view(points)
         z = v[:, 2]
         with np.errstate(divide="ignore", invalid="ignore"):

@@ -529,9 +529,9 @@ def test_json_types_and_index_selectors_are_strict(tmp_path):
             read_camera(f"{path}:{sel}")
 
 
-def test_colmap_cameras_follow_the_3dgs_trainers_order_and_names(tmp_path):
-    """The trainer sorts by image_name (no folders, up to the first dot): "a.png" before "a-1.png", which a
-    sort by the full name reversed, so FILE:INDEX picked another view than the trainer's index."""
+def test_colmap_cameras_answer_to_the_first_3dgs_trainers_names(tmp_path):
+    """Sorted by the full COLMAP name, as the trainer's current reader does; its first release named
+    cameras without folders up to the first dot ("a-1" for "images/a-1.png"), and FILE:NAME takes that."""
     d = tmp_path / "sparse"
     d.mkdir()
     (d / "cameras.txt").write_text("1 PINHOLE 64 48 50.0 52.0 31.0 25.0\n")
@@ -541,7 +541,8 @@ def test_colmap_cameras_follow_the_3dgs_trainers_order_and_names(tmp_path):
         lines += [" ".join(map(str, [image_id, *rot, 0.0, 0.0, float(image_id), 1, name])), ""]
     (d / "images.txt").write_text("\n".join(lines) + "\n")
     cams = read_cameras(d)
-    assert [c.name for c in cams] == ["images/a.png", "images/a-1.png", "images/b.jpg"]
-    assert read_camera(f"{d}:a-1").name == "images/a-1.png"  # the trainer's name, as its cameras.json has it
+    assert [c.name for c in cams] == ["images/a-1.png", "images/a.png", "images/b.jpg"]
+    assert read_camera(f"{d}:a-1").name == "images/a-1.png"  # the first trainer's name
+    assert read_camera(f"{d}:a").name == "images/a.png"
     assert read_camera(f"{d}:images/b.jpg").name == "images/b.jpg"
-    assert read_camera(f"{d}:1").name == "images/a-1.png"
+    assert read_camera(f"{d}:1").name == "images/a.png"

@@ -227,3 +227,4 @@ def test_the_model_free_tracker_refuses_what_switched_its_fill_off(name, value):
     with pytest.raises(ValidationError, match=name):
         GeometricTracker(**{name: value})
     GeometricTracker(color_tol=None, min_support=0.0, boundary_band=np.int64(2), max_sources=np.int32(3))
+    assert GeometricTracker(max_sources=3.0).max_sources == 3

@@ -421,3 +421,22 @@ def test_stage_timer_moves_seconds_between_stages():
     t.move("vaas", "operators", 0.25)
     assert t.seconds["vaas"] == 0.75 and t.seconds["operators"] == 0.25
     assert list(t.seconds) == list(ex_mod.STAGES)
+
+
+def test_solve_selection_reads_masks_as_the_solver_does(syn, staged):
+    """The islands' votes read the masks by the solver's rule: uint8 0/255 masks voted 255 times too much for
+    object (keeping every island), a generator of masks was empty by the time of the vote, and a list of
+    views (which solve takes) had no rmatvec."""
+    from seed2gs_inverse.pipeline.extract import _votes
+
+    binary = [np.asarray(m) > 0.5 for m in staged.masks]  # every pixel decided (NaN > 0.5 is False)
+    obj, decided = _votes(staged.stack, [b.astype(np.float32) for b in binary])
+    obj8, decided8 = _votes(staged.stack, [255 * b.astype(np.uint8) for b in binary])
+    np.testing.assert_allclose(obj8, obj, rtol=1e-6)
+    np.testing.assert_allclose(decided8, decided, rtol=1e-6)
+    assert 0 < obj.sum() < decided.sum()
+    want = ex_mod.solve_selection(staged.stack, staged.masks, staged.lift, staged.settings, graph=staged.graph,
+                                  smoothness=ex_mod.MODEL_FREE_SMOOTHNESS, scene=syn.scene)
+    got = ex_mod.solve_selection(list(staged.stack), (m for m in staged.masks), staged.lift, staged.settings,
+                                 graph=staged.graph, smoothness=ex_mod.MODEL_FREE_SMOOTHNESS, scene=syn.scene)
+    np.testing.assert_array_equal(got.q, want.q)

@@ -345,7 +345,8 @@ class GeometricTracker:
         if color_tol is not None and not (isinstance(color_tol, numbers.Real) and 0 <= color_tol < np.inf):
             raise ValidationError(f"color_tol must be a number >= 0 or None, got {color_tol!r}")
         for name, v, lo in (("max_sources", max_sources, 1), ("boundary_band", boundary_band, 0)):
-            if isinstance(v, bool) or not isinstance(v, numbers.Integral) or v < lo:
+            if (isinstance(v, bool) or not isinstance(v, numbers.Real) or not float(v).is_integer()
+                    or v < lo):  # 3.0 is 3; 2.5 was truncated to 2, a negative band clamped to 0
                 raise ValidationError(f"{name} must be a whole number >= {lo}, got {v!r}")
         self.alpha_min = float(alpha_min)
         self.depth_tol = float(depth_tol)

@@ -16,10 +16,12 @@ COLMAP sparse model (``cameras`` + ``images``, ``.txt`` or ``.bin``)
     translation; cameras the model and its parameters. Pinhole-like models
     (SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV) give ``fx, fy,
     cx, cy``; their distortion is ignored with a warning (undistort the
-    images with COLMAP for exact results). Cameras are sorted as the 3DGS
-    trainer sorts them, by its ``image_name``: the file name without folders,
-    up to its first dot (:func:`trainer_name`). They keep COLMAP's full name;
-    ``FILE:NAME`` also takes the trainer's name.
+    images with COLMAP for exact results). Cameras are sorted by their
+    COLMAP image name, as the 3DGS trainer's current reader sorts them and
+    names them in its ``cameras.json``. Its first release named (and sorted)
+    them by the file name without folders up to the first dot
+    (:func:`trainer_name`; the orders differ for names such as ``a.png`` and
+    ``a-1.png``): ``FILE:NAME`` takes that name too.
 nerfstudio ``transforms.json``
     ``frames[i].transform_matrix`` is camera-to-world in OpenGL axes (x right,
     y up, z back); its y and z columns are negated to get OpenCV axes.
@@ -213,7 +215,7 @@ def split_camera_spec(spec, exists=os.path.exists) -> tuple:
 
 
 def trainer_name(name: str) -> str:
-    """The 3DGS trainer's ``image_name`` of an image file name: no folders, up to the first dot."""
+    """The first 3DGS trainer's ``image_name`` of an image file name: no folders, up to the first dot."""
     return os.path.basename(name).split(".")[0]
 
 
@@ -237,7 +239,7 @@ def read_camera(spec) -> Camera:
         raise ValidationError(f"{path} holds {len(cams)} cameras; pick one with {path}:NAME or "
                               f"{path}:INDEX (names: {names})")
     named = [i for i, cam in enumerate(cams) if cam.name == selector]
-    if not named:  # the 3DGS trainer's name of a COLMAP image ("images/a.png" is "a" in its cameras.json)
+    if not named:  # the first 3DGS trainer's name of a COLMAP image ("images/a.png" was "a" in its cameras.json)
         named = [i for i, cam in enumerate(cams) if cam.name and trainer_name(cam.name) == selector]
     if len(named) > 1:
         raise ValidationError(f"{path} holds {len(named)} cameras named '{selector}' (indices "
@@ -438,9 +440,7 @@ def _read_colmap(d: Path, ext: str) -> list:
         raise fail(img_path, "holds no images")
     cams = []
     distorted = 0
-    # the 3DGS trainer's order: by image_name = the file name up to its first dot, ties in file order
-    # (a full-name sort put "a-1.png" before "a.png", and FILE:INDEX picked another view than training)
-    for index, (image_id, qvec, tvec, cam_id, name) in enumerate(sorted(images, key=lambda r: trainer_name(r[4]))):
+    for index, (image_id, qvec, tvec, cam_id, name) in enumerate(sorted(images, key=lambda r: r[4])):
         label = f"{os.fspath(img_path)}: image {image_id} ('{name}')"
         if cam_id not in intr:
             raise FormatError(f"{label}: refers to camera {cam_id}, which {cam_path.name} lacks")

@@ -528,9 +528,10 @@ def orbit_axis(up, scene: GaussianScene, base: Camera, ref: ReferenceView, lift:
         return {"axis": base.up.tolist(), "method": "camera", "confidence": None, "details": {}}
     axis = np.asarray(up, dtype=np.float64)  # validated by ExtractSettings
     axis = axis / np.linalg.norm(axis)
-    if axis @ base.up < 0:
+    if axis @ base.up < -0.5:
         # y-up against y-down (OpenGL against OpenCV/COLMAP) is an easy mistake, and a support
-        # "below" an upside-down object would be looked for above it
+        # "below" an upside-down object would be looked for above it. (From a camera looking
+        # straight down the true up is across the image: hence more than 120 degrees, not 90.)
         warnings.warn(f"up {np.round(axis, 3).tolist()} points down in the reference view; the orbits "
                       f"and the support surface take it as given (negate it if the scene's up is the "
                       f"other way)", stacklevel=4)
@@ -734,9 +735,12 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     values). ``scene``: the scene of the operators, needed for that rule
     (its means).
     """
+    from ..operators import as_stack
     from ..solvers import solve
     from .seed_lift import seed_connected
 
+    masks = list(masks)  # read twice (the solve, the islands' votes): a generator too
+    stack = as_stack(stack, masks)
     result = solve(stack, masks, method=settings.method, init=lift.support, min_evidence=settings.min_evidence,
                    progress=progress, smoothness=smoothness, graph=graph, **settings.solver_kwargs())
     q = np.asarray(result.q, dtype=np.float32)
@@ -757,8 +761,14 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
 
 
 def _votes(stack, masks) -> tuple:
-    """``(A^T (k y), A^T k)``: each Gaussian's weight on object pixels and on decided pixels (two passes)."""
-    y = np.concatenate([np.asarray(m, np.float32).ravel() for m in masks])
+    """``(A^T (k y), A^T k)``: each Gaussian's weight on object pixels and on decided pixels (two passes).
+
+    The masks are read by the solver's rule (uint8 0/255 is 0/1, NaN unknown).
+    """
+    from ..solvers._common import normalize_mask
+
+    y = np.concatenate([normalize_mask(m, v.image_shape, f"view {i}").ravel()
+                        for i, (v, m) in enumerate(zip(stack, masks))])
     decided = ~np.isnan(y)
     return (stack.rmatvec(np.where(decided, y, np.float32(0))),
             stack.rmatvec(decided.astype(np.float32)))

@@ -291,6 +291,9 @@ def seed_connected(means, selected, support, *, k_neighbors: int = 8, link_facto
     leaves apart (the stand of a guitar: thin, sparser than the body) is
     seen as object in view after view, while a background surface brought
     in by a few wrong pixels has a mixed vote (see :data:`ISLAND_VOTE`).
+    The vote cannot tell a real part from a background surface that the
+    masks label object wherever they decide it (a tracker error repeated in
+    every view): such an island stays.
 
     Why: the solver decides each Gaussian from the masks, and a few wrong
     mask pixels can be all the evidence a mostly hidden background surface

@@ -550,7 +550,7 @@ def estimate_up_axis(scene, reference: Camera, support=None, center=None, radius
             np.linalg.norm(means[glob_idx] - o, axis=1) > opt["local_factor"] * radius) < 0.1:
         # The scene is (almost) only the object's neighbourhood (an object scanned alone): its plane
         # is fitted on the same points as the local one, and their agreement would be no check.
-        details["scene_plane"] = "the support plane's points: the scene holds little else"
+        details["scene_plane_dropped"] = "fitted on the support plane's points: the scene holds little else"
         glob = None
     if local is not None:
         details["support_plane"] = local.summary()
