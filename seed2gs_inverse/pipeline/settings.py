@@ -152,8 +152,13 @@ class ExtractSettings:
     n_views, a_max_deg, gamma, skip_deg, profile, max_elevation_deg
         VAAS settings (:mod:`seed2gs_inverse.pipeline.vaas`): paper defaults
         24 views per clip and 5 degrees; A_max = 60 degrees and gamma = 1 are
-        our documented choices. Ranges: ``n_views`` in 2..360, ``a_max_deg >= 0``,
-        ``gamma > 0``, ``skip_deg >= 0``, ``profile`` ``"linear"`` or
+        our documented choices. More views are not better with the
+        model-free tracker: each frame's labels are warped from the labelled
+        views nearest to it, so with many views the far side is reached
+        through more hops, and a silhouette loses a little at each (a
+        review saw the selection of a small procedural sphere shrink
+        steadily as ``n_views`` grew from 6 to 96, at a 96x72 reference).
+        Ranges: ``n_views`` in 2..360, ``a_max_deg >= 0``, ``gamma > 0``, ``skip_deg >= 0``, ``profile`` ``"linear"`` or
         ``"sin"``, ``0 < max_elevation_deg < 90`` (default 85).
     orbit_scale : float
         Resolution of the orbit views relative to the reference camera,
