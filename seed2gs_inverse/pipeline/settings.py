@@ -158,8 +158,9 @@ class ExtractSettings:
         through more hops, and a silhouette loses a little at each (a
         review saw the selection of a small procedural sphere shrink
         steadily as ``n_views`` grew from 6 to 96, at a 96x72 reference).
-        Ranges: ``n_views`` in 2..360, ``a_max_deg >= 0``, ``gamma > 0``, ``skip_deg >= 0``, ``profile`` ``"linear"`` or
-        ``"sin"``, ``0 < max_elevation_deg < 90`` (default 85).
+        Ranges: ``n_views`` in 2..360, ``a_max_deg >= 0``, ``gamma > 0``,
+        ``skip_deg >= 0``, ``profile`` ``"linear"`` or ``"sin"``,
+        ``0 < max_elevation_deg < 90`` (default 85).
     orbit_scale : float
         Resolution of the orbit views relative to the reference camera,
         default 0.5, in (0, 4] ...
