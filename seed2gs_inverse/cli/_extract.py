@@ -100,8 +100,8 @@ def register(subparsers) -> None:
                         "seeded by the reference's labels or by every tracked label (default: off)")
     p.add_argument("--keep-islands", action="store_true",
                    help="keep parts of the selection apart from the seeded object (by default islands holding "
-                        "at least 0.5%% as many Gaussians as the object are left out: background the masks "
-                        "brought in)")
+                        "at least 0.5%% as many Gaussians as the object are left out, unless the masks call "
+                        "them object: background the masks brought in)")
     p.add_argument("--no-support-background", action="store_true",
                    help="do not label the surface the object rests on as background in the orbit views (by "
                         "default the model-free tracker does, where the orbit axis is trusted)")
