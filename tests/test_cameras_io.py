@@ -529,8 +529,8 @@ def test_json_types_and_index_selectors_are_strict(tmp_path):
             read_camera(f"{path}:{sel}")
 
 
-def test_colmap_cameras_answer_to_the_first_3dgs_trainers_names(tmp_path):
-    """Sorted by the full COLMAP name, as the trainer's current reader does; its first release named
+def test_colmap_cameras_answer_to_older_3dgs_trainers_names(tmp_path):
+    """Sorted by the full COLMAP name, as the trainer's current reader does; older versions named
     cameras without folders up to the first dot ("a-1" for "images/a-1.png"), and FILE:NAME takes that."""
     d = tmp_path / "sparse"
     d.mkdir()
@@ -542,7 +542,7 @@ def test_colmap_cameras_answer_to_the_first_3dgs_trainers_names(tmp_path):
     (d / "images.txt").write_text("\n".join(lines) + "\n")
     cams = read_cameras(d)
     assert [c.name for c in cams] == ["images/a-1.png", "images/a.png", "images/b.jpg"]
-    assert read_camera(f"{d}:a-1").name == "images/a-1.png"  # the first trainer's name
+    assert read_camera(f"{d}:a-1").name == "images/a-1.png"  # the older trainers' name
     assert read_camera(f"{d}:a").name == "images/a.png"
     assert read_camera(f"{d}:images/b.jpg").name == "images/b.jpg"
     assert read_camera(f"{d}:1").name == "images/a.png"

@@ -18,7 +18,7 @@ COLMAP sparse model (``cameras`` + ``images``, ``.txt`` or ``.bin``)
     cx, cy``; their distortion is ignored with a warning (undistort the
     images with COLMAP for exact results). Cameras are sorted by their
     COLMAP image name, as the 3DGS trainer's current reader sorts them and
-    names them in its ``cameras.json``. Its first release named (and sorted)
+    names them in its ``cameras.json``. Older versions named (and sorted)
     them by the file name without folders up to the first dot
     (:func:`trainer_name`; the orders differ for names such as ``a.png`` and
     ``a-1.png``): ``FILE:NAME`` takes that name too.
@@ -215,7 +215,7 @@ def split_camera_spec(spec, exists=os.path.exists) -> tuple:
 
 
 def trainer_name(name: str) -> str:
-    """The first 3DGS trainer's ``image_name`` of an image file name: no folders, up to the first dot."""
+    """Older 3DGS trainers' ``image_name`` of an image file name: no folders, up to the first dot."""
     return os.path.basename(name).split(".")[0]
 
 
@@ -239,7 +239,7 @@ def read_camera(spec) -> Camera:
         raise ValidationError(f"{path} holds {len(cams)} cameras; pick one with {path}:NAME or "
                               f"{path}:INDEX (names: {names})")
     named = [i for i, cam in enumerate(cams) if cam.name == selector]
-    if not named:  # the first 3DGS trainer's name of a COLMAP image ("images/a.png" was "a" in its cameras.json)
+    if not named:  # older 3DGS trainers' name of a COLMAP image ("images/a.png" was "a" in their cameras.json)
         named = [i for i, cam in enumerate(cams) if cam.name and trainer_name(cam.name) == selector]
     if len(named) > 1:
         raise ValidationError(f"{path} holds {len(named)} cameras named '{selector}' (indices "
