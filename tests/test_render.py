@@ -245,18 +245,28 @@ def test_bin_tiles_equals_sequential_lists(n):
 
 
 def test_compilation_is_announced_once(monkeypatch, capsys):
-    """A cold kernel cache is said once per process on stderr; a warm or unknown one says nothing."""
+    """Cold kernels are said once per process on stderr, counting only those the call runs; warm or unknown
+    ones say nothing (a render said "1 of 6" on every run for the culling kernel it never runs)."""
     from seed2gs_inverse.raster import _kernels
 
-    monkeypatch.setattr(_kernels, "_announced", False)
-    monkeypatch.setattr(_kernels, "kernels_cached", lambda: False)
-    assert _kernels.announce_compilation() is True
-    assert _kernels.announce_compilation() is False  # once per process
+    every = [k.py_func.__name__ for k in _kernels.ENTRY_KERNELS]
+    monkeypatch.setattr(_kernels, "_announced", set())
+    monkeypatch.setattr(_kernels, "_cold_kernels", lambda: ["_cone_cull"])
+    assert _kernels.announce_compilation(_kernels.RENDER_KERNELS) is False  # a render: nothing of it is cold
+    assert capsys.readouterr().err == ""
+    assert _kernels.announce_compilation((_kernels._cone_cull,)) is True
+    assert "(1 of 6)" in capsys.readouterr().err
+    monkeypatch.setattr(_kernels, "_announced", set())
+    monkeypatch.setattr(_kernels, "_cold_kernels", lambda: every)
+    assert _kernels.announce_compilation(_kernels.RENDER_KERNELS) is True
+    assert _kernels.announce_compilation(_kernels.RENDER_KERNELS) is False  # once per process
+    assert _kernels.announce_compilation((_kernels._cone_cull,)) is True  # its first call: said then
     err = capsys.readouterr().err
-    assert err.count("compiling the rasterizer kernels") == 1 and f"about {_kernels.COMPILE_SECONDS} s" in err
-    for state in (True, None):
-        monkeypatch.setattr(_kernels, "_announced", False)
-        monkeypatch.setattr(_kernels, "kernels_cached", lambda s=state: s)
+    assert err.count("compiling the rasterizer kernels") == 2 and "(5 of 6)" in err
+    assert f"about {_kernels.COMPILE_SECONDS} s" in err
+    for cold in ([], None):
+        monkeypatch.setattr(_kernels, "_announced", set())
+        monkeypatch.setattr(_kernels, "_cold_kernels", lambda c=cold: c)
         assert _kernels.announce_compilation() is False
     assert capsys.readouterr().err == ""
 

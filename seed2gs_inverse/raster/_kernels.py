@@ -788,10 +788,12 @@ def _cone_cull(means, rot, trans, fx, fy, cx, cy, width, height, near, roi, smax
 # writable, or ``$NUMBA_CACHE_DIR``), so a user compiles them once per installation.
 #: The compiled kernels, each called from Python (the helpers they call are inlined).
 ENTRY_KERNELS = (_activate, _project, bin_tiles, _composite_tiles, scatter, _cone_cull)
+#: What a render or an operator build runs (the culling kernel runs only in extract and point prompts).
+RENDER_KERNELS = ENTRY_KERNELS[:5]
 #: Seconds a cold compilation of all of them takes on the 2-core benchmark machine when it is
 #: quiet (19 s measured for issue 11; 185 s at load 17). Said, not measured, at run time.
 COMPILE_SECONDS = 20
-_announced = False
+_announced = set()  # names of the entry kernels whose compilation was announced (or not needed)
 
 
 def kernels_cached():
@@ -813,22 +815,28 @@ def _cold_kernels():
         return None
 
 
-def announce_compilation(stream=None) -> bool:
-    """Before the first kernel call of the process: say so on stderr when the cache is cold.
+def announce_compilation(kernels=ENTRY_KERNELS, stream=None) -> bool:
+    """Before a call of ``kernels`` (entry kernels): say on stderr which of them compile, when any is cold.
 
     Prints ``seed2gs: compiling the rasterizer kernels (k of 6), once
-    (cached for later runs), up to about N s`` once per process. Returns
-    whether it printed.
+    (cached for later runs), up to about N s``, at most once per kernel and
+    process, counting only the cold ``kernels`` about to run: a render does
+    not announce the culling kernel that only ``extract`` compiles (it said
+    "1 of 6" on every run). Returns whether it printed.
     """
-    global _announced
-    if _announced:
+    names = {k.py_func.__name__ for k in kernels}
+    todo = names - _announced
+    if not todo:
         return False
-    _announced = True
-    if kernels_cached() is not False:
+    _announced.update(todo)
+    cold = _cold_kernels()
+    if cold is None:  # Numba's cache internals unreadable: say nothing
+        return False
+    n_cold = len(set(cold) & todo)
+    if not n_cold:
         return False
     import sys
 
-    n_cold = len(_cold_kernels() or ENTRY_KERNELS)
     print(f"seed2gs: compiling the rasterizer kernels ({n_cold} of {len(ENTRY_KERNELS)}), once (cached for "
           f"later runs), up to about {COMPILE_SECONDS} s", file=stream or sys.stderr, flush=True)
     return True

@@ -79,7 +79,7 @@ def cone_cull(scene, camera: Camera, roi=None, far: float | None = None) -> np.n
     axis /= np.linalg.norm(axis)
     # One parallel pass over the scene (this runs for every orbit view of extract).
     keep = np.empty(len(scene), bool)
-    _kernels.announce_compilation()
+    _kernels.announce_compilation((_kernels._cone_cull,))
     _kernels.cone_cull(scene.means, camera_params(camera), np.array([x0, y0, x1, y1]), np.ascontiguousarray(smax),
                        EPS2D, axis, np.inf if far is None else float(far), keep)
     return np.flatnonzero(keep).astype(np.int64, copy=False)

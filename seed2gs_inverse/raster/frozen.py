@@ -13,7 +13,7 @@ __all__ = ["FrozenScene", "unfreeze", "activations", "sigma3"]
 
 def _activate(scene, idx) -> _kernels.Activations:
     """Kernel ``activate`` on the rows ``idx``."""
-    _kernels.announce_compilation()
+    _kernels.announce_compilation(_kernels.RENDER_KERNELS)
     n = idx.size
     act = _kernels.Activations(np.empty((n, 9)), np.empty(n),
                                np.empty((n if scene.sh.shape[1] == 1 else 0, 3)))

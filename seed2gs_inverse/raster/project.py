@@ -82,7 +82,7 @@ def project(scene, frozen, camera, mode, idx=None, tile_box=None) -> _kernels.Sp
     if tile_box is None:
         tile_box = np.array([0, 0, (camera.width + _kernels.TILE - 1) // _kernels.TILE,
                              (camera.height + _kernels.TILE - 1) // _kernels.TILE], np.int64)
-    _kernels.announce_compilation()
+    _kernels.announce_compilation(_kernels.RENDER_KERNELS)
     act, act_rows = activations(scene, frozen, idx)
     out = _kernels.Splats(means2d=np.empty((n, 2)), conics=np.empty((n, 3)), radii=np.empty(n, np.int32),
                           depths=np.empty(n), colors=np.empty((n, 3)), opacities=np.empty(n),
