@@ -129,6 +129,21 @@ def _umask() -> int:
     return mask
 
 
+def _replaced_mode(target: Path, directory: bool):
+    """The permission bits of the file ``target`` that a write is about to replace (None: no such file).
+
+    A replaced file keeps its mode, as an editor's save does: a read-only
+    file the user replaced with ``--force`` was made writable (0644).
+    """
+    if directory:
+        return None
+    try:
+        st = os.stat(target)
+    except OSError:
+        return None
+    return stat.S_IMODE(st.st_mode) if stat.S_ISREG(st.st_mode) else None
+
+
 @contextmanager
 def atomic_path(target, directory: bool = False):
     """Yield a temporary sibling of ``target``; move it onto ``target`` on success.
@@ -142,7 +157,8 @@ def atomic_path(target, directory: bool = False):
         ``target`` directory is replaced only after the new one is complete.
 
     The temporary path gets the permissions a plain ``open``/``mkdir`` would
-    (``mkstemp``/``mkdtemp`` create private ones). If the block raises, the
+    (``mkstemp``/``mkdtemp`` create private ones), or those of the file it
+    replaces. If the block raises, the
     temporary path is removed and the exception propagates. Abandoned
     temporaries of earlier, killed writes to the same target are removed
     first (:func:`clean_stale_temps`, with a warning).
@@ -169,7 +185,7 @@ def atomic_path(target, directory: bool = False):
         raise _naming(exc, target) from exc
     try:
         yield tmp
-        os.chmod(tmp, mode & ~_umask())
+        os.chmod(tmp, _replaced_mode(target, directory) or mode & ~_umask())
         if directory and target.exists():
             old = Path(tempfile.mkdtemp(prefix=prefix, suffix=".old", dir=parent))
             try:

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import os
+import stat
 
 import numpy as np
 import plyfile
@@ -61,6 +63,20 @@ def test_convert_round_trip(tmp_path, rng, capsys):
     assert code == 0
     back = read_scene(tmp_path / "back.ply")
     np.testing.assert_array_equal(back.means, scene.means)
+
+
+def test_convert_keeps_a_replaced_files_mode_and_refuses_its_own_input(tmp_path, rng, capsys):
+    """--force made a read-only file writable (0444 -> 0644), and OUT could be IN itself."""
+    scene = random_scene(rng, n=30, degree=1)
+    src, out = tmp_path / "in.ply", tmp_path / "out.ply"
+    write_scene(src, scene)
+    write_scene(out, scene)
+    os.chmod(out, 0o444)
+    code, _, _ = run(["convert", src, out, "--force"], capsys)
+    assert code == 0 and stat.S_IMODE(os.stat(out).st_mode) == 0o444
+    before = src.read_bytes()
+    code, _, err = run(["convert", src, src, "--force"], capsys)
+    assert code == 2 and "is the input file" in err and src.read_bytes() == before
 
 
 def test_convert_drop_nonfinite(tmp_path, rng, capsys):

@@ -100,12 +100,15 @@ def info(args) -> int:
 
 
 def convert(args) -> int:
+    from ..errors import ValidationError
     from ..io import read_scene, write_scene
     from ..io.formats import output_format
     from ._common import check_output
 
     fmt = output_format(args.output)  # fail before reading a large input
     check_output(args.output, "OUT", force=args.force)
+    if os.path.exists(args.output) and os.path.exists(args.input) and os.path.samefile(args.input, args.output):
+        raise ValidationError(f"OUT {args.output} is the input file; write the converted scene elsewhere")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         scene = read_scene(args.input, drop_nonfinite=args.drop_nonfinite)
