@@ -92,6 +92,10 @@ BAD = [
                                                      "an earlier output"),
     (["operators", "build", "{d}/scene.ply", "--cameras", "{d}/cameras.json", "-o", "{d}/o", "--scale", 100],
      "--scale must be in (0, 4], got 100.0"),
+    (["operators", "build", "{d}/scene.ply", "--cameras", "{d}/cameras.json", "-o", "{d}/o", "--scale", 1e-6],
+     "each side must lie in 4..32768"),  # five 1x1 views were built
+    (["operators", "build", "{d}/scene.ply", "--cameras", "{d}/cameras.json", "-o", "{d}/o", "--min-weight", -1],
+     "--min-weight must be in [0, 1], got -1.0"),
     (["operators", "build", "{d}/scene.ply", "--cameras", "{d}/cameras.json", "-o", "{d}/fake_manifest",
       "--force"], "its manifest.json is missing or not the toolkit's"),
     (EXTRACT + ["-o", ".", "--force"], "-o . is the current directory or holds it"),

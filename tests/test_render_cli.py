@@ -78,6 +78,8 @@ def test_look_at_png_with_background_and_scale(files):
     (["--look-at", "0,0,-3", "0,0,0", "--size", "0x10"], "--size"),
     (["--camera", "CAMS:0", "--background", "2,0,0"], "background"),
     (["--camera", "CAMS:0", "--scale", "-1"], "scale"),
+    (["--camera", "CAMS:0", "--scale", "1e-6"], "--scale 1e-06: camera"),  # a 1x1 image was written
+    (["--camera", "CAMS:0", "--scale", "4000"], "each side must lie in 4..32768"),  # was 'a corrupt file?'
     (["--camera", "CAMS:0", "--depth", "OUT/missing/d.npy"], "does not exist"),
     (["--camera", "CAMS:0", "--alpha", "OUT/a.jpg"], ".png or .npy"),
 ])

@@ -141,6 +141,27 @@ def look_at_camera(look_at, up=None, fov=None, size=None, *, up_option: str = "-
         raise ValidationError(f"--look-at / {up_option} / --fov: {str(exc).removeprefix('look_at: ')}") from None
 
 
+#: The smallest image side a --scale may give: below it a view holds no picture worth rendering.
+MIN_SCALED_SIDE = 4
+
+
+def scaled_size(camera, scale: float, option: str = "--scale") -> tuple[int, int]:
+    """``(width, height)`` of ``camera.scaled(scale)``, or a ValidationError naming ``option``.
+
+    Between :data:`MIN_SCALED_SIDE` and the camera limit (32768) a side; a
+    ``--scale 1e-6`` made 1x1 images, ``--scale 100`` an error about a corrupt
+    camera file.
+    """
+    from ..camera import MAX_IMAGE_SIDE
+
+    w, h = (max(1, int(round(side * scale))) for side in (camera.width, camera.height))
+    if min(w, h) < MIN_SCALED_SIDE or max(w, h) > MAX_IMAGE_SIDE:
+        name = f" '{camera.name}'" if camera.name else ""
+        raise ValidationError(f"{option} {scale:g}: camera{name} ({camera.width}x{camera.height}) would give "
+                              f"{w}x{h} images; each side must lie in {MIN_SCALED_SIDE}..{MAX_IMAGE_SIDE}")
+    return w, h
+
+
 def parse_point(option: str, text) -> np.ndarray:
     """Three finite numbers from ``x,y,z`` (a point or a colour; zero allowed)."""
     try:

@@ -29,7 +29,7 @@ def register(subparsers) -> None:
     b.add_argument("--scale", type=float, default=1.0,
                    help="resolution factor relative to the cameras, in (0, 4] (default 1.0)")
     b.add_argument("--min-weight", type=float, default=0.0,
-                   help="drop weights below this (default 0: keep all)")
+                   help="drop weights below this, in [0, 1] (default 0: keep all)")
     b.add_argument("--force", "--overwrite", dest="overwrite", action="store_true",
                    help="replace an existing operator directory")
     b.add_argument("--no-progress", action="store_true",
@@ -51,14 +51,18 @@ def build(args) -> int:
 
     if not (np.isfinite(args.scale) and 0 < args.scale <= 4):  # x4 already turns 1080p into 8K views
         raise ValidationError(f"--scale must be in (0, 4], got {args.scale}")
-    from ._common import check_output, progress_enabled
+    if not 0 <= args.min_weight <= 1:  # NaN fails too; checked before anything is read
+        raise ValidationError(f"--min-weight must be in [0, 1], got {args.min_weight}")
+    from ._common import check_output, progress_enabled, scaled_size
 
     check_output(args.output, "-o", directory=True, force=args.overwrite, kind="operators")  # fail before rendering anything
     OperatorStack.check_target(args.output, args.overwrite)
-    scene = read_scene(args.scene)
     cameras = read_cameras(args.cameras)
     if not cameras:
         raise ValidationError(f"{args.cameras}: no cameras")
+    for cam in cameras:  # every view's size, before the scene is read
+        scaled_size(cam, args.scale)
+    scene = read_scene(args.scene)
     views = []
     items = cameras
     if progress_enabled(args.no_progress):

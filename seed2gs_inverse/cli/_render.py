@@ -10,7 +10,7 @@ import numpy as np
 
 from .._atomic import write_files
 from ..errors import ValidationError
-from ._common import check_output, look_at_camera, parse_point
+from ._common import check_output, look_at_camera, parse_point, scaled_size
 
 __all__ = ["register"]
 
@@ -72,6 +72,7 @@ def _camera(args):
         cam = Camera(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, cam.world_to_camera,
                      cam.name, args.near)
     if args.scale != 1.0:
+        scaled_size(cam, args.scale)
         cam = cam.scaled(args.scale)
     return cam
 
