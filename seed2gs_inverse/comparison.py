@@ -14,7 +14,10 @@ against ground-truth Gaussian labels:
 * 3D: precision, recall and IoU of the selection against the labels, also
   weighted by visibility (each Gaussian's summed weight over all views).
 * cost: solve seconds, iterations, and peak memory of the solve
-  (``tracemalloc``, which sees NumPy/SciPy array allocations).
+  (``tracemalloc``, which sees NumPy/SciPy array allocations). The solve
+  runs with ``tracemalloc`` on, which slows its allocations: its seconds
+  here are higher than ``solve`` alone reports for the same fit (compare
+  methods with each other, not with a ``solve`` run).
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ import csv
 import io
 import json
 import tracemalloc
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -177,6 +181,8 @@ def compare(operators, masks, truth, methods=None, holdout_every: int | None = 4
     t = np.asarray(truth)
     if t.dtype != bool or t.shape != (N,):
         raise ValidationError(f"truth must be a bool array of shape ({N},), got {t.dtype} {t.shape}")
+    if not t.any():  # every score would be 0, or 1 by the empty-set conventions: nothing is compared
+        raise ValidationError("truth selects no Gaussian; give the object's labels (True on the object)")
     if isinstance(methods, str):
         raise ValidationError(f"methods must be a list of method names, got the string {methods!r}; "
                               f"write [{methods!r}]")
@@ -197,6 +203,9 @@ def compare(operators, masks, truth, methods=None, holdout_every: int | None = 4
         raise ValidationError(f"render_threshold must be in [0, 1) (a rendered opacity), got {render_threshold!r}")
     if holdout is None:
         held = holdout_views(V, holdout_every)
+        if holdout_every and not held.size:
+            warnings.warn(f"holdout_every={holdout_every} holds out no view of {V}: the scores are on the "
+                          f"views the methods were fitted on", UserWarning, stacklevel=2)
     else:
         from ._selection import index_list
 

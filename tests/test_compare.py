@@ -72,6 +72,11 @@ def test_compare_bad_input(blob):
         compare(stack, masks[:-1], labels)
     with pytest.raises(ValidationError, match="every view is held out"):
         compare(stack, masks, labels, holdout=list(range(8)))
+    with pytest.raises(ValidationError, match="truth selects no Gaussian"):  # recall 1.0, IoU 0: no comparison
+        compare(stack, masks, np.zeros_like(labels))
+    with pytest.warns(UserWarning, match=f"holdout_every=9 holds out no view of {len(stack)}"):
+        cmp = compare(stack, masks, labels, methods=["voting"], holdout_every=9)
+    assert cmp.per_view["voting"]["views"] == list(range(len(stack)))
 
 
 # -- command line -------------------------------------------------------------------
