@@ -80,7 +80,7 @@ def solve_command(args) -> int:
     if args.init:
         from ..solvers._common import prior_from_init
 
-        init = load_npy(args.init)
+        init = load_npy(args.init, f"--init {args.init}")
         try:  # checked here so that the message names the option and file
             prior_from_init(init, stack.n_gaussians)
         except ValidationError as exc:
@@ -111,22 +111,24 @@ def compare_command(args) -> int:
             raise ValidationError(f"--methods: unknown method {m!r}; available: {', '.join(available_methods())}")
     if methods is not None and not methods:
         raise ValidationError("--methods: give at least one method")
+    if methods is not None and len(set(methods)) != len(methods):
+        raise ValidationError(f"--methods: each method once, got {args.methods}")
     if args.output:
         check_output(args.output, "-o", directory=True, force=args.force, kind="compare")  # DIR is written at the end
-    truth = load_npy(args.truth)
+    truth = load_npy(args.truth, f"--truth {args.truth}")
     if truth.dtype != bool:
         if truth.dtype.kind in "ui" and truth.size and set(np.unique(truth).tolist()) <= {0, 1}:
             truth = truth.astype(bool)
         else:
-            raise ValidationError(f"{args.truth}: truth labels must be bool (or 0/1 integers), got {truth.dtype}")
+            raise ValidationError(f"--truth {args.truth}: labels must be bool (or 0/1 integers), got {truth.dtype}")
     stack = OperatorStack.load(args.operators, mmap=True)
     if truth.shape != (stack.n_gaussians,):
         raise ValidationError(f"--truth {args.truth}: {truth.size:,} labels in shape {truth.shape}, the operators' "
                               f"scene has {stack.n_gaussians:,} Gaussians; give one label per Gaussian")
     try:  # before any solve
         holdout_views(len(stack), args.holdout_every)
-    except ValidationError as exc:
-        raise ValidationError(f"--holdout-every {args.holdout_every}: {exc}") from None
+    except ValidationError:
+        raise ValidationError(f"--holdout-every {args.holdout_every}: must be 0 (none) or a whole number >= 2") from None
     masks = read_masks(args.masks, len(stack), stack.image_shapes)
     print(f"comparing {', '.join(methods) if methods else 'every method'} on {len(stack)} views ...",
           file=sys.stderr, flush=True)
