@@ -37,6 +37,13 @@ def support_mask(values, n: int, name: str) -> np.ndarray:
     return out
 
 
+def support_indices(values, n: int, name: str) -> np.ndarray:
+    """Ascending unique int64 indices of the selection ``values`` by :func:`support_mask`'s rule (None: all)."""
+    if values is None:
+        return np.arange(n, dtype=np.int64)
+    return np.flatnonzero(support_mask(values, n, name)).astype(np.int64)
+
+
 def index_list(values, n: int, name: str, negative: bool = False) -> np.ndarray:
     """int64 indices into ``n`` items from integer indices or a bool mask of length ``n``.
 

@@ -44,21 +44,13 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from ._selection import support_mask
+from ._selection import support_indices
 from ._threads import n_threads
 from .errors import ValidationError
 from .scene import GaussianScene, quat_to_rotmat
 from .sh import SH_C0
 
 __all__ = ["gaussian_graph", "graph_laplacian", "check_graph", "region_subset"]
-
-
-def _subset_indices(subset, n: int) -> np.ndarray:
-    """Ascending unique indices of ``subset`` (None: all), by the package's selection rule
-    (:func:`~seed2gs_inverse._selection.support_mask`: integer 0/1 labels are refused)."""
-    if subset is None:
-        return np.arange(n)
-    return np.flatnonzero(support_mask(subset, n, "subset"))
 
 
 def region_subset(scene: GaussianScene, center, radius: float) -> np.ndarray:
@@ -115,7 +107,7 @@ def gaussian_graph(scene: GaussianScene, k: int = 10, *, subset=None, sigma_colo
     if not (np.isfinite(min_opacity) and 0 <= min_opacity < 1):
         raise ValidationError(f"min_opacity must be in [0, 1), got {min_opacity!r}")
     n = len(scene)
-    idx = _subset_indices(subset, n)
+    idx = support_indices(subset, n, "subset")  # integer 0/1 labels are refused
     if min_opacity > 0 and idx.size:
         idx = idx[scene.opacities[idx] >= min_opacity]
     m = idx.size

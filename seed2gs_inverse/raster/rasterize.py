@@ -64,7 +64,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from .._selection import support_mask
+from .._selection import support_indices
 from ..errors import ValidationError
 from ..operators.view import Rendering, ViewOperator
 from . import _kernels
@@ -173,18 +173,6 @@ def _tile_box(roi_mask):
         return np.zeros(4, np.int64)
     t = _kernels.TILE
     return np.array([cols[0] // t, rows[0] // t, cols[-1] // t + 1, rows[-1] // t + 1], np.int64)
-
-
-def _subset_index(subset, n):
-    """Ascending unique int64 indices from an index array or a bool mask (None: all).
-
-    The package's one rule for Gaussian selections
-    (:func:`~seed2gs_inverse._selection.support_mask`): an integer 0/1 array of
-    length ``n`` is refused, since it would select Gaussians 0 and 1 only.
-    """
-    if subset is None:
-        return np.arange(n, dtype=np.int64)
-    return np.flatnonzero(support_mask(subset, n, "subset")).astype(np.int64)
 
 
 def _rasterize(scene, frozen, camera, background, mode, roi, min_weight, build_w, stats=None, subset=None):
@@ -345,7 +333,8 @@ def build_operator(scene, camera, scale: float = 1.0, roi=None, min_weight: floa
     mw = float(min_weight) if isinstance(min_weight, (int, float, np.integer, np.floating)) else np.nan
     if not (np.isfinite(mw) and 0.0 <= mw <= 1.0):
         raise ValidationError(f"min_weight must be a number in [0, 1], got {min_weight!r}")
-    idx = None if subset is None else _subset_index(subset, len(scene))
+    # the package's one rule for Gaussian selections: integer 0/1 labels (Gaussians 0 and 1 only) are refused
+    idx = None if subset is None else support_indices(subset, len(scene), "subset")
     cam = camera if float(scale) == 1.0 else camera.scaled(scale)
     rendering, W = _rasterize(scene, frozen, cam, None, mode, roi, mw, build_w=True, subset=idx)
     return ViewOperator(W, cam, cam.image_shape, rendering)
