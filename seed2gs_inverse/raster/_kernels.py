@@ -27,19 +27,49 @@ Arguments are packed in the NamedTuples below. See
 
 Entry points: ``activate``, ``project``, ``composite`` and ``cone_cull``
 are plain Python functions that unpack the bundles and call one compiled
-parallel kernel each. They used to be cached ``@njit`` functions calling
-the cached kernels, and Numba (0.68.1) can store such a caller against the
-callee's code loaded from the cache, which then crashes (segmentation
-fault) every later process that loads it: that happens when the caller is
-compiled while the callee comes from the cache, e.g. two batch workers
-compiling at once on a cold cache. Only inlined helpers
-(``inline="always"``) and intrinsics are called from compiled code.
+parallel kernel each. They are not cached ``@njit`` callers of the cached
+kernels because Numba (0.68.1) can store such a caller against the callee's
+code loaded from the cache, which then crashes (segmentation fault) every
+later process that loads it: that happens when the caller is compiled while
+the callee comes from the cache, e.g. two batch workers compiling at once on
+a cold cache. Only inlined helpers (``inline="always"``) and intrinsics are
+called from compiled code.
+
+Projection (``_project``)
+-------------------------
+``idx`` (M,) int64 lists the scene rows to project (so a subset needs no
+copy of the scene); output row ``i`` belongs to Gaussian ``idx[i]``, whose
+:func:`activate` outputs (``mfac``, ``opac``, ``col0``) are at row
+``act_rows[i]`` (so they can be computed once per scene, or per call).
+Inputs are the raw scene means and SH (float32) and the camera (float64).
+``tile_box`` (4,) int64 ``[tx0, ty0, tx1, ty1)``: only these tiles are
+composited (the roi), so ``rects`` are clipped to them. Outputs
+(preallocated, float64 unless noted): means2d (M,2), conics (M,3) (a, b, c
+of the inverse 2D covariance), radii (M,) int32 (0 = culled), depths (M,)
+view z, colors (M,3), opacities (M,) (times the antialiasing compensation),
+support (M,3) and rects (M,4) int32:
+
+``support`` = ``(pmin, hx, hy)``
+    ``pmin = ln(1/(255 o)) - 1e-6``, below which ``o exp(power) < 1/255``
+    for sure (so ``exp`` can be skipped; the margin leaves the exact test in
+    charge), and the half-sizes of the bounding box of the ellipse
+    ``d^T Q d <= 2 ln(255 o)`` (Q the conic), outside which the alpha test
+    cannot pass: ``sqrt(k (Q^-1)_xx)``, ``sqrt(k (Q^-1)_yy)`` plus 1e-3 px
+    for rounding.
+``rects`` = ``[tx0, ty0, tx1, ty1)``
+    the tiles the Gaussian is binned to, i.e. its getRect tile rectangle
+    intersected with the tiles its support box touches and with
+    ``tile_box``. In the other tiles of the getRect rectangle it would pass
+    the alpha test at no pixel (or no pixel is composited), so leaving them
+    out changes nothing but the work. Empty for culled Gaussians and for
+    those with ``o < 1/255``, which can never pass the alpha test.
 """
 
 from __future__ import annotations
 
 import math
 import os
+import sys
 from typing import NamedTuple
 
 # OpenMP threads (Numba's "omp" threading layer) that finish a parallel loop
@@ -284,8 +314,8 @@ def project(idx, act_rows, means, sh, act, cam, eps2d, antialiased, tile_box, ou
 
     The bundles are unpacked here, in Python (see the module docstring), and
     not inside the parallel loop: writes through arrays unpacked from a
-    tuple inside a ``prange`` kernel were lost (Numba 0.68.1 parfor
-    lowering; the depths came back uninitialised).
+    tuple inside a ``prange`` kernel are lost (Numba 0.68.1 parfor
+    lowering leaves the outputs uninitialised).
     """
     mfac, opac, col0 = act
     rot, trans, center, fx, fy, cx, cy, width, height, near = cam
@@ -299,34 +329,7 @@ def project(idx, act_rows, means, sh, act, cam, eps2d, antialiased, tile_box, ou
 def _project(idx, act_rows, means, mfac, opac, col0, sh, rot, trans, center,
              fx, fy, cx, cy, width, height, near, eps2d, antialiased, tile_box,
              means2d, conics, radii, depths, colors, opacities, support, rects):
-    """Project the Gaussians ``idx``; see ``render.project_gaussians`` for the maths.
-
-    ``idx`` (M,) int64 lists the scene rows to project (so a subset needs no
-    copy of the scene); output row ``i`` belongs to Gaussian ``idx[i]``,
-    whose :func:`activate` outputs (``mfac``, ``opac``, ``col0``) are at row
-    ``act_rows[i]`` (so they can be computed once per scene, or per call).
-    Inputs are the raw scene means and SH (float32) and the camera (float64).
-    ``tile_box`` (4,) int64 ``[tx0, ty0, tx1, ty1)``: only these tiles are
-    composited (the roi), so ``rects`` are clipped to them.
-    Outputs (preallocated, float64 unless noted): means2d (M,2), conics (M,3)
-    (a, b, c of the inverse 2D covariance), radii (N,) int32 (0 = culled),
-    depths (N,) view z, colors (N,3), opacities (N,) (times the antialiasing
-    compensation), support (N,3) and rects (N,4) int32 (see below).
-
-    ``support`` = ``(pmin, hx, hy)``: ``pmin = ln(1/(255 o)) - 1e-6``, below
-    which ``o exp(power) < 1/255`` for sure (so ``exp`` can be skipped; the
-    margin leaves the exact test in charge), and the half-sizes of the
-    bounding box of the ellipse ``d^T Q d <= 2 ln(255 o)`` (Q the conic),
-    outside which the alpha test cannot pass: ``sqrt(k (Q^-1)_xx)``,
-    ``sqrt(k (Q^-1)_yy)`` plus 1e-3 px for rounding.
-
-    ``rects`` = ``[tx0, ty0, tx1, ty1)``: the tiles the Gaussian is binned
-    to, i.e. its getRect tile rectangle intersected with the tiles its
-    support box touches and with ``tile_box``. In the other tiles of the
-    getRect rectangle it would pass the alpha test at no pixel (or no pixel
-    is composited), so leaving them out changes nothing but the work. Empty for culled Gaussians and for those with
-    ``o < 1/255``, which can never pass the alpha test.
-    """
+    """Project the Gaussians ``idx`` (module docstring, "Projection"; maths in ``project_gaussians``)."""
     n = idx.shape[0]
     k = sh.shape[1]
     tiles_x = (width + TILE - 1) // TILE
@@ -790,8 +793,8 @@ def _cone_cull(means, rot, trans, fx, fy, cx, cy, width, height, near, roi, smax
 ENTRY_KERNELS = (_activate, _project, bin_tiles, _composite_tiles, scatter, _cone_cull)
 #: What a render or an operator build runs (the culling kernel runs only in extract and point prompts).
 RENDER_KERNELS = ENTRY_KERNELS[:5]
-#: Seconds a cold compilation of all of them takes on the 2-core benchmark machine when it is
-#: quiet (19 s measured for issue 11; 185 s at load 17). Said, not measured, at run time.
+#: Seconds a cold compilation of all of them takes on a quiet 2-core machine (the CHANGELOG
+#: has the measurements). Said, not measured, at run time.
 COMPILE_SECONDS = 20
 _announced = set()  # names of the entry kernels whose compilation was announced (or not needed)
 
@@ -821,8 +824,8 @@ def announce_compilation(kernels=ENTRY_KERNELS, stream=None) -> bool:
     Prints ``seed2gs: compiling the rasterizer kernels (k of 6), once
     (cached for later runs), up to about N s``, at most once per kernel and
     process, counting only the cold ``kernels`` about to run: a render does
-    not announce the culling kernel that only ``extract`` compiles (it said
-    "1 of 6" on every run). Returns whether it printed.
+    not announce the culling kernel that only ``extract`` compiles. Returns
+    whether it printed.
     """
     names = {k.py_func.__name__ for k in kernels}
     todo = names - _announced
@@ -835,8 +838,6 @@ def announce_compilation(kernels=ENTRY_KERNELS, stream=None) -> bool:
     n_cold = len(set(cold) & todo)
     if not n_cold:
         return False
-    import sys
-
     print(f"seed2gs: compiling the rasterizer kernels ({n_cold} of {len(ENTRY_KERNELS)}), once (cached for "
           f"later runs), up to about {COMPILE_SECONDS} s", file=stream or sys.stderr, flush=True)
     return True

@@ -285,7 +285,7 @@ class SyntheticScene:
         half = 0.5 * min(probe.fov_x, probe.fov_y)
         dist = margin * r / np.sin(half)
         # The directions equal camera.orbit_directions(up, frame[:, 0], az, el) up to
-        # rounding; this form keeps the bits of the cameras the benchmarks were run with.
+        # rounding; this form keeps the cameras bit-identical, so saved benchmark cases stay reproducible.
         dirs = []
         for i in range(n_views):
             az = np.radians(azimuth_deg + 360.0 * i / n_views)
@@ -351,6 +351,21 @@ def make_scene(seed: int = 0, n_per_object: int = 400, n_ground: int | None = No
     SyntheticScene
         With about ``6 n_per_object + n_ground`` Gaussians (default ~4000).
     """
+    n_per_object, n_ground, up, origin = _check_scene_args(seed, n_per_object, n_ground, ground,
+                                                           ground_size, up, origin, scale, sh_degree)
+    rng = np.random.default_rng(int(seed))
+    # The draws from ``rng`` happen in this order (layout, objects 1..7, ground, SH): the same
+    # arguments give the same arrays.
+    lay = _layout(rng)
+    parts, boxes = _object_parts(lay, n_per_object, rng)
+    parts_0, boxes[0] = _ground_part(ground, n_ground, ground_size, rng)
+    if parts_0 is not None:
+        parts[0] = parts_0
+    return _assemble(parts, boxes, int(sh_degree), rng, up, origin, float(scale), int(seed))
+
+
+def _check_scene_args(seed, n_per_object, n_ground, ground, ground_size, up, origin, scale, sh_degree):
+    """:func:`make_scene`'s arguments checked: ``(n_per_object, n_ground, unit up, origin)``."""
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
         raise ValidationError(f"seed must be an integer, got {seed!r}")
     if int(n_per_object) < 20:
@@ -369,34 +384,46 @@ def make_scene(seed: int = 0, n_per_object: int = 400, n_ground: int | None = No
     origin = np.asarray(origin, dtype=np.float64)
     if origin.shape != (3,) or not np.all(np.isfinite(origin)):
         raise ValidationError(f"origin must be a finite 3-vector, got {np.asarray(origin).tolist()}")
-    rng = np.random.default_rng(int(seed))
-    lay = _layout(rng)
-    n = n_per_object
-    ez = np.array([0.0, 0.0, 1.0])
+    return n_per_object, n_ground, up, origin
 
-    def placed(part, key):
-        xy, yaw = lay[key]
-        return part.moved(axis_angle(ez, yaw), [xy[0], xy[1], 0.0])
 
-    parts, boxes = {}, {}   # label -> _Part; label -> (lo, hi) in the local frame
+_EZ = np.array([0.0, 0.0, 1.0])
 
-    def yawed_box(key, lo, hi):
-        """Local AABB of the box [lo, hi] (object frame) after yaw + slot shift."""
-        xy, yaw = lay[key]
-        corners = np.array(np.meshgrid(*zip(lo, hi))).reshape(3, -1).T
-        c = corners @ axis_angle(ez, yaw).T + [xy[0], xy[1], 0.0]
-        return c.min(0), c.max(0)
 
+def _placed(part, slot) -> _Part:
+    """``part`` (object frame) yawed and moved to its ``slot`` ``(xy, yaw)`` of :func:`_layout`."""
+    xy, yaw = slot
+    return part.moved(axis_angle(_EZ, yaw), [xy[0], xy[1], 0.0])
+
+
+def _yawed_box(slot, lo, hi) -> tuple:
+    """Local AABB ``(lo, hi)`` of the box [lo, hi] (object frame) after the ``slot``'s yaw and shift."""
+    xy, yaw = slot
+    corners = np.array(np.meshgrid(*zip(lo, hi))).reshape(3, -1).T
+    c = corners @ axis_angle(_EZ, yaw).T + [xy[0], xy[1], 0.0]
+    return c.min(0), c.max(0)
+
+
+def _object_parts(lay, n, rng) -> tuple:
+    """Labels 1..7 in the local frame: ``({label: _Part}, {label: (lo, hi) box})``."""
+    parts, boxes = {}, {}
     # 1 sphere: red, view-dependent colour (set after assembly).
     r_s = 0.3
-    parts[1] = placed(_sphere(n, r_s, [0, 0, r_s], rng, _const([0.8, 0.15, 0.1])), "sphere")
-    boxes[1] = yawed_box("sphere", [-r_s, -r_s, 0], [r_s, r_s, 2 * r_s])
+    parts[1] = _placed(_sphere(n, r_s, [0, 0, r_s], rng, _const([0.8, 0.15, 0.1])), lay["sphere"])
+    boxes[1] = _yawed_box(lay["sphere"], [-r_s, -r_s, 0], [r_s, r_s, 2 * r_s])
     # 2 box: checker texture.
     hb = np.array([0.3, 0.22, 0.2])
-    parts[2] = placed(_box(n, hb, [0, 0, hb[2]], rng,
-                           _checker(0.1, [0.15, 0.3, 0.75], [0.95, 0.8, 0.2])), "box")
-    boxes[2] = yawed_box("box", [-hb[0], -hb[1], 0], [hb[0], hb[1], 2 * hb[2]])
-    # 3 cup: outer wall, inner wall, rim, inner floor; 4 contents: liquid + 3 balls.
+    parts[2] = _placed(_box(n, hb, [0, 0, hb[2]], rng,
+                            _checker(0.1, [0.15, 0.3, 0.75], [0.95, 0.8, 0.2])), lay["box"])
+    boxes[2] = _yawed_box(lay["box"], [-hb[0], -hb[1], 0], [hb[0], hb[1], 2 * hb[2]])
+    _cup_parts(lay["cup"], n, rng, parts, boxes)
+    parts[5], boxes[5] = _rod_part(lay["rod"], n)
+    _can_parts(lay, n, rng, parts, boxes)
+    return parts, boxes
+
+
+def _cup_parts(slot, n, rng, parts, boxes) -> None:
+    """3 cup: outer wall, inner wall, rim, inner floor; 4 contents: liquid + 3 balls (into ``parts``, ``boxes``)."""
     rc, hc, tc = 0.25, 0.4, 0.02
     white = _const([0.92, 0.92, 0.88])
     a_cup = [2 * np.pi * rc * hc, 2 * np.pi * (rc - tc) * (hc - tc),
@@ -407,8 +434,8 @@ def make_scene(seed: int = 0, n_per_object: int = 400, n_ground: int | None = No
         _cylinder_side(k[1], rc - tc, tc, hc, [0, 0, 0], rng, _const([0.85, 0.85, 0.8]), inward=True),
         _disk(max(k[2], 12), rc - tc, rc, hc, [0, 0, 0], rng, white),
         _disk(k[3], 0.0, rc - tc, tc, [0, 0, 0], rng, white)])
-    parts[3] = placed(cup, "cup")
-    boxes[3] = yawed_box("cup", [-rc, -rc, 0], [rc, rc, hc])
+    parts[3] = _placed(cup, slot)
+    boxes[3] = _yawed_box(slot, [-rc, -rc, 0], [rc, rc, hc])
     r_liq, z_liq, r_ball = rc - tc - 0.01, 0.6 * hc, 0.055
     ball_xy = [(0.1, 0.0), (-0.05, 0.09), (-0.05, -0.09)]
     k = _split(n, [np.pi * r_liq ** 2] + [4 * np.pi * r_ball ** 2] * 3)
@@ -416,11 +443,14 @@ def make_scene(seed: int = 0, n_per_object: int = 400, n_ground: int | None = No
         [_disk(k[0], 0.0, r_liq, z_liq, [0, 0, 0], rng, _const([0.35, 0.2, 0.08]))]
         + [_sphere(k[i + 1], r_ball, [bx, by, z_liq + 0.02], rng, _const([1.0, 0.55, 0.1]))
            for i, (bx, by) in enumerate(ball_xy)])
-    parts[4] = placed(contents, "cup")
-    boxes[4] = yawed_box("cup", [-r_liq, -r_liq, z_liq - r_ball + 0.02],
-                         [r_liq, r_liq, z_liq + 0.02 + r_ball])
-    # 5 rod: a thin chopstick slightly raised at one end, made of long
-    # Gaussians along its axis (3DGS represents thin structures this way).
+    parts[4] = _placed(contents, slot)
+    boxes[4] = _yawed_box(slot, [-r_liq, -r_liq, z_liq - r_ball + 0.02],
+                          [r_liq, r_liq, z_liq + 0.02 + r_ball])
+
+
+def _rod_part(slot, n) -> tuple:
+    """5 rod: a thin chopstick slightly raised at one end, made of long Gaussians along its
+    axis (3DGS represents thin structures this way); ``(part, box)``."""
     length, r_rod, z0, z1 = 0.8, 0.02, 0.03, 0.12
     n_rod = max(8, n // 8)
     axis = np.array([length, 0.0, z1 - z0])
@@ -431,17 +461,20 @@ def make_scene(seed: int = 0, n_per_object: int = 400, n_ground: int | None = No
     rod = _Part(rod_means, np.tile(rotmat_to_quat(rot), (n_rod, 1)),
                 np.tile([max(0.8 * step, 1.5 * r_rod), 0.5 * r_rod, 0.5 * r_rod], (n_rod, 1)),
                 np.tile([0.55, 0.35, 0.15], (n_rod, 1)))
-    parts[5] = placed(rod, "rod")
     # The axis bounds the means: the box is the segment's extent.
-    boxes[5] = yawed_box("rod", [-length / 2, 0.0, z0], [length / 2, 0.0, z1])
-    # 6, 7 cans: identical striped closed cylinders (same Gaussians, moved).
-    r_can, h_can = 0.15, 0.35
+    return _placed(rod, slot), _yawed_box(slot, [-length / 2, 0.0, z0], [length / 2, 0.0, z1])
 
-    def stripes(p):
-        band = np.floor(p[:, 2] / 0.05 + 1e-9).astype(np.int64) % 2
-        return np.where(band[:, None] == 0, [0.1, 0.6, 0.2], [0.95, 0.95, 0.95])
+
+def _can_stripes(p):
+    band = np.floor(p[:, 2] / 0.05 + 1e-9).astype(np.int64) % 2
+    return np.where(band[:, None] == 0, [0.1, 0.6, 0.2], [0.95, 0.95, 0.95])
+
+
+def _can_parts(lay, n, rng, parts, boxes) -> None:
+    """6, 7 cans: identical striped closed cylinders (same Gaussians, moved; into ``parts``, ``boxes``)."""
+    r_can, h_can = 0.15, 0.35
     k = _split(n, [2 * np.pi * r_can * h_can, np.pi * r_can ** 2])
-    can = _Part.cat([_cylinder_side(k[0], r_can, 0.0, h_can, [0, 0, 0], rng, stripes),
+    can = _Part.cat([_cylinder_side(k[0], r_can, 0.0, h_can, [0, 0, 0], rng, _can_stripes),
                      _disk(k[1], 0.0, r_can, h_can, [0, 0, 0], rng, _const([0.7, 0.7, 0.72]))])
     for lab, key in ((6, "can 1"), (7, "can 2")):
         # The same yaw for both, so the twins are exact translated copies.
@@ -449,20 +482,33 @@ def make_scene(seed: int = 0, n_per_object: int = 400, n_ground: int | None = No
         parts[lab] = can.moved(np.eye(3), [xy[0], xy[1], 0.0])
         boxes[lab] = (np.array([xy[0] - r_can, xy[1] - r_can, 0.0]),
                       np.array([xy[0] + r_can, xy[1] + r_can, h_can]))
-    # 0 ground: checker tiles of 0.5 with a little per-Gaussian colour noise.
+
+
+def _ground_part(ground, n_ground, ground_size, rng) -> tuple:
+    """0 ground: checker tiles of 0.5 with a little per-Gaussian colour noise; ``(part or None, box)``."""
     g = ground_size / 2
+    part = None
     if ground:
         u, v, spacing = _grid2(n_ground, ground_size, ground_size, rng)
         p = np.stack([u - g, v - g, np.zeros_like(u)], 1)
         base = _checker(0.5, [0.35, 0.35, 0.33], [0.55, 0.55, 0.5])
-        parts[0] = _surfels(p, np.tile(ez, (len(p), 1)), spacing,
-                            lambda q: np.clip(base(q) + rng.uniform(-0.03, 0.03, (len(q), 1)), 0, 1))
-    boxes[0] = (np.array([-g, -g, 0.0]), np.array([g, g, 0.0]))
+        part = _surfels(p, np.tile(_EZ, (len(p), 1)), spacing,
+                        lambda q: np.clip(base(q) + rng.uniform(-0.03, 0.03, (len(q), 1)), 0, 1))
+    return part, (np.array([-g, -g, 0.0]), np.array([g, g, 0.0]))
 
+
+_NAMES = {0: "ground", 1: "sphere", 2: "box", 3: "cup", 4: "cup contents", 5: "rod", 6: "can 1", 7: "can 2"}
+
+
+def _assemble(parts, boxes, sh_degree, rng, up, origin, scale, seed) -> SyntheticScene:
+    """The parts (local frame) as one scene in the world: ``x_world = origin + scale * F x_local``.
+
+    The sphere (label 1) gets random view-dependent SH bands drawn here.
+    """
     order = sorted(parts)
     allp = _Part.cat([parts[lab] for lab in order])
     labels = np.concatenate([np.full(len(parts[lab].means), lab, np.int32) for lab in order])
-    k_sh = num_sh_coeffs(int(sh_degree))
+    k_sh = num_sh_coeffs(sh_degree)
     sh = np.zeros((len(labels), k_sh, 3))
     sh[:, 0, :] = (allp.rgb - 0.5) / SH_C0
     if k_sh > 1:
@@ -471,14 +517,12 @@ def make_scene(seed: int = 0, n_per_object: int = 400, n_ground: int | None = No
     local = GaussianScene(allp.means, allp.quats, np.log(allp.sigmas),
                           np.full(len(labels), np.log(_OPACITY / (1 - _OPACITY))), sh)
     frame = frame_for_up(up)
-    scene = local.transformed(frame, origin, float(scale))
+    scene = local.transformed(frame, origin, scale)
     lo = np.array([boxes[lab][0] for lab in range(8)])
     hi = np.array([boxes[lab][1] for lab in range(8)])
-    names = {0: "ground", 1: "sphere", 2: "box", 3: "cup", 4: "cup contents", 5: "rod",
-             6: "can 1", 7: "can 2"}
     return SyntheticScene(
-        scene=scene, labels=labels, names=names,
+        scene=scene, labels=labels, names=dict(_NAMES),
         centers=origin + scale * (0.5 * (lo + hi)) @ frame.T,
         half_extents=scale * 0.5 * (hi - lo), frame=frame, up=up.copy(), origin=origin.copy(),
-        scale=float(scale), seed=int(seed),
+        scale=scale, seed=seed,
         meta={"same_class": [(6, 7)], "container": {3: 4}, "thin": [5], "view_dependent": [1]})
