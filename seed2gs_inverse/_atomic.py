@@ -14,6 +14,7 @@ are clearly abandoned (:func:`clean_stale_temps`) with a warning.
 
 from __future__ import annotations
 
+import errno
 import fnmatch
 import hashlib
 import json
@@ -25,14 +26,16 @@ import stat
 import tempfile
 import time
 import warnings
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
+
+from .errors import ValidationError
 
 __all__ = ["atomic_path", "write_files", "check_output_parent", "check_writable", "clean_stale_temps",
            "not_an_earlier_output", "OUTPUT_KINDS", "STALE_AGE_S"]
 
 #: A temporary whose creator cannot be checked (another host, or a name
-#: without a process id from an older version) is abandoned after this long.
+#: without the host-pid tag) is abandoned after this long.
 STALE_AGE_S = 24 * 3600
 
 # Short tag of this host: a process id is only meaningful on the machine that
@@ -46,7 +49,7 @@ def _temp_prefix(name: str) -> str:
 
 def _temp_pattern(name: str, suffix: str) -> re.Pattern:
     """Our temporaries for ``name``: mkstemp/mkdtemp's 8 random characters, with
-    the host-pid tag (this version) or without (earlier versions)."""
+    or without the host-pid tag (without it, only the age limit judges them)."""
     return re.compile(rf"^\.{re.escape(name)}\.(?:(?P<host>[0-9a-f]{{6}})-(?P<pid>[0-9]{{1,10}})-)?"
                       rf"[a-z0-9_]{{8}}\.(?:tmp(?:{re.escape(suffix)})?|old)$")
 
@@ -70,8 +73,8 @@ def clean_stale_temps(target, now: float | None = None) -> list:
 
     Only names of :func:`atomic_path`'s own pattern for this very target are
     considered, and only when clearly abandoned: made on this host by a
-    process that no longer exists, or (creator unknown: other host, older
-    naming) not modified for ``STALE_AGE_S`` seconds. A temporary of a
+    process that has exited, or (creator unknown: other host, no host-pid
+    tag) not modified for ``STALE_AGE_S`` seconds. A temporary of a
     running process -- a concurrent writer of the same target -- is never
     touched. Symbolic links are removed, never followed. A warning lists what
     was removed; errors while removing are ignored (another process may be
@@ -166,8 +169,6 @@ def atomic_path(target, directory: bool = False):
     target = Path(target)
     parent = target.parent if str(target.parent) else Path(".")
     if not parent.is_dir():  # say so with the caller's path, not with a temporary name inside it
-        from .errors import ValidationError
-
         raise ValidationError(f"{target}: the directory {parent} does not exist (create it first)")
     clean_stale_temps(target)
     prefix = _temp_prefix(target.name)
@@ -230,8 +231,6 @@ def write_files(items) -> None:
     All payloads are written to temporary files first; only when every one
     is complete are they renamed onto their targets.
     """
-    from contextlib import ExitStack
-
     items = [(Path(p), payload) for p, payload in items]
     with ExitStack() as stack:
         for path, payload in items:
@@ -243,10 +242,6 @@ def check_writable(directory, label: str) -> None:
     """Raise a ValidationError ``"{label}: cannot write in {directory} (reason)"`` unless a file can be
     created in ``directory`` (checked with a probe file, removed at once): ``/proc``, a read-only mount
     or a missing permission fails here, before any work."""
-    import errno
-
-    from .errors import ValidationError
-
     try:
         fd, probe = tempfile.mkstemp(prefix=".seed2gs-write-check.", dir=directory)
     except OSError as exc:
@@ -262,8 +257,6 @@ def check_output_parent(path, option: str) -> Path:
     Writers never create missing parent directories: a typo in a path should
     fail at once, not after minutes of work or by leaving new directories.
     """
-    from .errors import ValidationError
-
     path = Path(path)
     parent = path.parent if str(path.parent) else Path(".")
     if not parent.is_dir():

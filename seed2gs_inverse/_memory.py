@@ -4,6 +4,11 @@ from __future__ import annotations
 
 import sys
 
+try:
+    import resource
+except ImportError:  # pragma: no cover - Windows
+    resource = None
+
 __all__ = ["peak_rss_mb"]
 
 
@@ -13,9 +18,7 @@ def peak_rss_mb() -> float | None:
     It is the peak of the whole process (a CLI run: reading the scene and the
     extraction), not of one call.
     """
-    try:
-        import resource
-    except ImportError:  # pragma: no cover - Windows
+    if resource is None:  # pragma: no cover - Windows
         return None
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return peak / 2**20 if sys.platform == "darwin" else peak / 1024.0  # macOS: bytes; Linux, BSD: KiB

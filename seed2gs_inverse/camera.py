@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ._validation import as_real
 from .errors import ValidationError
 from .geometry import axis_angle, unit_vector
 
@@ -34,14 +35,10 @@ def _show(v) -> str:
 
 def _real(label, attr, value) -> float:
     """``value`` as a finite float, else ValidationError naming the camera and field."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer,
-                                                                       np.floating)):
-        raise ValidationError(f"{label}: {attr} must be a number, got {value!r}")
-    try:
-        v = float(value)
-    except OverflowError:  # a Python int beyond float range
-        v = float("inf")
-    if not np.isfinite(v):
+    v = as_real(value)
+    if v is None:
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+            raise ValidationError(f"{label}: {attr} must be a number, got {value!r}")
         raise ValidationError(f"{label}: {attr} is not finite ({_show(value)})")
     return v
 

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ._selection import index_list
 from .errors import ValidationError
 from .metrics import boundary_iou, iou, membership_scores
 from .operators import as_stack
@@ -207,8 +208,6 @@ def compare(operators, masks, truth, methods=None, holdout_every: int | None = 4
             warnings.warn(f"holdout_every={holdout_every} holds out no view of {V}: the scores are on the "
                           f"views the methods were fitted on", UserWarning, stacklevel=2)
     else:
-        from ._selection import index_list
-
         held = np.unique(index_list(holdout, V, "holdout"))
     train = np.setdiff1d(np.arange(V), held)
     if train.size == 0:

@@ -14,8 +14,9 @@ from typing import Callable
 
 import numpy as np
 
+from ._selection import support_mask
 from .errors import ValidationError
-from .scene import GaussianScene
+from .scene import GaussianScene, quat_to_rotmat
 from .sh import SH_C0
 
 __all__ = ["selection_mask", "remove", "duplicate", "move", "recolour", "recolor"]
@@ -23,8 +24,6 @@ __all__ = ["selection_mask", "remove", "duplicate", "move", "recolour", "recolor
 
 def selection_mask(scene: GaussianScene, selected) -> np.ndarray:
     """Boolean (N,) mask of a selection given as a bool mask or integer indices."""
-    from ._selection import support_mask
-
     return support_mask(selected, len(scene), "selected")
 
 
@@ -66,8 +65,6 @@ def _scale(scale) -> float:
 def _rigid(rotation, translation, pivot):
     rot = np.eye(3) if rotation is None else _vector(rotation, "rotation", [(3, 3), (4,)])
     if rot.shape == (4,):  # w-first quaternion
-        from .scene import quat_to_rotmat
-
         if not np.linalg.norm(rot) > 0:
             raise ValidationError("rotation: a quaternion must not be zero")
         rot = quat_to_rotmat(rot[None])[0]  # (a 3x3 matrix is checked by GaussianScene.transformed)

@@ -1,6 +1,6 @@
 r"""Small rotation helpers shared by the pipeline (VAAS orbits) and the synthetic scenes.
 
-Bottom layer: numpy and :mod:`seed2gs_inverse.errors` only, so any module
+Bottom layer: numpy, :mod:`seed2gs_inverse.errors` and :mod:`seed2gs_inverse._validation` only, so any module
 may import it. All rotations are proper (``R^T R = I``, ``det R = +1``)
 3x3 float64 matrices acting on column vectors, right-handed.
 
@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._validation import check_vector
 from .errors import ValidationError
 
 __all__ = ["unit_vector", "cross_matrix", "axis_angle", "rotation_between", "frame_for_up"]
@@ -50,12 +51,7 @@ def unit_vector(name: str, v) -> np.ndarray:
     ValidationError
         When ``v`` is not a finite 3-vector of non-zero length.
     """
-    try:
-        arr = np.asarray(v, dtype=np.float64)
-    except (TypeError, ValueError):
-        arr = None
-    if arr is None or arr.shape != (3,) or not np.all(np.isfinite(arr)):
-        raise ValidationError(f"'{name}' must be a finite non-zero 3-vector, got {v!r}")
+    arr = check_vector(name, v, 3, nonzero=True)
     top = np.max(np.abs(arr))
     if top > 1e150:  # entries whose squares overflow: scale first
         arr = arr / top

@@ -7,10 +7,12 @@ and ``cameras.py``.
 from __future__ import annotations
 
 import os
+import sys
 import warnings
 import zlib
 
 import numpy as np
+import zstandard
 
 from .._atomic import atomic_path
 from ..errors import FormatError, ValidationError
@@ -28,8 +30,6 @@ def warn_caller(message: str) -> None:
     the element readers, the CLI), so a fixed ``stacklevel`` points at a
     line of the package half of the time.
     """
-    import sys
-
     level, frame = 1, sys._getframe(0)
     while frame is not None and frame.f_code.co_filename.startswith(_PACKAGE):
         frame, level = frame.f_back, level + 1
@@ -163,8 +163,8 @@ def gzip_into(path, data, out: np.ndarray, stop_when_full: bool = False) -> int:
     """Inflate a gzip stream into the uint8 buffer ``out``; the number of bytes written.
 
     Never produces more than ``out.size`` bytes, whatever the stream claims:
-    more data than fits is a FormatError (unless ``stop_when_full``, used to
-    read just a header), as are corrupt or truncated streams.
+    more data than fits is a FormatError (unless ``stop_when_full``, for
+    reading just a header), as are corrupt or truncated streams.
     """
     d = zlib.decompressobj(16 + zlib.MAX_WBITS)
     cap = out.size
@@ -215,8 +215,6 @@ def zstd_into(path, data, out: np.ndarray, what: str) -> None:
     detect a frame that is too long, so a corrupt size field cannot make us
     allocate more than the header promised.
     """
-    import zstandard
-
     expected = out.size
     view = memoryview(out)
     got = 0

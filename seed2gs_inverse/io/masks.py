@@ -15,6 +15,7 @@ import re
 from pathlib import Path
 
 import numpy as np
+from PIL import Image, UnidentifiedImageError
 
 from ..errors import FormatError, ValidationError
 from ._common import load_npy
@@ -63,8 +64,6 @@ def _read_one(f: Path, shape=None, k: int = 0) -> np.ndarray:
         if arr.dtype.kind not in "buif":
             raise FormatError(f"{f}: mask dtype {arr.dtype} is not supported; use bool, uint8 or float")
         return arr
-    from PIL import Image, UnidentifiedImageError
-
     try:
         with Image.open(f) as im:
             if im.format != "PNG":

@@ -9,6 +9,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10: the declared 'tomli' backport
+    import tomli as tomllib
+
 from ..errors import FormatError
 
 __all__ = ["read_table"]
@@ -45,10 +50,6 @@ def read_table(path, what: str = "file") -> dict:
             data = json.loads(raw.decode("utf-8"))
         else:
             kind = "TOML"
-            try:
-                import tomllib
-            except ModuleNotFoundError:  # Python 3.10: the declared 'tomli' backport
-                import tomli as tomllib
             data = tomllib.loads(raw.decode("utf-8"))
     except (UnicodeDecodeError, ValueError) as exc:  # JSONDecodeError and TOMLDecodeError are ValueErrors
         raise FormatError(f"{p}: not valid {kind} ({exc})") from None

@@ -10,8 +10,11 @@ object weight ``W(c) 1_object`` (:func:`masks_from_labels`,
 from __future__ import annotations
 
 import numpy as np
+from scipy import ndimage
 
 from ..errors import ValidationError
+from ..operators import as_stack
+from ..raster import build_operator
 from ..scene import GaussianScene
 
 __all__ = ["masks_from_labels", "render_label_masks", "perturb_masks", "NOISE_KINDS"]
@@ -53,8 +56,6 @@ def masks_from_labels(operators, selected, threshold: float | None = 0.5) -> lis
     """
     if threshold is not None and not (np.isfinite(threshold) and 0 <= threshold < 1):
         raise ValidationError(f"threshold must be in [0, 1) or None, got {threshold!r}")
-    from ..operators import as_stack  # numpy/scipy only
-
     if isinstance(operators, (list, tuple)) and not operators:
         raise ValidationError("masks_from_labels needs at least one view")
     stack = as_stack(operators)
@@ -75,8 +76,6 @@ def render_label_masks(scene: GaussianScene, cameras, selected,
     :func:`masks_from_labels`. Use the operators directly when you have
     them already (building is the expensive part).
     """
-    from ..raster import build_operator  # the renderer sits above this module
-
     cams = list(cameras)
     if not cams:
         raise ValidationError("render_label_masks needs at least one camera")
@@ -190,8 +189,6 @@ def perturb_masks(masks, kind: str, rng=None, strength=None, fraction: float | N
     -------
     list of (H, W) float32 masks, and the view indices if ``return_views``.
     """
-    from scipy import ndimage
-
     if kind not in NOISE_KINDS:
         raise ValidationError(f"unknown noise kind {kind!r}; choose one of {', '.join(NOISE_KINDS)}")
     masks = _check_masks(masks)
