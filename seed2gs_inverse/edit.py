@@ -10,7 +10,6 @@ A selection is a boolean mask of length N or an array of indices.
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable
 
 import numpy as np
 

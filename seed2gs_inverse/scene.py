@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Iterable, Mapping, Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -202,7 +202,10 @@ class GaussianScene:
     @property
     def opacities(self) -> np.ndarray:
         """Activated opacity ``sigmoid(opacity_logits)``, (N,) float32."""
-        from scipy.special import expit  # no overflow warning for the -1e4 logits of pruned splats
+        # expit: no overflow warning for the -1e4 logits of pruned splats. Imported here because
+        # scipy.special takes longer to import than the whole package, and every
+        # ``import seed2gs_inverse`` (each CLI start) loads this module.
+        from scipy.special import expit
 
         return expit(self.opacity_logits.astype(np.float64)).astype(np.float32)
 

@@ -3,7 +3,8 @@
 Scenes: :func:`read_scene` / :func:`write_scene` (``.ply``, ``.splat``
 read and write; ``.compressed.ply`` and ``.spz`` read), :func:`detect_format`.
 Cameras: :func:`read_cameras`, :func:`read_camera` (``FILE:NAME`` or
-``FILE:INDEX``), :func:`write_cameras` (3DGS ``cameras.json``).
+``FILE:INDEX``), :func:`write_cameras` (3DGS ``cameras.json``); one module
+per format (``cameras_json``, ``colmap``, ``nerfstudio``) behind ``cameras``.
 Masks: :func:`read_masks` (a directory of ``view_000.png|npy`` per-view masks).
 Bad files raise :class:`~seed2gs_inverse.errors.FormatError` naming the file.
 """

@@ -29,12 +29,15 @@ import os
 import re
 import struct
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from ..camera import Camera
 from ..errors import Seed2GSError, ValidationError
 from . import cameras_json, colmap, nerfstudio
 from ._common import check_regular, fail
 from .cameras_json import write_cameras
+
+if TYPE_CHECKING:
+    from ..camera import Camera
 
 __all__ = ["read_cameras", "read_camera", "write_cameras"]
 

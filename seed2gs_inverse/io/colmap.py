@@ -15,7 +15,7 @@ from __future__ import annotations
 import os
 import re
 import struct
-from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -24,6 +24,9 @@ from ..errors import FormatError, ValidationError
 from ..scene import quat_to_rotmat
 from ._camera_common import camera_from_pose, check_whole_size, without_camera_prefix
 from ._common import fail, warn_caller
+
+if TYPE_CHECKING:
+    from pathlib import Path
 
 __all__ = ["read_model", "read_model_dir"]
 

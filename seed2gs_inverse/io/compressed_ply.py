@@ -27,13 +27,17 @@ those of the PlayCanvas engine (``gsplat-compressed-data.js``).
 from __future__ import annotations
 
 import os
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..scene import GaussianScene
 from ..sh import SH_C0
 from ._common import fail, finish_scene, logit_from_unorm, warn_caller
-from .ply import PlyHeader, columns, read_ply_elements
+from .ply import columns, read_ply_elements
+
+if TYPE_CHECKING:
+    from ..scene import GaussianScene
+    from .ply import PlyHeader
 
 __all__ = ["is_compressed_ply", "read_compressed_ply"]
 

@@ -32,12 +32,15 @@ import os
 import re
 import warnings
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import ValidationError
-from ..scene import GaussianScene
 from ._common import atomic_write, fail, file_size, finish_scene, warn_caller, warn_trailing
+
+if TYPE_CHECKING:
+    from ..scene import GaussianScene
 
 __all__ = ["PlyHeader", "PlyElement", "read_ply_header", "read_ply_elements",
            "read_standard_ply", "write_standard_ply", "ply_field_names"]

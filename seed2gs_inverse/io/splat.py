@@ -22,14 +22,17 @@ On reading, opacity bytes 0 and 255 become logits -40 and +40.
 from __future__ import annotations
 
 import os
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import FormatError, ValidationError
-from ..scene import GaussianScene
 from ..sh import SH_C0
 from ._common import (atomic_write, bounded_gzip, fail, file_size, finish_scene, logit_from_unorm,
                       warn_caller)
+
+if TYPE_CHECKING:
+    from ..scene import GaussianScene
 
 __all__ = ["read_splat", "write_splat", "check_splat", "SPLAT_DTYPE"]
 

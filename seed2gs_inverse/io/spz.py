@@ -41,12 +41,15 @@ from __future__ import annotations
 
 import os
 import struct
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..scene import GaussianScene
 from ._common import (bounded_gzip, check_compression_ratio, fail, finish_scene, gzip_into,
                       logit_from_unorm, warn_caller, warn_trailing, zstd_into)
+
+if TYPE_CHECKING:
+    from ..scene import GaussianScene
 
 __all__ = ["read_spz", "check_spz", "SPZ_MAGIC"]
 

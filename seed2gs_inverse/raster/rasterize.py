@@ -143,8 +143,8 @@ def _depth_order(depths, idx):
 
 
 # Room for the first compositing pass to log W's entries, per tile-Gaussian
-# pair of the tile (the real-scene orbit views keep ~3 weights per pair on
-# average, but up to 256 in tiles of big splats), and at most this many
+# pair of the tile (most pairs log a few weights, but up to 256 in tiles of
+# big splats), and at most this many
 # entries in all (10 bytes each). The scratch is lazily committed memory
 # (see _lazy_empty), so room never written costs nothing. Tiles that run
 # out of room take the second compositing pass.

@@ -9,12 +9,16 @@ reads off a rendered depth map.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from ..camera import Camera
 from ..errors import ValidationError
 from ..geometry import axis_angle, rotation_between, unit_vector
 from ..scene import GaussianScene
+
+if TYPE_CHECKING:
+    from ..camera import Camera
 
 __all__ = ["parse_pose", "compose", "pose_on_point", "surface_point"]
 

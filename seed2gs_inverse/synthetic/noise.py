@@ -9,13 +9,17 @@ object weight ``W(c) 1_object`` (:func:`masks_from_labels`,
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from scipy import ndimage
 
 from ..errors import ValidationError
 from ..operators import as_stack
 from ..raster import build_operator
-from ..scene import GaussianScene
+
+if TYPE_CHECKING:
+    from ..scene import GaussianScene
 
 __all__ = ["masks_from_labels", "render_label_masks", "perturb_masks", "NOISE_KINDS"]
 
