@@ -72,6 +72,7 @@ def read_cameras(path) -> list:
 
 
 def _read_cameras(p: Path) -> list:
+    """The cameras of ``p``, by what it is: a COLMAP directory or file, or a JSON file of either layout."""
     if p.is_dir():
         return colmap.read_model_dir(p)
     if not p.exists() and ":" in p.name and Path(str(p).rsplit(":", 1)[0]).exists():
