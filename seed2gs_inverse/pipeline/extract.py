@@ -738,7 +738,7 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     """
     from ..operators import as_stack
     from ..solvers import solve
-    from .seed_lift import seed_connected
+    from .islands import seed_connected
 
     masks = list(masks)  # read twice (the solve, the islands' votes): a generator too
     stack = as_stack(stack, masks)
