@@ -463,19 +463,52 @@ def fit_plane(points, *, normals=None, threshold: float | None = None,
         return None
     rng = np.random.default_rng(seed)
     score_idx = rng.choice(m, max_points, replace=False) if m > max_points else np.arange(m)
-    sp = p[score_idx]
     if threshold is None:
-        # On a subsample of surface points the neighbour distance grows like
-        # 1/sqrt(density): scale it back to the full set's.
-        sub = p[rng.choice(m, 20000, replace=False)] if m > 20000 else p
-        k = min(4, len(sub) - 1)
-        d, _ = cKDTree(sub).query(sub, k=k + 1)
-        threshold = 0.5 * float(np.median(d[:, k])) * np.sqrt(len(sub) / m)
+        threshold = _inlier_threshold(p, rng)
     if not threshold > 0:
         threshold = 1e-6
-    nh = int(n_hypotheses)
-    n_pt = nh // 2 if normals is not None else 0
-    tri = rng.integers(0, m, size=(nh - n_pt, 3))
+    hn, hp = _hypotheses(p, normals, int(n_hypotheses), rng)
+    if admissible is not None and len(hn):
+        good, sign = admissible(hn, hp)
+        hn, hp = hn[good] * np.asarray(sign)[good, None], hp[good]
+    if not len(hn):
+        return None
+    best = _best_hypothesis(p[score_idx], hn, hp, threshold)
+    n0, c0 = hn[best], hp[best]
+    inl0 = np.abs((p - c0) @ n0) <= threshold
+    n, c, inl = _refine_plane(p, n0, c0, inl0, threshold, robust_scale)
+    if keep_normal is not None and not keep_normal(n):
+        # The refinement turned the plane out of the orientations the caller allows (the unseen
+        # back cap of an object scanned alone, refined towards the line of sight): the hypothesis stands.
+        n, c, inl = n0, c0, inl0
+    return PlaneFit(n, c, inl, float(threshold), m)
+
+
+def _inlier_threshold(p: np.ndarray, rng: np.random.Generator) -> float:
+    """:math:`\tau`: half the median distance of a point of ``p`` (M, 3) to its 4th nearest neighbour.
+
+    Measured on at most 20,000 random points; on a subsample of surface
+    points the neighbour distance grows like 1/sqrt(density), so it is
+    scaled back to the full set's.
+    """
+    m = len(p)
+    sub = p[rng.choice(m, 20000, replace=False)] if m > 20000 else p
+    k = min(4, len(sub) - 1)
+    d, _ = cKDTree(sub).query(sub, k=k + 1)
+    return 0.5 * float(np.median(d[:, k])) * np.sqrt(len(sub) / m)
+
+
+def _hypotheses(p: np.ndarray, normals, n_hypotheses: int,
+                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """RANSAC hypotheses over ``p`` (M, 3): ``(unit normals (H, 3), points (H, 3))``.
+
+    Planes through 3 random points; with ``normals`` (M, 3), half of them
+    planes through one random point along its normal instead. Degenerate
+    ones (collinear points, zero normals) are left out.
+    """
+    m = len(p)
+    n_pt = n_hypotheses // 2 if normals is not None else 0
+    tri = rng.integers(0, m, size=(n_hypotheses - n_pt, 3))
     hn = np.cross(p[tri[:, 1]] - p[tri[:, 0]], p[tri[:, 2]] - p[tri[:, 0]])
     hp = p[tri[:, 0]]
     if n_pt:
@@ -485,23 +518,30 @@ def fit_plane(points, *, normals=None, threshold: float | None = None,
         hp = np.concatenate([hp, p[one]])
     norm = np.linalg.norm(hn, axis=1)
     ok = norm > 1e-12
-    hn, hp = hn[ok] / norm[ok, None], hp[ok]
-    if admissible is not None and len(hn):
-        good, sign = admissible(hn, hp)
-        hn, hp = hn[good] * np.asarray(sign)[good, None], hp[good]
-    if not len(hn):
-        return None
+    return hn[ok] / norm[ok, None], hp[ok]
+
+
+def _best_hypothesis(points: np.ndarray, hn: np.ndarray, hp: np.ndarray, threshold: float) -> int:
+    """Index of the hypothesis with the most of ``points`` (K, 3) within ``threshold``; the first on ties."""
     off = np.einsum("ij,ij->i", hn, hp)
     best, best_score = -1, -1
     for start in range(0, len(hn), 64):
-        dist = np.abs(sp @ hn[start:start + 64].T - off[start:start + 64])
+        dist = np.abs(points @ hn[start:start + 64].T - off[start:start + 64])
         score = (dist <= threshold).sum(axis=0)
         j = int(np.argmax(score))
         if score[j] > best_score:
             best, best_score = start + j, int(score[j])
-    n0, c0 = n, c = hn[best], hp[best]
-    inl = np.abs((p - c) @ n) <= threshold
-    inl0 = inl
+    return best
+
+
+def _refine_plane(p: np.ndarray, n: np.ndarray, c: np.ndarray, inl: np.ndarray, threshold: float,
+                  robust_scale: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The plane ``(n, c)`` refined on the points ``p`` (M, 3): ``(normal, point, inliers (M,) bool)``.
+
+    Least squares on the inliers ``inl``, twice, re-selecting the inliers
+    within ``threshold``; then, with ``robust_scale`` > 0, Cauchy-weighted
+    least squares (module docstring). The normal keeps the side of ``n``.
+    """
     for _ in range(2):
         if inl.sum() < 3:
             break
@@ -525,11 +565,7 @@ def fit_plane(points, *, normals=None, threshold: float | None = None,
             n_new = np.linalg.svd(d, full_matrices=False)[2][2]
             n = n_new if n_new @ n >= 0 else -n_new
         # ``inl`` stays the RANSAC band's: it counts the points the plane found.
-    if keep_normal is not None and not keep_normal(n):
-        # The refinement turned the plane out of the orientations the caller allows (the unseen
-        # back cap of an object scanned alone, refined towards the line of sight): the hypothesis stands.
-        n, c, inl = n0, c0, inl0
-    return PlaneFit(n, c, inl, float(threshold), m)
+    return n, c, inl
 
 
 def flat_normals(scene: GaussianScene, idx: np.ndarray, flatness: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
