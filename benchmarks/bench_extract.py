@@ -256,7 +256,7 @@ class Built:
 
 def _firepit_cache(cache):
     from seed2gs_inverse import read_camera, read_scene, render
-    from seed2gs_inverse.pipeline.vaas import estimate_up
+    from seed2gs_inverse.pipeline.up_axis import estimate_up
 
     firepit = read_scene(DATA / "firepit_562k_sh0.ply")
     cam = read_camera(DATA / "firepit_cameras.json:overview")

@@ -164,7 +164,7 @@ def _busy_load(n: int) -> list:
 def _problem(views_arg):
     from seed2gs_inverse.io import read_camera, read_scene
     from seed2gs_inverse.raster import build_operator, render
-    from seed2gs_inverse.pipeline.vaas import estimate_up
+    from seed2gs_inverse.pipeline.up_axis import estimate_up
     from seed2gs_inverse.synthetic import compose, pose_on_point
 
     firepit = read_scene(DATA / "firepit_562k_sh0.ply")

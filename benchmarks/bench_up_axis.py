@@ -90,7 +90,7 @@ def _run_case(name, scene, truth, ref, true_up, center, dist, ref_az, args, rows
     from seed2gs_inverse.raster import build_operator
     from seed2gs_inverse.pipeline import extract
     from seed2gs_inverse.pipeline.up_axis import estimate_up_axis
-    from seed2gs_inverse.pipeline.vaas import estimate_up
+    from seed2gs_inverse.pipeline.up_axis import estimate_up
 
     op = build_operator(scene, ref)
     seed = (op.W @ truth.astype(np.float32)).reshape(ref.image_shape) > 0.5

@@ -186,7 +186,7 @@ def test_orbit_views_frames_carry_their_operators(syn, setup, staged):
         assert op.W.shape == plain.W.shape
     # the orbit axis of up="auto" (the default) is estimate_up_axis's, reported with its method
     from seed2gs_inverse.pipeline.up_axis import estimate_up_axis
-    from seed2gs_inverse.pipeline.vaas import estimate_up
+    from seed2gs_inverse.pipeline.up_axis import estimate_up
 
     base = cam.scaled(o.view_scale)
     est = estimate_up_axis(syn.scene, base, support=lift.support, center=lift.center, radius=lift.radius)

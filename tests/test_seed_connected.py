@@ -21,7 +21,7 @@ from seed2gs_inverse import ValidationError
 from seed2gs_inverse.frontend.model_free import GeometricTracker, _pixel_rays
 from seed2gs_inverse.metrics import membership_scores
 from seed2gs_inverse.pipeline import extract
-from seed2gs_inverse.pipeline.seed_lift import seed_connected
+from seed2gs_inverse.pipeline.islands import seed_connected
 from seed2gs_inverse.raster import build_operator
 from seed2gs_inverse.synthetic.ground import make_ground_scene
 

@@ -5,7 +5,7 @@ import pytest
 
 from seed2gs_inverse import GaussianScene, ValidationError
 from seed2gs_inverse.raster import build_operator
-from seed2gs_inverse.pipeline.seed_lift import _components, seed_lift
+from seed2gs_inverse.pipeline.seed_lift import neighbour_components as _components, seed_lift
 
 from _pipeline_scenes import reference_camera, sphere_scene, surface
 

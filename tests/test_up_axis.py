@@ -10,7 +10,7 @@ from seed2gs_inverse.errors import ValidationError
 from seed2gs_inverse.synthetic.ground import make_ground_scene, place_object
 from seed2gs_inverse.pipeline.up_axis import (WEAK_CONFIDENCE, UpEstimate, angle_deg, cameras_up,
                                               estimate_up_axis, fit_plane)
-from seed2gs_inverse.pipeline.vaas import estimate_up
+from seed2gs_inverse.pipeline.up_axis import estimate_up
 from seed2gs_inverse.scene import GaussianScene
 
 

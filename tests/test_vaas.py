@@ -137,7 +137,7 @@ def test_skip_rule_and_visibility_mean():
 
 def test_estimate_up_removes_the_camera_pitch():
     from seed2gs_inverse.raster import build_operator
-    from seed2gs_inverse.pipeline.vaas import estimate_up
+    from seed2gs_inverse.pipeline.up_axis import estimate_up
     from seed2gs_inverse.synthetic import make_scene
 
     for up in [(0, -1, 0), (0.3, 0.2, 0.93)]:

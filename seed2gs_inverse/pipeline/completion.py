@@ -72,8 +72,17 @@ def object_graph(scene, center, radius: float, *, k: int = GRAPH_DEFAULTS["k"],
     """:func:`~seed2gs_inverse.graph.gaussian_graph` among the Gaussians within ``region * radius`` of ``center``.
 
     The seed lift's extent is conservative (it sees only the front), hence a
-    region of 3 radii by default. Returns the (N, N) weights of the whole
-    scene (nodes outside the region are isolated).
+    region of 3 radii by default.
+
+    Returns
+    -------
+    (N, N) scipy.sparse.csr_matrix
+        The weights over the whole scene (nodes outside the region are isolated).
+
+    Raises
+    ------
+    ValidationError
+        ``region`` is not a positive number.
     """
     if not (np.isfinite(region) and region > 0):
         raise ValidationError(f"region must be positive, got {region!r}")
@@ -84,8 +93,8 @@ def object_graph(scene, center, radius: float, *, k: int = GRAPH_DEFAULTS["k"],
 
 #: CG tolerance of the completions' random walker on graphs beyond
 #: :data:`~seed2gs_inverse.solvers.smoothing.DIRECT_MAX` unknowns (smaller ones are factorised):
-#: the regulariser's default. harmonic_extension's own 1e-10 kept CG running for
-#: many minutes on the large graph of a person (``bench_extract.py --extra``).
+#: the regulariser's default. harmonic_extension's own 1e-10 costs many more CG iterations on large
+#: graphs (chosen on ``benchmarks/bench_extract.py --extra``, whose real scans give the largest ones).
 COMPLETION_RTOL = 1e-5
 
 
@@ -98,7 +107,7 @@ def complete_membership(graph, support, reference_weight, reference_membership, 
     ----------
     graph : (N, N) sparse symmetric weights
     support : (N,) bool
-        :math:`G_0` (foreground seeds).
+        :math:`G_0`, the lifted set (``SeedLift.g0``): the foreground seeds.
     reference_weight : (N,) float
         Each Gaussian's summed compositing weight in the reference view,
         :math:`\sum_u w_{ui}`.
@@ -113,20 +122,26 @@ def complete_membership(graph, support, reference_weight, reference_membership, 
 
     Returns
     -------
-    (N,) float64 in [0, 1]; 1 on G0, 0 on the background seeds.
+    (N,) float64 in [0, 1]
+        1 on G0, 0 on the background seeds.
+
+    Raises
+    ------
+    ValidationError
+        ``support`` is not a boolean (N,) mask, or the reference arrays are not (N,).
     """
-    support = np.asarray(support)
-    n = support.shape[0] if support.ndim == 1 else -1
-    if support.dtype != bool or support.ndim != 1:
+    g0 = np.asarray(support)
+    n = g0.shape[0] if g0.ndim == 1 else -1
+    if g0.dtype != bool or g0.ndim != 1:
         raise ValidationError("support must be a boolean (N,) mask (the seed lift's G0)")
     w = np.asarray(reference_weight, np.float64).ravel()
     mu = np.asarray(reference_membership, np.float64).ravel()
     if w.shape != (n,) or mu.shape != (n,):
         raise ValidationError(f"reference_weight and reference_membership need shape ({n},), "
                               f"got {w.shape} and {mu.shape}")
-    bg = ~support & (w >= min_weight) & (mu <= max_background_membership)
-    fixed = support | bg
-    return harmonic_extension(graph, fixed, support.astype(np.float64), prior=support.astype(np.float64),
+    bg = ~g0 & (w >= min_weight) & (mu <= max_background_membership)
+    fixed = g0 | bg
+    return harmonic_extension(graph, fixed, g0.astype(np.float64), prior=g0.astype(np.float64),
                               rtol=rtol)
 
 
@@ -135,7 +150,25 @@ def fill_unknown(operators, masks, q, *, decisive: float = 0.2, alpha_min: float
 
     ``P = W q`` over ``alpha = W 1``: 1 where ``P / alpha >= 1 - decisive``,
     0 where ``<= decisive``, NaN elsewhere and where ``alpha < alpha_min``.
-    Known pixels are kept. Returns new float32 masks.
+    Known pixels are kept.
+
+    Parameters
+    ----------
+    operators : sequence of ViewOperator or sparse (P_c, N) matrices
+    masks : sequence of float arrays
+        One per operator, ``P_c`` pixels each, NaN where unknown.
+    q : (N,) array
+        The 3D membership.
+
+    Returns
+    -------
+    list of float32 arrays
+        New masks, of the shapes of ``masks``.
+
+    Raises
+    ------
+    ValidationError
+        As many masks as operators are needed, each matching its operator and ``q``.
     """
     q = np.asarray(q, np.float32).ravel()
     out = []
@@ -187,6 +220,12 @@ def tracked_membership(graph, operators, masks, prior=None, *, min_evidence: flo
     Returns
     -------
     (N,) float64 in [0, 1]
+
+    Raises
+    ------
+    ValidationError
+        As many masks as operators are needed, each matching its operator;
+        ``confident`` in [0, 0.5).
     """
     ops = list(operators)
     if len(ops) != len(masks):

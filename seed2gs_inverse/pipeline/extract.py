@@ -44,7 +44,8 @@ from ..errors import ValidationError
 from ..scene import GaussianScene
 from .seed_lift import SeedLift, seed_lift
 from .settings import MODEL_FREE_SMOOTHNESS, SOLVER_DEFAULTS, ExtractSettings
-from .vaas import ClipFrame, VAASPlan, estimate_up, run_vaas
+from .up_axis import estimate_up
+from .vaas import ClipFrame, VAASPlan, run_vaas
 
 __all__ = ["Extraction", "extract", "Renderer", "ExtractSettings", "EXTRACT_DEFAULTS", "SOLVER_DEFAULTS", "STAGES",
            "MODEL_FREE_SMOOTHNESS", "ReferenceView", "OrbitViews", "Selection", "render_reference",
@@ -737,7 +738,7 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     """
     from ..operators import as_stack
     from ..solvers import solve
-    from .seed_lift import seed_connected
+    from .islands import seed_connected
 
     masks = list(masks)  # read twice (the solve, the islands' votes): a generator too
     stack = as_stack(stack, masks)

@@ -1,4 +1,4 @@
-r"""Point prompts that return the whole object (issue 10, part 3).
+r"""Point prompts that return the whole object.
 
 A click on the top of a table should return the table, not the colour-
 homogeneous patch under the cursor. Without a learned model the object is
@@ -18,10 +18,10 @@ found from geometry, in four steps:
    :math:`|D(u) - D(v)| > \delta \min(D(u), D(v))` (``depth_tol``) and by a
    *crease* when :math:`\angle(n(u), n(v)) >` ``normal_tol_deg``; the patch
    is the 4-connected set of solid pixels reached from the click without
-   crossing either. (Measured on the firepit: the rendered depth is noisy by
-   centimetres at 6 m, so that patch either shrinks to the click or, at
-   half resolution, leaks to the patio through noise; the colour region is
-   the safer seed. Colour only seeds: the 3D growth decides the object.)
+   crossing either. The colour region comes first because rendered depth
+   is noisy on real scans, so the patch may shrink to the click or leak to
+   the surroundings through noise; colour only seeds, the 3D growth
+   decides the object.
 2. **Lift.** The patch is lifted to Gaussians with the seed lift's centre
    rule (:func:`~seed2gs_inverse.pipeline.seed_lift.seed_lift` without
    ``W``): projected centre in the patch at a consistent depth.
@@ -40,7 +40,7 @@ found from geometry, in four steps:
    splats are dense and small on well-seen faces (a table top) and sparse
    and big on grazing ones (its skirt); the second term links those, the
    first keeps gaps wider than the splats from being bridged. Gaussians of the *support
-   plane* :math:`(n, p)` under the object, found by
+   plane* :math:`(n, p)` under the object (the ground), found by
    :func:`~seed2gs_inverse.pipeline.up_axis.estimate_up_axis`, are removed
    first: those with :math:`n \cdot (x - p) <` ``band`` (3 times the plane
    fit's inlier distance, at least ``min_band`` :math:`R_0`), so the object
@@ -55,9 +55,7 @@ found from geometry, in four steps:
    growth region (a Gaussian beyond 0.9 of its radius), the radius doubles,
    at most ``max_expansions`` times; an object that still reaches the edge
    after the last doubling is leaking into the scene, and the first growth
-   is kept (``tests/test_point_object.py``: a click on a chair of the
-   firepit grows to the whole chair, one on its fire pit leaks and keeps
-   its first growth).
+   is kept.
 4. **Project back.** The mask is where the grown Gaussians render with
    weight above one half: :math:`(W \mathbf 1_{obj})(u) > 0.5` with the
    reference operator ``W`` over the box of their projection, so occlusion
@@ -71,11 +69,24 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from ..camera import Camera
 from ..errors import ValidationError
+from ..frontend.prompts import PointPrompt
+from ..raster import build_operator, cone_cull, render
+from ..scene import GaussianScene
+from .seed_lift import seed_lift
+from .up_axis import estimate_up_axis
+
+if TYPE_CHECKING:
+    from ..operators import Rendering
 
 __all__ = ["PointObject", "point_object_mask", "surface_patch", "depth_normals", "grow_object",
            "POINT_OBJECT_DEFAULTS"]
@@ -152,8 +163,6 @@ def surface_patch(camera: Camera, depth, alpha, click, *, depth_tol: float = 0.0
     See step 1 of the module docstring. Returns (H, W) bool (empty when the
     clicked pixel is not solid).
     """
-    from scipy import ndimage
-
     d = _check_depth(camera, depth)
     a = np.asarray(alpha, dtype=np.float64)
     if a.shape != d.shape:
@@ -214,10 +223,6 @@ def grow_object(scene, seeds, *, center, radius: float, plane=None, blocked=None
     selected : (N,) bool
     info : dict
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
-
     n_all = len(scene)
     seeds = np.asarray(seeds, bool)
     if seeds.shape != (n_all,):
@@ -278,9 +283,16 @@ def grow_object(scene, seeds, *, center, radius: float, plane=None, blocked=None
     return sel, info
 
 
-def _support_plane(scene, camera, seeds, center, radius, min_band):
-    from .up_axis import estimate_up_axis
+def _support_plane(scene: GaussianScene, camera: Camera, seeds: np.ndarray, center: np.ndarray, radius: float,
+                   min_band: float) -> tuple[tuple[np.ndarray, np.ndarray, float] | None, dict]:
+    """The support plane under the grown object (the ground) for :func:`grow_object`, and what it came from.
 
+    The support or scene plane of
+    :func:`~seed2gs_inverse.pipeline.up_axis.estimate_up_axis` (with the
+    click's lifted Gaussians as G0) that has the object above it, as
+    ``(normal, point, band)`` with band ``max(3 tau, min_band * radius)``;
+    None when neither qualifies.
+    """
     est = estimate_up_axis(scene, camera, support=seeds, center=center, radius=radius)
     for key in ("support_plane", "scene_plane"):
         p = est.details.get(key)
@@ -296,38 +308,17 @@ def _support_plane(scene, camera, seeds, center, radius, min_band):
     return None, {"source": None, "method": est.method, "confidence": float(est.confidence)}
 
 
-def point_object_mask(scene, camera: Camera, points, labels=None, rendering=None, *,
-                      mode: str = "classic", region=None, **options) -> PointObject:
-    """The object under positive clicks, as a seed mask (see the module docstring).
+def _check_point_inputs(scene, camera, points, labels, region, options: dict):
+    """:func:`point_object_mask`'s arguments checked: ``(opt, clicks (K, 2) float64, labels (K,) int, region)``.
 
-    Parameters
-    ----------
-    scene : GaussianScene
-    camera : Camera
-        Reference view; clicks are its pixel coordinates ``(x, y)``.
-    points : (K, 2) array
-    labels : (K,) 0/1 or None (all positive)
-    rendering : Rendering or None
-        The reference rendering (``depth``, ``alpha``); rendered when None.
-    mode : str
-        Rasterization mode.
-    region : PointPrompt or None
-        Its colour-and-depth region settings (``color_tol``, ``depth_tol``,
-        ``radius``, ``iterations``, ``alpha_min``) grow each click's region;
-        None: :class:`~seed2gs_inverse.frontend.prompts.PointPrompt`'s
-        defaults. Its clicks are not read (``points`` and ``labels`` are).
-    **options
-        Any of :data:`POINT_OBJECT_DEFAULTS`.
-
-    Returns
-    -------
-    PointObject
+    Raises
+    ------
+    ValidationError
+        An unknown option, ``max_expansions`` not in 0..10, an empty scene,
+        no finite click, labels that are not 0/1 (one per click, at least
+        one 1), a click outside the image, or a ``region`` that is not a
+        PointPrompt.
     """
-    from ..frontend.prompts import PointPrompt
-    from ..raster import build_operator, cone_cull, render
-    from ..scene import GaussianScene
-    from .seed_lift import seed_lift
-
     unknown = set(options) - set(POINT_OBJECT_DEFAULTS)
     if unknown:
         raise ValidationError(f"point_object_mask: unknown options {sorted(unknown)}; "
@@ -354,30 +345,133 @@ def point_object_mask(scene, camera: Camera, points, labels=None, rendering=None
         region = PointPrompt([(0, 0)])
     elif not isinstance(region, PointPrompt):
         raise ValidationError(f"point_object_mask: region must be a PointPrompt or None, got {type(region).__name__}")
+    return opt, pts, labs, region
+
+
+def _click_region(camera: Camera, ref: Rendering, depth: np.ndarray, alpha: np.ndarray, click,
+                  region: PointPrompt, patch_kw: dict) -> tuple[np.ndarray, str]:
+    """Step 1 for one click: ``(mask (H, W) bool, how)``.
+
+    The colour-and-depth region of ``region`` at the click (``how`` is
+    ``"region"``); the smooth surface patch (:func:`surface_patch`, keywords
+    ``patch_kw``) when that is empty (``"surface-patch"``).
+    """
+    x, y = int(click[0]), int(click[1])
+    try:
+        m = replace(region, points=[(x, y)], labels=[1]).to_mask(ref.rgb, depth=depth, alpha=alpha)
+        how = "region"
+    except ValidationError:
+        m = np.zeros(camera.image_shape, bool)
+    if not m.any():
+        m = surface_patch(camera, depth, alpha, (x, y), **patch_kw)
+        how = "surface-patch"
+    return m, how
+
+
+def _grow_with_expansions(scene: GaussianScene, seeds: np.ndarray, center: np.ndarray, radius: float, plane,
+                          blocked: np.ndarray | None, opt: dict) -> tuple[np.ndarray, dict]:
+    """Step 3: :func:`grow_object` from ``growth_factor`` times ``radius``, doubling while the object reaches the edge.
+
+    The click's region may be a small part of the object (a chair's
+    backrest): while the grown object reaches the edge of the growth region
+    (a Gaussian beyond :data:`_EDGE` of its radius), the region doubles, at
+    most ``max_expansions`` times. An object the growth closes around stops
+    short of the edge; one that still reaches it after every doubling leaks
+    into the scene, and the first growth is kept (``info["expansion"]`` says so).
+    """
+    radius = opt["growth_factor"] * radius
+    first = None
+    for expansions in range(int(opt["max_expansions"]) + 1):
+        selected, grow_info = grow_object(
+            scene, seeds, center=center, radius=radius, plane=plane,
+            blocked=blocked, k_neighbors=opt["k_neighbors"], link_factor=opt["link_factor"], overlap=opt["overlap"],
+            keep_fraction=opt["keep_fraction"], min_opacity=opt["min_opacity"])
+        if expansions == 0:
+            first = selected, grow_info
+        reach = np.linalg.norm(scene.means[selected].astype(np.float64) - center, axis=1).max(initial=0.0)
+        if reach < _EDGE * radius:
+            grow_info["expansions"] = expansions
+            return selected, grow_info
+        radius *= 2.0
+    selected, grow_info = first
+    grow_info["expansions"] = 0
+    if opt["max_expansions"]:
+        grow_info["expansion"] = (f"still at the edge of the growth region after {int(opt['max_expansions'])} "
+                                  "doublings (leaking into the scene): the first growth is kept")
+    return selected, grow_info
+
+
+def _render_mask(scene: GaussianScene, camera: Camera, selected: np.ndarray, mode: str) -> np.ndarray:
+    """Step 4: ``(W 1_selected)(u) > 0.5`` as (H, W) bool, rendered over the box of the selection's projection."""
+    h, w = camera.image_shape
+    mask = np.zeros((h, w), bool)
+    if not selected.any():
+        return mask
+    uv, z = camera.project(scene.means[selected])
+    sig = 3.0 * scene.scales[selected].max(axis=1).astype(np.float64)
+    ok = np.isfinite(uv).all(axis=1) & (z > camera.near)
+    if ok.any():
+        rad = sig[ok] * max(camera.fx, camera.fy) / z[ok]
+        x0 = int(np.clip(np.floor((uv[ok, 0] - rad).min()) - 2, 0, w))
+        x1 = int(np.clip(np.ceil((uv[ok, 0] + rad).max()) + 2, 0, w))
+        y0 = int(np.clip(np.floor((uv[ok, 1] - rad).min()) - 2, 0, h))
+        y1 = int(np.clip(np.ceil((uv[ok, 1] + rad).max()) + 2, 0, h))
+        if x1 > x0 and y1 > y0:
+            roi = (x0, y0, x1, y1)
+            op = build_operator(scene, camera, roi=roi, mode=mode, subset=cone_cull(scene, camera, roi))
+            mask = (op.W @ selected.astype(np.float32)).reshape(h, w) > 0.5
+    return mask
+
+
+def point_object_mask(scene: GaussianScene, camera: Camera, points, labels=None, rendering: Rendering | None = None,
+                      *, mode: str = "classic", region: PointPrompt | None = None, **options) -> PointObject:
+    """The object under positive clicks, as a seed mask (see the module docstring).
+
+    Parameters
+    ----------
+    scene : GaussianScene
+    camera : Camera
+        Reference view; clicks are its pixel coordinates ``(x, y)``.
+    points : (K, 2) array
+    labels : (K,) 0/1 or None (all positive)
+    rendering : Rendering or None
+        The reference rendering (``depth``, ``alpha``); rendered when None.
+    mode : str
+        Rasterization mode.
+    region : PointPrompt or None
+        Its colour-and-depth region settings (``color_tol``, ``depth_tol``,
+        ``radius``, ``iterations``, ``alpha_min``) grow each click's region;
+        None: :class:`~seed2gs_inverse.frontend.prompts.PointPrompt`'s
+        defaults. Its clicks are not read (``points`` and ``labels`` are).
+    **options
+        Any of :data:`POINT_OBJECT_DEFAULTS`.
+
+    Returns
+    -------
+    PointObject
+
+    Raises
+    ------
+    ValidationError
+        Bad arguments (see :func:`_check_point_inputs`), or positive clicks
+        that hit only empty space.
+
+    Warns
+    -----
+    UserWarning
+        The growth yields no mask: the seed is the clicked region alone.
+    """
+    opt, pts, labs, region = _check_point_inputs(scene, camera, points, labels, region, options)
+    h, w = camera.image_shape
     ref = render(scene, camera, mode=mode) if rendering is None else rendering
     depth = _check_depth(camera, ref.depth, "rendering depth")
     alpha = np.asarray(ref.alpha)
     patch_kw = {k: opt[k] for k in ("depth_tol", "normal_tol_deg", "alpha_min")}
-
-    def region_of(click, positive):
-        # The colour-and-depth region of today's PointPrompt seeds the
-        # growth; the smooth geometric patch stands in when it is empty.
-        x, y = int(click[0]), int(click[1])
-        try:
-            m = replace(region, points=[(x, y)], labels=[1]).to_mask(ref.rgb, depth=depth, alpha=alpha)
-            how = "region"
-        except ValidationError:
-            m = np.zeros((h, w), bool)
-        if not m.any():
-            m = surface_patch(camera, depth, alpha, (x, y), **patch_kw)
-            how = "surface-patch"
-        return m, how
-
     patch = np.zeros((h, w), bool)
     neg_patch = np.zeros((h, w), bool)
     sources = []
     for click, lab in zip(pts, labs):
-        m, how = region_of(click, lab == 1)
+        m, how = _click_region(camera, ref, depth, alpha, click, region, patch_kw)
         if lab == 1:
             patch |= m
             sources.append(how)
@@ -387,54 +481,16 @@ def point_object_mask(scene, camera: Camera, points, labels=None, rendering=None
         raise ValidationError("the positive clicks hit only empty space in the reference view")
     neg_patch &= ~patch
     lift = seed_lift(scene, camera, patch, depth)
-    seeds = lift.support
+    seeds = lift.g0
     blocked = None
     if neg_patch.any():
         try:
-            blocked = seed_lift(scene, camera, neg_patch, depth).support & ~seeds
+            blocked = seed_lift(scene, camera, neg_patch, depth).g0 & ~seeds
         except ValidationError:
             blocked = None
     plane, plane_info = _support_plane(scene, camera, seeds, lift.center, lift.radius, opt["min_band"])
-    # The click's region may be a small part of the object (a chair's backrest): while the grown
-    # object reaches the edge of the growth region, the region doubles, at most max_expansions times.
-    # An object the growth closes around stops short of the edge; one that still reaches it after
-    # every doubling leaks into the scene (a fire pit on a patio through its clutter), and the first
-    # growth is kept.
-    radius = opt["growth_factor"] * lift.radius
-    first = None
-    for expansions in range(int(opt["max_expansions"]) + 1):
-        selected, grow_info = grow_object(
-            scene, seeds, center=lift.center, radius=radius, plane=plane,
-            blocked=blocked, k_neighbors=opt["k_neighbors"], link_factor=opt["link_factor"], overlap=opt["overlap"],
-            keep_fraction=opt["keep_fraction"], min_opacity=opt["min_opacity"])
-        if expansions == 0:
-            first = selected, grow_info
-        reach = np.linalg.norm(scene.means[selected].astype(np.float64) - lift.center, axis=1).max(initial=0.0)
-        if reach < _EDGE * radius:
-            grow_info["expansions"] = expansions
-            break
-        radius *= 2.0
-    else:
-        selected, grow_info = first
-        grow_info["expansions"] = 0
-        if opt["max_expansions"]:
-            grow_info["expansion"] = (f"still at the edge of the growth region after {int(opt['max_expansions'])} "
-                                      "doublings (leaking into the scene): the first growth is kept")
-    mask = np.zeros((h, w), bool)
-    if selected.any():
-        uv, z = camera.project(scene.means[selected])
-        sig = 3.0 * scene.scales[selected].max(axis=1).astype(np.float64)
-        ok = np.isfinite(uv).all(axis=1) & (z > camera.near)
-        if ok.any():
-            rad = sig[ok] * max(camera.fx, camera.fy) / z[ok]
-            x0 = int(np.clip(np.floor((uv[ok, 0] - rad).min()) - 2, 0, w))
-            x1 = int(np.clip(np.ceil((uv[ok, 0] + rad).max()) + 2, 0, w))
-            y0 = int(np.clip(np.floor((uv[ok, 1] - rad).min()) - 2, 0, h))
-            y1 = int(np.clip(np.ceil((uv[ok, 1] + rad).max()) + 2, 0, h))
-            if x1 > x0 and y1 > y0:
-                roi = (x0, y0, x1, y1)
-                op = build_operator(scene, camera, roi=roi, mode=mode, subset=cone_cull(scene, camera, roi))
-                mask = (op.W @ selected.astype(np.float32)).reshape(h, w) > 0.5
+    selected, grow_info = _grow_with_expansions(scene, seeds, lift.center, lift.radius, plane, blocked, opt)
+    mask = _render_mask(scene, camera, selected, mode)
     fallback = not mask.any()
     if fallback:
         mask = patch.copy()

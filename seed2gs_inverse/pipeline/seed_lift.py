@@ -1,16 +1,25 @@
-"""Seed lift: the reference seed mask m* becomes a conservative 3D support G0.
+r"""Seed lift: the reference seed mask m* becomes G0, a conservative 3D set of the object's Gaussians.
 
 Algorithm 1, line 3 of the paper (Section 3.4, "Seed lift"): Gaussians
 projected into the reference view are kept when they satisfy a *mask*
 constraint and a *depth* constraint; connected components of a 3D
 neighbour graph over the kept Gaussians then remove projection outliers.
-The support gives the object centre ``o`` and extent that parameterise the
-VAAS orbits, and initialises the membership logits.
+G0 (the lifted set) gives the object centre ``o`` and extent that
+parameterise the VAAS orbits, and initialises the membership logits. (The
+support *surface*, the ground the object rests on, is
+:mod:`seed2gs_inverse.pipeline.support`.)
+
+:func:`seed_lift` runs the steps in order: :func:`_centre_tests` (the
+paper's two constraints at the projected centre), :func:`_contribution`
+(the same judged over every pixel a Gaussian renders to, when ``W`` is
+given), :func:`_candidates`, :func:`_keep_components` (over
+:func:`neighbour_components`) and :func:`_extent`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
@@ -20,7 +29,11 @@ from scipy.spatial import cKDTree
 from .._threads import n_threads
 from ..errors import ValidationError
 
-__all__ = ["SeedLift", "seed_lift", "seed_connected", "ISLAND_FRACTION"]
+if TYPE_CHECKING:
+    from ..camera import Camera
+    from ..scene import GaussianScene
+
+__all__ = ["SeedLift", "seed_lift", "neighbour_components"]
 
 
 @dataclass
@@ -29,13 +42,13 @@ class SeedLift:
 
     Attributes
     ----------
-    support : (N,) bool
-        G0, the lifted support.
+    g0 : (N,) bool
+        G0, the lifted set: the Gaussians of the object the reference shows.
     center : (3,) float64
         Object centre ``o``: the midpoint of the robust (2nd-98th percentile)
-        bounding box of the support means.
+        bounding box of G0's means.
     radius : float
-        Extent: half the diagonal of that box (at least the largest support
+        Extent: half the diagonal of that box (at least the largest G0
         Gaussian's 3-sigma size), in world units.
     bbox : (2, 3) float64
         The robust bounding box ``[min, max]``.
@@ -47,14 +60,14 @@ class SeedLift:
     n_components : int
         Connected components among the candidates.
     kept_components : int
-        Components retained in the support.
+        Components retained in G0.
     eps_depth : (N,) float32
         The per-Gaussian depth tolerance used.
     mode : str
         ``"contribution"`` (W given) or ``"center"``.
     """
 
-    support: np.ndarray
+    g0: np.ndarray
     center: np.ndarray
     radius: float
     bbox: np.ndarray
@@ -66,27 +79,185 @@ class SeedLift:
     mode: str
 
     @property
+    def n_g0(self) -> int:
+        """How many Gaussians G0 holds."""
+        return int(self.g0.sum())
+
+    @property
+    def support(self) -> np.ndarray:
+        """Deprecated alias of :attr:`g0` (read-only): "support" names the ground surface elsewhere."""
+        return self.g0
+
+    @property
     def n_support(self) -> int:
-        return int(self.support.sum())
+        """Deprecated alias of :attr:`n_g0` (read-only)."""
+        return self.n_g0
 
     def summary(self) -> dict:
-        return {"n_support": self.n_support, "n_candidates": int(self.candidates.sum()),
+        """JSON-ready facts (``report.json``; G0's size under the key ``"n_support"``)."""
+        return {"n_support": self.n_g0, "n_candidates": int(self.candidates.sum()),
                 "n_components": self.n_components, "kept_components": self.kept_components,
                 "center": self.center.tolist(), "radius": float(self.radius), "mode": self.mode}
 
 
-def _check_image(name, arr, shape):
+class _Contribution(NamedTuple):
+    """Per-Gaussian sums over the pixels it renders to in the reference view, all (N,) float64."""
+
+    weight: np.ndarray      # sum_u w_ui
+    inside: np.ndarray      # sum_u w_ui m*_u
+    membership: np.ndarray  # inside / weight (0 where the weight is 0)
+    residual: np.ndarray    # weight-averaged |z_i - D_r(u)| (inf where the weight is 0)
+
+
+def _check_image(name: str, arr, shape: tuple[int, int]) -> np.ndarray:
+    """``arr`` as an array of the reference view's ``shape``, or a ValidationError naming ``name``."""
     a = np.asarray(arr)
     if a.shape != shape:
         raise ValidationError(f"seed lift: {name} has shape {a.shape}, expected {shape} (H, W) of the reference view")
     return a
 
 
-def seed_lift(scene, camera, mask, depth, W=None, *, eps_rel: float = 0.02, eps_sigma: float = 2.0,
-              min_membership: float = 0.5, min_weight: float = 1e-3, k_neighbors: int = 8,
-              link_factor: float = 3.0, keep_fraction: float = 0.2,
+def _seed_pixels(mask, shape: tuple[int, int]) -> np.ndarray:
+    """The seed mask as (H, W) bool: values > 0.5 (NaN counts as not); refuses an empty or non-numeric mask."""
+    m = _check_image("mask", mask, shape)
+    if m.dtype.kind not in "biuf":
+        raise ValidationError(f"seed lift: mask must be boolean or numeric, got dtype {m.dtype}")
+    m = np.nan_to_num(m.astype(np.float64), nan=0.0) > 0.5
+    if not m.any():
+        raise ValidationError("seed mask is empty: mark at least one pixel of the object")
+    return m
+
+
+def _centre_tests(camera: Camera, uv: np.ndarray, z: np.ndarray, eps: np.ndarray, m: np.ndarray,
+                  d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    r"""The paper's two constraints at the projected centre :math:`\pi_i`: ``(depth_ok, centre_in_mask)``, (N,) bool.
+
+    ``uv`` (N, 2) and ``z`` (N,) are the projected centres and view depths,
+    ``eps`` (N,) the depth tolerances, ``m`` the (H, W) seed and ``d`` the
+    (H, W) rendered depth. A centre outside the image or nearer than the near
+    plane fails both.
+    """
+    n = len(z)
+    h, w = m.shape
+    ok = np.isfinite(uv).all(axis=1) & (z > camera.near)
+    px = np.floor(np.where(ok, uv[:, 0], -1)).astype(np.int64)
+    py = np.floor(np.where(ok, uv[:, 1], -1)).astype(np.int64)
+    ok &= (px >= 0) & (px < w) & (py >= 0) & (py < h)
+    idx = np.nonzero(ok)[0]
+    dd = d[py[idx], px[idx]]
+    depth_ok = np.zeros(n, bool)
+    depth_ok[idx] = (dd > 0) & (np.abs(z[idx] - dd) <= eps[idx])
+    centre_in_mask = np.zeros(n, bool)
+    centre_in_mask[idx] = m[py[idx], px[idx]]
+    return depth_ok, centre_in_mask
+
+
+def _contribution(W, m: np.ndarray, z: np.ndarray, d: np.ndarray) -> _Contribution:
+    r"""The contribution rule's per-Gaussian sums over the pixels it renders to (:func:`seed_lift`'s Notes).
+
+    :math:`\sum_u w_{u,i}`, :math:`\sum_u w_{u,i} m^\star_u`, :math:`\mu_i`
+    and :math:`r_i`, from the reference operator ``W`` (H*W, N), the (H, W)
+    seed ``m``, the view depths ``z`` (N,) and the rendered depth ``d`` (H, W).
+
+    Raises
+    ------
+    ValidationError
+        ``W`` is not a sparse (H*W, N) matrix.
+    """
+    h, w = m.shape
+    n = len(z)
+    if not sp.issparse(W) or W.shape != (h * w, n):
+        raise ValidationError(f"seed lift: W must be a sparse ({h * w}, {n}) matrix, got "
+                              f"{type(W).__name__} {getattr(W, 'shape', None)}")
+    W = sp.csr_matrix(W)
+    colsum = np.asarray(W.sum(axis=0)).ravel().astype(np.float64)
+    inside = np.asarray(W.T @ m.ravel().astype(np.float64)).ravel()
+    rows = np.repeat(np.arange(h * w), np.diff(W.indptr))
+    cols = W.indices
+    resid = np.bincount(cols, weights=W.data * np.abs(z[cols] - d.ravel()[rows]), minlength=n)
+    safe = np.maximum(colsum, 1e-30)
+    membership = np.where(colsum > 0, inside / safe, 0.0)
+    resid = np.where(colsum > 0, resid / safe, np.inf)
+    return _Contribution(colsum, inside, membership, resid)
+
+
+def _candidates(depth_ok: np.ndarray, centre_in_mask: np.ndarray, contrib: _Contribution | None,
+                eps: np.ndarray, sigma: np.ndarray, *, min_membership: float, min_weight: float,
+                max_size_ratio: float | None) -> tuple[np.ndarray, np.ndarray]:
+    """The Gaussians that pass the constraints, ``(candidates (N,) bool, score (N,) float)``.
+
+    The contribution rule when ``contrib`` is given (score: the mask-weighted
+    contribution), else the centre rule (score 1 each); then the size cut
+    ``max_size_ratio`` (see :func:`seed_lift`).
+    """
+    if contrib is not None:
+        cand = ((contrib.weight >= min_weight) & (contrib.membership >= min_membership) & depth_ok
+                & (contrib.residual <= eps))
+        score = contrib.inside
+    else:
+        cand = centre_in_mask & depth_ok
+        score = np.ones(len(depth_ok))
+    if cand.any() and max_size_ratio is not None:
+        # Splats far bigger than the typical candidate are background
+        # (ground, walls) whose big footprint passes the mask and depth
+        # tests near the object; their own size also widens eps_d.
+        typical = float(np.median(sigma[cand]))
+        cand &= sigma <= max_size_ratio * typical
+    return cand, score
+
+
+def _no_candidate_error(m: np.ndarray, depth_ok: np.ndarray, contrib: _Contribution | None, eps: np.ndarray,
+                        *, min_membership: float, min_weight: float) -> ValidationError:
+    """Why no Gaussian passed: a seed smaller than the splats that render in it, or a seed on nothing."""
+    if contrib is not None and np.any((contrib.inside > 0) & depth_ok & (contrib.weight >= min_weight)
+                                      & (contrib.residual <= eps)):
+        # Gaussians do render inside the seed and pass every test but membership: mostly outside it,
+        # a seed smaller than the splats
+        return ValidationError(
+            f"the seed mask ({int(m.sum())} px) is smaller than the footprint of the Gaussians that render "
+            f"inside it: none has {min_membership:.0%} of its weight in the seed (min_membership); give a "
+            f"larger seed (the whole object, or a box), or a camera closer to it")
+    return ValidationError(
+        "the seed mask touches no Gaussian of the scene in the reference view (no Gaussian "
+        "renders inside it at a consistent depth); check the mask, camera and scene match")
+
+
+def _keep_components(means: np.ndarray, cand: np.ndarray, score: np.ndarray, *, k_neighbors: int,
+                     link_factor: float, keep_fraction: float) -> tuple[np.ndarray, int, int]:
+    """G0: the candidates' best components, ``(g0 (N,) bool, n_components, kept_components)``.
+
+    Components of :func:`neighbour_components` over the candidates, scored
+    by the sum of ``score``; the best is kept with every component scoring
+    at least ``keep_fraction`` of it.
+    """
+    idx = np.nonzero(cand)[0]
+    labels, ncomp = neighbour_components(means[idx], k_neighbors, link_factor)
+    comp_score = np.bincount(labels, weights=score[idx], minlength=ncomp)
+    keep = comp_score >= keep_fraction * comp_score.max()
+    keep[np.argmax(comp_score)] = True
+    g0 = np.zeros(len(cand), bool)
+    g0[idx[keep[labels]]] = True
+    return g0, int(ncomp), int(keep.sum())
+
+
+def _extent(means: np.ndarray, g0: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+    """``(center, radius, bbox)`` of G0: the robust (2nd-98th percentile) box, its midpoint and half-diagonal.
+
+    The radius is at least the largest G0 Gaussian's 3-sigma size (and
+    1e-6); with fewer than 10 Gaussians the box is their full extent.
+    """
+    pts = means[g0]
+    lo, hi = np.percentile(pts, [2, 98], axis=0) if len(pts) >= 10 else (pts.min(0), pts.max(0))
+    center = 0.5 * (lo + hi)
+    radius = max(0.5 * float(np.linalg.norm(hi - lo)), 3.0 * float(sigma[g0].max()), 1e-6)
+    return center, radius, np.stack([lo, hi])
+
+
+def seed_lift(scene: GaussianScene, camera: Camera, mask, depth, W=None, *, eps_rel: float = 0.02,
+              eps_sigma: float = 2.0, min_membership: float = 0.5, min_weight: float = 1e-3,
+              k_neighbors: int = 8, link_factor: float = 3.0, keep_fraction: float = 0.2,
               max_size_ratio: float | None = 4.0) -> SeedLift:
-    r"""Lift the seed mask of the reference view to a 3D Gaussian support.
+    r"""Lift the seed mask of the reference view to G0, a set of the scene's Gaussians.
 
     Parameters
     ----------
@@ -114,7 +285,8 @@ def seed_lift(scene, camera, mask, depth, W=None, *, eps_rel: float = 0.02, eps_
     k_neighbors, link_factor : int, float
         3D graph: each candidate is linked to its ``k_neighbors`` nearest
         candidates closer than ``link_factor`` times the median distance to
-        the 4th-nearest candidate (a density-adaptive radius).
+        the 4th-nearest candidate (a density-adaptive radius,
+        :func:`neighbour_components`).
     max_size_ratio : float or None
         Candidates whose largest standard deviation exceeds this multiple of
         the candidates' median are dropped (default 4): on real scenes large
@@ -130,6 +302,13 @@ def seed_lift(scene, camera, mask, depth, W=None, *, eps_rel: float = 0.02, eps_
     Returns
     -------
     SeedLift
+
+    Raises
+    ------
+    ValidationError
+        ``mask`` or ``depth`` not of the camera's (H, W), a non-numeric or
+        empty mask, an empty scene, ``W`` not a sparse (H*W, N) matrix, or
+        no Gaussian passing the constraints (the message says which case).
 
     Notes
     -----
@@ -153,227 +332,56 @@ def seed_lift(scene, camera, mask, depth, W=None, *, eps_rel: float = 0.02, eps_
     depth constraint at the centre, :math:`|z_i - D_r(\pi_i)| \le \epsilon_{d,i}`
     (without it, a background Gaussian mostly hidden behind the object but
     peeking out inside a loose mask would count as inside). It is sharper
-    at the silhouette: big splats count by where they actually render. Both rules are conservative: Gaussians on the hidden side of the
-    object are not in G0; the orbits and the solver recover them.
+    at the silhouette: big splats count by where they actually render. Both
+    rules are conservative: Gaussians on the hidden side of the object are
+    not in G0; the orbits and the solver recover them.
     """
     n = len(scene)
-    h, w = camera.image_shape
-    m = _check_image("mask", mask, (h, w))
-    if m.dtype.kind not in "biuf":
-        raise ValidationError(f"seed lift: mask must be boolean or numeric, got dtype {m.dtype}")
-    m = np.nan_to_num(m.astype(np.float64), nan=0.0) > 0.5
-    if not m.any():
-        raise ValidationError("seed mask is empty: mark at least one pixel of the object")
-    d = _check_image("depth", depth, (h, w)).astype(np.float64)
+    shape = camera.image_shape
+    m = _seed_pixels(mask, shape)
+    d = _check_image("depth", depth, shape).astype(np.float64)
     if n == 0:
         raise ValidationError("seed lift: the scene has no Gaussians")
-
     means = scene.means.astype(np.float64)
     uv, z = camera.project(means)
     sigma = scene.scales.max(axis=1).astype(np.float64)
     eps = eps_rel * np.abs(z) + eps_sigma * sigma
-
-    # The paper's two constraints at the projected centre pi_i.
-    ok = np.isfinite(uv).all(axis=1) & (z > camera.near)
-    px = np.floor(np.where(ok, uv[:, 0], -1)).astype(np.int64)
-    py = np.floor(np.where(ok, uv[:, 1], -1)).astype(np.int64)
-    ok &= (px >= 0) & (px < w) & (py >= 0) & (py < h)
-    idx = np.nonzero(ok)[0]
-    dd = d[py[idx], px[idx]]
-    depth_ok = np.zeros(n, bool)
-    depth_ok[idx] = (dd > 0) & (np.abs(z[idx] - dd) <= eps[idx])
-    centre_in_mask = np.zeros(n, bool)
-    centre_in_mask[idx] = m[py[idx], px[idx]]
-
-    if W is not None:
-        if not sp.issparse(W) or W.shape != (h * w, n):
-            raise ValidationError(f"seed lift: W must be a sparse ({h * w}, {n}) matrix, got "
-                                  f"{type(W).__name__} {getattr(W, 'shape', None)}")
-        W = sp.csr_matrix(W)
-        colsum = np.asarray(W.sum(axis=0)).ravel().astype(np.float64)
-        inside = np.asarray(W.T @ m.ravel().astype(np.float64)).ravel()
-        rows = np.repeat(np.arange(h * w), np.diff(W.indptr))
-        cols = W.indices
-        resid = np.bincount(cols, weights=W.data * np.abs(z[cols] - d.ravel()[rows]), minlength=n)
-        safe = np.maximum(colsum, 1e-30)
-        membership = np.where(colsum > 0, inside / safe, 0.0)
-        resid = np.where(colsum > 0, resid / safe, np.inf)
-        cand = (colsum >= min_weight) & (membership >= min_membership) & depth_ok & (resid <= eps)
-        score = inside
-        mode = "contribution"
-    else:
-        cand = centre_in_mask & depth_ok
-        membership = None
-        score = np.ones(n)
-        mode = "center"
-
-    if cand.any() and max_size_ratio is not None:
-        # Splats far bigger than the typical candidate are background
-        # (ground, walls) whose big footprint passes the mask and depth
-        # tests near the object; their own size also widens eps_d.
-        typical = float(np.median(sigma[cand]))
-        cand &= sigma <= max_size_ratio * typical
+    depth_ok, centre_in_mask = _centre_tests(camera, uv, z, eps, m, d)
+    contrib = None if W is None else _contribution(W, m, z, d)
+    rules = dict(min_membership=min_membership, min_weight=min_weight)
+    cand, score = _candidates(depth_ok, centre_in_mask, contrib, eps, sigma, max_size_ratio=max_size_ratio, **rules)
     if not cand.any():
-        if membership is not None and np.any((inside > 0) & depth_ok & (colsum >= min_weight) & (resid <= eps)):
-            # Gaussians do render inside the seed and pass every test but membership: mostly outside it,
-            # a seed smaller than the splats
-            raise ValidationError(
-                f"the seed mask ({int(m.sum())} px) is smaller than the footprint of the Gaussians that render "
-                f"inside it: none has {min_membership:.0%} of its weight in the seed (min_membership); give a "
-                f"larger seed (the whole object, or a box), or a camera closer to it")
-        raise ValidationError(
-            "the seed mask touches no Gaussian of the scene in the reference view (no Gaussian "
-            "renders inside it at a consistent depth); check the mask, camera and scene match")
-
-    idx = np.nonzero(cand)[0]
-    labels, ncomp = _components(means[idx], k_neighbors, link_factor)
-    comp_score = np.bincount(labels, weights=score[idx], minlength=ncomp)
-    keep = comp_score >= keep_fraction * comp_score.max()
-    keep[np.argmax(comp_score)] = True
-    support = np.zeros(n, bool)
-    support[idx[keep[labels]]] = True
-
-    pts = means[support]
-    lo, hi = np.percentile(pts, [2, 98], axis=0) if len(pts) >= 10 else (pts.min(0), pts.max(0))
-    center = 0.5 * (lo + hi)
-    radius = max(0.5 * float(np.linalg.norm(hi - lo)), 3.0 * float(sigma[support].max()), 1e-6)
-    return SeedLift(support, center, radius, np.stack([lo, hi]), cand,
-                    None if membership is None else membership.astype(np.float32),
-                    int(ncomp), int(keep.sum()), eps.astype(np.float32), mode)
+        raise _no_candidate_error(m, depth_ok, contrib, eps, **rules)
+    g0, ncomp, kept = _keep_components(means, cand, score, k_neighbors=k_neighbors, link_factor=link_factor,
+                                       keep_fraction=keep_fraction)
+    center, radius, bbox = _extent(means, g0, sigma)
+    membership = None if contrib is None else contrib.membership.astype(np.float32)
+    return SeedLift(g0, center, radius, bbox, cand, membership, ncomp, kept, eps.astype(np.float32),
+                    "center" if contrib is None else "contribution")
 
 
-#: Default of :func:`seed_connected`'s ``island_fraction``. On the cases of
-#: benchmarks/bench_extract.py (counted once, when the default was chosen) the
-#: pieces of the objects themselves that the neighbour graph leaves apart from
-#: the seeded body (stray splats, small clusters at thin parts) all stayed
-#: below this share of the body's Gaussians, and the background islands that
-#: the masks bring in all above it.
-ISLAND_FRACTION = 0.005
+def neighbour_components(points: np.ndarray, k: int, link_factor: float) -> tuple[np.ndarray, int]:
+    """Connected components of a kNN graph with a density-adaptive cut-off radius.
 
-
-#: Default of :func:`seed_connected`'s ``island_vote``. Chosen when the rule
-#: landed (a one-off count, no benchmark prints it): on firepit-box-60 of
-#: benchmarks/bench_extract.py the background islands (the chair's seat and
-#: the floor under the box) drew at most two thirds of their decided weight
-#: from object pixels; the stand of the guitar of ``--extra`` (a real part of
-#: the object, apart in the graph) nearly all of it, as the body does. The
-#: benchmark's scores with and without it are in the CHANGELOG.
-ISLAND_VOTE = 0.9
-
-
-def seed_connected(means, selected, support, *, k_neighbors: int = 8, link_factor: float = 3.0,
-                   island_fraction: float = ISLAND_FRACTION, votes=None,
-                   island_vote: float = ISLAND_VOTE) -> np.ndarray:
-    r"""The selection without the islands apart from the seed lift's support G0.
-
-    The same neighbour graph as the lift's components (:func:`seed_lift`),
-    built over the *selected* Gaussians: each is linked to its
-    ``k_neighbors`` nearest selected Gaussians closer than ``link_factor``
-    times the median distance to the 4th-nearest one. Components holding a
-    Gaussian of G0 form the body :math:`B`; any other component :math:`C`
-    is an island and is removed when
-
-    .. math::
-
-        |C| \ge f\,|B|, \qquad f = \text{island\_fraction}.
-
-    Smaller components stay: a real object's splats are not all linked (a
-    stray splat at a silhouette, a small cluster at a thin part), and such
-    pieces are a tiny fraction of the body (see :data:`ISLAND_FRACTION`).
-    With ``votes`` an island also stays whatever its size when the masks
-    call it object: when at least ``island_vote`` of its compositing weight
-    on decided pixels lies on object pixels,
-
-    .. math::
-
-        \sum_{i \in C} o_i \ge v \sum_{i \in C} d_i, \qquad v = \text{island\_vote},
-
-    with :math:`o_i` and :math:`d_i` Gaussian :math:`i`'s weight on object
-    pixels and on all decided pixels. A large real part that the graph
-    leaves apart (the stand of a guitar: thin, sparser than the body) is
-    seen as object in view after view, while a background surface brought
-    in by a few wrong pixels has a mixed vote (see :data:`ISLAND_VOTE`).
-    The vote cannot tell a real part from a background surface that the
-    masks label object wherever they decide it (a tracker error repeated in
-    every view): such an island stays.
-
-    Why: the solver decides each Gaussian from the masks, and a few wrong
-    mask pixels can be all the evidence a mostly hidden background surface
-    has (the seat and floor under an object resting on a chair, seen only
-    through a band of pixels below the object's edge that the tracker
-    labels as object). The solver selects that surface, the graph
-    regulariser extends it to its hidden remainder, and the result is a
-    coherent surface apart from the object, as large as the object or larger.
+    Each point is linked to its ``k`` nearest neighbours (at most M - 1)
+    closer than ``link_factor`` times the median distance of a point to its
+    4th nearest neighbour (its ``k``-th when ``k < 4``); a zero cut-off
+    (duplicate points) falls back to the smallest non-zero distance.
 
     Parameters
     ----------
-    means : (N, 3) array
-        Gaussian centres.
-    selected : (N,) bool
-        The selection (``q > tau``).
-    support : (N,) bool
-        G0 (``SeedLift.support``).
-    k_neighbors, link_factor : int, float
-        As in :func:`seed_lift`.
-    island_fraction : float
-        :math:`f \ge 0`; 0 keeps only the body.
-    votes : tuple of two (N,) arrays, or None
-        :math:`(o, d)`: each Gaussian's compositing weight on object pixels
-        and on all decided pixels of the supervision views (``A^T (k y)``
-        and ``A^T k``, ``k`` the decided pixels, ``y`` the masks). None:
-        the size rule alone.
-    island_vote : float
-        :math:`v` in [0, 1]; an island with a larger object share stays.
+    points : (M, 3) float array
+        M >= 1.
+    k : int
+    link_factor : float
 
     Returns
     -------
-    (N,) bool
-        The selection less the removed islands. Unchanged when no selected
-        Gaussian is in G0 (nothing to anchor on).
+    labels : (M,) int
+        Component of each point, in 0..n-1.
+    n : int
+        Number of components.
     """
-    selected = np.asarray(selected)
-    support = np.asarray(support)
-    n = selected.shape[0] if selected.ndim == 1 else -1
-    if selected.dtype != bool or selected.ndim != 1 or support.dtype != bool or support.shape != (n,):
-        raise ValidationError("seed_connected: selected and support must be boolean (N,) masks of the same N, "
-                              f"got {selected.dtype} {selected.shape} and {support.dtype} {support.shape}")
-    means = np.asarray(means, dtype=np.float64)
-    if means.shape != (n, 3):
-        raise ValidationError(f"seed_connected: means must have shape ({n}, 3), got {means.shape}")
-    if int(k_neighbors) < 1 or not (np.isfinite(link_factor) and link_factor > 0):
-        raise ValidationError(f"seed_connected: k_neighbors must be >= 1 and link_factor > 0, got "
-                              f"{k_neighbors!r} and {link_factor!r}")
-    if not (np.isfinite(island_fraction) and island_fraction >= 0):
-        raise ValidationError(f"seed_connected: island_fraction must be a finite number >= 0, got "
-                              f"{island_fraction!r}")
-    if not 0 <= island_vote <= 1:
-        raise ValidationError(f"seed_connected: island_vote must lie in [0, 1], got {island_vote!r}")
-    if votes is not None:
-        votes = [np.asarray(v, dtype=np.float64).reshape(-1) for v in votes]
-        if len(votes) != 2 or any(v.shape != (n,) or not np.all(np.isfinite(v)) or v.min(initial=0) < 0
-                                  for v in votes):
-            raise ValidationError(f"seed_connected: votes must be two finite non-negative ({n},) arrays "
-                                  "(object weight, decided weight)")
-    idx = np.nonzero(selected)[0]
-    anchor = support[idx]
-    if not anchor.any() or anchor.all():
-        return selected.copy()
-    labels, ncomp = _components(means[idx], int(k_neighbors), float(link_factor))
-    sizes = np.bincount(labels, minlength=ncomp)
-    body = np.zeros(ncomp, bool)
-    body[labels[anchor]] = True
-    keep = body | (sizes < island_fraction * sizes[body].sum())
-    if votes is not None:
-        obj = np.bincount(labels, weights=votes[0][idx], minlength=ncomp)
-        decided = np.bincount(labels, weights=votes[1][idx], minlength=ncomp)
-        keep |= (decided > 0) & (obj >= island_vote * decided)
-    out = np.zeros(n, bool)
-    out[idx[keep[labels]]] = True
-    return out
-
-
-def _components(points: np.ndarray, k: int, link_factor: float) -> tuple[np.ndarray, int]:
-    """Connected components of a kNN graph with a density-adaptive cut-off radius."""
     m = len(points)
     if m == 1:
         return np.zeros(1, np.int64), 1

@@ -9,54 +9,32 @@ turned back into the settings that produced it
 from __future__ import annotations
 
 import dataclasses
-import math
-import numbers
+import inspect
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
+from .._validation import check_choice, check_int, check_real
 from ..errors import ValidationError
+from ..solvers import available_methods, check_method_options
+from .completion import GRAPH_DEFAULTS
+from .seed_lift import seed_lift
 from .vaas import DEFAULTS as VAAS_DEFAULTS
 
 __all__ = ["ExtractSettings", "SOLVER_DEFAULTS", "MODES", "PROFILES", "LIMITS", "UP_CHOICES", "POINT_MODES",
            "COMPLETIONS", "MODEL_FREE_SMOOTHNESS"]
 
-#: Solver options extract() uses unless told otherwise: the weighted BCE
-#: selection settles within a couple of dozen L-BFGS-B iterations when
-#: started from G0, and the iterations dominate the solve's time. On
-#: benchmarks/bench_extract.py (13 cases, load 1.2-1.4) 20 iterations gave,
-#: when chosen, no case's mIoU lower than 30 (mean held-out mIoU / mBIoU / 3D
-#: IoU 0.973 / 0.913 / 0.928 against 0.973 / 0.913 / 0.927); the suite gives
-#: 0.974 / 0.917 / 0.928 today (load 1.0-1.4). 200 (the solver's own default)
-#: scored as 30 on the procedural scenes and the firepit+unicorn benchmark
-#: when 30 was chosen.
+#: Solver options extract() uses unless told otherwise: started from G0, the
+#: weighted BCE selection settles within a couple of dozen L-BFGS-B
+#: iterations, and the iterations dominate the solve's time (chosen on
+#: benchmarks/bench_extract.py against the solver's own default).
 SOLVER_DEFAULTS = {"weighted_bce": {"max_iter": 20}}
 
 #: Rasterization modes and spiral profiles extract accepts.
 MODES = ("classic", "antialiased")
 PROFILES = ("linear", "sin")
-
-
-def _real(name, value, *, lo=None, hi=None, lo_open=False, optional=False) -> float | None:
-    """``value`` as a finite float in the given range, or a ValidationError naming ``name``."""
-    if value is None and optional:
-        return None
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
-        kind = "a number or None" if optional else "a number"
-        raise ValidationError(f"{name} must be {kind}, got {value!r} ({type(value).__name__})")
-    try:
-        v = float(value)
-    except OverflowError:  # an int beyond float's range (10**400)
-        v = math.inf
-    if not math.isfinite(v):
-        raise ValidationError(f"{name} must be finite, got {value!r}")
-    if lo is not None and (v <= lo if lo_open else v < lo):
-        raise ValidationError(f"{name} must be {'>' if lo_open else '>='} {lo}, got {value!r}")
-    if hi is not None and v > hi:
-        raise ValidationError(f"{name} must be <= {hi}, got {value!r}")
-    return v
 
 
 #: Ranges of seed_lift's real-valued options (its docstring says what each means).
@@ -65,28 +43,10 @@ _LIFT_RANGES = {"eps_rel": dict(lo=0.0), "eps_sigma": dict(lo=0.0), "min_members
                 "keep_fraction": dict(lo=0.0, hi=1.0), "max_size_ratio": dict(lo=0.0, lo_open=True, optional=True)}
 
 
-def _int(name, value, *, lo, hi, optional=False) -> int | None:
-    """``value`` as an int in ``lo..hi``, or a ValidationError naming ``name`` and the range."""
-    if value is None and optional:
-        return None
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
-        kind = "an integer or None" if optional else "an integer"
-        raise ValidationError(f"{name} must be {kind} in {lo:,}..{hi:,}, got {value!r} ({type(value).__name__})")
-    if not lo <= int(value) <= hi:
-        raise ValidationError(f"{name} must be in {lo:,}..{hi:,}, got {value!r}")
-    return int(value)
-
-
 #: Bounds of the count options: far beyond any useful value, but an absurd
 #: one (``n_views=10**7``) is refused up front instead of running for hours.
 LIMITS = {"n_views": (2, 360), "max_view_pixels": (64, 2 ** 24), "max_reference_pixels": (64, 2 ** 26),
           "k_neighbors": (1, 256), "graph_k": (1, 256)}
-
-
-def _choice(name, value, choices) -> str:
-    if not isinstance(value, str) or value not in choices:
-        raise ValidationError(f"{name} must be one of {', '.join(map(repr, choices))}, got {value!r}")
-    return value
 
 
 def _options(name, value) -> Mapping:
@@ -108,13 +68,13 @@ POINT_MODES = ("object", "region")
 #: Completion of the orbit masks' unknown pixels before the solve (None: off).
 COMPLETIONS = (None, "reference", "tracked")
 #: lambda of the graph regulariser when ``smoothness=None`` and the model-free
-#: tracker is used (measured on benchmarks/bench_extract.py; see its docstring).
+#: tracker is used (chosen on benchmarks/bench_extract.py).
 MODEL_FREE_SMOOTHNESS = 1.0
 
 
 def _up(value):
     if isinstance(value, str):
-        return _choice("up", value, UP_CHOICES)
+        return check_choice("up", value, UP_CHOICES)
     try:
         u = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
@@ -139,60 +99,59 @@ def _jsonable(v):
 
 @dataclass(frozen=True)
 class ExtractSettings:
-    """Every option of :func:`~seed2gs_inverse.pipeline.extract` (same names, same defaults).
+    r"""Every option of :func:`~seed2gs_inverse.pipeline.extract` (same names, same defaults).
 
     Frozen: derive variants with ``dataclasses.replace(settings, n_views=12)``
     or :meth:`replace`. Every field is validated on construction; a bad value
     raises :class:`~seed2gs_inverse.errors.ValidationError` naming the option.
+    Where a default was chosen by measurement, the benchmark that chose it is
+    named; benchmarks/bench_extract.py scores whole extractions against exact
+    truth on held-out views, benchmarks/bench_speed.py times them.
 
     Attributes
     ----------
     method : str
         Solver (:func:`seed2gs_inverse.solvers.available_methods`), default ``"weighted_bce"``.
     n_views, a_max_deg, gamma, skip_deg, profile, max_elevation_deg
-        VAAS settings (:mod:`seed2gs_inverse.pipeline.vaas`): paper defaults
-        24 views per clip and 5 degrees; A_max = 60 degrees and gamma = 1 are
-        our documented choices. More views are not better with the
-        model-free tracker: each frame's labels are warped from the labelled
-        views nearest to it, so with many views the far side is reached
-        through more hops, and a silhouette loses a little at each (a
-        review saw the selection of a small procedural sphere shrink
-        steadily as ``n_views`` grew from 6 to 96, at a 96x72 reference).
-        Ranges: ``n_views`` in 2..360, ``a_max_deg >= 0``, ``gamma > 0``,
-        ``skip_deg >= 0``, ``profile`` ``"linear"`` or ``"sin"``,
-        ``0 < max_elevation_deg < 90`` (default 85).
+        VAAS settings (:mod:`seed2gs_inverse.pipeline.vaas`): views per clip
+        (``n_views`` in 2..360, default 24, the paper's), amplitude
+        :math:`A_{max}` (``a_max_deg >= 0``, default 60) and exponent
+        :math:`\gamma` (``gamma > 0``, default 1) of Eq. 5, the spiral's skip
+        threshold (``skip_deg >= 0``, default 5, the paper's), the spiral's
+        ``profile`` (``"linear"`` or ``"sin"``) and its elevation cap
+        (``0 < max_elevation_deg < 90``, default 85). More views are not
+        better with the model-free tracker: each frame's labels are warped
+        from the labelled views nearest to it, so with more views the far
+        side is reached through more hops, and a silhouette loses a little at
+        each.
     orbit_scale : float
-        Resolution of the orbit views relative to the reference camera,
-        default 0.5, in (0, 4] ...
+        Resolution of the orbit views relative to the reference camera, in
+        (0, 4], default 0.5, ...
     max_view_pixels : int or None
-        ... capped at about this many pixels per view (40k; the sides are
-        rounded to whole pixels, which may pass the cap by a row or a
-        column: 267x150 = 40,050 for a 960x540 reference). The orbit views
-        are object-centric (zoomed), so
-        even this resolution puts a few thousand pixels on the object, and
-        the operators (non-zeros) dominate time and memory: on the
-        firepit + unicorn extraction of benchmarks/bench_speed.py, 160k
-        pixels per view (``--set max_view_pixels=160000``, load 0.1-0.5)
-        took 7.1 s per extraction with held-out mIoU 0.963, against 3.1 s
-        and 0.985 with the default (load 0.4-1.0). None: no cap; else in
-        64..2**24.
+        ... capped at about this many pixels per view (the sides are rounded
+        to whole pixels, which may pass the cap by a row or a column); in
+        64..2**24, None: no cap. Default 40,000, chosen on
+        benchmarks/bench_speed.py: the orbit views are object-centric
+        (zoomed), so this puts thousands of pixels on the object, while the
+        operators' non-zeros, which grow with the pixels, dominate time and
+        memory.
     max_reference_pixels : int or None
         The reference view (seed lift, frame 0 of both clips, first
         supervision view) keeps the camera's resolution up to about this
-        many pixels (1M, rounded as above), composited only in a box around
-        the seed. Clip frames
-        therefore differ in size between frame 0 and the rest. None: no
-        cap; else in 64..2**26.
+        many pixels (rounded as above), composited only in a box around the
+        seed; clip frames therefore differ in size between frame 0 and the
+        rest. In 64..2**26, default 1,000,000; None: no cap.
     roi_margin : float or None
         Orbit views composite only the pixel box around the projected sphere
-        of radius ``roi_margin * extent`` about ``o`` (default 2: the lift
-        sees the front of the object only, so its extent is conservative);
-        pixels outside have empty operator rows and label 0. None: full views.
+        of radius ``roi_margin * extent`` about ``o`` (> 0, default 2: the
+        lift sees the front of the object only, so its extent is
+        conservative); pixels outside have empty operator rows and label 0.
+        None: full views.
     zoom_margin : float or None
         Object-centric views: the orbit views (not the reference) zoom so
         that the sphere of radius ``zoom_margin * extent`` about ``o`` fits
-        the image (default 2, for the same reason as ``roi_margin``). None
-        keeps the reference's field of view.
+        the image (> 0, default 2, for the same reason as ``roi_margin``).
+        None keeps the reference's field of view.
     up : "auto", "level", "camera" or (3,) tuple of float
         Orbit axis. ``"auto"`` (default): world up from the support plane
         under the object, the scene's dominant plane, the reference's
@@ -200,59 +159,52 @@ class ExtractSettings:
         ``up_cameras`` (:func:`~seed2gs_inverse.pipeline.up_axis.estimate_up_axis`);
         the axis, the method that chose it and its confidence are in
         ``report()["up"]``, and a weak estimate warns (naming ``--up``).
-        ``"level"`` (the default before issue 10): the reference camera's
-        image-up with its pitch removed
-        (:func:`~seed2gs_inverse.pipeline.vaas.estimate_up`); ``"camera"``:
+        ``"level"``: the reference camera's image-up with its pitch removed
+        (:func:`~seed2gs_inverse.pipeline.up_axis.estimate_up`); ``"camera"``:
         the image-up itself (literal reading of the paper; the flat orbit
-        then tilts by the camera's pitch); or a world vector.
+        then tilts by the camera's pitch); or a non-zero finite world vector.
     min_weight : float
-        Orbit operators drop compositing weights below this
-        (:func:`~seed2gs_inverse.raster.build_operator`): fewer
-        non-zeros, faster solves, ``W 1`` short of alpha by at most the
-        dropped weights. Default 0.01: most non-zeros are faint tails of
-        Gaussians behind or beside the surface a pixel shows (``stack
-        nnz`` of benchmarks/bench_speed.py with ``--set min_weight=0``
-        against the default), and they blur the selection's boundary.
-        benchmarks/bench_extract.py (13 cases) gives mean held-out mIoU /
-        mBIoU / 3D IoU 0.974 / 0.917 / 0.928 (load 1.0-1.4) against 0.973
-        / 0.908 / 0.923 with 0 (exact operators; ``--set min_weight=0``,
-        load 0.9-1.8); the extraction of benchmarks/bench_speed.py takes
-        3.1 s (load 0.4-1.0) against 4.2 s with 0 (16.3 M non-zeros
-        against 51.4 M; load 0.5-0.9). 0.03 loses on the smallest seed
-        (yard-box-55). 0 keeps every weight.
+        Orbit operators drop compositing weights below this, in [0, 1]
+        (:func:`~seed2gs_inverse.raster.build_operator`): fewer non-zeros,
+        faster solves, ``W 1`` short of alpha by at most the dropped
+        weights; 0 keeps every weight (exact operators). Default 0.01, chosen
+        on benchmarks/bench_extract.py and benchmarks/bench_speed.py: most
+        non-zeros are faint tails of Gaussians behind or beside the surface
+        a pixel shows, and they blur the selection's boundary, while larger
+        values lose the smallest seeds.
     cull : bool
         Rasterize each orbit view from only the Gaussians inside the cone of
         its roi (widened by their 3-sigma size) and map the operator's
         columns back; the operator is the same, the time scales with what
-        the view can see instead of with the scene.
+        the view can see instead of with the scene. Default True.
     cull_far : float or None
         With ``cull``, orbit views also leave out what lies farther than
-        ``cull_far * extent`` behind ``o`` (default 4, twice the roi sphere):
-        far background contributes nothing but compositing work and pixels
-        that can only be background. Such pixels render empty (label 0,
-        empty operator rows), and those Gaussians stay unobserved (prior 0)
-        unless a nearer view sees them. None keeps everything (exact
+        ``cull_far * extent`` behind ``o`` (> 0, default 4, twice the roi
+        sphere): far background contributes nothing but compositing work and
+        pixels that can only be background. Such pixels render empty (label
+        0, empty operator rows), and those Gaussians stay unobserved (prior
+        0) unless a nearer view sees them. None keeps everything (exact
         operators).
     min_evidence : float
         A Gaussian whose summed compositing weight over the *decided*
-        (non-NaN) pixels of all views is below this (default 0.05, a
+        (non-NaN) pixels of all views is below this (>= 0, default 0.05, a
         twentieth of one opaque pixel) has no real evidence: its ``q`` is
         reset to the prior (1 in G0, else 0), or with the regulariser
-        (``smoothness`` > 0, the default with the model-free tracker) it is
-        decided by its neighbours. Without this, an unregularised
-        fit can drive such Gaussians to 1 on a trace of weight. Passed to
-        :func:`~seed2gs_inverse.solvers.solve` as its ``min_evidence``.
+        (``smoothness`` > 0) it is decided by its neighbours; without this,
+        an unregularised fit can drive such Gaussians to 1 on a trace of
+        weight. Passed to :func:`~seed2gs_inverse.solvers.solve` as its
+        ``min_evidence``.
     threshold : float or None
-        ``tau`` of Eq. 9, in [0, 1); None: the solver's own (0.5).
+        ``tau`` of Eq. 9, in [0, 1); None (default): the solver's own (0.5).
     lift_options : mapping (read-only)
-        Keyword arguments of :func:`~seed2gs_inverse.pipeline.seed_lift.seed_lift`
-        (``k_neighbors`` in 1..256).
+        Keyword arguments of :func:`~seed2gs_inverse.pipeline.seed_lift.seed_lift`,
+        each checked against its range here (``k_neighbors`` in 1..256).
     solver_options : mapping (read-only)
         Keyword arguments of the solver method, on top of
-        :data:`SOLVER_DEFAULTS` (``max_iter=20`` for ``weighted_bce``); count
-        options within :data:`seed2gs_inverse.solvers.COUNT_LIMITS`.
+        :data:`SOLVER_DEFAULTS`; count options within
+        :data:`seed2gs_inverse.solvers.COUNT_LIMITS`.
     mode : {"classic", "antialiased"}
-        Rasterization mode of every rendering.
+        Rasterization mode of every rendering, default ``"classic"``.
     progress : bool or None
         Progress bars on stderr (orbit views, tracking, and the solve's
         iterations with its current loss); default None: only when stderr is
@@ -261,20 +213,20 @@ class ExtractSettings:
         Point prompts: ``"object"`` (default) grows the clicked region to
         the whole object in 3D, stopping at the support plane
         (:func:`~seed2gs_inverse.pipeline.point_object.point_object_mask`);
-        ``"region"``: the colour-and-depth region of the click alone (the
-        behaviour before issue 10). Other prompts ignore it.
+        ``"region"``: the colour-and-depth region of the click alone. Other
+        prompts ignore it.
     smoothness : float or None
-        lambda of the graph-Laplacian regulariser of the solve
+        lambda >= 0 of the graph-Laplacian regulariser of the solve
         (``solve(..., smoothness=, graph=)``,
         :func:`~seed2gs_inverse.solvers.smoothing.laplacian_smooth` on
         :func:`~seed2gs_inverse.pipeline.completion.object_graph`): Gaussians
         without evidence take the harmonic extension of their neighbours
         instead of the prior (replaces the ``min_evidence`` reset). 0: off.
-        None (default): :data:`MODEL_FREE_SMOOTHNESS` (1) with the
-        model-free tracker (whose 2D fill leaves undecided what is not
-        unanimous), 0 with any other tracker (SAM2 & co.: Algorithm 1 with
-        its 2D masks as the only evidence, unseen Gaussians keep the prior).
-        The value used is ``resolved["smoothness"]`` in the report.
+        None (default): :data:`MODEL_FREE_SMOOTHNESS` with the model-free
+        tracker (whose 2D fill leaves undecided what is not unanimous), 0
+        with any other tracker (SAM2 and the like: Algorithm 1 with its 2D
+        masks as the only evidence, unseen Gaussians keep the prior). The
+        value used is ``resolved["smoothness"]`` in the report.
     completion : {None, "reference", "tracked"}
         Fill the unknown pixels of the orbit masks, before the solve, with a
         random-walker completion on the same graph rendered into each view
@@ -286,28 +238,25 @@ class ExtractSettings:
         default tracker then runs without its 2D fill, which instead decides
         only the pixels the 3D completion leaves undecided). None (default): off.
     seed_connected : bool
-        Leave out islands of the selection apart from the seed lift's G0
-        (:func:`~seed2gs_inverse.pipeline.seed_lift.seed_connected`: the
-        lift's neighbour graph over the selection; components without a G0
-        Gaussian holding at least 0.5 % as many Gaussians as those with
-        one, unless the masks call them object: 90 % of their weight on
-        decided pixels lies on object pixels); their ``q`` becomes 0.
-        Default True. A few wrong mask pixels
-        below an object's edge can make the solver (and the regulariser
-        after it) select a mostly hidden background surface under the
-        object, apart from it. The count is ``resolved["n_disconnected"]``.
-        False: the solver's selection as it is.
+        Leave out islands of the selection apart from G0 (the lifted set),
+        :func:`~seed2gs_inverse.pipeline.islands.seed_connected` with its
+        default ``island_fraction`` and ``island_vote`` and the masks' votes;
+        their ``q`` becomes 0. Default True: a few wrong mask pixels below an
+        object's edge can make the solver (and the regulariser after it)
+        select a mostly hidden background surface under the object, apart
+        from it. The count is ``resolved["n_disconnected"]``. False: the
+        solver's selection as it is.
     support_background : bool
-        The model-free tracker labels the support surface under the object
-        background in every orbit view (default True): pixels in the band
-        of :func:`~seed2gs_inverse.pipeline.support.support_surface` (the
-        level of the flat, level splats around the object's footprint)
+        The model-free tracker labels the support surface (the ground under
+        the object) background in every orbit view (default True): pixels
+        in the band of :func:`~seed2gs_inverse.pipeline.support.support_surface`
+        (the level of the flat, level splats around the object's footprint)
         whose rendered surface is level, unless the reference saw them as
-        object (``GeometricTracker(support_plane=)``). Without it, labels
-        copied and filled across the contact line (table legs in grass,
-        the shadowed ground between them) grew around the orbit, and the
-        ground under a table was selected. Used only when the orbit axis
-        is trusted (given as a vector, or estimated with confidence >= 0.5)
+        object (``GeometricTracker(support_plane=)``). Labels copied and
+        filled across the contact line (table legs in grass, the shadowed
+        ground between them) otherwise grow around the orbit. Used only when
+        the orbit axis is trusted (given as a vector, or estimated with
+        confidence >= :data:`~seed2gs_inverse.pipeline.up_axis.WEAK_CONFIDENCE`)
         and the annulus shows a level; ``resolved["support"]`` says whether
         and why not. Other trackers (SAM2) are unaffected.
     graph_options : mapping (read-only)
@@ -347,38 +296,35 @@ class ExtractSettings:
     support_background: bool = True
 
     def __post_init__(self):
-        from ..solvers import available_methods, check_method_options
-        from .seed_lift import seed_lift
-
         set_ = object.__setattr__.__get__(self)
         methods = available_methods()
         if not isinstance(self.method, str) or self.method not in methods:
             raise ValidationError(f"unknown solver method {self.method!r}; available: {', '.join(methods)}")
-        n = _int("n_views", self.n_views, lo=LIMITS["n_views"][0], hi=LIMITS["n_views"][1])
+        n = check_int("n_views", self.n_views, lo=LIMITS["n_views"][0], hi=LIMITS["n_views"][1])
         set_("n_views", n)
-        set_("a_max_deg", _real("a_max_deg", self.a_max_deg, lo=0.0))
-        set_("gamma", _real("gamma", self.gamma, lo=0.0, lo_open=True))
-        set_("skip_deg", _real("skip_deg", self.skip_deg, lo=0.0))
-        set_("profile", _choice("profile", self.profile, PROFILES))
-        me = _real("max_elevation_deg", self.max_elevation_deg, lo=0.0, lo_open=True)
+        set_("a_max_deg", check_real("a_max_deg", self.a_max_deg, lo=0.0))
+        set_("gamma", check_real("gamma", self.gamma, lo=0.0, lo_open=True))
+        set_("skip_deg", check_real("skip_deg", self.skip_deg, lo=0.0))
+        set_("profile", check_choice("profile", self.profile, PROFILES))
+        me = check_real("max_elevation_deg", self.max_elevation_deg, lo=0.0, lo_open=True)
         if me >= 90.0:
             raise ValidationError(f"max_elevation_deg must be < 90, got {self.max_elevation_deg!r}")
         set_("max_elevation_deg", me)
-        set_("orbit_scale", _real("orbit_scale", self.orbit_scale, lo=0.0, lo_open=True, hi=4.0))
+        set_("orbit_scale", check_real("orbit_scale", self.orbit_scale, lo=0.0, lo_open=True, hi=4.0))
         for name in ("max_view_pixels", "max_reference_pixels"):
             lo, hi = LIMITS[name]
-            set_(name, _int(name, getattr(self, name), lo=lo, hi=hi, optional=True))
-        set_("roi_margin", _real("roi_margin", self.roi_margin, lo=0.0, lo_open=True, optional=True))
-        set_("zoom_margin", _real("zoom_margin", self.zoom_margin, lo=0.0, lo_open=True, optional=True))
+            set_(name, check_int(name, getattr(self, name), lo=lo, hi=hi, optional=True))
+        set_("roi_margin", check_real("roi_margin", self.roi_margin, lo=0.0, lo_open=True, optional=True))
+        set_("zoom_margin", check_real("zoom_margin", self.zoom_margin, lo=0.0, lo_open=True, optional=True))
         set_("up", _up(self.up))
-        set_("min_weight", _real("min_weight", self.min_weight, lo=0.0, hi=1.0))
+        set_("min_weight", check_real("min_weight", self.min_weight, lo=0.0, hi=1.0))
         if not isinstance(self.cull, (bool, np.bool_)):
             raise ValidationError(f"cull must be True or False, got {self.cull!r}")
         set_("cull", bool(self.cull))
-        set_("cull_far", _real("cull_far", self.cull_far, lo=0.0, lo_open=True, optional=True))
-        set_("min_evidence", _real("min_evidence", self.min_evidence, lo=0.0))
+        set_("cull_far", check_real("cull_far", self.cull_far, lo=0.0, lo_open=True, optional=True))
+        set_("min_evidence", check_real("min_evidence", self.min_evidence, lo=0.0))
         # q lies in [0, 1]: tau outside [0, 1) (or NaN) would select nothing, silently.
-        set_("threshold", _real("threshold", self.threshold, lo=0.0, optional=True))
+        set_("threshold", check_real("threshold", self.threshold, lo=0.0, optional=True))
         if self.threshold is not None and not self.threshold < 1.0:
             raise ValidationError(f"threshold must be in [0, 1) (q > threshold is the object), got {self.threshold!r}")
         lift = _options("lift_options", self.lift_options)
@@ -387,21 +333,21 @@ class ExtractSettings:
         if bad:
             raise ValidationError(f"lift_options: seed_lift has no option(s) {bad}; its options are {lift_known}")
         if "k_neighbors" in lift:
-            _int("lift_options k_neighbors", lift["k_neighbors"], lo=LIMITS["k_neighbors"][0],
+            check_int("lift_options k_neighbors", lift["k_neighbors"], lo=LIMITS["k_neighbors"][0],
                  hi=LIMITS["k_neighbors"][1])
         for name, kw in _LIFT_RANGES.items():  # the others, checked here and not mid-pipeline
             if name in lift:
-                _real(f"lift_options {name}", lift[name], **kw)
+                check_real(f"lift_options {name}", lift[name], **kw)
         set_("lift_options", lift)
         solver = _options("solver_options", self.solver_options)
         check_method_options(self.method, dict(solver))
         set_("solver_options", solver)
-        set_("mode", _choice("mode", self.mode, MODES))
+        set_("mode", check_choice("mode", self.mode, MODES))
         if self.progress is not None and not isinstance(self.progress, (bool, np.bool_)):
             raise ValidationError(f"progress must be True, False or None, got {self.progress!r}")
         set_("progress", None if self.progress is None else bool(self.progress))
-        set_("point_mode", _choice("point_mode", self.point_mode, POINT_MODES))
-        set_("smoothness", _real("smoothness", self.smoothness, lo=0.0, optional=True))
+        set_("point_mode", check_choice("point_mode", self.point_mode, POINT_MODES))
+        set_("smoothness", check_real("smoothness", self.smoothness, lo=0.0, optional=True))
         if not (self.completion is None or isinstance(self.completion, str)) or self.completion not in COMPLETIONS:
             raise ValidationError(f"completion must be None, 'reference' or 'tracked', got {self.completion!r}")
         set_("graph_options", _graph_options(self.graph_options))
@@ -450,30 +396,27 @@ class ExtractSettings:
 
 def _graph_options(value) -> Mapping:
     """``graph_options``: names of object_graph's keywords, each value in its range."""
-    from .completion import GRAPH_DEFAULTS
-
     opts = _options("graph_options", value)
     bad = sorted(set(opts) - set(GRAPH_DEFAULTS))
     if bad:
         raise ValidationError(f"graph_options: object_graph has no option(s) {bad}; its options are "
                               f"{list(GRAPH_DEFAULTS)}")
     if "k" in opts:
-        _int("graph_options k", opts["k"], lo=LIMITS["graph_k"][0], hi=LIMITS["graph_k"][1])
+        check_int("graph_options k", opts["k"], lo=LIMITS["graph_k"][0], hi=LIMITS["graph_k"][1])
     for name in ("sigma_color", "sigma_normal"):
         if name in opts:
-            _real(f"graph_options {name}", opts[name], lo=0.0, lo_open=True, optional=True)
+            check_real(f"graph_options {name}", opts[name], lo=0.0, lo_open=True, optional=True)
     if "region" in opts:
-        _real("graph_options region", opts["region"], lo=0.0, lo_open=True)
+        check_real("graph_options region", opts["region"], lo=0.0, lo_open=True)
     if "min_opacity" in opts:
-        v = _real("graph_options min_opacity", opts["min_opacity"], lo=0.0)
+        v = check_real("graph_options min_opacity", opts["min_opacity"], lo=0.0)
         if not v < 1.0:
             raise ValidationError(f"graph_options min_opacity must be < 1, got {opts['min_opacity']!r}")
     return opts
 
 
-def _keyword_only(fn) -> dict:
-    import inspect
-
+def _keyword_only(fn: Callable) -> dict:
+    """The keyword-only parameters of ``fn``, by name."""
     return {k: p for k, p in inspect.signature(fn).parameters.items() if p.kind == p.KEYWORD_ONLY}
 
 

@@ -1,4 +1,4 @@
-r"""The support surface under the object: the level the object rests on (issue 10).
+r"""The support surface under the object: the ground level the object rests on.
 
 An object rests on something (a lawn, a table, a patio). In the orbit views
 the model-free tracker copies labels along rendered depth and fills revealed
@@ -22,7 +22,8 @@ horizontal distance
     h_i = u \cdot (x_i - o), \qquad r_i = \| x_i - o - h_i u \|.
 
 The support's splats are taken in an annulus around the object's footprint,
-where the support shows and the object does not: Gaussians outside G0 with
+where the support shows and the object does not: Gaussians outside G0 (the
+lifted set of :func:`~seed2gs_inverse.pipeline.seed_lift.seed_lift`) with
 ``inner`` :math:`R \le r_i \le` ``outer`` :math:`R`, :math:`|h_i| \le 2R`,
 opacity above ``min_opacity``, flat (smallest scale below 0.3 times the
 middle one) and facing along the axis (:math:`|n_i \cdot u| \ge`
@@ -39,21 +40,26 @@ band reaches up to
 and :attr:`SupportSurface.point` is :math:`o + t u`. Fewer than
 ``min_splats`` such Gaussians, or a level :math:`\hat h \ge 0` (not below
 the object's centre: an axis pointing down): no support surface (None),
-and the tracker works as before.
+and the tracker labels no pixel as support.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import ValidationError
 from ..geometry import unit_vector
+from .up_axis import flat_normals
+
+if TYPE_CHECKING:
+    from ..scene import GaussianScene
 
 __all__ = ["SupportSurface", "support_surface", "SUPPORT_DEFAULTS"]
 
-#: Keywords of :func:`support_surface` (measured on benchmarks/bench_extract.py, see ExtractSettings).
+#: Keywords of :func:`support_surface` that extract() passes (chosen on benchmarks/bench_extract.py).
 SUPPORT_DEFAULTS = {"inner": 1.0, "outer": 2.0, "min_alignment": 0.9, "min_opacity": 0.3, "min_splats": 20,
                     "margin": 0.05}
 
@@ -88,8 +94,8 @@ class SupportSurface:
                 "level": float(self.level), "spread": float(self.spread), "n_splats": int(self.n_splats)}
 
 
-def support_surface(scene, support, center, radius: float, axis, *, inner: float = 1.0, outer: float = 2.0,
-                    min_alignment: float = 0.9, min_opacity: float = 0.3, min_splats: int = 20,
+def support_surface(scene: GaussianScene, support, center, radius: float, axis, *, inner: float = 1.0,
+                    outer: float = 2.0, min_alignment: float = 0.9, min_opacity: float = 0.3, min_splats: int = 20,
                     margin: float = 0.05) -> SupportSurface | None:
     """The support surface under the object, or None where no level shows (module docstring).
 
@@ -97,7 +103,7 @@ def support_surface(scene, support, center, radius: float, axis, *, inner: float
     ----------
     scene : GaussianScene
     support : (N,) bool
-        G0, the seed lift's support (left out: it is the object).
+        G0, the lifted set (``SeedLift.g0``): left out, it is the object.
     center : (3,) float
         The lift's centre :math:`o`.
     radius : float
@@ -118,9 +124,14 @@ def support_surface(scene, support, center, radius: float, axis, *, inner: float
     Returns
     -------
     SupportSurface or None
-    """
-    from .up_axis import _flat_normals
 
+    Raises
+    ------
+    ValidationError
+        A zero or non-finite axis, a centre that is not a finite 3-vector, a
+        radius that is not positive, ``support`` not of the scene's size, or
+        ``inner``/``outer``/``min_alignment`` out of range.
+    """
     u = unit_vector("support_surface axis", axis)
     o = np.asarray(center, dtype=np.float64).reshape(-1)
     if o.shape != (3,) or not np.all(np.isfinite(o)):
@@ -141,7 +152,7 @@ def support_surface(scene, support, center, radius: float, axis, *, inner: float
                          & (np.asarray(scene.opacities) > min_opacity))
     if idx.size < min_splats:
         return None
-    normals, flat = _flat_normals(scene, idx)
+    normals, flat = flat_normals(scene, idx)
     level_h = h[idx[flat & (np.abs(normals @ u) >= min_alignment)]]
     if level_h.size < min_splats:
         return None

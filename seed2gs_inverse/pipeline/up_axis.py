@@ -1,9 +1,11 @@
-r"""The orbit axis: world "up" from robust geometry (issue 10, part 1).
+r"""The orbit axis: world "up" from robust geometry.
 
 VAAS orbits the object about an axis; if that axis is not the world's up
 the "flat" orbit rolls about the viewing direction or dives under the
 ground and never shows the far side. :func:`estimate_up_axis` combines
-several independent cues and reports which one decided and how sure it is.
+several independent cues and reports which one decided and how sure it is;
+:func:`estimate_up` is the single-cue estimate from splat normals that
+``ExtractSettings(up="level")`` selects.
 
 Cues
 ----
@@ -11,9 +13,10 @@ Reference no-roll constraint
     Nearly every user view has no roll: its x axis :math:`r` is level, so
     :math:`u \cdot r = 0` and :math:`u \in \mathrm{span}(a, b)` with
     :math:`a` the image-up (:attr:`Camera.up`) and :math:`b` the backward
-    direction made orthogonal to :math:`a`. The camera's pitch is the angle
-    of :math:`u` from :math:`a` in that plane. Used as a filter on plane
-    candidates (:math:`|n \cdot r| \le \sin` ``max_roll_deg``) and as a check.
+    direction made orthogonal to :math:`a` (:func:`roll_basis`). The
+    camera's pitch is the angle of :math:`u` from :math:`a` in that plane.
+    Used as a filter on plane candidates (:math:`|n \cdot r| \le \sin`
+    ``max_roll_deg``) and as a check.
 Training cameras (``cameras``)
     Under the same no-roll assumption for every capture camera,
     :math:`u \perp r_j` for all of them, so
@@ -23,18 +26,20 @@ Training cameras (``cameras``)
         u = \arg\min_{\|u\| = 1} \sum_j (r_j \cdot u)^2,
 
     the eigenvector of the smallest eigenvalue :math:`\lambda_1` of
-    :math:`\sum_j r_j r_j^\top`, signed so that :math:`\sum_j a_j \cdot u > 0`.
-    It is determined when the right vectors span a plane: its quality is
-    :math:`(\lambda_2 - \lambda_1) / \lambda_3` (0 when all cameras share one
-    right vector, e.g. a single camera). In COLMAP captures this is the world up.
+    :math:`\sum_j r_j r_j^\top`, signed so that :math:`\sum_j a_j \cdot u > 0`
+    (:func:`cameras_up`). It is determined when the right vectors span a
+    plane: its quality is :math:`(\lambda_2 - \lambda_1) / \lambda_3` (0 when
+    all cameras share one right vector, e.g. a single camera). In COLMAP
+    captures this is the world up.
 Support plane (local)
     The object rests on something. Gaussian means within ``local_factor``
-    times the object's radius :math:`R` of its centre :math:`o`, minus the
-    object's own support G0 and nearly transparent splats, are fitted with
-    RANSAC. Hypotheses are planes through 3 random points and planes through
-    the centre of a random flat Gaussian along its normal (the axis of its
-    smallest scale). A hypothesis :math:`(n, p)`, oriented so that
-    :math:`n \cdot a > 0` (up points up in the image), is admissible when
+    times the object's radius :math:`R` of its centre :math:`o`, minus G0
+    (the lifted set: the object's own Gaussians) and nearly transparent
+    splats, are fitted with RANSAC (:func:`fit_plane`). Hypotheses are
+    planes through 3 random points and planes through the centre of a random
+    flat Gaussian along its normal (the axis of its smallest scale). A
+    hypothesis :math:`(n, p)`, oriented so that :math:`n \cdot a > 0` (up
+    points up in the image), is admissible when
 
     * it agrees with the prior: :math:`|n \cdot r| \le \sin` ``max_roll_deg``
       and :math:`n \cdot a \ge \cos` ``max_pitch_deg`` (or, with training
@@ -43,7 +48,7 @@ Support plane (local)
       ``max_below`` :math:`R` (a wall behind the object, oriented this way,
       has the object on its negative side), and at least 90% of G0 lies on
       its positive side (a plane through G0, e.g. the top of a table when
-      G0 is that top, is the object, not its support).
+      G0 is that top, is the object, not the surface it rests on).
 
     Its score is its inlier count :math:`|\{i : |n \cdot (x_i - p)| \le \tau\}|`
     with :math:`\tau` half the median distance of a point to its 4th
@@ -55,18 +60,17 @@ Support plane (local)
     :math:`\tau` over the points with :math:`|r_i| \le 3c` (5 rounds): on
     ground that undulates by more than :math:`\tau` (lawns, patios) RANSAC
     catches the band of one tangent plane, tilted by the local slope; the
-    weighted fit recovers the mean plane (on the procedural ground with
-    12 cm undulations: scene-plane error 4.7 degrees without, 0.3 with).
-    Vertical clutter (grass, plants, fences) does not form a plane under
-    the object, so it cannot win however many flat splats it has.
+    weighted fit recovers the mean plane. Vertical clutter (grass, plants,
+    fences) does not form a plane under the object, so it cannot win however
+    many flat splats it has.
 Scene plane (global)
     The same fit over a random subsample of the whole scene (the dominant
     large plane below the object): a cross-check for the local plane, and
     the answer when the neighbourhood holds too few points.
 Normals (fallback)
-    :func:`~seed2gs_inverse.pipeline.vaas.estimate_up`: the dominant normal
-    of flat splats within the no-roll plane. Wrong in vegetation; used only
-    when nothing above is available, with confidence 0.2.
+    :func:`estimate_up`: the dominant normal of flat splats within the
+    no-roll plane. Wrong in vegetation; used only when nothing above is
+    available, with confidence 0.2.
 
 Decision and confidence
 -----------------------
@@ -75,17 +79,15 @@ unless the scene plane disagrees with it by more than ``agree_deg`` and,
 taken as the answer (checked against the local plane), has the higher
 confidence :math:`c` below (method ``"scene-plane"``; the disagreement
 stays one of its checks, so such an answer is usually weak and warns): a
-local "plane" can
-be a flat patch of the object's own unseen side, denser than the ground
-(on yard-unicorn-15 of benchmarks/bench_extract.py, a patch on the
-unicorn's back, far off the vertical, against the lawn that holds a much
-larger share of the scene). When the scene plane agrees with it within
-``agree_deg`` (5 degrees) they
-are the same surface seen at two extents, and the axis is their
-inlier-weighted mean normal :math:`(k_l n_l + k_g n_g) / \|\cdot\|`
-(method ``"support-plane+scene-plane"``): a local patch of uneven ground is
-tilted by its slope, the wide fit averages the slopes out. Without a local
-plane the scene plane is used; otherwise the training cameras; otherwise the
+local "plane" can be a flat patch of the object's own unseen side, denser
+than the ground (a patch on an animal's back, far off the vertical, against
+a lawn that holds a much larger share of the scene). When the scene plane
+agrees with it within ``agree_deg`` they are the same surface seen at two
+extents, and the axis is their inlier-weighted mean normal
+:math:`(k_l n_l + k_g n_g) / \|\cdot\|` (method
+``"support-plane+scene-plane"``): a local patch of uneven ground is tilted
+by its slope, the wide fit averages the slopes out. Without a local plane
+the scene plane is used; otherwise the training cameras; otherwise the
 normals. If no admissible plane under the roll prior holds at least
 :math:`f_0` (below) of its points, the search is repeated without the roll
 prior (the reference may have roll; the pitch bound stays); when that finds
@@ -103,21 +105,32 @@ with :math:`f` the plane's inlier fraction of its point set
 axis and each available check: the no-roll plane of the reference
 (:math:`\arcsin |u \cdot r|`, always), the other plane and the training
 cameras' axis when there are. Camera-only answers have confidence 0.8 times
-the cameras' quality. Below ``WEAK_CONFIDENCE`` (0.5) the pipeline warns and
+the cameras' quality. Below :data:`WEAK_CONFIDENCE` the pipeline warns and
 names ``--up``.
+
+The steps of :func:`estimate_up_axis` are separate private functions, in
+the order it calls them: :func:`_object_frame` (o, R),
+:func:`_camera_axis`, :func:`_plane_point_sets`, :func:`_search_planes`
+(over :func:`_fit_ground_plane` and the admissibility test
+:func:`_admissible`), :func:`_screen_planes`, :func:`_decide_plane` (over
+:func:`_plane_answer`) and :func:`_fallback_axis`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import partial
+from typing import Callable, Iterable, NamedTuple
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..camera import Camera
 from ..errors import ValidationError
+from ..scene import GaussianScene, quat_to_rotmat
 
-__all__ = ["UpEstimate", "PlaneFit", "estimate_up_axis", "fit_plane", "cameras_up", "roll_basis",
-           "angle_deg", "WEAK_CONFIDENCE", "UP_DEFAULTS"]
+__all__ = ["UpEstimate", "PlaneFit", "estimate_up_axis", "estimate_up", "fit_plane", "cameras_up", "roll_basis",
+           "camera_list", "flat_normals", "angle_deg", "WEAK_CONFIDENCE", "UP_DEFAULTS"]
 
 #: Below this confidence the pipeline warns and suggests ``--up``.
 WEAK_CONFIDENCE = 0.5
@@ -127,19 +140,38 @@ UP_DEFAULTS = {"local_factor": 3.0, "max_below": 3.0, "max_roll_deg": 20.0, "max
                "max_camera_deg": 25.0, "agree_deg": 5.0, "min_inliers": 30, "n_hypotheses": 400, "max_points": 6000,
                "min_opacity": 0.2, "robust_scale": 3.0, "seed": 0}
 
+#: Angular scale (degrees) of a check's agreement term in the confidence.
 _CHECK_DEG = 8.0
+#: :math:`f_0`: a plane holding this share of its points has full confidence.
 _FRACTION_FULL = 0.15
 #: When neither plane holds this share of its points there is no ground in sight (an object scanned
-#: alone: the best "planes" of a scanned person or guitar hold a few percent) and neither is used: the
-#: axis comes from the cameras, the normals or the image-up.
+#: alone: its best "planes" hold a few percent) and neither is used: the axis comes from the cameras,
+#: the normals or the image-up.
 _FRACTION_MIN = 0.05
 #: The normals fallback is taken only within this angle of the image-up (a view pitched further with
 #: no plane in sight is less likely than a dominant flat surface that is not the ground).
 _NORMALS_MAX_PITCH_DEG = 45.0
+#: Capture cameras whose quality (:func:`cameras_up`) is below this leave the axis undetermined.
+_MIN_CAMERA_QUALITY = 0.05
+#: At most this many Gaussians of G0 test "the object is above the plane".
+_MAX_G0_POINTS = 256
+#: At most this many points enter each plane fit (a random subsample beyond).
+_MAX_FIT_POINTS = 60000
 
 
 def angle_deg(u, v) -> float:
-    """Angle between two directions in degrees (sign-sensitive)."""
+    """Angle between two directions in degrees (sign-sensitive).
+
+    Parameters
+    ----------
+    u, v : (3,) array_like
+        Directions; need not be unit.
+
+    Returns
+    -------
+    float
+        In [0, 180].
+    """
     u = np.asarray(u, float)
     v = np.asarray(v, float)
     c = float(u @ v / (np.linalg.norm(u) * np.linalg.norm(v)))
@@ -154,9 +186,10 @@ class UpEstimate:
     ----------
     axis : (3,) float64 unit vector
     method : str
-        ``"support-plane"``, ``"scene-plane"``, ``"cameras"``, ``"normals"``
-        or ``"image-up"`` (``"; roll prior dropped"`` appended when the plane
-        search had to ignore the reference's no-roll prior).
+        ``"support-plane"``, ``"support-plane+scene-plane"``,
+        ``"scene-plane"``, ``"cameras"``, ``"normals"`` or ``"image-up"``
+        (``"; roll prior dropped"`` appended when the plane search had to
+        ignore the reference's no-roll prior).
     confidence : float in [0, 1]
     details : dict
         JSON-ready facts: every candidate's normal, inliers and checks.
@@ -169,6 +202,7 @@ class UpEstimate:
 
     @property
     def weak(self) -> bool:
+        """Whether the confidence is below :data:`WEAK_CONFIDENCE` (the pipeline then warns)."""
         return self.confidence < WEAK_CONFIDENCE
 
     def warning(self) -> str | None:
@@ -182,47 +216,89 @@ class UpEstimate:
                 f"with --cameras FILE (up_cameras=...)")
 
     def summary(self) -> dict:
+        """JSON-ready fields (``report()["up"]``)."""
         return {"axis": [float(v) for v in self.axis], "method": self.method,
                 "confidence": float(self.confidence), "details": self.details}
 
 
 @dataclass(frozen=True)
 class PlaneFit:
-    """A plane ``n . (x - point) = 0`` fitted by :func:`fit_plane`."""
+    r"""A plane ``normal . (x - point) = 0`` fitted by :func:`fit_plane`.
+
+    Attributes
+    ----------
+    normal : (3,) float64
+        Unit normal, oriented by the caller's ``admissible`` convention.
+    point : (3,) float64
+        A point of the plane.
+    inliers : (M,) bool
+        Over the fitted points: the RANSAC band (before any robust refit),
+        the points the plane found.
+    threshold : float
+        The inlier distance :math:`\tau`.
+    n_points : int
+        M, how many points were fitted.
+    """
 
     normal: np.ndarray
     point: np.ndarray
-    inliers: np.ndarray   # (M,) bool over the fitted points: the RANSAC band (before any robust refit)
+    inliers: np.ndarray
     threshold: float
     n_points: int
 
     @property
     def n_inliers(self) -> int:
+        """How many of the fitted points are inliers."""
         return int(self.inliers.sum())
 
     @property
     def fraction(self) -> float:
+        """The inlier share :math:`f` of the fitted points."""
         return self.n_inliers / max(self.n_points, 1)
 
     def summary(self) -> dict:
+        """JSON-ready fields (``UpEstimate.details``)."""
         return {"normal": [float(v) for v in self.normal], "point": [float(v) for v in self.point],
                 "n_inliers": self.n_inliers, "n_points": int(self.n_points),
                 "fraction": float(self.fraction), "threshold": float(self.threshold)}
 
 
-def roll_basis(reference: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(a, b, r)``: image-up, backward made orthogonal to it, and the camera's right vector."""
-    if not isinstance(reference, Camera):
-        raise ValidationError(f"reference must be a Camera, got {type(reference).__name__}")
+def _level_basis(reference: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """``(a, b)``: the image-up and the backward direction made orthogonal to it, both unit."""
     a = reference.up / np.linalg.norm(reference.up)
     b = -reference.forward
     b = b - (b @ a) * a
     b /= np.linalg.norm(b)
+    return a, b
+
+
+def roll_basis(reference: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The no-roll frame of a view: ``(a, b, r)``, all (3,) float64 unit vectors.
+
+    ``a`` is the image-up, ``b`` the backward direction made orthogonal to
+    ``a``, ``r`` the camera's right vector. A view without roll has its
+    world up in ``span(a, b)``, perpendicular to ``r``.
+
+    Raises
+    ------
+    ValidationError
+        ``reference`` is not a Camera.
+    """
+    if not isinstance(reference, Camera):
+        raise ValidationError(f"reference must be a Camera, got {type(reference).__name__}")
+    a, b = _level_basis(reference)
     return a, b, reference.right / np.linalg.norm(reference.right)
 
 
-def camera_list(cameras, name: str) -> list:
-    """``cameras`` (any iterable of Camera, read once: a generator too) as a list; ``name`` heads the errors."""
+def camera_list(cameras: Iterable[Camera], name: str) -> list[Camera]:
+    """``cameras`` (any iterable of Camera, read once: a generator too) as a list.
+
+    Raises
+    ------
+    ValidationError
+        One Camera instead of a sequence, not iterable, or an item that is
+        not a Camera; ``name`` heads the message.
+    """
     if isinstance(cameras, Camera):
         raise ValidationError(f"{name} must be a sequence of Camera, got one Camera; pass [camera]")
     try:
@@ -234,16 +310,26 @@ def camera_list(cameras, name: str) -> list:
     return cams
 
 
-def cameras_up(cameras) -> tuple[np.ndarray, float]:
+def cameras_up(cameras: Iterable[Camera]) -> tuple[np.ndarray, float]:
     r"""World up from capture cameras without roll, and its quality.
 
     :math:`u` minimises :math:`\sum_j (r_j \cdot u)^2` over the cameras'
     right vectors :math:`r_j` (smallest eigenvector of :math:`\sum_j r_j
     r_j^\top`, eigenvalues :math:`\lambda_1 \le \lambda_2 \le \lambda_3`),
-    signed to agree with the mean image-up. Quality
-    :math:`(\lambda_2 - \lambda_1) / \lambda_3` in [0, 1]: 0 when the right
-    vectors are all parallel (one camera: the axis is then undetermined),
-    near 1 when they spread over a plane.
+    signed to agree with the mean image-up.
+
+    Returns
+    -------
+    axis : (3,) float64 unit vector
+    quality : float
+        :math:`(\lambda_2 - \lambda_1) / \lambda_3` in [0, 1]: 0 when the
+        right vectors are all parallel (one camera: the axis is then
+        undetermined), near 1 when they spread over a plane.
+
+    Raises
+    ------
+    ValidationError
+        ``cameras`` is empty or holds something that is not a Camera.
     """
     cams = list(cameras)
     if not cams or not all(isinstance(c, Camera) for c in cams):
@@ -258,15 +344,77 @@ def cameras_up(cameras) -> tuple[np.ndarray, float]:
     return u, quality
 
 
+def estimate_up(scene: GaussianScene, reference: Camera, weights=None, flatness: float = 0.3) -> np.ndarray:
+    r"""A levelled orbit axis: the reference's image-up with the camera pitch removed.
+
+    The paper takes "up" from the reference camera, but a camera that looks
+    down at the object has an image-up tilted towards the viewing direction
+    by the pitch, and a flat orbit about that axis dives below the ground on
+    the far side. Assuming only that the reference has no roll (its x axis
+    is level, as in nearly every user view), the world up lies in the plane
+    spanned by :attr:`Camera.up` ``a`` and the backward direction ``b``; the
+    axis is the direction in that plane best aligned with the normals of the
+    scene's flat Gaussians (splats of a trained 3DGS lie on surfaces; floors
+    and table tops dominate their normal distribution):
+
+    .. math::
+
+        u = \arg\max_{\|u\|=1,\, u \in \mathrm{span}(a, b)}
+            \sum_i \omega_i (n_i \cdot u)^2,
+
+    the principal eigenvector of a 2x2 matrix, signed so that
+    :math:`u \cdot a > 0`.
+
+    Parameters
+    ----------
+    scene : GaussianScene
+    reference : Camera
+    weights : (N,) array_like or None
+        Per-Gaussian weights (e.g. each Gaussian's total compositing weight
+        in the reference view, so that what the user sees counts);
+        :math:`\omega_i` is this times the opacity. None: the opacity alone.
+    flatness : float
+        A Gaussian is flat, and its normal :math:`n_i` (the axis of its
+        smallest scale) counts, when its smallest scale is below
+        ``flatness`` times the middle one.
+
+    Returns
+    -------
+    (3,) float64
+        The axis (unit); ``reference.up`` when there are no flat Gaussians.
+    """
+    a, b = _level_basis(reference)
+    s = scene.scales.astype(np.float64)
+    order = np.argsort(s, axis=1)
+    smin = np.take_along_axis(s, order[:, :1], 1)[:, 0]
+    smid = np.take_along_axis(s, order[:, 1:2], 1)[:, 0]
+    w = scene.opacities.astype(np.float64) * (smin < flatness * smid)
+    if weights is not None:
+        w = w * np.asarray(weights, dtype=np.float64).ravel()
+    sel = np.nonzero(w > 0)[0]
+    if sel.size == 0:
+        return a
+    rot = quat_to_rotmat(scene.quats[sel])
+    normals = np.take_along_axis(rot, order[sel, 0][:, None, None].repeat(3, axis=1), 2)[:, :, 0]
+    p = np.stack([normals @ a, normals @ b], 1)
+    m = (p * w[sel, None]).T @ p
+    evals, evecs = np.linalg.eigh(m)
+    v = evecs[:, -1]
+    u = v[0] * a + v[1] * b
+    return u if u @ a > 0 else -u
+
+
 def _plane_ls(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares plane of (M, 3) points: (normal, centroid), the normal their smallest principal axis."""
     c = points.mean(axis=0)
     _, _, vt = np.linalg.svd(points - c, full_matrices=False)
     return vt[2], c
 
 
-def fit_plane(points, *, normals=None, threshold: float | None = None, admissible=None,
-              n_hypotheses: int = 400, max_points: int = 6000, seed: int = 0,
-              robust_scale: float = 0.0, keep_normal=None) -> PlaneFit | None:
+def fit_plane(points, *, normals=None, threshold: float | None = None,
+              admissible: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None,
+              n_hypotheses: int = 400, max_points: int = 6000, seed: int = 0, robust_scale: float = 0.0,
+              keep_normal: Callable[[np.ndarray], bool] | None = None) -> PlaneFit | None:
     r"""RANSAC plane with admissibility filter, refined by least squares.
 
     Parameters
@@ -299,10 +447,14 @@ def fit_plane(points, *, normals=None, threshold: float | None = None, admissibl
 
     Returns
     -------
-    PlaneFit or None (fewer than 3 points or no admissible hypothesis).
-    """
-    from scipy.spatial import cKDTree
+    PlaneFit or None
+        None with fewer than 3 points or no admissible hypothesis.
 
+    Raises
+    ------
+    ValidationError
+        ``points`` is not a finite (M, 3) array.
+    """
     p = np.asarray(points, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3 or not np.all(np.isfinite(p)):
         raise ValidationError(f"fit_plane: points must be a finite (M, 3) array, got shape {p.shape}")
@@ -311,19 +463,52 @@ def fit_plane(points, *, normals=None, threshold: float | None = None, admissibl
         return None
     rng = np.random.default_rng(seed)
     score_idx = rng.choice(m, max_points, replace=False) if m > max_points else np.arange(m)
-    sp = p[score_idx]
     if threshold is None:
-        # On a subsample of surface points the neighbour distance grows like
-        # 1/sqrt(density): scale it back to the full set's.
-        sub = p[rng.choice(m, 20000, replace=False)] if m > 20000 else p
-        k = min(4, len(sub) - 1)
-        d, _ = cKDTree(sub).query(sub, k=k + 1)
-        threshold = 0.5 * float(np.median(d[:, k])) * np.sqrt(len(sub) / m)
+        threshold = _inlier_threshold(p, rng)
     if not threshold > 0:
         threshold = 1e-6
-    nh = int(n_hypotheses)
-    n_pt = nh // 2 if normals is not None else 0
-    tri = rng.integers(0, m, size=(nh - n_pt, 3))
+    hn, hp = _hypotheses(p, normals, int(n_hypotheses), rng)
+    if admissible is not None and len(hn):
+        good, sign = admissible(hn, hp)
+        hn, hp = hn[good] * np.asarray(sign)[good, None], hp[good]
+    if not len(hn):
+        return None
+    best = _best_hypothesis(p[score_idx], hn, hp, threshold)
+    n0, c0 = hn[best], hp[best]
+    inl0 = np.abs((p - c0) @ n0) <= threshold
+    n, c, inl = _refine_plane(p, n0, c0, inl0, threshold, robust_scale)
+    if keep_normal is not None and not keep_normal(n):
+        # The refinement turned the plane out of the orientations the caller allows (the unseen
+        # back cap of an object scanned alone, refined towards the line of sight): the hypothesis stands.
+        n, c, inl = n0, c0, inl0
+    return PlaneFit(n, c, inl, float(threshold), m)
+
+
+def _inlier_threshold(p: np.ndarray, rng: np.random.Generator) -> float:
+    """:math:`\tau`: half the median distance of a point of ``p`` (M, 3) to its 4th nearest neighbour.
+
+    Measured on at most 20,000 random points; on a subsample of surface
+    points the neighbour distance grows like 1/sqrt(density), so it is
+    scaled back to the full set's.
+    """
+    m = len(p)
+    sub = p[rng.choice(m, 20000, replace=False)] if m > 20000 else p
+    k = min(4, len(sub) - 1)
+    d, _ = cKDTree(sub).query(sub, k=k + 1)
+    return 0.5 * float(np.median(d[:, k])) * np.sqrt(len(sub) / m)
+
+
+def _hypotheses(p: np.ndarray, normals, n_hypotheses: int,
+                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """RANSAC hypotheses over ``p`` (M, 3): ``(unit normals (H, 3), points (H, 3))``.
+
+    Planes through 3 random points; with ``normals`` (M, 3), half of them
+    planes through one random point along its normal instead. Degenerate
+    ones (collinear points, zero normals) are left out.
+    """
+    m = len(p)
+    n_pt = n_hypotheses // 2 if normals is not None else 0
+    tri = rng.integers(0, m, size=(n_hypotheses - n_pt, 3))
     hn = np.cross(p[tri[:, 1]] - p[tri[:, 0]], p[tri[:, 2]] - p[tri[:, 0]])
     hp = p[tri[:, 0]]
     if n_pt:
@@ -333,23 +518,30 @@ def fit_plane(points, *, normals=None, threshold: float | None = None, admissibl
         hp = np.concatenate([hp, p[one]])
     norm = np.linalg.norm(hn, axis=1)
     ok = norm > 1e-12
-    hn, hp = hn[ok] / norm[ok, None], hp[ok]
-    if admissible is not None and len(hn):
-        good, sign = admissible(hn, hp)
-        hn, hp = hn[good] * np.asarray(sign)[good, None], hp[good]
-    if not len(hn):
-        return None
+    return hn[ok] / norm[ok, None], hp[ok]
+
+
+def _best_hypothesis(points: np.ndarray, hn: np.ndarray, hp: np.ndarray, threshold: float) -> int:
+    """Index of the hypothesis with the most of ``points`` (K, 3) within ``threshold``; the first on ties."""
     off = np.einsum("ij,ij->i", hn, hp)
     best, best_score = -1, -1
     for start in range(0, len(hn), 64):
-        dist = np.abs(sp @ hn[start:start + 64].T - off[start:start + 64])
+        dist = np.abs(points @ hn[start:start + 64].T - off[start:start + 64])
         score = (dist <= threshold).sum(axis=0)
         j = int(np.argmax(score))
         if score[j] > best_score:
             best, best_score = start + j, int(score[j])
-    n0, c0 = n, c = hn[best], hp[best]
-    inl = np.abs((p - c) @ n) <= threshold
-    inl0 = inl
+    return best
+
+
+def _refine_plane(p: np.ndarray, n: np.ndarray, c: np.ndarray, inl: np.ndarray, threshold: float,
+                  robust_scale: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The plane ``(n, c)`` refined on the points ``p`` (M, 3): ``(normal, point, inliers (M,) bool)``.
+
+    Least squares on the inliers ``inl``, twice, re-selecting the inliers
+    within ``threshold``; then, with ``robust_scale`` > 0, Cauchy-weighted
+    least squares (module docstring). The normal keeps the side of ``n``.
+    """
     for _ in range(2):
         if inl.sum() < 3:
             break
@@ -372,18 +564,20 @@ def fit_plane(points, *, normals=None, threshold: float | None = None, admissibl
             d = (q - c) * np.sqrt(wts)[:, None]
             n_new = np.linalg.svd(d, full_matrices=False)[2][2]
             n = n_new if n_new @ n >= 0 else -n_new
-        # ``inl`` stays the RANSAC band's: it measures the support found.
-    if keep_normal is not None and not keep_normal(n):
-        # The refinement turned the plane out of the orientations the caller allows (the unseen
-        # back cap of an object scanned alone, refined towards the line of sight): the hypothesis stands.
-        n, c, inl = n0, c0, inl0
-    return PlaneFit(n, c, inl, float(threshold), m)
+        # ``inl`` stays the RANSAC band's: it counts the points the plane found.
+    return n, c, inl
 
 
-def _flat_normals(scene, idx: np.ndarray, flatness: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
-    """Normals (axis of the smallest scale) of the flat Gaussians among ``idx``, and which are flat."""
-    from ..scene import quat_to_rotmat
+def flat_normals(scene: GaussianScene, idx: np.ndarray, flatness: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
+    """Normals of the Gaussians ``idx`` (M indices) and which of them are flat.
 
+    Returns
+    -------
+    normals : (M, 3) float
+        The axis of each Gaussian's smallest scale (unit, unsigned).
+    flat : (M,) bool
+        Smallest scale below ``flatness`` times the middle one.
+    """
     s = scene.scales[idx].astype(np.float64)
     order = np.argsort(s, axis=1)
     smin = np.take_along_axis(s, order[:, :1], 1)[:, 0]
@@ -393,163 +587,247 @@ def _flat_normals(scene, idx: np.ndarray, flatness: float = 0.3) -> tuple[np.nda
     return n, smin < flatness * smid
 
 
-def estimate_up_axis(scene, reference: Camera, support=None, center=None, radius: float | None = None,
-                     cameras=None, **options) -> UpEstimate:
-    """World up for the VAAS orbit axis; see the module docstring for the method.
+class _Prior(NamedTuple):
+    """What a plane's orientation is checked against (module docstring, "Support plane")."""
 
-    Parameters
-    ----------
-    scene : GaussianScene
-    reference : Camera
-        The user's view ``c_r``.
-    support : (N,) bool or None
-        The object's lifted support G0 (left out of the plane fits).
-    center : (3,) array or None
-        Object centre ``o``; None: the support's mean, or without support
-        the scene's median (then no local plane is fitted).
-    radius : float or None
-        Object radius ``R``; None: from the support's spread (the 95th
-        percentile distance to ``center``), or 1/20 of the scene's size.
-    cameras : sequence of Camera or None
-        Capture cameras (e.g. the training cameras of the splat).
-    **options
-        Any of :data:`UP_DEFAULTS`.
+    a: np.ndarray                   # (3,) image-up of the reference
+    r: np.ndarray                   # (3,) right vector of the reference
+    cam_axis: np.ndarray | None     # (3,) up of the capture cameras, None when undetermined
+    sin_roll: float                 # sin(max_roll_deg)
+    cos_pitch: float                # cos(max_pitch_deg)
+    cos_cam: float                  # cos(max_camera_deg)
 
-    Returns
-    -------
-    UpEstimate
-    """
-    from ..scene import GaussianScene
 
+class _Below(NamedTuple):
+    """Where the object is, for the test "the object is above the plane"."""
+
+    center: np.ndarray              # (3,) o
+    max_height: float               # max_below * R
+    g0_points: np.ndarray | None    # (K, 3) a subsample of G0's means, None without G0
+
+
+def _up_options(options: dict) -> dict:
+    """:data:`UP_DEFAULTS` updated by ``options``; unknown names raise a ValidationError listing the valid ones."""
     unknown = set(options) - set(UP_DEFAULTS)
     if unknown:
         raise ValidationError(f"estimate_up_axis: unknown options {sorted(unknown)}; valid: {sorted(UP_DEFAULTS)}")
-    opt = {**UP_DEFAULTS, **options}
-    if not isinstance(scene, GaussianScene) or len(scene) == 0:
-        raise ValidationError("estimate_up_axis: scene must be a non-empty GaussianScene")
-    a, b, r = roll_basis(reference)
-    n_all = len(scene)
-    means = scene.means.astype(np.float64)
+    return {**UP_DEFAULTS, **options}
+
+
+def _object_frame(means: np.ndarray, support, center, radius) -> tuple[np.ndarray | None, np.ndarray, float, bool]:
+    """G0, the object's centre ``o`` and radius ``R``, and whether a local plane can be fitted.
+
+    Parameters
+    ----------
+    means : (N, 3) float64
+    support, center, radius
+        As in :func:`estimate_up_axis`.
+
+    Returns
+    -------
+    g0 : (N,) bool or None
+        None when not given or empty.
+    center : (3,) float64
+        ``center``; else G0's mean; else the scene's median.
+    radius : float
+        ``radius``; else the 95th percentile distance of G0 to ``o``; else
+        1/20 of the scene's bounding-box diagonal.
+    local_ok : bool
+        A centre was given or G0 is known (else no local plane).
+
+    Raises
+    ------
+    ValidationError
+        ``support`` is not an (N,) bool array, ``center`` not a finite
+        3-vector or ``radius`` not a positive distance.
+    """
+    n_all = len(means)
+    g0 = None
     if support is not None:
-        support = np.asarray(support)
-        if support.shape != (n_all,) or support.dtype != bool:
+        g0 = np.asarray(support)
+        if g0.shape != (n_all,) or g0.dtype != bool:
             raise ValidationError(f"support must be a boolean array of shape ({n_all},), got "
-                                  f"{support.dtype} {support.shape}")
-        if not support.any():
-            support = None
+                                  f"{g0.dtype} {g0.shape}")
+        if not g0.any():
+            g0 = None
     if center is None:
-        o = means[support].mean(axis=0) if support is not None else np.median(means, axis=0)
-        local_ok = support is not None
+        o = means[g0].mean(axis=0) if g0 is not None else np.median(means, axis=0)
+        local_ok = g0 is not None
     else:
         o = np.asarray(center, dtype=np.float64)
         if o.shape != (3,) or not np.all(np.isfinite(o)):
             raise ValidationError(f"center must be a finite 3-vector, got {center!r}")
         local_ok = True
     if radius is None:
-        if support is not None:
-            radius = float(np.percentile(np.linalg.norm(means[support] - o, axis=1), 95))
+        if g0 is not None:
+            radius = float(np.percentile(np.linalg.norm(means[g0] - o, axis=1), 95))
         else:
             radius = float(np.linalg.norm(np.ptp(means, axis=0))) / 20
     radius = float(radius)
     if not (np.isfinite(radius) and radius > 0):
         raise ValidationError(f"radius must be a positive distance, got {radius!r}")
+    return g0, o, radius, local_ok
 
+
+def _camera_axis(cameras) -> tuple[np.ndarray | None, float, list[Camera]]:
+    """The capture cameras' up (:func:`cameras_up`), its quality and the cameras as a list.
+
+    The axis is None without cameras or when their quality is below
+    :data:`_MIN_CAMERA_QUALITY` (their right vectors do not span a plane).
+    """
     cam_axis, cam_quality, cams = None, 0.0, []
     if cameras is not None:
         cams = camera_list(cameras, "cameras")
         if cams:
             cam_axis, cam_quality = cameras_up(cams)
-            if cam_quality < 0.05:
+            if cam_quality < _MIN_CAMERA_QUALITY:
                 cam_axis = None
+    return cam_axis, cam_quality, cams
 
-    sin_roll = np.sin(np.radians(opt["max_roll_deg"]))
-    cos_pitch = np.cos(np.radians(opt["max_pitch_deg"]))
-    cos_cam = np.cos(np.radians(opt["max_camera_deg"]))
 
-    def oriented(n, use_prior: bool):
-        """Which of the unit normals ``n`` (H, 3), oriented with ``n . a >= 0``, the prior allows."""
-        if not use_prior:
-            return n @ a >= cos_pitch
-        if cam_axis is not None:
-            return n @ cam_axis >= cos_cam
-        return (np.abs(n @ r) <= sin_roll) & (n @ a >= cos_pitch)
+def _g0_sample(means: np.ndarray, g0: np.ndarray | None, seed: int) -> np.ndarray | None:
+    """At most :data:`_MAX_G0_POINTS` means of G0 (a random subset, by ``seed``); None without G0."""
+    if g0 is None:
+        return None
+    idx = np.flatnonzero(g0)
+    if len(idx) > _MAX_G0_POINTS:
+        idx = np.random.default_rng(seed).choice(idx, _MAX_G0_POINTS, replace=False)
+    return means[idx]
 
-    def make_filter(use_prior: bool, below: bool):
-        def admissible(hn, hp):
-            sign = np.where(hn @ a >= 0, 1.0, -1.0)
-            n = hn * sign[:, None]
-            ok = oriented(n, use_prior)
-            if below:
-                h = np.einsum("ij,ij->i", n, o - hp)
-                ok &= (h > 0) & (h <= opt["max_below"] * radius)
-                if sup_pts is not None:
-                    # The object stands on its support, it is not part of
-                    # it: most of G0 must be above the plane (else a table
-                    # top seen as G0 would be its own "support").
-                    hs = sup_pts @ n.T - np.einsum("ij,ij->i", n, hp)
-                    ok &= np.percentile(hs, 10, axis=0) > 0
-            return ok, sign
-        return admissible
 
-    sup_pts = None
-    if support is not None:
-        sup_idx = np.flatnonzero(support)
-        if len(sup_idx) > 256:
-            sup_idx = np.random.default_rng(opt["seed"]).choice(sup_idx, 256, replace=False)
-        sup_pts = means[sup_idx]
-    opacity = scene.opacities
-    usable = opacity >= opt["min_opacity"]
-    if support is not None:
-        usable &= ~support
+def _plane_point_sets(scene: GaussianScene, means: np.ndarray, g0: np.ndarray | None, center: np.ndarray,
+                      radius: float, local_ok: bool, opt: dict) -> tuple[np.ndarray, np.ndarray]:
+    """The Gaussians the two planes are fitted on: ``(local, scene)`` int64 index arrays.
+
+    Both leave out G0 and splats with opacity below ``min_opacity``. The
+    local set is those within ``local_factor`` ``R`` of ``o`` (empty unless
+    ``local_ok``), the scene set all others; each is randomly subsampled
+    (sorted, by ``opt["seed"]``) to at most :data:`_MAX_FIT_POINTS`.
+    """
+    usable = scene.opacities >= opt["min_opacity"]
+    if g0 is not None:
+        usable &= ~g0
     rng = np.random.default_rng(opt["seed"])
-
-    def fit(idx, use_prior, below, seed):
-        if len(idx) < max(opt["min_inliers"], 3):
-            return None
-        nrm, flat = _flat_normals(scene, idx)
-        nrm = np.where(flat[:, None], nrm, 0.0)  # non-flat splats give no 1-point hypothesis
-        f = fit_plane(means[idx], normals=nrm, admissible=make_filter(use_prior, below),
-                      n_hypotheses=opt["n_hypotheses"], max_points=opt["max_points"], seed=seed,
-                      robust_scale=opt["robust_scale"],
-                      keep_normal=lambda n: n @ a > 0 and bool(oriented(n[None], use_prior)[0]))
-        if f is None or f.n_inliers < opt["min_inliers"]:
-            return None
-        return f
-
-    # Point sets: the neighbourhood of the object, and a subsample of the scene.
     local_idx = np.zeros(0, np.int64)
     if local_ok:
-        dist = np.linalg.norm(means - o, axis=1)
+        dist = np.linalg.norm(means - center, axis=1)
         local_idx = np.flatnonzero(usable & (dist <= opt["local_factor"] * radius))
-        if len(local_idx) > 60000:
-            local_idx = np.sort(rng.choice(local_idx, 60000, replace=False))
+        if len(local_idx) > _MAX_FIT_POINTS:
+            local_idx = np.sort(rng.choice(local_idx, _MAX_FIT_POINTS, replace=False))
     glob_idx = np.flatnonzero(usable)
-    if len(glob_idx) > 60000:
-        glob_idx = np.sort(rng.choice(glob_idx, 60000, replace=False))
+    if len(glob_idx) > _MAX_FIT_POINTS:
+        glob_idx = np.sort(rng.choice(glob_idx, _MAX_FIT_POINTS, replace=False))
+    return local_idx, glob_idx
 
-    details: dict = {"center": o.tolist(), "radius": radius, "reference_up": a.tolist(),
-                     "n_local_points": int(len(local_idx))}
-    method_suffix = ""
-    local = fit(local_idx, True, True, opt["seed"]) if local_ok else None
-    glob = fit(glob_idx, True, local_ok, opt["seed"] + 1)
+
+def _oriented(n: np.ndarray, prior: _Prior, use_prior: bool) -> np.ndarray:
+    """Which of the unit normals ``n`` (H, 3), oriented with ``n . a >= 0``, the prior allows: (H,) bool.
+
+    Always :math:`n \\cdot a \\ge \\cos` ``max_pitch_deg``; with ``use_prior``
+    also within ``max_camera_deg`` of the cameras' axis when there is one,
+    else :math:`|n \\cdot r| \\le \\sin` ``max_roll_deg`` (the reference's no-roll prior).
+    """
+    if not use_prior:
+        return n @ prior.a >= prior.cos_pitch
+    if prior.cam_axis is not None:
+        return n @ prior.cam_axis >= prior.cos_cam
+    return (np.abs(n @ prior.r) <= prior.sin_roll) & (n @ prior.a >= prior.cos_pitch)
+
+
+def _admissible(hn: np.ndarray, hp: np.ndarray, *, prior: _Prior, use_prior: bool,
+                below: _Below | None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`fit_plane`'s ``admissible`` test for the support plane: ``(ok (H,) bool, sign (H,))``.
+
+    ``hn`` (H, 3) unit normals and ``hp`` (H, 3) points of the hypotheses.
+    Each normal is oriented along the image-up (``sign``); it is admissible
+    when :func:`_oriented` allows it and, with ``below``, the object is
+    above it: :math:`0 < n \\cdot (o - p) \\le` ``max_below`` ``R`` and the
+    10th percentile of G0's heights above it is positive (the object stands
+    on the surface, it is not part of it: a table top seen as G0 would
+    otherwise be the surface it rests on).
+    """
+    sign = np.where(hn @ prior.a >= 0, 1.0, -1.0)
+    n = hn * sign[:, None]
+    ok = _oriented(n, prior, use_prior)
+    if below is not None:
+        h = np.einsum("ij,ij->i", n, below.center - hp)
+        ok &= (h > 0) & (h <= below.max_height)
+        if below.g0_points is not None:
+            hs = below.g0_points @ n.T - np.einsum("ij,ij->i", n, hp)
+            ok &= np.percentile(hs, 10, axis=0) > 0
+    return ok, sign
+
+
+def _keeps_orientation(n: np.ndarray, *, prior: _Prior, use_prior: bool) -> bool:
+    """:func:`fit_plane`'s ``keep_normal``: the refined (3,) normal still points up and the prior allows it."""
+    return n @ prior.a > 0 and bool(_oriented(n[None], prior, use_prior)[0])
+
+
+def _fit_ground_plane(scene: GaussianScene, means: np.ndarray, idx: np.ndarray, *, prior: _Prior,
+                      use_prior: bool, below: _Below | None, seed: int, opt: dict) -> PlaneFit | None:
+    """:func:`fit_plane` over the Gaussians ``idx``, flat ones giving 1-point hypotheses along their normals.
+
+    Returns None with fewer than ``min_inliers`` (at least 3) points or
+    when the best admissible plane has fewer than ``min_inliers`` inliers.
+    """
+    if len(idx) < max(opt["min_inliers"], 3):
+        return None
+    nrm, flat = flat_normals(scene, idx)
+    nrm = np.where(flat[:, None], nrm, 0.0)  # non-flat splats give no 1-point hypothesis
+    f = fit_plane(means[idx], normals=nrm, admissible=partial(_admissible, prior=prior, use_prior=use_prior,
+                                                              below=below),
+                  n_hypotheses=opt["n_hypotheses"], max_points=opt["max_points"], seed=seed,
+                  robust_scale=opt["robust_scale"],
+                  keep_normal=partial(_keeps_orientation, prior=prior, use_prior=use_prior))
+    if f is None or f.n_inliers < opt["min_inliers"]:
+        return None
+    return f
+
+
+def _search_planes(scene: GaussianScene, means: np.ndarray, local_idx: np.ndarray, glob_idx: np.ndarray,
+                   local_ok: bool, prior: _Prior, below: _Below,
+                   opt: dict) -> tuple[PlaneFit | None, PlaneFit | None, bool]:
+    """The support plane (local) and the scene plane: ``(local, scene, roll_prior_dropped)``.
+
+    Under the prior first (seeds ``seed`` and ``seed + 1``); when the
+    better of the two holds less than :data:`_FRACTION_FULL` of its points,
+    again without the roll prior (seeds ``seed + 2``, ``seed + 3``), whose
+    planes replace the first ones when the better holds at least that share
+    and twice the inliers. The scene plane is tested against the object's
+    position only when there is a local neighbourhood (``local_ok``).
+    """
+    seed = opt["seed"]
+    glob_below = below if local_ok else None
+    fit = partial(_fit_ground_plane, scene, means, prior=prior, opt=opt)
+    local = fit(local_idx, use_prior=True, below=below, seed=seed) if local_ok else None
+    glob = fit(glob_idx, use_prior=True, below=glob_below, seed=seed + 1)
     best = local if local is not None else glob
     if best is None or best.fraction < _FRACTION_FULL:
-        # Nothing convincing under the prior: the reference may have roll.
-        # Search again without it and keep that answer only when the
-        # geometry clearly prefers it (twice the inliers).
-        local_u = fit(local_idx, False, True, opt["seed"] + 2) if local_ok else None
-        glob_u = fit(glob_idx, False, local_ok, opt["seed"] + 3)
+        # Nothing convincing under the prior: the reference may have roll. Overriding the user's level
+        # view takes a convincing plane: a small flat patch of an object scanned without ground (a
+        # person, a guitar face) is no reason to orbit on its side.
+        local_u = fit(local_idx, use_prior=False, below=below, seed=seed + 2) if local_ok else None
+        glob_u = fit(glob_idx, use_prior=False, below=glob_below, seed=seed + 3)
         best_u = local_u if local_u is not None else glob_u
-        # Overriding the user's level view takes a convincing plane: a small flat patch of an object
-        # scanned without ground (a person, a guitar face) is no reason to orbit on its side.
         if best_u is not None and best_u.fraction >= _FRACTION_FULL and (
                 best is None or best_u.n_inliers >= 2 * best.n_inliers):
-            local, glob = local_u, glob_u
-            method_suffix = "; roll prior dropped"
+            return local_u, glob_u, True
+    return local, glob, False
+
+
+def _screen_planes(local: PlaneFit | None, glob: PlaneFit | None, means: np.ndarray, glob_idx: np.ndarray,
+                   center: np.ndarray, radius: float, local_ok: bool, local_factor: float,
+                   details: dict) -> tuple[PlaneFit | None, PlaneFit | None]:
+    """The planes that count as evidence, recording each in ``details``.
+
+    The scene plane is dropped when under 10% of its points lie outside the
+    local neighbourhood (the scene is the object's surroundings only: the
+    two fits share their points, so their agreement would be no check).
+    Both are dropped when neither holds :data:`_FRACTION_MIN` of its points
+    (no ground in sight).
+    """
     if local is not None and glob is not None and local_ok and np.mean(
-            np.linalg.norm(means[glob_idx] - o, axis=1) > opt["local_factor"] * radius) < 0.1:
-        # The scene is (almost) only the object's neighbourhood (an object scanned alone): its plane
-        # is fitted on the same points as the local one, and their agreement would be no check.
+            np.linalg.norm(means[glob_idx] - center, axis=1) > local_factor * radius) < 0.1:
         details["scene_plane_dropped"] = "fitted on the support plane's points: the scene holds little else"
         glob = None
     if local is not None:
@@ -559,56 +837,137 @@ def estimate_up_axis(scene, reference: Camera, support=None, center=None, radius
     if max((f.fraction for f in (local, glob) if f is not None), default=1.0) < _FRACTION_MIN:
         details["planes_rejected"] = f"no plane holds {_FRACTION_MIN:.0%} of its points: no ground in sight"
         local = glob = None
-    if cam_axis is not None:
-        details["cameras"] = {"axis": cam_axis.tolist(), "quality": cam_quality, "n": len(cams)}
+    return local, glob
 
-    def checks(axis, other_plane):
-        th = []
-        if other_plane is not None:
-            th.append(angle_deg(axis, other_plane.normal))
-        if cam_axis is not None:
-            th.append(angle_deg(axis, cam_axis))
-        th.append(float(np.degrees(np.arcsin(min(1.0, abs(axis @ r))))))
-        return th
 
-    def answer(chosen, method, other):
-        """(axis, method, confidence, check angles) with ``chosen`` deciding and ``other`` as a check."""
-        axis = chosen.normal / np.linalg.norm(chosen.normal)
-        if other is not None and angle_deg(axis, other.normal) <= opt["agree_deg"]:
-            # The same surface seen wider: the local plane picked it, the
-            # scene plane's many more inliers pin its direction down (a
-            # local patch of uneven ground is tilted by its slope).
-            axis = chosen.n_inliers * axis + other.n_inliers * other.normal
-            axis /= np.linalg.norm(axis)
-            method = "support-plane+scene-plane"
-        th = checks(axis, other)
-        agree = float(np.mean(np.exp(-(np.asarray(th) / _CHECK_DEG) ** 2)))
-        conf = min(1.0, chosen.fraction / _FRACTION_FULL) * agree
-        return axis, method, conf * (0.5 if method_suffix else 1.0), th
+def _check_angles(axis: np.ndarray, other: PlaneFit | None, prior: _Prior) -> list[float]:
+    """:math:`\\theta_k` in degrees: the angle to the other plane, to the cameras' axis, and off the no-roll plane."""
+    th = []
+    if other is not None:
+        th.append(angle_deg(axis, other.normal))
+    if prior.cam_axis is not None:
+        th.append(angle_deg(axis, prior.cam_axis))
+    th.append(float(np.degrees(np.arcsin(min(1.0, abs(axis @ prior.r))))))
+    return th
 
-    best = None
+
+def _plane_answer(chosen: PlaneFit, method: str, other: PlaneFit | None, prior: _Prior, agree_deg: float,
+                  roll_prior_dropped: bool) -> tuple[np.ndarray, str, float, list[float]]:
+    """``(axis, method, confidence, check angles)`` with ``chosen`` deciding and ``other`` as a check.
+
+    When ``other`` agrees within ``agree_deg`` the axis is the two normals'
+    inlier-weighted mean (method ``"support-plane+scene-plane"``): the same
+    surface seen wider, whose many more inliers pin its direction down (a
+    local patch of uneven ground is tilted by its slope). The confidence is
+    :math:`c` of the module docstring, halved when the roll prior was dropped.
+    """
+    axis = chosen.normal / np.linalg.norm(chosen.normal)
+    if other is not None and angle_deg(axis, other.normal) <= agree_deg:
+        axis = chosen.n_inliers * axis + other.n_inliers * other.normal
+        axis /= np.linalg.norm(axis)
+        method = "support-plane+scene-plane"
+    th = _check_angles(axis, other, prior)
+    agree = float(np.mean(np.exp(-(np.asarray(th) / _CHECK_DEG) ** 2)))
+    conf = min(1.0, chosen.fraction / _FRACTION_FULL) * agree
+    return axis, method, conf * (0.5 if roll_prior_dropped else 1.0), th
+
+
+def _decide_plane(local: PlaneFit | None, glob: PlaneFit | None, prior: _Prior, agree_deg: float,
+                  roll_prior_dropped: bool) -> tuple[np.ndarray, str, float, list[float]] | None:
+    """The plane answer (:func:`_plane_answer`), or None without a plane.
+
+    The local plane decides, checked against the scene plane; when the two
+    disagree, a local "plane" can be a flat patch of the object's own unseen
+    side or of nearby clutter, so the scene plane's answer, checked against
+    the local one, wins when its confidence is higher (the disagreement
+    stays in the confidence: it is real doubt).
+    """
+    answer = partial(_plane_answer, prior=prior, agree_deg=agree_deg, roll_prior_dropped=roll_prior_dropped)
     if local is not None:
         best = answer(local, "support-plane", glob)
         if glob is not None and best[1] == "support-plane":
-            # The two planes disagree: a local "plane" can be a flat patch of
-            # the object's own unseen side or of nearby clutter. The better
-            # supported answer wins, each checked against the other (the
-            # disagreement stays in the confidence: it is real doubt).
             alt = answer(glob, "scene-plane", local)
             if alt[2] > best[2]:
                 best = alt
-    elif glob is not None:
-        best = answer(glob, "scene-plane", None)
-    if best is not None:
-        axis, method, conf, th = best
-        details["check_angles_deg"] = th
-        return UpEstimate(axis, method + method_suffix, float(np.clip(conf, 0, 1)), details)
+        return best
+    if glob is not None:
+        return answer(glob, "scene-plane", None)
+    return None
+
+
+def _fallback_axis(scene: GaussianScene, reference: Camera, a: np.ndarray, cam_axis: np.ndarray | None,
+                   cam_quality: float, details: dict) -> UpEstimate:
+    """The answer without a plane: the cameras' axis, else the normals (:func:`estimate_up`), else the image-up.
+
+    The normals are used only within :data:`_NORMALS_MAX_PITCH_DEG` of the
+    image-up ``a`` (confidence 0.2); otherwise the image-up itself
+    (confidence 0.1). The cameras' answer has confidence 0.8 times their quality.
+    """
     if cam_axis is not None:
         return UpEstimate(cam_axis, "cameras", float(0.8 * cam_quality), details)
-    from .vaas import estimate_up
-
     axis = np.asarray(estimate_up(scene, reference), dtype=np.float64)
     axis /= np.linalg.norm(axis)
     if angle_deg(axis, a) < 1e-9 or angle_deg(axis, a) > _NORMALS_MAX_PITCH_DEG:
         return UpEstimate(a.copy(), "image-up", 0.1, details)
     return UpEstimate(axis, "normals", 0.2, details)
+
+
+def estimate_up_axis(scene: GaussianScene, reference: Camera, support=None, center=None,
+                     radius: float | None = None, cameras: Iterable[Camera] | None = None,
+                     **options) -> UpEstimate:
+    """World up for the VAAS orbit axis; see the module docstring for the method.
+
+    Parameters
+    ----------
+    scene : GaussianScene
+    reference : Camera
+        The user's view ``c_r``.
+    support : (N,) bool or None
+        G0 (the lifted set: ``SeedLift.g0``), left out of the plane fits
+        and required to lie above the support plane.
+    center : (3,) array or None
+        Object centre ``o``; None: G0's mean, or without G0 the scene's
+        median (then no local plane is fitted).
+    radius : float or None
+        Object radius ``R``; None: from G0's spread (the 95th percentile
+        distance to ``center``), or 1/20 of the scene's size.
+    cameras : iterable of Camera or None
+        Capture cameras (e.g. the training cameras of the splat).
+    **options
+        Any of :data:`UP_DEFAULTS`.
+
+    Returns
+    -------
+    UpEstimate
+
+    Raises
+    ------
+    ValidationError
+        An unknown option, an empty scene, a reference that is not a
+        Camera, or a ``support``, ``center``, ``radius`` or ``cameras`` of
+        the wrong kind.
+    """
+    opt = _up_options(options)
+    if not isinstance(scene, GaussianScene) or len(scene) == 0:
+        raise ValidationError("estimate_up_axis: scene must be a non-empty GaussianScene")
+    a, _, r = roll_basis(reference)
+    means = scene.means.astype(np.float64)
+    g0, o, radius, local_ok = _object_frame(means, support, center, radius)
+    cam_axis, cam_quality, cams = _camera_axis(cameras)
+    prior = _Prior(a, r, cam_axis, np.sin(np.radians(opt["max_roll_deg"])),
+                   np.cos(np.radians(opt["max_pitch_deg"])), np.cos(np.radians(opt["max_camera_deg"])))
+    below = _Below(o, opt["max_below"] * radius, _g0_sample(means, g0, opt["seed"]))
+    local_idx, glob_idx = _plane_point_sets(scene, means, g0, o, radius, local_ok, opt)
+    details: dict = {"center": o.tolist(), "radius": radius, "reference_up": a.tolist(),
+                     "n_local_points": int(len(local_idx))}
+    local, glob, dropped = _search_planes(scene, means, local_idx, glob_idx, local_ok, prior, below, opt)
+    local, glob = _screen_planes(local, glob, means, glob_idx, o, radius, local_ok, opt["local_factor"], details)
+    if cam_axis is not None:
+        details["cameras"] = {"axis": cam_axis.tolist(), "quality": cam_quality, "n": len(cams)}
+    best = _decide_plane(local, glob, prior, opt["agree_deg"], dropped)
+    if best is None:
+        return _fallback_axis(scene, reference, a, cam_axis, cam_quality, details)
+    axis, method, conf, th = best
+    details["check_angles_deg"] = th
+    return UpEstimate(axis, method + ("; roll prior dropped" if dropped else ""), float(np.clip(conf, 0, 1)),
+                      details)

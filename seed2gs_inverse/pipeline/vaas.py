@@ -21,8 +21,8 @@ Frames ``k >= 1`` look at ``o`` (it lies on their optical axis) with image-up
 ``u``, with the reference intrinsics or, given ``fit_radius``, zoomed so
 that the object fills the view (object-centric views).
 
-The amplitude adapts to the visibility of the support G0 along the flat
-orbit (Eq. 5): :math:`A = A_{max} (1 - \bar V)^\gamma`, where
+The amplitude adapts to the visibility of G0 (the lifted set of the seed
+lift) along the flat orbit (Eq. 5): :math:`A = A_{max} (1 - \bar V)^\gamma`, where
 :math:`\bar V` is the mean over flat views of the fraction of G0 whose
 projected centre is in the image at a depth within :math:`\epsilon_d` of the
 rendered depth. The spiral is skipped when :math:`A <` ``skip_deg`` (paper: 5
@@ -35,14 +35,18 @@ from a typical eye-level reference).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
 from ..camera import Camera, look_at_orbit, orbit_directions
 from ..errors import ValidationError
 
+if TYPE_CHECKING:
+    from ..operators import ViewOperator
+
 __all__ = ["ClipFrame", "VAASPlan", "flat_orbit", "spiral_orbit", "spiral_elevations", "orbit_cameras", "run_vaas",
-           "support_visibility", "vaas_amplitude", "estimate_up", "DEFAULTS"]
+           "support_visibility", "vaas_amplitude", "DEFAULTS"]
 
 #: Paper defaults (views per clip, skip threshold) and our documented choices.
 DEFAULTS = {"n_views": 24, "a_max_deg": 60.0, "gamma": 1.0, "skip_deg": 5.0,
@@ -66,15 +70,31 @@ class ClipFrame:
     camera: Camera
     clip: str = ""
     index: int = 0
-    operator: object = None
+    operator: ViewOperator | None = None
 
 
 @dataclass
 class VAASPlan:
-    """The VAAS decision: cameras of both clips and the numbers behind it."""
+    """The VAAS decision: cameras of both clips and the numbers behind it.
 
-    flat: list
-    spiral: list
+    Attributes
+    ----------
+    flat, spiral : list of Camera
+        The clips' cameras (``spiral`` empty when skipped).
+    visibility : float
+        :math:`\bar V`, the mean of ``per_view_visibility``.
+    per_view_visibility : (n_views,) float64
+        The visible fraction of G0 in each flat view (:func:`support_visibility`).
+    amplitude_deg : float
+        :math:`A` of Eq. 5.
+    skipped_spiral : bool
+        :math:`A <` ``skip_deg``.
+    settings : dict
+        The settings used, JSON-ready.
+    """
+
+    flat: list[Camera]
+    spiral: list[Camera]
     visibility: float
     per_view_visibility: np.ndarray
     amplitude_deg: float
@@ -82,17 +102,28 @@ class VAASPlan:
     settings: dict = field(default_factory=dict)
 
     @property
-    def cameras(self) -> list:
+    def cameras(self) -> list[Camera]:
+        """Both clips' cameras, flat first."""
         return list(self.flat) + list(self.spiral)
 
     def summary(self) -> dict:
+        """JSON-ready fields (``report.json``)."""
         return {"visibility": float(self.visibility), "amplitude_deg": float(self.amplitude_deg),
                 "skipped_spiral": bool(self.skipped_spiral), "n_flat": len(self.flat),
                 "n_spiral": len(self.spiral),
                 "per_view_visibility": [float(v) for v in self.per_view_visibility], **self.settings}
 
 
-def _frame(reference: Camera, center, up=None):
+def _frame(reference: Camera, center, up=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+    """The orbit frame ``(o, u, e1, distance, e0)``: centre, unit axis, unit horizontal direction to the
+    reference, the reference's distance to ``o`` and its elevation (radians).
+
+    Raises
+    ------
+    ValidationError
+        A non-finite centre, a zero or non-finite axis, a centre at the
+        reference camera, or a reference straight above or below ``o``.
+    """
     o = np.asarray(center, dtype=np.float64)
     if o.shape != (3,) or not np.all(np.isfinite(o)):
         raise ValidationError(f"orbit centre must be a finite 3-vector, got {center!r}")
@@ -116,7 +147,7 @@ def _frame(reference: Camera, center, up=None):
 
 
 def orbit_cameras(reference: Camera, center, azimuths_deg, elevations_deg=None,
-                  fit_radius: float | None = None, up=None) -> list:
+                  fit_radius: float | None = None, up=None) -> list[Camera]:
     r"""Cameras on a sphere about ``center`` through the reference camera centre.
 
     Parameters
@@ -140,7 +171,13 @@ def orbit_cameras(reference: Camera, center, azimuths_deg, elevations_deg=None,
 
     up : (3,) array or None
         Orbit axis ``u``; None: the reference camera's image-up
-        (:attr:`Camera.up`). See :func:`estimate_up` for a levelled axis.
+        (:attr:`Camera.up`). See :mod:`~seed2gs_inverse.pipeline.up_axis` for a levelled axis.
+
+    Raises
+    ------
+    ValidationError
+        A degenerate frame (see :func:`_frame`), a non-positive
+        ``fit_radius``, or as many elevations as azimuths not given.
 
     Returns
     -------
@@ -172,7 +209,7 @@ def orbit_cameras(reference: Camera, center, azimuths_deg, elevations_deg=None,
 
 
 def flat_orbit(reference: Camera, center, n_views: int = 24, fit_radius: float | None = None,
-               up=None) -> list:
+               up=None) -> list[Camera]:
     """The flat, reference-anchored orbit of ``n_views`` cameras (360 k / n degrees)."""
     n = _check_n(n_views)
     return orbit_cameras(reference, center, 360.0 * np.arange(n) / n, fit_radius=fit_radius, up=up)
@@ -197,7 +234,7 @@ def spiral_elevations(reference: Camera, center, amplitude_deg: float, n_views: 
 
 def spiral_orbit(reference: Camera, center, amplitude_deg: float, n_views: int = 24,
                  profile: str = "linear", max_elevation_deg: float = 85.0,
-                 fit_radius: float | None = None, up=None) -> list:
+                 fit_radius: float | None = None, up=None) -> list[Camera]:
     """The ascending spiral: the flat orbit's azimuths with elevations from :func:`spiral_elevations`."""
     if not np.isfinite(amplitude_deg) or amplitude_deg < 0:
         raise ValidationError(f"spiral amplitude must be a non-negative angle, got {amplitude_deg!r}")
@@ -207,6 +244,7 @@ def spiral_orbit(reference: Camera, center, amplitude_deg: float, n_views: int =
 
 
 def _check_n(n_views) -> int:
+    """``n_views`` as an int >= 2 (an integral float passes), or a ValidationError."""
     if isinstance(n_views, bool) or int(n_views) != n_views or int(n_views) < 2:
         raise ValidationError(f"n_views must be an integer >= 2, got {n_views!r}")
     return int(n_views)
@@ -220,6 +258,12 @@ def support_visibility(means: np.ndarray, sigma: np.ndarray, camera: Camera, dep
     in front of the near plane, and :math:`|z_i - D(\pi_i)| \le \epsilon_{rel} z_i +
     \epsilon_\sigma s_i` (the seed-lift tolerance). ``means`` (M, 3), ``sigma`` (M,)
     largest standard deviations, ``depth`` (H, W) rendered expected depth.
+    Returns the fraction in [0, 1] (0 for no Gaussians).
+
+    Raises
+    ------
+    ValidationError
+        ``depth`` is not of the camera's (H, W).
     """
     means = np.asarray(means, dtype=np.float64)
     if len(means) == 0:
@@ -239,57 +283,6 @@ def support_visibility(means: np.ndarray, sigma: np.ndarray, camera: Camera, dep
     return float(vis.mean())
 
 
-def estimate_up(scene, reference: Camera, weights=None, flatness: float = 0.3) -> np.ndarray:
-    r"""A levelled orbit axis: the reference's image-up with the camera pitch removed.
-
-    The paper takes "up" from the reference camera, but a camera that looks
-    down at the object has an image-up tilted towards the viewing direction
-    by the pitch, and a flat orbit about that axis dives below the ground on
-    the far side. Assuming only that the reference has no roll (its x axis
-    is level, as in nearly every user view), the world up lies in the plane
-    spanned by :attr:`Camera.up` ``a`` and the backward direction ``b``; we
-    pick the direction in that plane best aligned with the normals of the
-    scene's flat Gaussians (splats of a trained 3DGS lie on surfaces; floors
-    and table tops dominate their normal distribution):
-
-    .. math::
-
-        u = rg\max_{\|u\|=1,\, u \in \mathrm{span}(a, b)}
-            \sum_i \omega_i (n_i \cdot u)^2,
-
-    the principal eigenvector of a 2x2 matrix, signed so that
-    :math:`u \cdot a > 0`. ``n_i`` is the axis of the smallest scale of
-    Gaussians whose smallest scale is below ``flatness`` times the middle
-    one; ``omega_i`` = ``weights`` (e.g. each Gaussian's total compositing
-    weight in the reference view, so that what the user sees counts) times
-    opacity. Returns ``reference.up`` when there are no flat Gaussians.
-    """
-    from ..scene import quat_to_rotmat
-
-    a = reference.up / np.linalg.norm(reference.up)
-    b = -reference.forward
-    b = b - (b @ a) * a
-    b /= np.linalg.norm(b)
-    s = scene.scales.astype(np.float64)
-    order = np.argsort(s, axis=1)
-    smin = np.take_along_axis(s, order[:, :1], 1)[:, 0]
-    smid = np.take_along_axis(s, order[:, 1:2], 1)[:, 0]
-    w = scene.opacities.astype(np.float64) * (smin < flatness * smid)
-    if weights is not None:
-        w = w * np.asarray(weights, dtype=np.float64).ravel()
-    sel = np.nonzero(w > 0)[0]
-    if sel.size == 0:
-        return a
-    rot = quat_to_rotmat(scene.quats[sel])
-    normals = np.take_along_axis(rot, order[sel, 0][:, None, None].repeat(3, axis=1), 2)[:, :, 0]
-    p = np.stack([normals @ a, normals @ b], 1)
-    m = (p * w[sel, None]).T @ p
-    evals, evecs = np.linalg.eigh(m)
-    v = evecs[:, -1]
-    u = v[0] * a + v[1] * b
-    return u if u @ a > 0 else -u
-
-
 def vaas_amplitude(visibility: float, a_max_deg: float = 60.0, gamma: float = 1.0) -> float:
     r"""Eq. 5: :math:`A = A_{max} (1 - \bar V)^\gamma` in degrees, with :math:`\bar V` clipped to [0, 1]."""
     if not (np.isfinite(a_max_deg) and a_max_deg >= 0 and np.isfinite(gamma) and gamma > 0):
@@ -299,16 +292,16 @@ def vaas_amplitude(visibility: float, a_max_deg: float = 60.0, gamma: float = 1.
 
 
 def run_vaas(support_means: np.ndarray, support_sigma: np.ndarray, reference: Camera, center,
-             view, *, n_views: int = 24, a_max_deg: float = 60.0, gamma: float = 1.0,
-             skip_deg: float = 5.0, profile: str = "linear", max_elevation_deg: float = 85.0,
+             view: Callable[[Camera, str, int], ClipFrame], *, n_views: int = 24, a_max_deg: float = 60.0,
+             gamma: float = 1.0, skip_deg: float = 5.0, profile: str = "linear", max_elevation_deg: float = 85.0,
              eps_rel: float = 0.02, eps_sigma: float = 2.0, fit_radius: float | None = None,
-             up=None):
+             up=None) -> tuple[VAASPlan, list[ClipFrame], list[ClipFrame]]:
     """Plan and render both VAAS clips.
 
     Parameters
     ----------
     support_means : (M, 3) array
-        Means of the support G0.
+        Means of G0 (the lifted set of the seed lift).
     support_sigma : (M,) array
         Their largest standard deviations (depth tolerance, see :func:`support_visibility`).
     reference : Camera
