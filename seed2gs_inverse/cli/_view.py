@@ -13,7 +13,7 @@ from .._atomic import atomic_path
 from ..errors import ValidationError
 from ..io import read_camera, read_cameras, read_scene
 from ..io._common import load_npy
-from ..viz import check_membership, has_display, membership_plot
+from .. import viz  # its functions are looked up when the command runs: tests replace them
 from ._common import check_output, parse_size, parse_vector
 
 __all__ = ["register"]
@@ -79,7 +79,7 @@ def _camera(spec, view):
 
 def _load_membership(path, n: int) -> np.ndarray:
     """``--membership Q.npy`` as (n,) values in [0, 1], or a ValidationError naming the file."""
-    return check_membership(load_npy(path, f"--membership {path}"), n, f"--membership {path}")
+    return viz.check_membership(load_npy(path, f"--membership {path}"), n, f"--membership {path}")
 
 
 def _pick_camera(cams, which):
@@ -106,7 +106,7 @@ def run(args) -> int:
         raise ValidationError("--view needs --camera")
     if args.up is not None and args.camera is not None:
         raise ValidationError("--up applies without --camera only (a camera fixes the view's up); drop one")
-    if args.screenshot is None and not has_display():
+    if args.screenshot is None and not viz.has_display():
         raise ValidationError("no display to open a window on; pass --screenshot OUT.png")
     if args.screenshot is not None and Path(args.screenshot).suffix.lower() != ".png":
         raise ValidationError(f"--screenshot {args.screenshot}: the file name must end in .png")
@@ -121,10 +121,10 @@ def run(args) -> int:
     kw = dict(mode=args.mode, threshold=args.threshold, camera=camera, max_glyphs=args.max_glyphs,
               point_size=args.point_size, min_opacity=args.min_opacity, window_size=size, up=up)
     if out is None:
-        membership_plot(scene, q, off_screen=False, **kw).show()
+        viz.membership_plot(scene, q, off_screen=False, **kw).show()
         return 0
     with atomic_path(out) as tmp:  # a failure leaves nothing behind
-        img = membership_plot(scene, q, screenshot=str(tmp), off_screen=True, **kw)
+        img = viz.membership_plot(scene, q, screenshot=str(tmp), off_screen=True, **kw)
     # the Gaussians membership_plot draws: above --min-opacity, with --threshold q above it, and as
     # ellipsoids at most --max-glyphs of those (a random subset, which it warns about)
     keep = scene.opacities >= args.min_opacity if args.min_opacity > 0 else np.ones(len(scene), bool)
