@@ -54,6 +54,12 @@ def check_output(path, option: str, *, directory: bool = False, force: bool = Fa
       empty nor an earlier output of that kind holding only what the command
       writes (:func:`~seed2gs_inverse._atomic.not_an_earlier_output`):
       ``--force`` replaces the command's own output, never a user's files.
+
+    Raises
+    ------
+    ValidationError
+        One of the conditions above fails; the message starts with
+        ``option`` and the path as given.
     """
     p = Path(os.fspath(path))
     if not str(path):

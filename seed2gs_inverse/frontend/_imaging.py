@@ -36,6 +36,12 @@ def as_rgb(image, name: str = "image") -> np.ndarray:
     uint8 images are divided by 255. Float images are clipped to [0, 1], as
     saving them to 8 bits would: 3DGS colours (SH + 0.5, clamped at 0 only)
     can exceed 1 in renderings.
+
+    Raises
+    ------
+    ValidationError
+        Not (H, W, 3) with H, W >= 1, not a real or uint8 dtype, or holding
+        NaN or infinite values; the message starts with ``name``.
     """
     img = np.asarray(image)
     if img.ndim != 3 or img.shape[2] != 3 or img.shape[0] < 1 or img.shape[1] < 1:
@@ -189,7 +195,18 @@ def box_iou(a, b) -> float:
 
 
 def as_box(box, shape_hw, name: str = "box") -> np.ndarray:
-    """Validate an (x0, y0, x1, y1) pixel box inside an image of ``shape_hw``."""
+    """Validate an (x0, y0, x1, y1) pixel box inside an image of ``shape_hw``.
+
+    Returns
+    -------
+    (4,) float64
+        The box clipped to the image, ``0 <= x0 < x1 <= W``, ``0 <= y0 < y1 <= H``.
+
+    Raises
+    ------
+    ValidationError
+        Not 4 finite numbers, or empty once clipped to the image.
+    """
     b = np.asarray(box, dtype=np.float64).reshape(-1)
     if b.size != 4 or not np.all(np.isfinite(b)):
         raise ValidationError(f"{name}: expected 4 finite numbers x0, y0, x1, y1, got {box!r}")

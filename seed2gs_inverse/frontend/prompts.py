@@ -360,6 +360,13 @@ def seed_mask_from_prompt(prompt, image: np.ndarray, depth: np.ndarray | None = 
     info : dict
         ``kind`` and, for grounded prompts, every candidate's source, score,
         box and info, best first.
+
+    Raises
+    ------
+    ValidationError
+        A text prompt without a grounder, a grounder that breaks the
+        ``Grounder`` protocol or finds no candidate, or a prompt whose mask
+        is empty, off the image or not of the reference view's size.
     """
     prompt = as_prompt(prompt)
     if isinstance(prompt, TextPrompt):
