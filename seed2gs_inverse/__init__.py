@@ -13,9 +13,12 @@ Public API only; implementation lives in the submodules::
     result = sgi.solve([op], [mask], method="voting")
     ex = sgi.extract(scene, camera, sgi.MaskPrompt(mask))
 
-Names are imported on first use (PEP 562), so ``import seed2gs_inverse`` and
-the ``seed2gs`` command start quickly; Numba, SciPy's optimisers, OpenCV and
-the ONNX runtime load only when something needs them.
+The names of ``_LAZY`` are imported from their submodule on first use
+(PEP 562). The deferral is deliberate: every submodule import, the
+``seed2gs`` command's included, runs this file first, and importing the
+rasterizer loads Numba and its compiled kernels. So ``import
+seed2gs_inverse`` loads none of Numba, SciPy, OpenCV or the ONNX runtime,
+and ``seed2gs --help`` no Numba, until something needs them.
 """
 
 from __future__ import annotations

@@ -5,6 +5,15 @@ Each command group lives in a module of this package that defines
 parser to a function ``func(args) -> int``. ``main`` turns every expected
 error (bad input, missing file) into one line on stderr and exit status 2;
 ``--debug`` shows the traceback instead.
+
+Start-up: building the parser imports every command module, so ``seed2gs
+--help`` costs what those modules import at their top. They import the
+scene, camera, I/O, solver and pipeline modules there, but never the
+rasterizer (:mod:`seed2gs_inverse.raster`): importing it loads Numba and
+its compiled kernels, which only a command that renders needs, so those
+commands import it when they run; that deferral is deliberate. The heavy
+optional libraries (pyvista, onnxruntime, tokenizers, dask, matplotlib,
+OpenCV) are deferred inside the modules that use them.
 """
 
 from __future__ import annotations
@@ -16,6 +25,7 @@ import re
 import sys
 import warnings
 
+from .. import __version__
 from ..errors import Seed2GSError
 
 __all__ = ["main", "build_parser"]
@@ -47,8 +57,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .. import __version__
-
+    """The ``seed2gs`` parser with every command group's sub-commands registered."""
     parser = _Parser(
         prog="seed2gs",
         description="Extract one object from a frozen 3D Gaussian Splatting scene.")
@@ -72,9 +81,10 @@ def _tag_leaves(parser) -> None:
 
 
 def main(argv=None) -> int:
+    """Run ``seed2gs`` with ``argv`` (default ``sys.argv[1:]``); returns the exit status."""
     # Numba's OpenMP threads busy-wait between parallel regions by default,
-    # which halves throughput on a loaded 2-core machine; a user's own
-    # setting wins.
+    # taking the cores from the other threads of a busy machine; a user's
+    # own setting wins.
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     parser = build_parser()
     try:

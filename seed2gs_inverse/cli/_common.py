@@ -1,6 +1,6 @@
 """What every ``seed2gs`` command shares: output checks, ``--up``, ``--method``/``--option``, progress.
 
-One grammar for every command (issue 12 item 13):
+One grammar for every command:
 
 * ``--camera FILE[:NAME|INDEX]`` names one camera of a camera file;
 * ``--up X,Y,Z`` is a world direction;
@@ -22,20 +22,18 @@ from pathlib import Path
 import numpy as np
 
 from .._atomic import check_writable, not_an_earlier_output
+from ..camera import MAX_IMAGE_SIDE, Camera
 from ..errors import ValidationError
+from ..pipeline.extract import _Progress
+from ..pipeline.vaas import DEFAULTS as VAAS_DEFAULTS
+from ..solvers import available_methods, check_method_options, method_options
 
 __all__ = ["check_output", "check_input_file", "parse_vector", "add_method_arguments", "parse_options",
            "progress_enabled", "SolveBar", "DEFAULT_VIEWS"]
 
 
-def _default_views() -> int:
-    from ..pipeline.vaas import DEFAULTS
-
-    return int(DEFAULTS["n_views"])
-
-
 #: Views per VAAS clip used by default by ``extract``, ``demo`` and the examples (the paper's 24).
-DEFAULT_VIEWS = _default_views()
+DEFAULT_VIEWS = int(VAAS_DEFAULTS["n_views"])
 
 
 def check_output(path, option: str, *, directory: bool = False, force: bool = False, kind: str | None = None) -> Path:
@@ -56,6 +54,12 @@ def check_output(path, option: str, *, directory: bool = False, force: bool = Fa
       empty nor an earlier output of that kind holding only what the command
       writes (:func:`~seed2gs_inverse._atomic.not_an_earlier_output`):
       ``--force`` replaces the command's own output, never a user's files.
+
+    Raises
+    ------
+    ValidationError
+        One of the conditions above fails; the message starts with
+        ``option`` and the path as given.
     """
     p = Path(os.fspath(path))
     if not str(path):
@@ -127,11 +131,9 @@ def parse_size(option: str, text: str, limit: int = 16384) -> tuple[int, int]:
 
 
 def look_at_camera(look_at, up=None, fov=None, size=None, *, up_option: str = "--up",
-                   size_option: str = "--size"):
+                   size_option: str = "--size") -> Camera:
     """The camera of ``--look-at EYE TARGET`` (each ``x,y,z``): up ``0,-1,0`` (the usual up of
     COLMAP-trained scenes), a 60 degree vertical field of view and 960x540 unless given."""
-    from ..camera import Camera
-
     w, h = parse_size(size_option, size or "960x540")
     eye, target = (parse_point("--look-at", v) for v in look_at)
     try:
@@ -148,12 +150,11 @@ MIN_SCALED_SIDE = 4
 def scaled_size(camera, scale: float, option: str = "--scale") -> tuple[int, int]:
     """``(width, height)`` of ``camera.scaled(scale)``, or a ValidationError naming ``option``.
 
-    Between :data:`MIN_SCALED_SIDE` and the camera limit (32768) a side; a
-    ``--scale 1e-6`` made 1x1 images, ``--scale 100`` an error about a corrupt
-    camera file.
+    Each side must lie between :data:`MIN_SCALED_SIDE` and the camera limit
+    :data:`~seed2gs_inverse.camera.MAX_IMAGE_SIDE`, so that a tiny or huge
+    ``--scale`` is refused here, naming the option, rather than giving
+    empty images or failing later as a bad camera.
     """
-    from ..camera import MAX_IMAGE_SIDE
-
     w, h = (max(1, int(round(side * scale))) for side in (camera.width, camera.height))
     if min(w, h) < MIN_SCALED_SIDE or max(w, h) > MAX_IMAGE_SIDE:
         name = f" '{camera.name}'" if camera.name else ""
@@ -174,15 +175,12 @@ def parse_point(option: str, text) -> np.ndarray:
 
 
 def _method_lines() -> str:
-    from ..solvers import available_methods, method_options
-
+    """``method: option, option; ...`` for every registered method (the --option help)."""
     return "; ".join(f"{m}: {', '.join(method_options(m)) or '(none)'}" for m in available_methods())
 
 
 def add_method_arguments(parser, *, options: bool = True, default: str = "weighted_bce") -> None:
     """``--method`` (with its choices) and, with ``options``, ``--option NAME=VALUE`` (listing each method's)."""
-    from ..solvers import available_methods
-
     methods = available_methods()
     parser.add_argument("--method", default=default, choices=methods, metavar="METHOD",
                         help=f"solver: {', '.join(methods)} (default {default})")
@@ -194,8 +192,6 @@ def add_method_arguments(parser, *, options: bool = True, default: str = "weight
 
 def parse_options(items, method: str) -> dict:
     """``--option NAME=VALUE`` items as a dict, checked against the method's options."""
-    from ..solvers import check_method_options
-
     out = {}
     for item in items:
         name, sep, value = item.partition("=")
@@ -220,6 +216,4 @@ def SolveBar(desc: str, enabled: bool):
     Iterations against the method's maximum and the current loss, on stderr;
     disabled, ``bar.solve_callback`` is None and the solver reports nothing.
     """
-    from ..pipeline.extract import _Progress
-
     return _Progress(desc, enabled)

@@ -6,13 +6,18 @@ import time
 
 import numpy as np
 
+from ..camera import Camera
 from ..errors import ValidationError
+from ..metrics import boundary_iou, iou, membership_scores
+from ..pipeline import Extraction, ExtractSettings, extract
+from ..synthetic import make_scene
 from ._common import DEFAULT_VIEWS, add_method_arguments, check_output
 
 __all__ = ["register", "run_demo"]
 
 
 def register(subparsers) -> None:
+    """Add the ``demo`` command to ``subparsers``."""
     p = subparsers.add_parser(
         "demo", help="run the whole pipeline on a built-in procedural scene with a known object",
         description="Build the procedural scene of seed2gs_inverse.synthetic, extract one object "
@@ -34,6 +39,7 @@ def register(subparsers) -> None:
 
 
 def _summary(syn) -> list[str]:
+    """Lines describing the procedural scene: size, bounds and every object's Gaussian count."""
     scene, labels = syn.scene, np.asarray(syn.labels)
     lo, hi = scene.bounds()
     lines = [f"procedural scene (seed {syn.seed}): N = {len(scene)} Gaussians, SH degree {scene.sh_degree}",
@@ -45,10 +51,8 @@ def _summary(syn) -> list[str]:
     return lines
 
 
-def held_out_cameras(center, frame, dist, width, height):
+def held_out_cameras(center, frame, dist, width, height) -> list[Camera]:
     """Object-centric views at azimuths/elevations that no VAAS view uses."""
-    from ..camera import Camera
-
     up = frame[:, 2]
     cams = []
     for az, el in [(25, 20), (115, 50), (205, 30), (295, 60), (340, 10)]:
@@ -58,12 +62,12 @@ def held_out_cameras(center, frame, dist, width, height):
     return cams
 
 
-def run_demo(seed=0, obj="box", views=DEFAULT_VIEWS, size=(192, 144), method="weighted_bce"):
+def run_demo(seed=0, obj="box", views=DEFAULT_VIEWS, size=(192, 144),
+             method="weighted_bce") -> tuple[Extraction, dict]:
     """Extract ``obj`` from the procedural scene; returns (extraction, scores dict)."""
-    from ..metrics import boundary_iou, iou, membership_scores
-    from ..pipeline import ExtractSettings, extract
+    # Deferred: the rasterizer loads Numba and its compiled kernels, which `seed2gs --help`
+    # (importing this module to build the parser) must not pay for.
     from ..raster import build_operator
-    from ..synthetic import make_scene
 
     syn = make_scene(seed=seed)
     label = syn._check_label(obj if not str(obj).isdigit() else int(obj))
@@ -90,8 +94,7 @@ def run_demo(seed=0, obj="box", views=DEFAULT_VIEWS, size=(192, 144), method="we
 
 
 def run(args) -> int:
-    from ..synthetic import make_scene
-
+    """``seed2gs demo``: extract an object of the procedural scene and print its scores."""
     if args.seed < 0:
         raise ValidationError(f"--seed must be a whole number >= 0, got {args.seed}")
     if not all(16 <= v <= 4096 for v in args.size):  # the procedural scene is small: 16..4096 px suffice

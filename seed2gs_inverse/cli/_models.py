@@ -2,15 +2,16 @@
 
 from __future__ import annotations
 
-
 import numpy as np
 
 from ..errors import FormatError, ValidationError
+from ..frontend.config import ENV_VAR, resolve_models
 
 __all__ = ["register"]
 
 
 def register(subparsers) -> None:
+    """Add the ``models`` command to ``subparsers``."""
     p = subparsers.add_parser(
         "models", help="check the ONNX models configuration (and try a text prompt)",
         description="Open every ONNX file of a models configuration (TOML or JSON), check each "
@@ -25,13 +26,13 @@ def register(subparsers) -> None:
 
 
 def _layouts(obj) -> list[str]:
+    """One line per ONNX file of a configured model: its role, path and detected layout."""
     return [f"  {m.role}: {m.path} [{m.layout.name}]"
             for m in vars(obj).values() if hasattr(m, "session") and hasattr(m, "layout")]
 
 
 def run(args) -> int:
-    from ..frontend.config import ENV_VAR, resolve_models
-
+    """``seed2gs models``: open and describe every configured model; with --image, ground --prompt."""
     if (args.image is None) != (args.prompt is None):
         raise ValidationError("--image and --prompt go together")
     ms = resolve_models(args.config)
@@ -51,6 +52,7 @@ def run(args) -> int:
         return 0
     if grounder is None:
         raise ValidationError("--prompt needs a grounding source in the configuration")
+    # Deferred: OpenCV is large to load and only this branch reads an image.
     import cv2
 
     bgr = cv2.imread(str(args.image), cv2.IMREAD_COLOR)

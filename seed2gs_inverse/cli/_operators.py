@@ -4,12 +4,19 @@ from __future__ import annotations
 
 import sys
 
-import numpy as np
+from tqdm import tqdm
+
+from .._validation import as_real
+from ..errors import ValidationError
+from ..io import read_cameras, read_scene
+from ..operators import OperatorStack, scene_fingerprint
+from ._common import check_output, progress_enabled, scaled_size
 
 __all__ = ["register", "build", "info"]
 
 
 def register(subparsers) -> None:
+    """Add ``operators build`` and ``operators info`` to ``subparsers``."""
     p = subparsers.add_parser(
         "operators", help="build or describe saved per-view operators",
         description="Per-view sparse operators W (pixels x Gaussians) of a frozen scene, saved as a "
@@ -44,17 +51,16 @@ def register(subparsers) -> None:
 
 
 def build(args) -> int:
-    from ..errors import ValidationError
-    from ..io import read_cameras, read_scene
-    from ..operators import OperatorStack, scene_fingerprint
+    """``seed2gs operators build``: render every camera once and save the operator stack."""
+    # Deferred: the rasterizer loads Numba and its compiled kernels, which `seed2gs --help`
+    # (importing this module to build the parser) must not pay for.
     from ..raster import build_operator
 
-    if not (np.isfinite(args.scale) and 0 < args.scale <= 4):  # x4 already turns 1080p into 8K views
+    scale = as_real(args.scale)
+    if scale is None or not 0 < scale <= 4:  # x4 already turns 1080p into 8K views
         raise ValidationError(f"--scale must be in (0, 4], got {args.scale}")
     if not 0 <= args.min_weight <= 1:  # NaN fails too; checked before anything is read
         raise ValidationError(f"--min-weight must be in [0, 1], got {args.min_weight}")
-    from ._common import check_output, progress_enabled, scaled_size
-
     check_output(args.output, "-o", directory=True, force=args.overwrite, kind="operators")  # fail before rendering anything
     OperatorStack.check_target(args.output, args.overwrite)
     cameras = read_cameras(args.cameras)
@@ -66,8 +72,6 @@ def build(args) -> int:
     views = []
     items = cameras
     if progress_enabled(args.no_progress):
-        from tqdm import tqdm
-
         items = tqdm(cameras, desc="operators", unit="view", file=sys.stderr, leave=False)
     for cam in items:
         views.append(build_operator(scene, cam, scale=args.scale, min_weight=args.min_weight))
@@ -79,12 +83,9 @@ def build(args) -> int:
 
 
 def info(args) -> int:
-    from ..operators import OperatorStack
-
+    """``seed2gs operators info``: check an operator directory and print its views."""
     scene = None
     if args.scene:
-        from ..io import read_scene
-
         scene = read_scene(args.scene)
     stack = OperatorStack.load(args.directory, mmap=True, scene=scene)
     observed = stack.observed()

@@ -7,9 +7,13 @@ import time
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 
 from .._atomic import write_files
+from .._validation import as_real
+from ..camera import Camera
 from ..errors import ValidationError
+from ..io import read_camera, read_scene
 from ._common import check_output, look_at_camera, parse_point, scaled_size
 
 __all__ = ["register"]
@@ -18,6 +22,7 @@ _EXTS = (".png", ".npy")
 
 
 def register(subparsers) -> None:
+    """Add the ``render`` command to ``subparsers``."""
     p = subparsers.add_parser(
         "render", help="render a scene from a camera (PNG or .npy)",
         description="Render SCENE with the tile rasterizer from a camera of a camera file "
@@ -55,12 +60,9 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def _camera(args):
-    from ..camera import Camera
-
+def _camera(args) -> Camera:
+    """The camera to render from: ``--camera`` or ``--look-at``, then ``--near`` and ``--scale``."""
     if args.camera is not None:
-        from ..io.cameras import read_camera
-
         given = [f"--{k}" for k in ("size", "fov", "up") if getattr(args, k) is not None]
         if given:  # they would be ignored: the camera file fixes size, field of view and orientation
             raise ValidationError(f"{', '.join(given)} go with --look-at; with --camera the camera file gives "
@@ -78,6 +80,7 @@ def _camera(args):
 
 
 def _check_output(option, path, force=False):
+    """``path`` as a Path ending in .png or .npy that the command may write (None stays None)."""
     if path is None:
         return None
     p = Path(path)
@@ -92,8 +95,6 @@ def _encode(path, array, kind):
     if path.suffix.lower() == ".npy":
         np.save(buf, np.ascontiguousarray(array, dtype=np.float32), allow_pickle=False)
         return buf.getvalue()
-    from PIL import Image
-
     if kind == "depth":
         depth, alpha = array
         covered = alpha > 0
@@ -109,9 +110,10 @@ def _encode(path, array, kind):
     return buf.getvalue()
 
 
-
 def run(args) -> int:
-    from ..io import read_scene
+    """``seed2gs render``: rasterize the scene from one camera and write the requested images."""
+    # Deferred: the rasterizer loads Numba and its compiled kernels, which `seed2gs --help`
+    # (importing this module to build the parser) must not pay for.
     from ..raster import render
 
     out = _check_output("-o", args.output, args.force)
@@ -123,7 +125,8 @@ def run(args) -> int:
     bg = parse_point("--background", args.background)
     if bg.min() < 0 or bg.max() > 1:
         raise ValidationError(f"--background {args.background!r}: values must be in [0, 1]")
-    if not (np.isfinite(args.scale) and args.scale > 0):
+    scale = as_real(args.scale)
+    if scale is None or scale <= 0:
         raise ValidationError(f"--scale {args.scale}: must be a positive number")
     cam = _camera(args)
     scene = read_scene(args.scene)

@@ -9,12 +9,18 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import ValidationError
+from ..io import detect_format, read_cameras, read_scene, write_scene
+from ..io.formats import output_format
+from ._common import check_output
+
 __all__ = ["register", "info", "convert"]
 
 _CAMERA_FILES = ("cameras.txt", "images.txt", "cameras.bin", "images.bin")
 
 
 def register(subparsers) -> None:
+    """Add the ``info`` and ``convert`` commands to ``subparsers``."""
     p = subparsers.add_parser(
         "info", help="describe a scene or camera file",
         description="Print a scene file's format, Gaussian count, SH degree, bounds and extra "
@@ -41,16 +47,19 @@ def register(subparsers) -> None:
 
 
 def _is_camera_path(path: str) -> bool:
+    """Whether ``seed2gs info FILE`` reads FILE as cameras: a directory, a .json or a COLMAP file name."""
     p = Path(path)
     return p.is_dir() or p.suffix.lower() == ".json" or p.name.lower() in _CAMERA_FILES
 
 
 def _print_warnings(command: str, caught) -> None:
+    """Each caught warning as one line in the command's voice."""
     for w in caught:
         print(f"seed2gs {command}: warning: {w.message}", file=sys.stderr)
 
 
 def _fmt(v) -> str:
+    """A number with 4 significant digits, as every summary line shows it."""
     return f"{v:.4g}"
 
 
@@ -84,8 +93,7 @@ def camera_summary(path, cams) -> list:
 
 
 def info(args) -> int:
-    from ..io import detect_format, read_cameras, read_scene
-
+    """``seed2gs info``: print the summary of a scene or camera file."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         if _is_camera_path(args.file):
@@ -100,11 +108,7 @@ def info(args) -> int:
 
 
 def convert(args) -> int:
-    from ..errors import ValidationError
-    from ..io import read_scene, write_scene
-    from ..io.formats import output_format
-    from ._common import check_output
-
+    """``seed2gs convert``: read a scene and write it in the format of OUT's extension."""
     fmt = output_format(args.output)  # fail before reading a large input
     check_output(args.output, "OUT", force=args.force)
     if os.path.exists(args.output) and os.path.exists(args.input) and os.path.samefile(args.input, args.output):

@@ -14,15 +14,24 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
+from .._atomic import atomic_path, write_files
+from ..comparison import compare, holdout_views
 from ..errors import ValidationError
+from ..io import read_masks
 from ..io._common import load_npy
-from ._common import add_method_arguments, check_output, parse_options, progress_enabled
+from ..operators import OperatorStack
+from ..pipeline.extract import _Progress
+from ..solvers import available_methods, solve
+from ..solvers._common import prior_from_init
+from ._common import SolveBar, add_method_arguments, check_output, parse_options, progress_enabled
 
 __all__ = ["register", "solve_command", "compare_command"]
 
 
 def register(subparsers) -> None:
+    """Add the ``solve`` and ``compare`` commands to ``subparsers``."""
     p = subparsers.add_parser(
         "solve", help="recover per-Gaussian membership q from masks",
         description="Fit per-Gaussian foreground probabilities q to one mask per view with a solver "
@@ -45,8 +54,6 @@ def register(subparsers) -> None:
     c.add_argument("operators", metavar="OPS_DIR", help="operator directory (seed2gs operators build)")
     c.add_argument("masks", metavar="MASKS_DIR", help="view_000.png|npy ... one mask per view")
     c.add_argument("--truth", required=True, metavar="LABELS.npy", help="(N,) bool ground-truth membership")
-    from ..solvers import available_methods
-
     c.add_argument("--methods", metavar="M1,M2,...",
                    help=f"comma-separated methods out of {', '.join(available_methods())} (default: all)")
     c.add_argument("--holdout-every", type=int, default=4, help="hold out every k-th view (0: none; default 4)")
@@ -59,18 +66,14 @@ def register(subparsers) -> None:
 
 
 def _npy_bytes(arr) -> bytes:
+    """The bytes of ``arr`` saved as a .npy file (no pickles)."""
     buf = io.BytesIO()
     np.save(buf, arr, allow_pickle=False)
     return buf.getvalue()
 
 
 def solve_command(args) -> int:
-    from ..io import read_masks
-    from ..operators import OperatorStack
-    from ..solvers import solve
-    from .._atomic import write_files
-    from ._common import SolveBar
-
+    """``seed2gs solve``: fit q to the masks with one method and write it as ``.npy``."""
     options = parse_options(args.option, args.method)  # fail fast on a typo, before loading anything
     if Path(args.output).suffix.lower() != ".npy":
         raise ValidationError(f"-o {args.output}: the output must be a .npy file")
@@ -78,8 +81,6 @@ def solve_command(args) -> int:
     stack = OperatorStack.load(args.operators, mmap=True)
     init = None
     if args.init:
-        from ..solvers._common import prior_from_init
-
         init = load_npy(args.init, f"--init {args.init}")
         try:  # checked here so that the message names the option and file
             prior_from_init(init, stack.n_gaussians)
@@ -99,12 +100,7 @@ def solve_command(args) -> int:
 
 
 def compare_command(args) -> int:
-    from ..comparison import compare, holdout_views
-    from ..io import read_masks
-    from ..operators import OperatorStack
-    from .._atomic import atomic_path
-    from ..solvers import available_methods
-
+    """``seed2gs compare``: fit every method, print the score table, optionally write the report."""
     methods = [m.strip() for m in args.methods.split(",") if m.strip()] if args.methods else None
     for m in methods or []:
         if m not in available_methods():
@@ -157,19 +153,17 @@ class _CompareBar:
 
     def __enter__(self):
         if self.enabled:
-            from tqdm import tqdm
-
-            from ..pipeline.extract import _Progress
-
             self._bar = tqdm(total=self.n, desc="compare", unit="method", leave=False, file=sys.stderr,
                              mininterval=_Progress.MININTERVAL)
         return self
 
     @property
     def callback(self):
+        """The ``compare(progress=...)`` callback, or None when the bar is disabled."""
         return self._update if self._bar is not None else None
 
     def _update(self, method, k, n, step) -> None:
+        """Advance on a finished method; otherwise show its iteration and loss."""
         if step is None:
             self._bar.update(1)
             self._bar.set_postfix_str(f"{method} done", refresh=True)

@@ -3,12 +3,17 @@
 from __future__ import annotations
 
 import argparse
+import os
+import sys
 from pathlib import Path
 
 import numpy as np
 
 from .._atomic import atomic_path
 from ..errors import ValidationError
+from ..io import read_camera, read_cameras, read_scene
+from ..io._common import load_npy
+from .. import viz  # its functions are looked up when the command runs: tests replace them
 from ._common import check_output, parse_size, parse_vector
 
 __all__ = ["register"]
@@ -24,6 +29,7 @@ class _UsageFormatter(argparse.HelpFormatter):
 
 
 def register(subparsers) -> None:
+    """Add the ``view`` command to ``subparsers``."""
     p = subparsers.add_parser(
         "view", help="show a scene's Gaussians coloured by membership (pyvista)", formatter_class=_UsageFormatter,
         description="Show the Gaussians of SCENE as points or ellipsoids, coloured by a "
@@ -56,41 +62,28 @@ def register(subparsers) -> None:
 
 
 def _read_scene(path):
-    from ..io import read_scene
-
+    """The scene of ``SCENE``; one function, so that tests can give ``run`` a scene in memory."""
     return read_scene(path)
-
-
-def _read_cameras(path):
-    from ..io import read_cameras
-
-    return read_cameras(path)
 
 
 def _camera(spec, view):
     """The camera of ``--camera FILE[:NAME|INDEX]`` (FILE alone: the first), or of the old ``--view``."""
-    import os
-    import sys
-
     if view is not None:
         print(f"seed2gs view: note: '--camera FILE --view {view}' is deprecated; write --camera FILE:{view}",
               file=sys.stderr)
-        return _pick_camera(_read_cameras(spec), view)
+        return _pick_camera(read_cameras(spec), view)
     if os.path.exists(spec) or ":" not in spec:
-        return _pick_camera(_read_cameras(spec), None)
-    from ..io import read_camera
-
+        return _pick_camera(read_cameras(spec), None)
     return read_camera(spec)
 
 
 def _load_membership(path, n: int) -> np.ndarray:
-    from ..io._common import load_npy
-    from ..viz import check_membership
-
-    return check_membership(load_npy(path, f"--membership {path}"), n, f"--membership {path}")
+    """``--membership Q.npy`` as (n,) values in [0, 1], or a ValidationError naming the file."""
+    return viz.check_membership(load_npy(path, f"--membership {path}"), n, f"--membership {path}")
 
 
 def _pick_camera(cams, which):
+    """The camera named or indexed by ``which`` in ``cams`` (the first when None)."""
     if not cams:
         raise ValidationError("--camera: the file holds no cameras")
     if which is None:
@@ -106,15 +99,14 @@ def _pick_camera(cams, which):
 
 
 def run(args) -> int:
-    from ..viz import has_display, membership_plot
-
+    """``seed2gs view``: open a window, or write ``--screenshot`` off-screen."""
     if args.threshold is not None and args.membership is None:
         raise ValidationError("--threshold needs --membership")
     if args.view is not None and args.camera is None:
         raise ValidationError("--view needs --camera")
     if args.up is not None and args.camera is not None:
         raise ValidationError("--up applies without --camera only (a camera fixes the view's up); drop one")
-    if args.screenshot is None and not has_display():
+    if args.screenshot is None and not viz.has_display():
         raise ValidationError("no display to open a window on; pass --screenshot OUT.png")
     if args.screenshot is not None and Path(args.screenshot).suffix.lower() != ".png":
         raise ValidationError(f"--screenshot {args.screenshot}: the file name must end in .png")
@@ -129,10 +121,10 @@ def run(args) -> int:
     kw = dict(mode=args.mode, threshold=args.threshold, camera=camera, max_glyphs=args.max_glyphs,
               point_size=args.point_size, min_opacity=args.min_opacity, window_size=size, up=up)
     if out is None:
-        membership_plot(scene, q, off_screen=False, **kw).show()
+        viz.membership_plot(scene, q, off_screen=False, **kw).show()
         return 0
     with atomic_path(out) as tmp:  # a failure leaves nothing behind
-        img = membership_plot(scene, q, screenshot=str(tmp), off_screen=True, **kw)
+        img = viz.membership_plot(scene, q, screenshot=str(tmp), off_screen=True, **kw)
     # the Gaussians membership_plot draws: above --min-opacity, with --threshold q above it, and as
     # ellipsoids at most --max-glyphs of those (a random subset, which it warns about)
     keep = scene.opacities >= args.min_opacity if args.min_opacity > 0 else np.ones(len(scene), bool)

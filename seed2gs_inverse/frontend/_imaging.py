@@ -2,19 +2,32 @@
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
+from scipy.sparse import csr_matrix
 
 from ..errors import ValidationError
 
 __all__ = ["IMAGENET_MEAN", "IMAGENET_STD", "CLIP_MEAN", "CLIP_STD", "as_rgb",
            "resize_normalize", "resample", "normalize", "resize_map", "cxcywh_to_xyxy", "mask_box", "box_iou",
-           "as_box"]
+           "as_box", "opencv"]
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 CLIP_MEAN = (0.48145466, 0.4578275, 0.40821073)
 CLIP_STD = (0.26862954, 0.26130258, 0.27577711)
+
+
+def opencv():
+    """The ``cv2`` module, imported on first use.
+
+    OpenCV is large to load, and the front end is imported by code that
+    never calls it (the pipeline, hence ``seed2gs --help``); every function
+    of the front end that needs OpenCV gets it here, so that importing
+    :mod:`seed2gs_inverse.frontend` does not load it.
+    """
+    import cv2
+
+    return cv2
 
 
 def as_rgb(image, name: str = "image") -> np.ndarray:
@@ -23,6 +36,12 @@ def as_rgb(image, name: str = "image") -> np.ndarray:
     uint8 images are divided by 255. Float images are clipped to [0, 1], as
     saving them to 8 bits would: 3DGS colours (SH + 0.5, clamped at 0 only)
     can exceed 1 in renderings.
+
+    Raises
+    ------
+    ValidationError
+        Not (H, W, 3) with H, W >= 1, not a real or uint8 dtype, or holding
+        NaN or infinite values; the message starts with ``name``.
     """
     img = np.asarray(image)
     if img.ndim != 3 or img.shape[2] != 3 or img.shape[0] < 1 or img.shape[1] < 1:
@@ -46,9 +65,10 @@ def resize_normalize(image: np.ndarray, size_hw, mean, std) -> np.ndarray:
     h, w = int(size_hw[0]), int(size_hw[1])
     img = np.asarray(image, np.float32)
     if img.shape[:2] != (h, w):
+        cv2 = opencv()
         img = cv2.resize(img, (w, h), interpolation=cv2.INTER_LINEAR)
     # per-channel writes straight into the NCHW buffer: one pass, no
-    # full-size temporaries (5-8x faster than broadcasting then transposing)
+    # full-size temporaries (cheaper than broadcasting, then transposing)
     out = np.empty((1, 3, h, w), np.float32)
     for c in range(3):
         np.subtract(img[:, :, c], np.float32(mean[c]), out=out[0, c])
@@ -109,8 +129,6 @@ def resample(image: np.ndarray, size_hw, kernel: str = "bilinear", eight_bit: bo
     if img.ndim != 3:
         raise ValidationError(f"image: expected (H, W, C), got shape {img.shape}")
     q = (lambda a: np.clip(np.round(a * 255.0), 0, 255) / 255.0) if eight_bit else (lambda a: a)
-    from scipy.sparse import csr_matrix
-
     chw = q(np.ascontiguousarray(img.transpose(2, 0, 1)))          # (C, H, W)
     c, hin, win = chw.shape
     # the taps are banded (a few per output pixel): sparse products keep a
@@ -145,6 +163,7 @@ def resize_map(values: np.ndarray, size_hw) -> np.ndarray:
     v = np.asarray(values, dtype=np.float32)
     if v.shape == (h, w):
         return v.copy()
+    cv2 = opencv()
     return cv2.resize(v, (w, h), interpolation=cv2.INTER_LINEAR)
 
 
@@ -176,7 +195,18 @@ def box_iou(a, b) -> float:
 
 
 def as_box(box, shape_hw, name: str = "box") -> np.ndarray:
-    """Validate an (x0, y0, x1, y1) pixel box inside an image of ``shape_hw``."""
+    """Validate an (x0, y0, x1, y1) pixel box inside an image of ``shape_hw``.
+
+    Returns
+    -------
+    (4,) float64
+        The box clipped to the image, ``0 <= x0 < x1 <= W``, ``0 <= y0 < y1 <= H``.
+
+    Raises
+    ------
+    ValidationError
+        Not 4 finite numbers, or empty once clipped to the image.
+    """
     b = np.asarray(box, dtype=np.float64).reshape(-1)
     if b.size != 4 or not np.all(np.isfinite(b)):
         raise ValidationError(f"{name}: expected 4 finite numbers x0, y0, x1, y1, got {box!r}")

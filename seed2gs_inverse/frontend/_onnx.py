@@ -65,6 +65,7 @@ class Port:
     optional: bool = False
 
     def describe(self) -> str:
+        """``name:dtype|dtype[d0,d1,...]`` as in the error messages (``*`` = any size)."""
         shape = "?" if self.rank is None else (
             "[" + ",".join("*" if d is None else str(d)
                            for d in (self.dims or (None,) * self.rank)) + "]")
@@ -81,11 +82,13 @@ class Layout:
     outputs: tuple
 
     def describe(self) -> str:
+        """``name: inputs (...) -> outputs (...)`` as in the error messages."""
         return (f"{self.name}: inputs ({', '.join(p.describe() for p in self.inputs)}) "
                 f"-> outputs ({', '.join(p.describe() for p in self.outputs)})")
 
 
 def _arg_describe(arg) -> str:
+    """``name:dtype[shape]`` of one onnxruntime NodeArg (``*`` for a dynamic axis)."""
     shape = "[" + ",".join(str(d) if isinstance(d, int) else "*" for d in (arg.shape or [])) + "]"
     return f"{arg.name}:{_SHORT.get(arg.type, arg.type)}{shape}"
 
@@ -158,7 +161,7 @@ class OnnxModel:
         if not self.path.is_file():
             raise FormatError(f"{self.path}: ONNX file for {role} not found "
                               "(check the path in the models configuration)")
-        import onnxruntime as ort
+        import onnxruntime as ort  # deferred: large to load, needed only once a model is opened
 
         opts = ort.SessionOptions()
         opts.log_severity_level = 3  # our own messages replace onnxruntime's warnings
@@ -185,9 +188,11 @@ class OnnxModel:
         self._outputs = [a.name for a in self.session.get_outputs()]
 
     def has_input(self, name: str) -> bool:
+        """Whether the file declares the input ``name`` (optional ports may be absent)."""
         return name in self._inputs
 
     def has_output(self, name: str) -> bool:
+        """Whether the file declares the output ``name``."""
         return name in self._outputs
 
     def input_dim(self, name: str, axis: int, default: int | None = None) -> int | None:
@@ -198,6 +203,7 @@ class OnnxModel:
         return int(shape[axis])
 
     def input_dtype(self, name: str):
+        """The numpy dtype input ``name`` is fed with (its declared type; float32 if unknown)."""
         return _ORT_TO_NUMPY.get(self._inputs[name].type, np.float32)
 
     def run(self, feeds: Mapping[str, np.ndarray], outputs: Sequence[str] | None = None) -> dict:

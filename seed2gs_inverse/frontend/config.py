@@ -53,11 +53,19 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Callable
 
 import numpy as np
 
+from .._validation import as_real
 from ..errors import FormatError, ValidationError
+from ..io.tables import read_table
+from .external import ExternalBoxes
+from .grounding_dino import GroundingDINO
+from .owlvit import OWLViT
+from .sam2 import SAM2ImagePredictor, SAM2VideoTracker
+from .sam3 import SAM3
+from .selector import QDSAM3Selector
 
 __all__ = ["ModelSet", "load_models", "resolve_models", "ENV_VAR", "NO_MODELS_NOTICE"]
 
@@ -95,8 +103,7 @@ _REQUIRED = {"sam2": ("encoder", "decoder"), "sam": ("encoder", "decoder"),
 
 
 def _read(path: Path) -> dict:
-    from ..io.tables import read_table
-
+    """The parsed TOML/JSON table of ``path``; a missing file is a FormatError."""
     try:
         return read_table(path, "models configuration")
     except FileNotFoundError:
@@ -104,6 +111,11 @@ def _read(path: Path) -> dict:
 
 
 def _sections(path: Path, data: dict) -> dict:
+    """``data`` checked against the schema: known sections and keys, types, ranges, required keys.
+
+    Path values are resolved against the configuration's folder; the result
+    maps each section to its checked keys.
+    """
     out = {}
     for name, body in data.items():
         if name not in _SCHEMA:
@@ -126,10 +138,11 @@ def _sections(path: Path, data: dict) -> dict:
             elif kind in (int, float):
                 if isinstance(value, bool) or not isinstance(value, (int, float)) or (kind is int and not isinstance(value, int)):
                     raise FormatError(f"{path}: [{name}] {key} must be a{'n integer' if kind is int else ' number'}")
-                sec[key] = kind(value)
                 lo, hi = _RANGES.get((name, key), (-np.inf, np.inf))
-                if not (np.isfinite(sec[key]) and lo <= sec[key] <= hi):
+                real = as_real(value)  # None when not finite
+                if real is None or not lo <= real <= hi:
                     raise FormatError(f"{path}: [{name}] {key} must be in [{lo:g}, {hi:g}], got {value!r}")
+                sec[key] = kind(value)
             elif not isinstance(value, kind):
                 raise FormatError(f"{path}: [{name}] {key} must be a {kind.__name__}")
             else:
@@ -149,32 +162,29 @@ class ModelSet:
     SAM2 video tracker; both are None when their models are not configured.
     """
 
-    sam2: Any = None
-    sam: Any = None
-    sam2_video: Any = None
-    groundingdino: Any = None
-    sam3: Any = None
-    owlvit: Any = None
-    external: Any = None
+    sam2: SAM2ImagePredictor | None = None
+    sam: SAM2ImagePredictor | None = None
+    sam2_video: SAM2VideoTracker | None = None
+    groundingdino: GroundingDINO | None = None
+    sam3: SAM3 | None = None
+    owlvit: OWLViT | None = None
+    external: ExternalBoxes | None = None
     selector_options: dict = field(default_factory=dict)
     path: Path | None = None
 
-    def mask_model(self):
+    def mask_model(self) -> SAM3 | SAM2ImagePredictor | None:
         """SAM3 when configured (the paper's single mask generator), else SAM2, else SAM."""
         choice = self.selector_options.get("mask_model")
         if choice in ("sam2", "sam3", "sam"):
             return getattr(self, choice)
         return next((m for m in (self.sam3, self.sam2, self.sam) if m is not None), None)
 
-    def grounder(self, external: Callable | str | Path | None = None):
+    def grounder(self, external: Callable | str | Path | None = None) -> QDSAM3Selector | None:
         """QD-SAM3 selector over the configured sources, or None when there are none.
 
         ``external`` adds boxes from elsewhere (a callable ``fn(image,
         prompt)`` or a JSON file) as the ``"vlm"`` source for this grounder.
         """
-        from .external import ExternalBoxes
-        from .selector import QDSAM3Selector
-
         detectors = [d for d in (self.groundingdino, self.owlvit) if d is not None]
         ext = self.external if external is None else ExternalBoxes(external)
         if ext is not None:
@@ -188,7 +198,7 @@ class ModelSet:
         opts = {k: v for k, v in self.selector_options.items() if k != "mask_model"}
         return QDSAM3Selector(mask_model, detectors, text, **opts)
 
-    def tracker(self):
+    def tracker(self) -> SAM2VideoTracker | None:
         """The SAM2 video tracker, or None (the caller uses the model-free tracker)."""
         return self.sam2_video
 
@@ -218,17 +228,11 @@ def load_models(path) -> ModelSet:
         Unreadable configuration, unknown section/key, missing model file or
         a file whose ONNX signature does not match its role.
     """
-    from .external import ExternalBoxes
-    from .grounding_dino import GroundingDINO
-    from .owlvit import OWLViT
-    from .sam2 import SAM2ImagePredictor, SAM2VideoTracker
-    from .sam3 import SAM3
-
     path = Path(path)
     cfg = _sections(path, _read(path))
     prov = cfg.get("onnxruntime", {}).get("providers")
     if prov is not None:
-        import onnxruntime
+        import onnxruntime  # deferred: large to load, and only a [onnxruntime] section needs it here
 
         have = onnxruntime.get_available_providers()
         missing = [p for p in prov if p not in have]

@@ -90,6 +90,7 @@ class ExternalBoxes:
             parse_boxes(items, (2 ** 31, 2 ** 31), "", file_coords, str(self._file))
 
     def _load(self):
+        """``(entries, coords, prompt or None)`` of the JSON file, or a FormatError naming it."""
         try:
             data = json.loads(self._file.read_text(encoding="utf-8"))
         except FileNotFoundError:

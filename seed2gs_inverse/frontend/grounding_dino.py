@@ -31,7 +31,7 @@ import numpy as np
 from ..errors import ValidationError
 from ._imaging import IMAGENET_MEAN, IMAGENET_STD, as_rgb, cxcywh_to_xyxy, normalize, resample
 from ._onnx import Layout, OnnxModel, Port
-from .base import Detection  # defined in base (shared by all grounders); still importable here
+from .base import Detection  # shared by every grounder; re-exported as one of this module's names
 from .tokenizer import BertTokenizer
 
 __all__ = ["GroundingDINO", "Detection", "GROUNDING_DINO_LAYOUT", "GROUNDING_DINO_LAYOUTS", "preprocess_caption",

@@ -17,11 +17,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import ValidationError
 from ._imaging import CLIP_MEAN, CLIP_STD, as_rgb, cxcywh_to_xyxy, normalize, resample
 from ._onnx import Layout, OnnxModel, Port
 from .base import Detection
 from .tokenizer import ClipTokenizer
-from ..errors import ValidationError
 
 __all__ = ["OWLViT", "OWLVIT_LAYOUT"]
 

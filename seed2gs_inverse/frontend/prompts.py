@@ -20,13 +20,16 @@ alternatives. Plain strings are read as text prompts.
 from __future__ import annotations
 
 import os
+import threading
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 import numpy as np
 
+from .._validation import check_vector
 from ..errors import FormatError, ValidationError
-from .base import Candidate
+from ._imaging import opencv
+from .base import Candidate, Grounder
 
 __all__ = ["MaskPrompt", "BoxPrompt", "PointPrompt", "TextPrompt", "as_prompt",
            "seed_mask_from_prompt", "TEXT_NEEDS_GROUNDER"]
@@ -38,6 +41,7 @@ TEXT_NEEDS_GROUNDER = (
 
 
 def _to_uint8(image: np.ndarray) -> np.ndarray:
+    """(H, W, 3) RGB in [0, 1] as the contiguous BGR uint8 image OpenCV works on."""
     img = np.asarray(image, dtype=np.float32)
     if img.ndim != 3 or img.shape[2] != 3:
         raise ValidationError(f"reference image must be (H, W, 3) RGB, got shape {img.shape}")
@@ -47,8 +51,7 @@ def _to_uint8(image: np.ndarray) -> np.ndarray:
 
 def _grabcut(image: np.ndarray, init: np.ndarray, iterations: int) -> np.ndarray:
     """GrabCut from a label image of cv2.GC_{BGD,FGD,PR_BGD,PR_FGD}; returns bool fg."""
-    import cv2
-
+    cv2 = opencv()
     labels = np.ascontiguousarray(init.astype(np.uint8))
     fg_any = np.isin(labels, (cv2.GC_FGD, cv2.GC_PR_FGD)).any()
     bg_any = np.isin(labels, (cv2.GC_BGD, cv2.GC_PR_BGD)).any()
@@ -66,8 +69,7 @@ def _grabcut(image: np.ndarray, init: np.ndarray, iterations: int) -> np.ndarray
 #: Seed of OpenCV's random generator for GrabCut (see :func:`_run_seeded`): -1
 #: puts ``cv::RNG`` in its default state (``RNG((uint64)-1)``, the state of
 #: every new thread), so each GrabCut gives exactly what the first GrabCut of
-#: a fresh process always gave, e.g. a one-prompt ``seed2gs extract`` run
-#: before runs were made repeatable.
+#: a fresh process gives.
 GRABCUT_SEED = -1
 
 
@@ -76,22 +78,19 @@ def _run_seeded(fn):
 
     GrabCut initialises its colour GMMs with k-means++ (``KMEANS_PP_CENTERS``),
     which draws from ``cv::theRNG()``. That generator is per thread and
-    advances with every call, so two identical box prompts in one process
-    gave seeds differing by a few pixels (and extractions by a few
-    Gaussians). ``cv2.setRNGSeed`` fixes the draws but only for the calling
-    thread's generator; calling it in a short-lived thread of our own makes
-    every GrabCut identical for identical input *and* leaves the caller's
-    OpenCV RNG (and any user code relying on it) untouched.
+    advances with every call, so without a fixed seed two identical box
+    prompts in one process could give seeds differing by a few pixels (and
+    extractions by a few Gaussians). ``cv2.setRNGSeed`` fixes the draws but
+    only for the calling thread's generator; calling it in a short-lived
+    thread of our own makes every GrabCut identical for identical input
+    *and* leaves the caller's OpenCV RNG (and any user code relying on it)
+    untouched.
 
-    Repeatable is not robust: the k-means++ start still decides the result.
-    On the sphere scene of the tests a point prompt's IoU with the truth
-    ranges from 0.09 to 0.93 over 30 seeds (median 0.905, a third at 0.746,
-    the value of the default state); a box prompt's from 0.92 to 0.98.
+    Repeatable is not robust: the k-means++ start still decides the result,
+    and other seeds can give a markedly different mask for a point prompt
+    (less so for a box prompt).
     """
-    import threading
-
-    import cv2
-
+    cv2 = opencv()
     out = {}
 
     def target():
@@ -124,6 +123,7 @@ class MaskPrompt:
     mask: Any
 
     def to_mask(self, image: np.ndarray, **_) -> np.ndarray:
+        """(H, W) bool seed mask, checked against the reference ``image``'s size and non-empty."""
         h, w = np.asarray(image).shape[:2]
         if isinstance(self.mask, (str, os.PathLike)):
             arr = read_mask_image(self.mask)
@@ -145,8 +145,7 @@ class MaskPrompt:
 
 def read_mask_image(path) -> np.ndarray:
     """Read a mask image: (H, W) bool, alpha channel if present, else grey > 127."""
-    import cv2
-
+    cv2 = opencv()
     p = os.fspath(path)
     if not os.path.isfile(p):
         raise FileNotFoundError(2, "No such file", p)
@@ -180,20 +179,19 @@ class BoxPrompt:
         self._checked()  # when made (a batch job's box fails before any cluster starts) and when used
 
     def _checked(self) -> np.ndarray:
+        """The box as a float64 (4,) array with x0 < x1 and y0 < y1, or a ValidationError."""
         try:
-            b = np.asarray(self.box, dtype=np.float64)
-        except (TypeError, ValueError):
-            b = np.empty(0)
-        if b.shape != (4,) or not np.all(np.isfinite(b)):
-            raise ValidationError(f"box must be 4 finite numbers x0 y0 x1 y1, got {self.box!r}")
+            b = check_vector("box", self.box, 4)
+        except ValidationError:
+            raise ValidationError(f"box must be 4 finite numbers x0 y0 x1 y1, got {self.box!r}") from None
         if b[2] <= b[0] or b[3] <= b[1]:
             raise ValidationError(f"box {b.tolist()} is empty: need x0 < x1 and y0 < y1 "
                                   f"([left, top, right, bottom] in pixels)")
         return b
 
     def to_mask(self, image: np.ndarray, alpha: np.ndarray | None = None, **_) -> np.ndarray:
-        import cv2
-
+        """(H, W) bool seed mask of the box on the rendered reference ``image`` (H, W, 3)."""
+        cv2 = opencv()
         h, w = np.asarray(image).shape[:2]
         b = self._checked()  # the box may have been changed since (a mutable dataclass)
         x0, y0, x1, y1 = b
@@ -243,6 +241,7 @@ class PointPrompt:
     alpha_min: float = 0.05
 
     def _checked(self, h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
+        """Clicks as (P, 2) int pixels and labels (P,) 0/1, inside an ``h`` x ``w`` image."""
         pts = np.asarray(self.points, dtype=np.float64).reshape(-1, 2) if len(self.points) else np.zeros((0, 2))
         if pts.shape[0] == 0 or not np.all(np.isfinite(pts)):
             raise ValidationError("point prompt needs at least one finite click (x, y)")
@@ -259,8 +258,8 @@ class PointPrompt:
 
     def to_mask(self, image: np.ndarray, depth: np.ndarray | None = None,
                 alpha: np.ndarray | None = None, **_) -> np.ndarray:
-        import cv2
-
+        """(H, W) bool seed mask grown from the clicks on the rendered reference ``image`` (H, W, 3)."""
+        cv2 = opencv()
         img = np.asarray(image, dtype=np.float32)
         h, w = img.shape[:2]
         pts, labels = self._checked(h, w)
@@ -324,7 +323,7 @@ class TextPrompt:
     info: dict = field(default_factory=dict)
 
 
-def as_prompt(prompt) -> Any:
+def as_prompt(prompt) -> MaskPrompt | BoxPrompt | PointPrompt | TextPrompt:
     """Normalise a user prompt: strings become ``TextPrompt``, arrays ``MaskPrompt``."""
     if isinstance(prompt, (MaskPrompt, BoxPrompt, PointPrompt, TextPrompt)):
         return prompt
@@ -340,7 +339,8 @@ def as_prompt(prompt) -> Any:
 
 
 def seed_mask_from_prompt(prompt, image: np.ndarray, depth: np.ndarray | None = None,
-                          alpha: np.ndarray | None = None, grounder=None) -> tuple[np.ndarray, dict]:
+                          alpha: np.ndarray | None = None,
+                          grounder: Grounder | None = None) -> tuple[np.ndarray, dict]:
     """The seed mask ``m*`` of a prompt on the rendered reference canvas.
 
     Parameters
@@ -360,6 +360,13 @@ def seed_mask_from_prompt(prompt, image: np.ndarray, depth: np.ndarray | None = 
     info : dict
         ``kind`` and, for grounded prompts, every candidate's source, score,
         box and info, best first.
+
+    Raises
+    ------
+    ValidationError
+        A text prompt without a grounder, a grounder that breaks the
+        ``Grounder`` protocol or finds no candidate, or a prompt whose mask
+        is empty, off the image or not of the reference view's size.
     """
     prompt = as_prompt(prompt)
     if isinstance(prompt, TextPrompt):

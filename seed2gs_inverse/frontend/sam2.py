@@ -26,8 +26,8 @@ from the input names:
   orig_im_size`` -> ``masks`` (L, M, H, W) logits at the original size,
   ``iou_predictions`` [, ``low_res_masks``]; when ``low_res_masks`` is
   there the masks are up-sampled from it here, as ``SamPredictor`` does
-  (samexporter 0.5.0 with torch 2.10 traces the crop of its dummy image
-  size into the graph's own ``masks``). Pre-processing is SAM's
+  (samexporter's traced graph keeps the crop of its dummy image size in
+  its own ``masks``, which are then wrong for other aspect ratios). Pre-processing is SAM's
   ``ResizeLongestSide``: Pillow bilinear on the 8-bit image to
   ``round(S h / max(h, w))`` x ``round(S w / max(h, w))``, prompts scaled by
   the same factors; a box is two corners labelled 2, 3; points alone get
@@ -159,6 +159,7 @@ class MaskPrediction:
 
 
 def _fingerprint(img: np.ndarray) -> str:
+    """Key of an image's content and shape: the encoder runs again only for a new image."""
     return hashlib.blake2b(np.ascontiguousarray(img).tobytes(), digest_size=16).hexdigest() + str(img.shape)
 
 
@@ -311,8 +312,8 @@ class SAM2ImagePredictor:
             ious = out["iou_predictions"]
             if "low_res_masks" in out:
                 # SamPredictor's postprocess_masks on the host: the traced in-graph
-                # version keeps the crop of the export's dummy image size (1500 x 2250)
-                # under torch >= 2.x, so its `masks` are wrong for other aspect ratios
+                # version keeps the crop of the export's dummy image size, so its
+                # `masks` are wrong for other aspect ratios
                 rh, rw = self.resized_shape((h, w))
                 s = self.input_size
                 out["masks"] = np.stack([[resize_map(resize_map(m, s)[:rh, :rw], (h, w)) for m in lab]
@@ -380,10 +381,12 @@ class _MemoryBank:
         self.recent: deque = deque(maxlen=self.num_maskmem - 1)
 
     def set_conditioning(self, frame: int, features, pos_enc, temporal_code=None):
+        """Make ``frame`` the conditioning memory and empty the recent frames."""
         self.conditioning = (frame, features, pos_enc, temporal_code)
         self.recent.clear()
 
     def push(self, frame: int, features, pos_enc, temporal_code=None):
+        """Add ``frame``'s memory as the newest; the oldest falls out when the bank is full."""
         if self.recent.maxlen:
             self.recent.append((frame, features, pos_enc, temporal_code))
 
@@ -421,7 +424,7 @@ class SAM2VideoTracker:
         the memory encoder's ``temporal_code`` output, else 7 (SAM2).
     mem_scale, mem_bias : float
         SAM2's ``sigmoid_scale_for_mem_enc`` / ``sigmoid_bias_for_mem_enc``
-        (20, -10), used to turn the seed mask into the decoder's
+        (20, -10), which turn the seed mask into the decoder's
         ``mask_for_mem`` form: ``sigmoid(20 m - 10) * scale + bias`` (SAM2's
         mask-as-output path for a mask prompt).
     mask_threshold : float
@@ -454,9 +457,11 @@ class SAM2VideoTracker:
         self.bank_history: list[list[int]] = []
 
     def _encode(self, rgb):
+        """Image-encoder outputs of an (H, W, 3) RGB frame, resized to S x S and ImageNet-normalised."""
         return self.encoder.run({"input": normalize(resample(rgb, self.input_size), IMAGENET_MEAN, IMAGENET_STD)})
 
     def _memory(self, mask_for_mem, pix_feat):
+        """``(maskmem_features, maskmem_pos_enc, temporal_code or None)`` of one frame's mask and features."""
         out = self.memory_encoder.run({"mask_for_mem": mask_for_mem, "pix_feat": pix_feat})
         return out["maskmem_features"], out["maskmem_pos_enc"], out.get("temporal_code")
 

@@ -26,11 +26,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from ..errors import FormatError, ValidationError
-from ._imaging import as_box, as_rgb, box_iou, cxcywh_to_xyxy, resize_map
+from ._imaging import as_box, as_rgb, box_iou, cxcywh_to_xyxy, opencv, resize_map
 from ._onnx import Layout, OnnxModel, Port
 from .tokenizer import ClipTokenizer
 
@@ -69,6 +68,7 @@ class Segment:
 
 
 def _sigmoid(x):
+    """Logistic function, with the argument clipped to [-80, 80] so that exp cannot overflow."""
     return 1.0 / (1.0 + np.exp(-np.clip(x, -80, 80)))
 
 
@@ -119,6 +119,7 @@ class SAM3:
         """(3, S, S) uint8 or normalised float32 tensor (batched if the file is)."""
         img = as_rgb(image)
         h, w = self.input_size
+        cv2 = opencv()
         res = cv2.resize(img, (w, h), interpolation=cv2.INTER_LINEAR).transpose(2, 0, 1)
         if self.encoder.input_dtype("image") == np.uint8:
             t = np.clip(np.round(res * 255.0), 0, 255).astype(np.uint8)
@@ -127,6 +128,7 @@ class SAM3:
         return t[None] if self._batched else t
 
     def _features(self, img):
+        """Image-encoder outputs of ``img`` by name, cached for the last image (box cues reuse them)."""
         key = (img.shape, hash(img.tobytes()))
         if self._cache[0] != key:
             vals = self.encoder.session.get_outputs()
@@ -135,6 +137,7 @@ class SAM3:
         return self._cache[1]
 
     def _language(self, text: str) -> dict:
+        """Decoder language inputs for ``text``; zeros of the decoder's shapes without a language encoder."""
         if self.language is None:
             n = self.decoder.input_dim("language_mask", 1, 32)
             return {"language_mask": np.zeros((1, n), bool),
@@ -147,6 +150,7 @@ class SAM3:
         return {n: out[v.name] for n, v in zip(_LANG_NAMES, self.language.session.get_outputs())}
 
     def _run(self, img, text: str, boxes=()) -> list[Segment]:
+        """Decode the instances of ``text`` (and the box cues ``boxes``, pixel xyxy) in ``img`` at its own size."""
         h, w = img.shape[:2]
         cap = self.decoder.input_dim("box_coords", 0)
         k = cap or max(1, len(boxes))

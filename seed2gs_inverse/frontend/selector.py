@@ -140,6 +140,7 @@ class QDSAM3Selector:
         self.per_source = int(per_source)
 
     def available_sources(self) -> list[str]:
+        """Names of the sources that produce candidates (configured and not filtered out)."""
         names = [d.source for d in self.detectors]
         if self.text_segmenter is not None:
             names.append("sam3_text")

@@ -34,6 +34,7 @@ __all__ = ["BertTokenizer", "ClipTokenizer", "load_tokenizer"]
 
 
 def _read_json(path: Path) -> dict:
+    """The JSON object of a tokenizer.json (with a ``model`` object), or a FormatError naming the file."""
     try:
         with open(path, "r", encoding="utf-8") as fh:
             data = json.load(fh)
@@ -49,6 +50,7 @@ def _read_json(path: Path) -> dict:
 
 
 def _library():
+    """The ``tokenizers`` module, imported on first use (large to load; only text prompts need it)."""
     try:
         import tokenizers
     except ModuleNotFoundError:  # pragma: no cover - a declared dependency
@@ -99,6 +101,7 @@ class _Base:
         self.name = name
 
     def _require(self, token: str, what: str) -> int:
+        """Id of ``token``, or a FormatError saying the vocabulary is not a ``what`` one."""
         tid = self.tokenizer.token_to_id(token)
         if tid is None:
             raise FormatError(f"{self.name}: the vocabulary has no {token} token; is this a {what} tokenizer?")
@@ -109,13 +112,16 @@ class _Base:
         return list(self.tokenizer.encode(str(text), add_special_tokens=False).tokens)
 
     def _ids(self, text: str) -> list[int]:
+        """The model's ids of ``text`` (no special tokens)."""
         return list(self.tokenizer.encode(str(text), add_special_tokens=False).ids)
 
     def token_id(self, token: str) -> int | None:
+        """Id of ``token``, or None when it is not in the vocabulary."""
         tid = self.tokenizer.token_to_id(token)
         return None if tid is None else int(tid)
 
     def convert_ids_to_tokens(self, ids) -> list[str]:
+        """Tokens of ``ids`` (any shape, flattened); unknown ids give the unknown token."""
         out = []
         for i in np.asarray(ids).reshape(-1):
             tok = self.tokenizer.id_to_token(int(i))
@@ -124,6 +130,7 @@ class _Base:
 
     @property
     def vocab_size(self) -> int:
+        """Number of ids, added tokens included."""
         return int(self.tokenizer.get_vocab_size(with_added_tokens=True))
 
 
