@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -130,8 +131,6 @@ def save(views, fingerprint, directory, overwrite: bool = False) -> Path:
 
 def _check_space(views, target: Path) -> None:
     """Raise before writing when the file system of ``target`` cannot hold the stack (with 5% to spare)."""
-    import shutil
-
     need = 0
     for v in views:
         need += v.W.data.nbytes + v.W.indices.nbytes + v.W.indptr.nbytes

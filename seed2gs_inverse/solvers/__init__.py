@@ -33,16 +33,18 @@ import numpy as np
 from threadpoolctl import ThreadpoolController
 
 from ..errors import ValidationError
-from ._common import (MethodResult, Problem, SolveResult, as_real, available_methods, check_options,
+from .._validation import as_real
+from ._common import (MethodResult, Problem, SolveResult, available_methods, check_options,
                       get_check, get_method, method_options, prepare, register_method)
 from . import beta_bernoulli, least_squares, voting, weighted_bce  # noqa: F401  (importing registers them)
 from ._progress import SolveProgress, reporting
 from ..graph import check_graph
 from .smoothing import harmonic_extension, laplacian_smooth, smooth_checked
+from .weighted_bce import WeightedBCE
 
 __all__ = ["solve", "available_methods", "register_method", "get_method", "method_options", "SolveResult",
            "MethodResult", "Problem", "prepare", "SolveProgress", "COUNT_LIMITS", "check_method_options",
-           "laplacian_smooth", "harmonic_extension"]
+           "laplacian_smooth", "harmonic_extension", "WeightedBCE"]
 
 #: Upper bounds of the count options of every method (``max_iter`` etc.): far
 #: above any useful value, low enough that a typo (``max_iter=10**9``) is an

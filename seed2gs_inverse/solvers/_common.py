@@ -17,11 +17,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._selection import support_mask
 from ..errors import ValidationError
+from ..operators import as_stack
 
 __all__ = ["Problem", "SolveResult", "MethodResult", "prepare", "normalize_mask", "prior_from_init",
-           "register_method", "available_methods", "get_method", "method_options", "get_check", "as_real",
-           "check_count"]
+           "register_method", "available_methods", "get_method", "method_options", "get_check", "check_count"]
 
 _METHODS: dict = {}
 _CHECKS: dict = {}
@@ -58,21 +59,6 @@ def register_method(name: str, fn, check=None) -> None:
         raise ValidationError(f"method '{name}': check must be callable or None")
     _METHODS[name] = fn
     _CHECKS[name] = check
-
-
-def as_real(value) -> float | None:
-    """``value`` as a float when it is a finite real number (not a bool), else None.
-
-    Safe for any input: a Python int beyond float range gives None instead of
-    ``np.isfinite``'s TypeError or ``float``'s OverflowError.
-    """
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
-        return None
-    try:
-        f = float(value)
-    except OverflowError:
-        return None
-    return f if np.isfinite(f) else None
 
 
 def check_count(method: str, name: str, value, minimum: int = 1, none_ok: bool = False) -> None:
@@ -388,8 +374,6 @@ def prior_from_init(init, n: int) -> np.ndarray:
         raise ValidationError(f"init must be an array (a support mask, indices or a prior q of shape ({n},)), "
                               f"got the single value {init!r}{hint}")
     if a.dtype == bool or a.dtype.kind in "ui":
-        from .._selection import support_mask
-
         return support_mask(a.reshape(-1) if a.dtype != bool else a, n, "init").astype(np.float64)
     if a.dtype.kind == "f":
         if a.shape != (n,):
@@ -414,8 +398,6 @@ def prepare(operators, masks, init=None) -> Problem:
         the wrong dtype/range, masks that are all NaN in every view, or a
         mask count different from the view count. Messages name the view.
     """
-    from ..operators import as_stack  # the operator core: numpy/scipy only
-
     views = getattr(operators, "views", operators)
     if isinstance(masks, np.ndarray) and masks.ndim == 2 and isinstance(views, (list, tuple)) \
             and masks.shape[0] != len(views):

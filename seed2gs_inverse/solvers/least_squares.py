@@ -32,8 +32,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import lsq_linear
 
+from .._validation import as_real
 from ..errors import ValidationError
-from ._common import MethodResult, Problem, as_real, check_count, register_method
+from ._common import MethodResult, Problem, check_count, register_method
 from ._progress import report as report_progress
 
 __all__ = ["least_squares", "operator_norm_sq"]

@@ -45,6 +45,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+from scipy.sparse.csgraph import connected_components
 
 from ..errors import ValidationError
 from ..graph import check_graph, laplacian_of_checked
@@ -73,8 +74,6 @@ def _vector(name, v, n, lo=None, hi=None) -> np.ndarray:
 
 def _reached(g: sp.spmatrix, linked: np.ndarray, sources: np.ndarray) -> np.ndarray:
     """Indices of the ``linked`` nodes (with an edge) whose component of ``g`` holds a ``sources`` node."""
-    from scipy.sparse.csgraph import connected_components
-
     _, label = connected_components(g, directed=False)
     hit = np.zeros(label.max(initial=0) + 1, bool)
     hit[label[sources]] = True

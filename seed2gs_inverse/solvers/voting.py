@@ -33,8 +33,9 @@ from __future__ import annotations
 import numpy as np
 
 from .._threads import run_both
+from .._validation import as_real
 from ..errors import ValidationError
-from ._common import MethodResult, Problem, as_real, register_method
+from ._common import MethodResult, Problem, register_method
 
 __all__ = ["voting", "vote_counts", "bias_to_threshold"]
 
