@@ -154,9 +154,9 @@ class OperatorStack(LinearOperator):
     def stacked_transpose(self) -> sp.csc_matrix:
         """``stacked().T`` (N, sum of pixels) as a CSC matrix: a view of the stacked CSR, no copy; cached.
 
-        An explicit CSR transpose was not faster for the adjoint product on the
-        firepit benchmark, and it costs a second copy of every weight and
-        seconds to build.
+        Not an explicit CSR transpose: that costs a second copy of every
+        weight and time to build, for no faster adjoint product
+        (benchmarks/bench_speed.py).
         """
         if self._stacked_T is None:
             self._stacked_T = self.stacked().T

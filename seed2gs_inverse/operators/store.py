@@ -50,7 +50,7 @@ def scene_fingerprint(scene) -> str:
     ``W(c)`` depends on: means, quaternions, log-scales and opacity logits,
     truncated to 16 hex digits. Colours (SH) are deliberately left out: the
     compositing weights do not depend on them, so a recoloured scene can use
-    the same operators. Each array is read once (25 MB for 562k Gaussians).
+    the same operators. Each array is read once (44 bytes per Gaussian in float32).
 
     Parameters
     ----------

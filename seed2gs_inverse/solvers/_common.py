@@ -14,12 +14,19 @@ from __future__ import annotations
 
 import inspect
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .._selection import support_mask
 from ..errors import ValidationError
 from ..operators import as_stack
+
+if TYPE_CHECKING:
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import LinearOperator
+
+    from ..operators import OperatorStack
 
 __all__ = ["Problem", "SolveResult", "MethodResult", "prepare", "normalize_mask", "prior_from_init",
            "register_method", "available_methods", "get_method", "method_options", "get_check", "check_count"]
@@ -247,8 +254,8 @@ class Problem:
         Whether the caller passed ``init``.
     """
 
-    A: object  # OperatorStack (products view by view) or a scipy sparse matrix
-    AT: object
+    A: OperatorStack | sp.spmatrix  # a stack's products run view by view
+    AT: LinearOperator | sp.spmatrix
     y: np.ndarray
     known: np.ndarray
     offsets: np.ndarray

@@ -96,12 +96,18 @@ def beta_bernoulli(problem: Problem, *, a0: float = 1.0, b0: float = 1.0, order:
 
     Returns
     -------
-    MethodResult with ``q`` the posterior mean, ``iterations`` the number of views
-    used, ``view_weights`` 1 for used views and 0 otherwise, ``history`` one
-    record per absorbed view (``view``, ``eig`` for the eig order,
-    ``entropy`` the summed Beta entropy after it; empty when every view is
-    used in the given order, which needs only the two vote sums) and
-    ``info["order"]``.
+    MethodResult
+        ``q`` (N,) the posterior mean, ``iterations`` the number of views
+        used, ``view_weights`` (V,) 1 for used views and 0 otherwise,
+        ``history`` one record per absorbed view (``view``, ``eig`` for the
+        eig order, ``entropy`` the summed Beta entropy after it; empty when
+        every view is used in the given order, which needs only the two vote
+        sums) and ``info["order"]``.
+
+    Raises
+    ------
+    ValidationError
+        An option value outside the ranges above.
     """
     _check(dict(a0=a0, b0=b0, order=order, budget=budget))
     a0, b0 = float(a0), float(b0)

@@ -22,9 +22,9 @@ practice, not provably), one ``A`` and one ``A^T`` pass per iteration; it stops 
 ``max |x_{k+1} - x_k| < tol`` or after ``max_iter`` iterations.
 ``algorithm="lsq_linear"`` calls ``scipy.optimize.lsq_linear`` (method
 "trf") on the known rows and observed columns, to scipy's tolerance ``tol``, 1e-10 by
-default (near the exact minimiser: with FISTA's 1e-4 it stopped after a
-few iterations, 0.01 away in ``q``); it builds a sliced copy of the
-operator: use it for small problems.
+default (FISTA's 1e-4 would stop it after a few iterations, far from the
+minimiser); it builds a sliced copy of the operator: use it for small
+problems.
 """
 
 from __future__ import annotations
@@ -90,8 +90,15 @@ def least_squares(problem: Problem, *, target: str = "alpha", algorithm: str = "
 
     Returns
     -------
-    MethodResult with ``q``, ``iterations`` and ``history`` (FISTA: ``objective`` at the extrapolated point
-    and ``step`` (max change) every iteration).
+    MethodResult
+        ``q`` (N,), ``iterations`` and ``history`` (FISTA: ``objective``
+        ``0.5 ||r||^2`` at the extrapolated point and ``step``, the max
+        change of ``q``, every iteration).
+
+    Raises
+    ------
+    ValidationError
+        An option value outside the ranges above.
     """
     _check(dict(target=target, algorithm=algorithm, max_iter=max_iter, tol=tol, power_iters=power_iters))
     tol = DEFAULT_TOL[algorithm] if tol is None else float(tol)

@@ -71,9 +71,15 @@ def voting(problem: Problem, *, bias: float = 0.0) -> MethodResult:
 
     Returns
     -------
-    MethodResult with ``q = A1 / (A0 + A1)`` (0 where no vote), ``threshold =
-    tau(bias)`` and ``info`` holding the ``bias`` and ``total_votes`` (the summed
-    ``A0 + A1``).
+    MethodResult
+        ``q = A1 / (A0 + A1)`` (N,) (0 where no vote), ``threshold =
+        tau(bias)`` and ``info`` holding the ``bias`` and ``total_votes``
+        (the summed ``A0 + A1``).
+
+    Raises
+    ------
+    ValidationError
+        ``bias`` not a finite number in (-1, 1).
     """
     tau = bias_to_threshold(bias)
     a1 = problem.AT @ problem.y  # float32 (N,): A^T (k y), y being 0 at unknown pixels
