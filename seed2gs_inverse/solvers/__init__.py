@@ -38,7 +38,8 @@ from ..errors import ValidationError
 from ..graph import check_graph
 from . import beta_bernoulli, least_squares, voting, weighted_bce  # noqa: F401  (importing registers them)
 from ._common import (MethodResult, Problem, SolveResult, available_methods, check_options,
-                      get_check, get_method, method_options, prepare, register_method)
+                      check_range, get_check, get_method, method_options, prepare,
+                      register_method)
 from ._progress import SolveProgress, reporting
 from .smoothing import harmonic_extension, laplacian_smooth, smooth_checked
 from .weighted_bce import WeightedBCE
@@ -248,12 +249,8 @@ def _check_request(operators, method, min_evidence, progress, options, smoothnes
     without columns (no Gaussians). (Weights outside [0, 1] are refused when the operators are made.)
     """
     fn = check_method_options(method, options)
-    if isinstance(min_evidence, bool) or not isinstance(min_evidence, (int, float, np.integer, np.floating)) \
-            or not np.isfinite(min_evidence) or min_evidence < 0:
-        raise ValidationError(f"min_evidence must be a finite number >= 0, got {min_evidence!r}")
-    if isinstance(smoothness, bool) or not isinstance(smoothness, (int, float, np.integer, np.floating)) \
-            or not np.isfinite(smoothness) or smoothness < 0:
-        raise ValidationError(f"smoothness must be a finite number >= 0, got {smoothness!r}")
+    check_range("min_evidence", min_evidence, "a finite number >= 0", lo=0.0)
+    check_range("smoothness", smoothness, "a finite number >= 0", lo=0.0)
     if smoothness > 0 and graph is None:
         raise ValidationError("smoothness > 0 needs graph=: the Gaussians' affinity matrix "
                               "(seed2gs_inverse.graph.gaussian_graph)")

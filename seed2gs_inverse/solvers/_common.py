@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .._selection import support_mask
+from .._validation import as_real
 from ..errors import ValidationError
 from ..operators import as_stack
 
@@ -29,7 +30,7 @@ if TYPE_CHECKING:
     from ..operators import OperatorStack
 
 __all__ = ["Problem", "SolveResult", "MethodResult", "prepare", "normalize_mask", "prior_from_init",
-           "register_method", "available_methods", "get_method", "method_options", "get_check", "check_count"]
+           "register_method", "available_methods", "get_method", "method_options", "get_check", "check_count", "check_range"]
 
 _METHODS: dict = {}
 _CHECKS: dict = {}
@@ -76,6 +77,31 @@ def check_count(method: str, name: str, value, minimum: int = 1, none_ok: bool =
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < minimum:
         what = {0: "a non-negative integer", 1: "a positive integer"}.get(minimum, f"an integer >= {minimum}")
         raise ValidationError(f"{method}: {name} must be {what}{' or None' if none_ok else ''}, got {value!r}")
+
+
+def check_range(name: str, value, what: str, lo: float = -np.inf, hi: float = np.inf, lo_open: bool = False,
+                hi_open: bool = False) -> float:
+    """``value`` as a float when it is a finite real number (not a bool) within ``lo..hi``.
+
+    Parameters
+    ----------
+    name : str
+        The option as the user knows it (``"weighted_bce: r_min"``); it starts the message.
+    value : object
+    what : str
+        The range in words (``"in [0, 1)"``, ``"a positive finite number"``).
+    lo, hi : float
+        Bounds, inclusive unless ``lo_open`` / ``hi_open``.
+
+    Raises
+    ------
+    ValidationError
+        ``"{name} must be {what}, got {value!r}"``.
+    """
+    v = as_real(value)
+    if v is None or not ((v > lo if lo_open else v >= lo) and (v < hi if hi_open else v <= hi)):
+        raise ValidationError(f"{name} must be {what}, got {value!r}")
+    return v
 
 
 def get_check(name: str):

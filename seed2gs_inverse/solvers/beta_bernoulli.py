@@ -41,9 +41,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import betaln, digamma
 
-from .._validation import as_real
 from ..errors import ValidationError
-from ._common import MethodResult, Problem, check_count, register_method
+from ._common import MethodResult, Problem, check_count, check_range, register_method
 from ._progress import report as report_progress
 from .voting import vote_counts
 
@@ -72,9 +71,7 @@ def _view_evidence(problem: Problem, c: int) -> tuple:
 def _check(o: dict) -> None:
     """Raise a ValidationError for option values beta_bernoulli cannot take (``o``: every option by name)."""
     for name in ("a0", "b0"):
-        v = as_real(o[name])
-        if v is None or not v > 0:
-            raise ValidationError(f"beta_bernoulli: {name} must be a positive finite number, got {o[name]!r}")
+        check_range(f"beta_bernoulli: {name}", o[name], "a positive finite number", lo=0.0, lo_open=True)
     if o["order"] not in ("given", "eig"):
         raise ValidationError(f"beta_bernoulli: order must be 'given' or 'eig', got {o['order']!r}")
     check_count("beta_bernoulli", "budget", o["budget"], none_ok=True)

@@ -32,9 +32,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import lsq_linear
 
-from .._validation import as_real
 from ..errors import ValidationError
-from ._common import MethodResult, Problem, check_count, register_method
+from ._common import MethodResult, Problem, check_count, check_range, register_method
 from ._progress import report as report_progress
 
 __all__ = ["least_squares", "operator_norm_sq"]
@@ -60,9 +59,8 @@ def _check(o: dict) -> None:
         raise ValidationError(f"least_squares: algorithm must be 'fista' or 'lsq_linear', got {o['algorithm']!r}")
     for name in ("max_iter", "power_iters"):
         check_count("least_squares", name, o[name])
-    tol = as_real(o["tol"]) if o["tol"] is not None else DEFAULT_TOL.get(o["algorithm"], 1.0)
-    if tol is None or not tol > 0:
-        raise ValidationError(f"least_squares: tol must be a positive finite number, got {o['tol']!r}")
+    if o["tol"] is not None:  # (the defaults of DEFAULT_TOL are positive)
+        check_range("least_squares: tol", o["tol"], "a positive finite number", lo=0.0, lo_open=True)
     if o["target"] not in ("alpha", "mask"):
         raise ValidationError(f"least_squares: target must be 'alpha' or 'mask', got {o['target']!r}")
 

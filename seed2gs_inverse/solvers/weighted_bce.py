@@ -76,10 +76,9 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.special import expit
 
-from .._validation import as_real
 from ..errors import ValidationError
 from ._bce import PixelBCE, bce_pixels
-from ._common import MethodResult, Problem, check_count, register_method
+from ._common import MethodResult, Problem, check_count, check_range, register_method
 from ._lbfgs import lbfgs as _lbfgs
 from ._progress import report as report_progress
 from .voting import voting
@@ -238,25 +237,18 @@ def _logit(p):
     return np.log(p) - np.log1p(-p)
 
 
-def _check_range(o: dict, name: str, lo: float, hi: float, what: str, lo_open: bool = False,
-                 hi_open: bool = False) -> None:
-    """Raise a ValidationError unless option ``name`` is a finite real within ``lo..hi`` (``what`` says which)."""
-    v = as_real(o[name])
-    if v is None or not ((v > lo if lo_open else v >= lo) and (v < hi if hi_open else v <= hi)):
-        raise ValidationError(f"weighted_bce: {name} must be {what}, got {o[name]!r}")
-
-
 def _check(o: dict) -> None:
     """Raise a ValidationError for option values weighted_bce cannot take (``o``: every option by name)."""
-    _check_range(o, "r_min", 0.0, 1.0, "in [0, 1]")
-    _check_range(o, "lam", 0.0, np.inf, "positive", lo_open=True)
-    _check_range(o, "momentum", 0.0, 1.0, "in [0, 1)", hi_open=True)
-    _check_range(o, "alpha_min", 0.0, 1.0, "in [0, 1)", hi_open=True)
-    _check_range(o, "eps", 0.0, 0.5, "in (0, 0.5)", lo_open=True, hi_open=True)
-    _check_range(o, "init_clip", 0.0, 0.5, "in (0, 0.5)", lo_open=True, hi_open=True)
-    _check_range(o, "stable_tol", 0.0, 1.0, "in [0, 1)", hi_open=True)
+    check_range("weighted_bce: r_min", o["r_min"], "in [0, 1]", lo=0.0, hi=1.0)
+    check_range("weighted_bce: lam", o["lam"], "positive", lo=0.0, lo_open=True)
+    check_range("weighted_bce: momentum", o["momentum"], "in [0, 1)", lo=0.0, hi=1.0, hi_open=True)
+    check_range("weighted_bce: alpha_min", o["alpha_min"], "in [0, 1)", lo=0.0, hi=1.0, hi_open=True)
+    check_range("weighted_bce: eps", o["eps"], "in (0, 0.5)", lo=0.0, hi=0.5, lo_open=True, hi_open=True)
+    check_range("weighted_bce: init_clip", o["init_clip"], "in (0, 0.5)", lo=0.0, hi=0.5, lo_open=True,
+                hi_open=True)
+    check_range("weighted_bce: stable_tol", o["stable_tol"], "in [0, 1)", lo=0.0, hi=1.0, hi_open=True)
     for name in ("weight_tol", "ftol", "gtol"):
-        _check_range(o, name, 0.0, np.inf, "a finite number >= 0")
+        check_range(f"weighted_bce: {name}", o[name], "a finite number >= 0", lo=0.0)
     for name in ("reweight", "normalize"):
         if not isinstance(o[name], (bool, np.bool_)):
             raise ValidationError(f"weighted_bce: {name} must be True or False, got {o[name]!r}")
