@@ -10,9 +10,12 @@ curvature estimate instead of restarting from a steepest-descent step.
 
 from __future__ import annotations
 
-from collections import deque
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from collections import deque
 
 __all__ = ["lbfgs"]
 

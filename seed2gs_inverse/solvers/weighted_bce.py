@@ -118,15 +118,21 @@ def view_weights(residuals, r_min: float = 0.05, lam: float = 0.5) -> np.ndarray
 class BCEObjective:
     """The loss of Eq. 7 and its gradient with respect to ``q`` or the logits.
 
-    One evaluation is one pass of ``A`` and one of ``A^T`` (scipy, in the dtype
+    One evaluation is one pass of ``A`` and one of ``A^T`` (in the dtype
     of ``A``: float32 in the solver, float64 in gradient checks) with the
     per-pixel work between them in numpy (:class:`~._bce.PixelBCE`).
 
     Parameters
     ----------
     problem : Problem
-    normalize : bool
-    alpha_min, eps : float
+        The stacked problem; its ``alpha`` (row sums of ``A``) is computed here.
+    normalize : bool, default False
+        Predict ``W q / alpha`` with pixel weights ``alpha`` (True) or the
+        literal ``W q`` with weights 1 (False); see the module docstring.
+    alpha_min : float, default 1e-3
+        Pixels with less rendered opacity are not usable.
+    eps : float, default 1e-4
+        Probability clip of the BCE, in (0, 0.5).
 
     Attributes
     ----------
