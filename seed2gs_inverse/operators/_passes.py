@@ -1,31 +1,32 @@
 """The stack's sparse passes, view by view, without a stacked copy of the weights.
 
-``A q`` writes each view's rows ``W(c) q`` into its slice of one output and
-``A^T r`` accumulates ``W(c)^T r_c`` into one (N,) output. For float32
-vectors both call scipy's own CSR kernels (``csr_matvec``: ``y += W x`` row
-by row; ``csc_matvec`` on the arrays of ``W(c)`` read as ``W(c)^T`` in CSC:
-``y[col] += w r_row``), the same loops scipy runs for ``W @ x`` and
-``W.T @ r``, row after row, view after view, as the stacked matrix's pass
-does, while no weight is copied (a stacked copy holds every weight a
-second time, and faulting in its fresh pages cost more than the passes it
-served).
+For a stack of views ``W(1), ..., W(V)`` (CSR, (P_c, N) each) with row
+offsets ``o`` (``o[0] = 0``, ``o[c] - o[c-1] = P_c``),
+
+    forward:  (A x)[o[c-1]:o[c]] = W(c) x,
+    adjoint:  A^T y = sum_c W(c)^T y[o[c-1]:o[c]].
+
+For float32 vectors both call scipy's own CSR kernels (``csr_matvec``:
+``y += W x`` row by row; ``csc_matvec`` on the arrays of ``W(c)`` read as
+``W(c)^T`` in CSC: ``y[col] += w r_row``), the loops scipy runs for
+``W @ x`` and ``W.T @ r``, so each view's result is bit-identical to
+scipy's, while no weight is copied: a stacked copy would hold every weight
+a second time.
 
 The views are cut into two runs of consecutive views with about equal
 non-zeros (:func:`_halves`), and two threads run one run each where two
 cores are available (:mod:`seed2gs_inverse._threads`; scipy's kernels
-release the GIL; on the firepit +
-unicorn stack of benchmarks/bench_speed.py ``A q`` took 7.2 ms instead of
-12.9-13.3 ms and ``A^T r`` 7.9 ms instead of 14.4-14.8 ms, load 1.4-1.6). The forward pass writes disjoint rows, so it is the same either way.
-The adjoint accumulates each run into its own (N,) vector and adds the two,
-``(sum over run 0) + (sum over run 1)``, on one thread or two alike: the
-result never depends on the number of threads (a Dask worker with one
-thread gives the same ``q`` as a two-thread run), and within each run it is
+release the GIL) and the stack has at least :data:`PARALLEL_MIN_NNZ`
+non-zeros. The forward pass writes disjoint rows, so it is the same either
+way. The adjoint accumulates each run into its own (N,) vector and returns
+``(sum over run 0) + (sum over run 1)`` on one thread or two alike: the
+result never depends on the number of threads, and within each run it is
 bit-identical to the stacked matrix's pass over that run's rows.
 
 Other dtypes (float64 right-hand sides, which make scipy accumulate in
-float64), blocks of vectors, and a scipy without the private kernels take
-the public ``W @ x`` per view instead (one (N,) temporary per view for the
-adjoint).
+float64), blocks of vectors (N, K), and a scipy without the private kernels
+take the public ``W @ x`` per view instead (one (N,) temporary per view for
+the adjoint).
 """
 
 from __future__ import annotations
@@ -64,10 +65,22 @@ def _direct(W, v) -> bool:
 
 
 def forward(mats, offsets, n_cols: int, x: np.ndarray) -> np.ndarray:
-    """``[W(1) x; W(2) x; ...]``: (P,) for ``x`` (N,), or (P, K) for ``x`` (N, K).
+    """The stacked forward product ``[W(1) x; W(2) x; ...]``.
 
-    ``mats``: the views' CSR matrices; ``offsets``: (V+1,) row offsets.
-    The result dtype is scipy's (``result_type(float32, x.dtype)``).
+    Parameters
+    ----------
+    mats : sequence of scipy.sparse.csr_matrix
+        The views' matrices, (P_c, N) each.
+    offsets : (V+1,) int64
+        Row offsets of the views in the stacked output.
+    n_cols : int
+        N, the number of columns (Gaussians).
+    x : (N,) or (N, K) ndarray
+
+    Returns
+    -------
+    (P,) or (P, K) ndarray
+        In scipy's result dtype, ``result_type(float32, x.dtype)``.
     """
     dtype = np.result_type(np.float32, x.dtype)
     out = np.zeros((int(offsets[-1]),) + x.shape[1:], dtype=dtype)
@@ -86,7 +99,24 @@ def forward(mats, offsets, n_cols: int, x: np.ndarray) -> np.ndarray:
 
 
 def adjoint(mats, offsets, n_cols: int, y: np.ndarray) -> np.ndarray:
-    """``sum_c W(c)^T y_c``: (N,) for ``y`` (P,), or (N, K) for ``y`` (P, K)."""
+    """The stacked adjoint product ``sum_c W(c)^T y[offsets[c]:offsets[c+1]]``.
+
+    Parameters
+    ----------
+    mats : sequence of scipy.sparse.csr_matrix
+        The views' matrices, (P_c, N) each.
+    offsets : (V+1,) int64
+        Row offsets of the views in ``y``.
+    n_cols : int
+        N, the number of columns (Gaussians).
+    y : (P,) or (P, K) ndarray
+
+    Returns
+    -------
+    (N,) or (N, K) ndarray
+        In ``result_type(float32, y.dtype)``; the sum of the two runs'
+        partial sums, in that order (module docstring).
+    """
     dtype = np.result_type(np.float32, y.dtype)
     halves = _halves(mats)
     out = [np.zeros((n_cols,) + y.shape[1:], dtype=dtype) for _ in halves]

@@ -14,6 +14,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import LinearOperator
 
+from .._selection import index_list
 from ..errors import ValidationError
 from . import _passes, store
 from .view import ViewOperator, _Transposed, view_label
@@ -131,8 +132,6 @@ class OperatorStack(LinearOperator):
     def subset(self, indices) -> "OperatorStack":
         """A stack of the views ``indices`` (integers, negative from the end, or a bool mask of length
         ``len(self)``), with the same fingerprint."""
-        from .._selection import index_list
-
         idx = index_list(indices, len(self), "view indices", negative=True)
         return OperatorStack([self.views[int(i)] for i in idx], self.fingerprint)
 
@@ -155,9 +154,9 @@ class OperatorStack(LinearOperator):
     def stacked_transpose(self) -> sp.csc_matrix:
         """``stacked().T`` (N, sum of pixels) as a CSC matrix: a view of the stacked CSR, no copy; cached.
 
-        An explicit CSR transpose was not faster for the adjoint product on the
-        firepit benchmark, and it costs a second copy of every weight and
-        seconds to build.
+        Not an explicit CSR transpose: that costs a second copy of every
+        weight and time to build, for no faster adjoint product
+        (benchmarks/bench_speed.py).
         """
         if self._stacked_T is None:
             self._stacked_T = self.stacked().T

@@ -118,7 +118,7 @@ def _check_structure(W, label: str) -> None:
 
     scipy does not check them when a matrix is made from ``(data, indices,
     indptr)``, and the passes hand them to its unchecked kernels: a column
-    index out of range gave garbage, or a segmentation fault in the adjoint.
+    index out of range would give garbage, or a segmentation fault in the adjoint.
     O(rows + nnz), like the weight check.
     """
     indptr, indices = np.asarray(W.indptr), np.asarray(W.indices)

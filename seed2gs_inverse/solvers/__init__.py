@@ -28,21 +28,28 @@ from __future__ import annotations
 
 import sys
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 from threadpoolctl import ThreadpoolController
 
+from .._validation import as_real
 from ..errors import ValidationError
-from ._common import (MethodResult, Problem, SolveResult, as_real, available_methods, check_options,
-                      get_check, get_method, method_options, prepare, register_method)
-from . import beta_bernoulli, least_squares, voting, weighted_bce  # noqa: F401  (importing registers them)
-from ._progress import SolveProgress, reporting
 from ..graph import check_graph
+from . import beta_bernoulli, least_squares, voting, weighted_bce  # noqa: F401  (importing registers them)
+from ._common import (MethodResult, Problem, SolveResult, available_methods, check_options,
+                      check_range, get_check, get_method, method_options, prepare,
+                      register_method)
+from ._progress import SolveProgress, reporting
 from .smoothing import harmonic_extension, laplacian_smooth, smooth_checked
+from .weighted_bce import WeightedBCE
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
 
 __all__ = ["solve", "available_methods", "register_method", "get_method", "method_options", "SolveResult",
            "MethodResult", "Problem", "prepare", "SolveProgress", "COUNT_LIMITS", "check_method_options",
-           "laplacian_smooth", "harmonic_extension"]
+           "laplacian_smooth", "harmonic_extension", "WeightedBCE"]
 
 #: Upper bounds of the count options of every method (``max_iter`` etc.): far
 #: above any useful value, low enough that a typo (``max_iter=10**9``) is an
@@ -139,8 +146,7 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
         graph = check_graph(graph, problem.n_gaussians)
     # Solvers call BLAS on vectors of length N every iteration; a multi-threaded
     # OpenBLAS beside Numba's threads spends more on thread start-up than on
-    # the work (measured: 51 ms vs 0.5 ms per L-BFGS-B iteration at N = 40k
-    # on 2 cores).
+    # the work.
     with _one_blas_thread(), reporting(progress):
         t_method = time.perf_counter()
         out = fn(problem, **options)
@@ -185,7 +191,7 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
                        threshold=float(out.threshold), info=info)
 
 
-def check_method_options(method, options) -> object:
+def check_method_options(method, options) -> Callable[..., MethodResult]:
     """The method ``method``, after checking its name and ``options`` (a dict); raises ValidationError.
 
     The name must be a registered method, every option one the method takes
@@ -243,12 +249,8 @@ def _check_request(operators, method, min_evidence, progress, options, smoothnes
     without columns (no Gaussians). (Weights outside [0, 1] are refused when the operators are made.)
     """
     fn = check_method_options(method, options)
-    if isinstance(min_evidence, bool) or not isinstance(min_evidence, (int, float, np.integer, np.floating)) \
-            or not np.isfinite(min_evidence) or min_evidence < 0:
-        raise ValidationError(f"min_evidence must be a finite number >= 0, got {min_evidence!r}")
-    if isinstance(smoothness, bool) or not isinstance(smoothness, (int, float, np.integer, np.floating)) \
-            or not np.isfinite(smoothness) or smoothness < 0:
-        raise ValidationError(f"smoothness must be a finite number >= 0, got {smoothness!r}")
+    check_range("min_evidence", min_evidence, "a finite number >= 0", lo=0.0)
+    check_range("smoothness", smoothness, "a finite number >= 0", lo=0.0)
     if smoothness > 0 and graph is None:
         raise ValidationError("smoothness > 0 needs graph=: the Gaussians' affinity matrix "
                               "(seed2gs_inverse.graph.gaussian_graph)")

@@ -1,7 +1,7 @@
 """Per-pixel part of the weighted-BCE objective in numpy (no Numba: solvers never need it).
 
-The work is restricted to the usable pixels (the support: known, bright
-enough), fixed once per objective and given as indices, and grouped by
+The work is restricted to the usable pixels (known, with enough rendered
+opacity), fixed once per objective and given as indices, and grouped by
 target: ``y = 1``, ``y = 0`` and the few soft targets ``0 < y < 1``. A
 binary group needs one logarithm and one division per pixel,
 
@@ -18,7 +18,7 @@ in float64. The per-pixel BCE does not depend on the pixel weights ``w``,
 so one evaluation at a prediction serves both the loss of any ``w`` and the
 per-view residuals.
 
-The support is cut into two halves, each with its own groups and buffers,
+The usable pixels are cut into two halves, each with its own groups and buffers,
 evaluated on two threads where two cores are free (numpy's ufuncs release
 the GIL; :mod:`seed2gs_inverse._threads`); every sum is taken group by
 group in a fixed order on one thread or two alike, so nothing depends on
@@ -108,7 +108,7 @@ class _Group:
 
 
 def _groups(rows, y, s, inv_alpha, offsets, dtype) -> list:
-    """The non-empty target groups of one half of the support."""
+    """The non-empty target groups of one half of the usable pixels."""
     kinds = (("one", y == 1), ("zero", y == 0), ("soft", (y != 0) & (y != 1)))
     return [_Group(kind, rows[m], y[m], None if s is None else s[m], None if inv_alpha is None else inv_alpha[m],
                    offsets, dtype) for kind, m in kinds if m.any()]

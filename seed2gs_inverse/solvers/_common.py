@@ -14,14 +14,23 @@ from __future__ import annotations
 
 import inspect
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .._selection import support_mask
+from .._validation import as_real
 from ..errors import ValidationError
+from ..operators import as_stack
+
+if TYPE_CHECKING:
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import LinearOperator
+
+    from ..operators import OperatorStack
 
 __all__ = ["Problem", "SolveResult", "MethodResult", "prepare", "normalize_mask", "prior_from_init",
-           "register_method", "available_methods", "get_method", "method_options", "get_check", "as_real",
-           "check_count"]
+           "register_method", "available_methods", "get_method", "method_options", "get_check", "check_count", "check_range"]
 
 _METHODS: dict = {}
 _CHECKS: dict = {}
@@ -60,21 +69,6 @@ def register_method(name: str, fn, check=None) -> None:
     _CHECKS[name] = check
 
 
-def as_real(value) -> float | None:
-    """``value`` as a float when it is a finite real number (not a bool), else None.
-
-    Safe for any input: a Python int beyond float range gives None instead of
-    ``np.isfinite``'s TypeError or ``float``'s OverflowError.
-    """
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
-        return None
-    try:
-        f = float(value)
-    except OverflowError:
-        return None
-    return f if np.isfinite(f) else None
-
-
 def check_count(method: str, name: str, value, minimum: int = 1, none_ok: bool = False) -> None:
     """Raise a ValidationError unless option ``name`` of ``method`` is a whole number >= ``minimum``
     (not a bool; None too with ``none_ok``)."""
@@ -83,6 +77,31 @@ def check_count(method: str, name: str, value, minimum: int = 1, none_ok: bool =
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < minimum:
         what = {0: "a non-negative integer", 1: "a positive integer"}.get(minimum, f"an integer >= {minimum}")
         raise ValidationError(f"{method}: {name} must be {what}{' or None' if none_ok else ''}, got {value!r}")
+
+
+def check_range(name: str, value, what: str, lo: float = -np.inf, hi: float = np.inf, lo_open: bool = False,
+                hi_open: bool = False) -> float:
+    """``value`` as a float when it is a finite real number (not a bool) within ``lo..hi``.
+
+    Parameters
+    ----------
+    name : str
+        The option as the user knows it (``"weighted_bce: r_min"``); it starts the message.
+    value : object
+    what : str
+        The range in words (``"in [0, 1)"``, ``"a positive finite number"``).
+    lo, hi : float
+        Bounds, inclusive unless ``lo_open`` / ``hi_open``.
+
+    Raises
+    ------
+    ValidationError
+        ``"{name} must be {what}, got {value!r}"``.
+    """
+    v = as_real(value)
+    if v is None or not ((v > lo if lo_open else v >= lo) and (v < hi if hi_open else v <= hi)):
+        raise ValidationError(f"{name} must be {what}, got {value!r}")
+    return v
 
 
 def get_check(name: str):
@@ -261,8 +280,8 @@ class Problem:
         Whether the caller passed ``init``.
     """
 
-    A: object  # OperatorStack (products view by view) or a scipy sparse matrix
-    AT: object
+    A: OperatorStack | sp.spmatrix  # a stack's products run view by view
+    AT: LinearOperator | sp.spmatrix
     y: np.ndarray
     known: np.ndarray
     offsets: np.ndarray
@@ -388,8 +407,6 @@ def prior_from_init(init, n: int) -> np.ndarray:
         raise ValidationError(f"init must be an array (a support mask, indices or a prior q of shape ({n},)), "
                               f"got the single value {init!r}{hint}")
     if a.dtype == bool or a.dtype.kind in "ui":
-        from .._selection import support_mask
-
         return support_mask(a.reshape(-1) if a.dtype != bool else a, n, "init").astype(np.float64)
     if a.dtype.kind == "f":
         if a.shape != (n,):
@@ -414,8 +431,6 @@ def prepare(operators, masks, init=None) -> Problem:
         the wrong dtype/range, masks that are all NaN in every view, or a
         mask count different from the view count. Messages name the view.
     """
-    from ..operators import as_stack  # the operator core: numpy/scipy only
-
     views = getattr(operators, "views", operators)
     if isinstance(masks, np.ndarray) and masks.ndim == 2 and isinstance(views, (list, tuple)) \
             and masks.shape[0] != len(views):

@@ -42,7 +42,7 @@ import numpy as np
 from scipy.special import betaln, digamma
 
 from ..errors import ValidationError
-from ._common import MethodResult, Problem, as_real, check_count, register_method
+from ._common import MethodResult, Problem, check_count, check_range, register_method
 from ._progress import report as report_progress
 from .voting import vote_counts
 
@@ -71,9 +71,7 @@ def _view_evidence(problem: Problem, c: int) -> tuple:
 def _check(o: dict) -> None:
     """Raise a ValidationError for option values beta_bernoulli cannot take (``o``: every option by name)."""
     for name in ("a0", "b0"):
-        v = as_real(o[name])
-        if v is None or not v > 0:
-            raise ValidationError(f"beta_bernoulli: {name} must be a positive finite number, got {o[name]!r}")
+        check_range(f"beta_bernoulli: {name}", o[name], "a positive finite number", lo=0.0, lo_open=True)
     if o["order"] not in ("given", "eig"):
         raise ValidationError(f"beta_bernoulli: order must be 'given' or 'eig', got {o['order']!r}")
     check_count("beta_bernoulli", "budget", o["budget"], none_ok=True)
@@ -95,12 +93,18 @@ def beta_bernoulli(problem: Problem, *, a0: float = 1.0, b0: float = 1.0, order:
 
     Returns
     -------
-    MethodResult with ``q`` the posterior mean, ``iterations`` the number of views
-    used, ``view_weights`` 1 for used views and 0 otherwise, ``history`` one
-    record per absorbed view (``view``, ``eig`` for the eig order,
-    ``entropy`` the summed Beta entropy after it; empty when every view is
-    used in the given order, which needs only the two vote sums) and
-    ``info["order"]``.
+    MethodResult
+        ``q`` (N,) the posterior mean, ``iterations`` the number of views
+        used, ``view_weights`` (V,) 1 for used views and 0 otherwise,
+        ``history`` one record per absorbed view (``view``, ``eig`` for the
+        eig order, ``entropy`` the summed Beta entropy after it; empty when
+        every view is used in the given order, which needs only the two vote
+        sums) and ``info["order"]``.
+
+    Raises
+    ------
+    ValidationError
+        An option value outside the ranges above.
     """
     _check(dict(a0=a0, b0=b0, order=order, budget=budget))
     a0, b0 = float(a0), float(b0)

@@ -22,9 +22,9 @@ practice, not provably), one ``A`` and one ``A^T`` pass per iteration; it stops 
 ``max |x_{k+1} - x_k| < tol`` or after ``max_iter`` iterations.
 ``algorithm="lsq_linear"`` calls ``scipy.optimize.lsq_linear`` (method
 "trf") on the known rows and observed columns, to scipy's tolerance ``tol``, 1e-10 by
-default (near the exact minimiser: with FISTA's 1e-4 it stopped after a
-few iterations, 0.01 away in ``q``); it builds a sliced copy of the
-operator: use it for small problems.
+default (FISTA's 1e-4 would stop it after a few iterations, far from the
+minimiser); it builds a sliced copy of the operator: use it for small
+problems.
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ import numpy as np
 from scipy.optimize import lsq_linear
 
 from ..errors import ValidationError
-from ._common import MethodResult, Problem, as_real, check_count, register_method
+from ._common import MethodResult, Problem, check_count, check_range, register_method
 from ._progress import report as report_progress
 
 __all__ = ["least_squares", "operator_norm_sq"]
@@ -59,9 +59,8 @@ def _check(o: dict) -> None:
         raise ValidationError(f"least_squares: algorithm must be 'fista' or 'lsq_linear', got {o['algorithm']!r}")
     for name in ("max_iter", "power_iters"):
         check_count("least_squares", name, o[name])
-    tol = as_real(o["tol"]) if o["tol"] is not None else DEFAULT_TOL.get(o["algorithm"], 1.0)
-    if tol is None or not tol > 0:
-        raise ValidationError(f"least_squares: tol must be a positive finite number, got {o['tol']!r}")
+    if o["tol"] is not None:  # (the defaults of DEFAULT_TOL are positive)
+        check_range("least_squares: tol", o["tol"], "a positive finite number", lo=0.0, lo_open=True)
     if o["target"] not in ("alpha", "mask"):
         raise ValidationError(f"least_squares: target must be 'alpha' or 'mask', got {o['target']!r}")
 
@@ -89,8 +88,15 @@ def least_squares(problem: Problem, *, target: str = "alpha", algorithm: str = "
 
     Returns
     -------
-    MethodResult with ``q``, ``iterations`` and ``history`` (FISTA: ``objective`` at the extrapolated point
-    and ``step`` (max change) every iteration).
+    MethodResult
+        ``q`` (N,), ``iterations`` and ``history`` (FISTA: ``objective``
+        ``0.5 ||r||^2`` at the extrapolated point and ``step``, the max
+        change of ``q``, every iteration).
+
+    Raises
+    ------
+    ValidationError
+        An option value outside the ranges above.
     """
     _check(dict(target=target, algorithm=algorithm, max_iter=max_iter, tol=tol, power_iters=power_iters))
     tol = DEFAULT_TOL[algorithm] if tol is None else float(tol)

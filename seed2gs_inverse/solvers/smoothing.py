@@ -45,6 +45,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+from scipy.sparse.csgraph import connected_components
 
 from ..errors import ValidationError
 from ..graph import check_graph, laplacian_of_checked
@@ -73,8 +74,6 @@ def _vector(name, v, n, lo=None, hi=None) -> np.ndarray:
 
 def _reached(g: sp.spmatrix, linked: np.ndarray, sources: np.ndarray) -> np.ndarray:
     """Indices of the ``linked`` nodes (with an edge) whose component of ``g`` holds a ``sources`` node."""
-    from scipy.sparse.csgraph import connected_components
-
     _, label = connected_components(g, directed=False)
     hit = np.zeros(label.max(initial=0) + 1, bool)
     hit[label[sources]] = True
@@ -91,8 +90,8 @@ def _spd_solve(A: sp.spmatrix, b: np.ndarray, x0: np.ndarray, method: str, rtol:
         raise ValidationError(f"linear solver must be 'auto', 'direct' or 'cg', got {method!r}")
     # CG on the Jacobi-scaled system S A S y = S b, x = S y, S = diag(A)^-1/2: the iterates of
     # Jacobi-preconditioned CG, stopped on the scaled residual |S r| <= rtol |S b|. Unscaled,
-    # |r| <= rtol |b| let the rows of large evidence set the tolerance of all, and the Gaussians
-    # without evidence (what the regulariser decides) were solved loosely when evidence was large.
+    # |r| <= rtol |b| would let the rows of large evidence set the tolerance of all, and solve
+    # the Gaussians without evidence (what the regulariser decides) loosely.
     s = 1.0 / np.sqrt(A.diagonal())
     S = sp.diags(s)
     y, info = spla.cg((S @ A @ S).tocsr(), s * b, x0=x0 / s, rtol=rtol, maxiter=20 * n + 100)
@@ -144,11 +143,9 @@ def laplacian_smooth(q_hat, evidence, graph, smoothness: float = 1.0, prior=None
         CG relative tolerance, in (0, 1) (only used with CG), on the scaled
         residual: ``|S r| <= rtol |S b|`` with ``S = diag(A)^-1/2``, so
         large evidence does not loosen the solve where there is none.
-        ``benchmarks/bench_smoothing.py --rtol 1e-6,1e-5,1e-4`` prints the
-        time and the labels that fall on the other side of 0.5 than in the
-        exact solve: on the firepit + unicorn system grown to 471k unknowns,
-        21 labels differ at 1e-5 (1.28 s) against 4 at 1e-6 (2.50 s) and 33
-        at 1e-4 (1.06 s; load 0.9).
+        The default 1e-5 was chosen on ``benchmarks/bench_smoothing.py
+        --rtol 1e-6,1e-5,1e-4``, which prints the time and the labels that
+        fall on the other side of 0.5 than in the exact solve.
 
     Returns
     -------
@@ -193,8 +190,8 @@ def smooth_checked(q_hat, e, g, lam, p, eps=RIDGE, solver="cg", rtol=1e-5) -> np
         use_cg = solver == "cg" or (solver == "auto" and coupled.size > DIRECT_MAX)
         if use_cg and (ec > 0).any() and (ec == 0).any():
             # Only a starting point: a loose tolerance (the CG below converges to
-            # rtol either way), where 1e-10 cost thousands of CG steps on the
-            # firepit table's 60k-node region. Every component here holds evidence.
+            # rtol either way; a tight one costs thousands of CG steps on large
+            # regions). Every component here holds evidence.
             x0 = _harmonic(Lc, ec > 0, q_hat[coupled], p[coupled], np.flatnonzero(ec == 0), 1e-9, "auto", 1e-4)
         out[coupled] = _spd_solve(A, b, x0, solver, rtol)
     return np.clip(out, 0.0, 1.0)

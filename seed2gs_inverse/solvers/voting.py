@@ -33,8 +33,9 @@ from __future__ import annotations
 import numpy as np
 
 from .._threads import run_both
+from .._validation import as_real
 from ..errors import ValidationError
-from ._common import MethodResult, Problem, as_real, register_method
+from ._common import MethodResult, Problem, register_method
 
 __all__ = ["voting", "vote_counts", "bias_to_threshold"]
 
@@ -70,9 +71,15 @@ def voting(problem: Problem, *, bias: float = 0.0) -> MethodResult:
 
     Returns
     -------
-    MethodResult with ``q = A1 / (A0 + A1)`` (0 where no vote), ``threshold =
-    tau(bias)`` and ``info`` holding the ``bias`` and ``total_votes`` (the summed
-    ``A0 + A1``).
+    MethodResult
+        ``q = A1 / (A0 + A1)`` (N,) (0 where no vote), ``threshold =
+        tau(bias)`` and ``info`` holding the ``bias`` and ``total_votes``
+        (the summed ``A0 + A1``).
+
+    Raises
+    ------
+    ValidationError
+        ``bias`` not a finite number in (-1, 1).
     """
     tau = bias_to_threshold(bias)
     a1 = problem.AT @ problem.y  # float32 (N,): A^T (k y), y being 0 at unknown pixels

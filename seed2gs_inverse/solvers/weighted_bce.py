@@ -7,86 +7,62 @@ constraint for free). View ``c`` renders the soft mask ``P(c) = W(c) q``
     L(l) = (1/Z) sum_c omega_c sum_{u in K(c)} s_u BCE(Phat_u, Y_u),
     BCE(p, y) = -(y log p + (1 - y) log(1 - p)),  p clipped to [eps, 1 - eps],
 
-over the known (non-NaN) pixels ``K(c)``, where ``Z = sum_u s_u`` only
-rescales (so tolerances do not depend on the image count).
+over the usable pixels ``K(c)`` of view ``c`` (known, i.e. not NaN, and
+with rendered opacity ``alpha_u = (W 1)_u >= alpha_min``), where
+``Z = sum_u s_u`` only rescales (so tolerances do not depend on the image
+count).
 
-Low-alpha pixels. ``P_u = (W q)_u <= alpha_u = (W 1)_u``, so a pixel the
-scene covers only partly can never reach ``Y_u = 1``. The default
-(``normalize=False``) is the paper's literal Eq. 7, ``Phat = W q`` with
-pixel weights ``s_u = 1``: it matches masks that mark where the object's
-rendered opacity exceeds one half, and a partly covered pixel only keeps
-pushing its Gaussians towards 1. ``normalize=True`` predicts the object's
-share of what the pixel shows, ``Phat_u = (W q)_u / alpha_u``, with weight
-``s_u = alpha_u`` (faint pixels weigh little); use it when masks mark
-object pixels regardless of opacity (e.g. an object cut out against an
-empty background). Either way pixels with ``alpha_u < alpha_min`` are left
-out: they show (almost) nothing, so ``P = 0`` against ``Y = 1`` would add a
-constant to the loss and inflate the view residuals without any gradient.
-On the solver tests' scenes (masks ``W t > 0.5``) the literal form recovers
-held-out masks better.
+Prediction. ``P_u = (W q)_u <= alpha_u``, so a pixel the scene covers only
+partly can never reach ``Y_u = 1``. ``normalize=False`` (the default, the
+paper's literal Eq. 7) predicts ``Phat = W q`` with pixel weights
+``s_u = 1``: it matches masks that mark where the object's rendered opacity
+exceeds one half, which is what the front ends produce.
+``normalize=True`` predicts the object's share of what the pixel shows,
+``Phat_u = (W q)_u / alpha_u``, with weight ``s_u = alpha_u``: it matches
+masks that mark object pixels regardless of opacity. Pixels with
+``alpha_u < alpha_min`` are left out either way: ``P = 0`` against
+``Y = 1`` would add a constant to the loss and to the view residuals
+without any gradient.
 
-Gradient (chain rule through the clip; per-pixel work in A's dtype, sums in float64):
+Gradient (chain rule through the clip; per-pixel work in A's dtype, sums in
+float64):
 
     dL/dPhat_u = omega_c s_u / Z * (p_u - Y_u) / (p_u (1 - p_u))   (0 where clipped)
     dL/dl = q (1 - q) * A^T g,   g_u = dL/dPhat_u / alpha_u (normalize) or dL/dPhat_u,
 
-one pass of ``A`` and one of ``A^T`` per evaluation (scipy) with the
-per-pixel work between them in numpy, on the usable pixels only
+one pass of ``A`` and one of ``A^T`` per evaluation, with the per-pixel
+work between them on the usable pixels only
 (:class:`~seed2gs_inverse.solvers._bce.PixelBCE`). The view residuals
-``D_c`` reuse the evaluation at the same ``q`` (the start's, and the last
-one of each inner run), so reweighting costs no extra pass.
+``D_c`` reuse the evaluation at the same ``q``, so reweighting costs no
+extra pass.
 
-View weights (Eq. 6). ``D_c`` is the running residual of view ``c``, the
-weighted mean BCE of its pixels at the current ``q`` (exponential moving
-average with ``momentum``, re-evaluated after every ``inner_iters``
-L-BFGS iterations). With ``m_D = median(D)`` and the robust scale
-``s_D = 1.4826 * median(|D - m_D|)``, floored at ``1e-3 m_D + 1e-9`` so a
+View weights (Eq. 6). ``D_c`` is the running residual of view ``c``: the
+weighted mean BCE of its pixels, an exponential moving average with
+``momentum`` updated after every inner run of ``inner_iters`` L-BFGS
+iterations. With ``m_D = median(D)`` and the robust scale
+``s_D = 1.4826 median(|D - m_D|)``, floored at ``1e-3 |m_D| + 1e-9`` so a
 tie of most views does not divide by zero,
 
     omega_c = Norm[ r_min + (1 - r_min) sigmoid((m_D + s_D - D_c) / (lambda s_D)) ],
 
-with ``Norm`` dividing by the mean (weights average 1). Views that agree
-with the current 3D estimate keep weight near 1; views whose residual sits
+where ``Norm`` divides by the mean (the weights average 1). Views that agree
+with the current estimate keep a weight near 1; views whose residual lies
 far above the median (occlusion, tracker drift, a wrong identity) fall to
-the floor ``r_min``. The default floor 0.05 (before normalisation) was
-chosen on the firepit + unicorn benchmark with 25% identity-switched views,
-where it kept more of the object in 3D than a floor of 0.2 and beat the
-vote. On that case today's ``benchmarks/bench_solvers.py`` (load 1.4-1.6)
-gives held-out mIoU / visibility-weighted 3D IoU 0.985 / 0.878 with
-scipy's L-BFGS-B and 0.995 / 0.870 with ``optimizer="lbfgs"`` (voting
-0.866 / 0.809).
+the floor ``r_min``.
 
-Optimisation: over the logits of the Gaussians with evidence only (weight
-on at least one usable pixel; the others keep the prior and are reported
-unobserved), in an outer loop that refreshes the weights; it stops when an
-inner run converges and the weights moved less than ``weight_tol``, or
-after ``max_iter`` iterations in total. Two optimisers (``optimizer``):
+Optimisation (:class:`WeightedBCE`). Only the logits of the Gaussians with
+evidence (weight on at least one usable pixel) move; the others keep the
+prior and are reported unobserved. An outer loop alternates an inner
+L-BFGS run under fixed weights ``omega`` with a weight update, and stops
+when an inner run converged and the weights moved less than
+``weight_tol`` (max abs), or after ``max_iter`` iterations in total.
+``optimizer="scipy"`` runs ``scipy.optimize.minimize(method="L-BFGS-B")``
+without bounds; ``optimizer="lbfgs"`` runs :func:`~._lbfgs.lbfgs`, whose
+curvature pairs carry over between outer steps.
 
-``"scipy"`` (default)
-    ``scipy.optimize.minimize(..., jac=True, method="L-BFGS-B")`` (no bounds
-    are needed on logits), the reference.
-``"lbfgs"``
-    The unconstrained L-BFGS below (two-loop recursion, a line search that
-    extends short steps and backtracks long ones) whose
-    curvature pairs carry over between reweighting steps, so a new outer
-    step does not restart from a steepest-descent step. On the firepit +
-    unicorn stack of ``benchmarks/bench_solvers.py`` (611k Gaussians, 32
-    views, the default 200 iterations; load 1.4-1.6) it took 80 iterations
-    and 110 evaluations at 42.3 ms per iteration against scipy's 87, 137
-    and 59.1 ms (2.40x and 3.35x two sparse passes), with held-out mIoU
-    within 0.002 of scipy's on every mask model but identity switches
-    (0.995 against 0.985), and plain 3D IoU equal on clean masks but up
-    to 0.03 lower on noisy ones (identity switches 0.861 against 0.891,
-    salt 0.625 against 0.643, dilated 0.801 against 0.818). On the 13
-    cases of ``benchmarks/bench_extract.py`` (the pipeline's 20
-    iterations; load 0.7-1.3) mean held-out mIoU / mBIoU / 3D IoU 0.974 /
-    0.916 / 0.925 against scipy's 0.974 / 0.917 / 0.928, every case within
-    0.005 in mIoU; where they differ it reaches the lower loss and selects
-    a little less. Mixed, so scipy stays the default.
 The start is the prior ``q0`` from ``init`` or, without ``init``, the
-closed-form vote (``start="vote"``, one extra transposed pass; it gives
-Gaussians with little evidence the vote's side instead of a coin flip at
-0.5) or ``q0 = 0.5`` (``start="half"``), clipped to
+closed-form vote (one extra transposed pass: Gaussians with little
+evidence start on the vote's side instead of at 0.5), clipped to
 ``[init_clip, 1 - init_clip]`` since saturated logits have vanishing
 gradients.
 """
@@ -101,18 +77,36 @@ from scipy.optimize import minimize
 from scipy.special import expit
 
 from ..errors import ValidationError
-from ._common import MethodResult, Problem, as_real, check_count, register_method
 from ._bce import PixelBCE, bce_pixels
+from ._common import MethodResult, Problem, check_count, check_range, register_method
+from ._lbfgs import lbfgs as _lbfgs
 from ._progress import report as report_progress
 from .voting import voting
 
-__all__ = ["weighted_bce", "view_weights", "BCEObjective", "bce_pixels"]
-
+__all__ = ["weighted_bce", "WeightedBCE", "view_weights", "BCEObjective", "bce_pixels"]
 
 def view_weights(residuals, r_min: float = 0.05, lam: float = 0.5) -> np.ndarray:
-    """Eq. 6: view weights from per-view residuals ``D`` (V,), mean-normalised.
+    """View weights of Eq. 6 from per-view residuals, mean-normalised.
 
-    See the module docstring for the formula and the scale floor.
+    Parameters
+    ----------
+    residuals : (V,) array_like
+        The running residuals ``D_c`` (V >= 1).
+    r_min : float, default 0.05
+        Weight floor before normalisation, in [0, 1].
+    lam : float, default 0.5
+        Temperature ``lambda``, > 0.
+
+    Returns
+    -------
+    (V,) float64
+        ``omega``, with mean 1.
+
+    Notes
+    -----
+    With ``m = median(D)`` and ``s = max(1.4826 median(|D - m|), 1e-3 |m| + 1e-9)``,
+
+        omega_c = w_c / mean(w),   w_c = r_min + (1 - r_min) sigmoid((m + s - D_c) / (lam s)).
     """
     D = np.asarray(residuals, dtype=np.float64)
     m = np.median(D)
@@ -124,15 +118,21 @@ def view_weights(residuals, r_min: float = 0.05, lam: float = 0.5) -> np.ndarray
 class BCEObjective:
     """The loss of Eq. 7 and its gradient with respect to ``q`` or the logits.
 
-    One evaluation is one pass of ``A`` and one of ``A^T`` (scipy, in the dtype
+    One evaluation is one pass of ``A`` and one of ``A^T`` (in the dtype
     of ``A``: float32 in the solver, float64 in gradient checks) with the
     per-pixel work between them in numpy (:class:`~._bce.PixelBCE`).
 
     Parameters
     ----------
     problem : Problem
-    normalize : bool
-    alpha_min, eps : float
+        The stacked problem; its ``alpha`` (row sums of ``A``) is computed here.
+    normalize : bool, default False
+        Predict ``W q / alpha`` with pixel weights ``alpha`` (True) or the
+        literal ``W q`` with weights 1 (False); see the module docstring.
+    alpha_min : float, default 1e-3
+        Pixels with less rendered opacity are not usable.
+    eps : float, default 1e-4
+        Probability clip of the BCE, in (0, 0.5).
 
     Attributes
     ----------
@@ -237,131 +237,24 @@ class BCEObjective:
         return loss, qr * (1.0 - qr) * gq
 
 
-#: The built-in L-BFGS extends a too-short step by this factor, at most ``_MAX_EXTENSIONS`` times
-#: per line search (a factor of about 1e6 in all; Moré and Thuente's search extrapolates to at
-#: most 5 times its step).
-_EXTEND, _MAX_EXTENSIONS = 4.0, 10
-
-
-def _lbfgs(fun, x, max_iter: int, ftol: float, gtol: float, memory: deque, callback=None) -> tuple:
-    """Unconstrained L-BFGS with a line search that extends short steps and backtracks long ones.
-
-    ``fun(x) -> (f, g)``. Two-loop recursion over the pairs ``(s, y, 1/s.y)``
-    in ``memory`` (a ``deque`` whose ``maxlen`` is the L-BFGS memory; updated
-    in place, so a later call continues with the same curvature estimate)
-    with the initial scaling ``s.y / y.y`` (Nocedal & Wright, Alg. 7.4).
-    Steps start at 1 (without memory at ``1 / ||g||``: a unit-length step
-    ``-g / ||g||``, as in scipy's L-BFGS-B). A step is taken when it
-    satisfies the Armijo rule ``f(x + t d) <= f + 1e-4 t g.d`` and the
-    slope has flattened, ``g(x + t d).d >= 0.9 g.d`` (the weak Wolfe
-    conditions; a quasi-Newton step of 1 usually passes both at once, so
-    most iterations cost one evaluation). A step that passes Armijo but
-    leaves the slope steeper is too short: it is made 4 times longer, at
-    most 10 times. A step that fails the Armijo rule is shrunk by
-    safeguarded quadratic interpolation, and the first shrunk step that
-    passes it is taken; when an extension fails it, the step before it is
-    taken (it passed Armijo, not the curvature test: no search inside the
-    bracket). Pairs with ``s.y <= 1e-10 y.y`` are not
-    stored. ``callback(x, f)`` after every iteration may raise
-    ``StopIteration`` to end the run (status 0). Stops like scipy's L-BFGS-B: ``(f_k - f_{k+1}) / max(|f_k|,
-    |f_{k+1}|, 1) <= ftol`` after a quasi-Newton step (a first steepest-descent
-    step is too short to judge convergence by) or ``max |g| <= gtol``
-    (status 0), after ``max_iter`` iterations (status 1), or when the line
-    search fails (status 2).
-
-    Returns
-    -------
-    x, f, iterations, status, message
-    """
-    f, g = fun(x)
-    if np.max(np.abs(g), initial=0.0) <= gtol:
-        return x, f, 0, 0, "gradient below gtol"
-    for nit in range(1, max_iter + 1):
-        d = -g  # a fresh array, updated in place below
-        alphas = []
-        for s, y, r in reversed(memory):
-            a = r * np.dot(s, d)
-            _axpy(-a, y, d)
-            alphas.append(a)
-        if memory:
-            s, y, r = memory[-1]
-            d *= 1.0 / (r * np.dot(y, y))
-        for (s, y, r), a in zip(memory, reversed(alphas)):
-            _axpy(a - r * np.dot(y, d), s, d)
-        gd = float(np.dot(g, d))
-        if not gd < 0:  # not a descent direction (numerical trouble): restart from steepest descent
-            memory.clear()
-            d, gd = -g, -float(np.dot(g, g))
-        quasi_newton = bool(memory)
-        # without memory a unit-length step (-gd = |g|^2; 1 where it underflows to 0)
-        t = 1.0 if quasi_newton or gd == 0 else 1.0 / np.sqrt(-gd)
-        accepted, bracketed, extensions = None, False, 0  # accepted: the last step that passed Armijo
-        for _ in range(30):
-            xn = x + t * d
-            fn, gn = fun(xn)
-            if np.isfinite(fn) and fn <= f + 1e-4 * t * gd:
-                accepted = xn, fn, gn
-                gdn = float(np.dot(gn, d))
-                # taken once the slope has flattened (weak Wolfe; also when it is not a number),
-                # after a shrink, or after the last extension allowed
-                if bracketed or extensions == _MAX_EXTENSIONS or not gdn < 0.9 * gd:
-                    break
-                t *= _EXTEND  # still nearly as steep as at the start: the step was too short
-                extensions += 1
-                continue
-            bracketed = True
-            if accepted is not None:  # an extension overshot: keep the step before it
-                break
-            # minimiser of the quadratic through f, the slope gd and fn, kept within [0.1 t, 0.5 t]
-            tq = -gd * t * t / (2.0 * (fn - f - gd * t)) if np.isfinite(fn) else 0.1 * t
-            t = min(max(tq, 0.1 * t), 0.5 * t)
-        if accepted is None:
-            memory.clear()  # the pairs gave no descent: the next call starts afresh
-            return x, f, nit - 1, 2, "line search failed to decrease the loss"
-        xn, fn, gn = accepted
-        s, y = xn - x, gn - g
-        sy, yy = float(np.dot(s, y)), float(np.dot(y, y))
-        if sy > 1e-10 * yy:
-            memory.append((s, y, 1.0 / sy))
-        f_old, x, f, g = f, xn, fn, gn
-        if callback is not None:
-            try:
-                callback(x, f)
-            except StopIteration:
-                return x, f, nit, 0, "stopped by the callback"
-        if quasi_newton and f_old - f <= ftol * max(abs(f_old), abs(f), 1.0):
-            return x, f, nit, 0, "relative reduction of the loss below ftol"
-        if np.max(np.abs(g)) <= gtol:
-            return x, f, nit, 0, "gradient below gtol"
-    return x, f, max_iter, 1, "maximum number of iterations reached"
-
-
-def _axpy(a, x, y):
-    """``y += a x`` in place; returns ``y``."""
-    y += a * x
-    return y
-
 
 def _logit(p):
+    """``log(p / (1 - p))``, the inverse of ``expit``."""
     return np.log(p) - np.log1p(-p)
 
 
 def _check(o: dict) -> None:
     """Raise a ValidationError for option values weighted_bce cannot take (``o``: every option by name)."""
-    def real(name, lo, hi, lo_open=False, hi_open=False, what=None):
-        v = as_real(o[name])
-        if v is None or not ((v > lo if lo_open else v >= lo) and (v < hi if hi_open else v <= hi)):
-            raise ValidationError(f"weighted_bce: {name} must be {what}, got {o[name]!r}")
-
-    real("r_min", 0.0, 1.0, what="in [0, 1]")
-    real("lam", 0.0, np.inf, lo_open=True, what="positive")
-    real("momentum", 0.0, 1.0, hi_open=True, what="in [0, 1)")
-    real("alpha_min", 0.0, 1.0, hi_open=True, what="in [0, 1)")
-    real("eps", 0.0, 0.5, lo_open=True, hi_open=True, what="in (0, 0.5)")
-    real("init_clip", 0.0, 0.5, lo_open=True, hi_open=True, what="in (0, 0.5)")
-    real("stable_tol", 0.0, 1.0, hi_open=True, what="in [0, 1)")
+    check_range("weighted_bce: r_min", o["r_min"], "in [0, 1]", lo=0.0, hi=1.0)
+    check_range("weighted_bce: lam", o["lam"], "positive", lo=0.0, lo_open=True)
+    check_range("weighted_bce: momentum", o["momentum"], "in [0, 1)", lo=0.0, hi=1.0, hi_open=True)
+    check_range("weighted_bce: alpha_min", o["alpha_min"], "in [0, 1)", lo=0.0, hi=1.0, hi_open=True)
+    check_range("weighted_bce: eps", o["eps"], "in (0, 0.5)", lo=0.0, hi=0.5, lo_open=True, hi_open=True)
+    check_range("weighted_bce: init_clip", o["init_clip"], "in (0, 0.5)", lo=0.0, hi=0.5, lo_open=True,
+                hi_open=True)
+    check_range("weighted_bce: stable_tol", o["stable_tol"], "in [0, 1)", lo=0.0, hi=1.0, hi_open=True)
     for name in ("weight_tol", "ftol", "gtol"):
-        real(name, 0.0, np.inf, what="a finite number >= 0")
+        check_range(f"weighted_bce: {name}", o[name], "a finite number >= 0", lo=0.0)
     for name in ("reweight", "normalize"):
         if not isinstance(o[name], (bool, np.bool_)):
             raise ValidationError(f"weighted_bce: {name} must be True or False, got {o[name]!r}")
@@ -374,44 +267,306 @@ def _check(o: dict) -> None:
         raise ValidationError(f"weighted_bce: optimizer must be 'scipy' or 'lbfgs', got {o['optimizer']!r}")
 
 
+class _SelectionWatch:
+    """Per-iteration callback that ends an inner run once the selection ``x > 0`` has settled.
+
+    An iteration is calm when at most ``n_flip`` logits changed sign since the
+    previous iteration; after ``stable_iters`` calm iterations in a row it sets
+    ``fired`` and raises ``StopIteration`` (never when ``stable_iters`` is 0).
+    """
+
+    def __init__(self, x0: np.ndarray, n_flip: int, stable_iters: int):
+        self.sel, self.calm, self.fired = x0 > 0, 0, False
+        self.n_flip, self.stable_iters = n_flip, stable_iters
+
+    def __call__(self, xk) -> None:
+        sel = np.asarray(xk) > 0
+        flips = int(np.count_nonzero(sel != self.sel))
+        self.sel = sel
+        self.calm = self.calm + 1 if flips <= self.n_flip else 0
+        if self.stable_iters and self.calm >= self.stable_iters:
+            self.fired = True
+            raise StopIteration
+
+
+class WeightedBCE:
+    """The reweighted BCE solve as separate steps: ``setup``, ``step``, ``run``, ``finalize``.
+
+    :func:`weighted_bce` is ``WeightedBCE(problem, callbacks).solve(**options)``;
+    the class exposes the outer loop so that each step can be run, inspected
+    and tested on its own.
+
+    Parameters
+    ----------
+    problem : Problem
+        The stacked problem (:func:`~seed2gs_inverse.solvers.prepare`).
+    callbacks : sequence of callable, optional
+        Each is called as ``callback(solver, x, loss)`` after every L-BFGS
+        iteration, in order, with ``x`` the logits (R,) float64 of the
+        optimised Gaussians and ``loss`` the objective at ``x``; raising
+        ``StopIteration`` ends the current inner run.
+
+    Attributes
+    ----------
+    objective : BCEObjective
+        The loss of Eq. 7 (after :meth:`setup`).
+    rows : (R,) int64
+        The optimised Gaussians: those with evidence.
+    q_full : (N,) ndarray, A's dtype
+        ``q`` of every Gaussian at the last evaluated logits.
+    D, omega : (V,) float64
+        Running view residuals and view weights (0 for a view without
+        usable pixels).
+    iterations : int
+        L-BFGS iterations of all inner runs so far.
+    iiter : int
+        Iterations reported to the callbacks so far.
+    nfev : int
+        Objective evaluations so far.
+    history : list of dict
+        One record per outer step (see :func:`weighted_bce`).
+    converged : bool
+        Whether the last step met the stopping rule.
+    message : str
+        Why the last inner run stopped.
+    """
+
+    def __init__(self, problem: Problem, callbacks=None):
+        self.problem = problem
+        self.callbacks = list(callbacks) if callbacks is not None else []
+
+    def setup(self, *, r_min: float = 0.05, lam: float = 0.5, momentum: float = 0.5, reweight: bool = True,
+              normalize: bool = False, alpha_min: float = 1e-3, eps: float = 1e-4, max_iter: int = 200,
+              inner_iters: int = 20, weight_tol: float = 1e-3, ftol: float = 1e-10, gtol: float = 1e-9,
+              init_clip: float = 0.1, maxcor: int = 5, start: str = "auto", optimizer: str = "scipy",
+              stable_iters: int = 0, stable_tol: float = 1e-4) -> np.ndarray:
+        """Check the options, build the objective, the start and the first view weights.
+
+        Parameters
+        ----------
+        r_min, lam, momentum, reweight, normalize, alpha_min, eps, max_iter, inner_iters, weight_tol, ftol, \
+gtol, init_clip, maxcor, start, optimizer, stable_iters, stable_tol
+            The options of :func:`weighted_bce`, with the same defaults.
+
+        Returns
+        -------
+        x : (R,) float64
+            The starting logits of the optimised Gaussians (empty when no
+            pixel is usable: then :meth:`run` does nothing and
+            :meth:`finalize` returns the prior).
+
+        Raises
+        ------
+        ValidationError
+            An option value the method cannot take.
+        """
+        _check(dict(r_min=r_min, lam=lam, momentum=momentum, reweight=reweight, normalize=normalize,
+                    alpha_min=alpha_min, eps=eps, max_iter=max_iter, inner_iters=inner_iters, weight_tol=weight_tol,
+                    ftol=ftol, gtol=gtol, init_clip=init_clip, maxcor=maxcor, start=start, optimizer=optimizer,
+                    stable_iters=stable_iters, stable_tol=stable_tol))
+        t_start = time.perf_counter()
+        self.r_min, self.lam, self.momentum, self.reweight = r_min, lam, momentum, reweight
+        self.alpha_min, self.max_iter, self.inner_iters, self.weight_tol = alpha_min, max_iter, inner_iters, weight_tol
+        self.ftol, self.gtol, self.maxcor, self.optimizer = ftol, gtol, maxcor, optimizer
+        self.stable_iters = stable_iters
+        self.iterations, self.iiter, self.nfev, self.history = 0, 0, 0, []
+        self.message, self.converged = "", False
+        self.objective = obj = BCEObjective(self.problem, normalize=normalize, alpha_min=alpha_min, eps=eps)
+        # Views without a usable pixel take no part in the weight statistics; Gaussians seen by no
+        # usable pixel have no evidence and keep the prior.
+        self.active = obj.s_view > 0
+        self.rows = np.flatnonzero(obj.evidence)
+        if self.rows.size == 0:
+            self.seconds_setup = time.perf_counter() - t_start
+            return np.empty(0)
+        q_start = np.clip(self._start(start), init_clip, 1.0 - init_clip)
+        x = _logit(q_start[self.rows])
+        self.q_full = q_start.astype(obj.dtype)  # A's dtype: the products take it without a conversion
+        self.q_full[self.rows] = expit(x)  # as every evaluation computes it, so the start's residuals are reused
+        self.n_flip = max(int(stable_tol * self.rows.size), 0)
+        self.D = obj.residuals(self._q(x))
+        self.omega = self._weights(self.D)
+        # The curvature pairs of optimizer="lbfgs" carry over between outer steps: a reweighting
+        # changes the loss only mildly, and a fresh memory would restart with a steepest-descent step.
+        self.memory = deque(maxlen=int(maxcor))
+        self.seconds_setup = time.perf_counter() - t_start
+        self._setup_seconds = dict(obj.seconds)
+        return x
+
+    def _start(self, start: str) -> np.ndarray:
+        """The starting ``q`` (N,) for ``start`` (before the clip to ``[init_clip, 1 - init_clip]``)."""
+        p = self.problem
+        if start == "vote" or (start == "auto" and not p.init_given):
+            # The closed-form answer of the same evidence: most Gaussians start on the side they end on.
+            return np.where(p.observed, voting(p).q, p.prior)
+        if start == "half" and not p.init_given:
+            return np.full(p.n_gaussians, 0.5)
+        return p.prior
+
+    def _q(self, x: np.ndarray) -> np.ndarray:
+        """``q`` of every Gaussian (a copy of :attr:`q_full`) with ``sigmoid(x)`` at the optimised ones."""
+        self.q_full[self.rows] = expit(x)
+        return self.q_full.copy()
+
+    def _weights(self, D: np.ndarray) -> np.ndarray:
+        """Eq. 6 over the active views (all ones without ``reweight``); 0 for the others."""
+        omega = np.zeros(self.problem.n_views)
+        omega[self.active] = view_weights(D[self.active], self.r_min, self.lam) if self.reweight else 1.0
+        return omega
+
+    def _minimize(self, fun, x: np.ndarray, n_iter: int, callback) -> tuple:
+        """One inner run of the chosen optimiser: ``(x, loss, iterations, status, message)``."""
+        if self.optimizer == "lbfgs":
+            return _lbfgs(fun, x, n_iter, self.ftol, self.gtol, self.memory, callback=callback)
+
+        def scipy_callback(intermediate_result):  # the parameter name selects scipy's result-object form
+            callback(intermediate_result.x, intermediate_result.fun)
+
+        res = minimize(fun, x, jac=True, method="L-BFGS-B", callback=scipy_callback,
+                       options={"maxiter": n_iter, "maxcor": int(self.maxcor), "ftol": self.ftol, "gtol": self.gtol})
+        return res.x, float(res.fun), int(res.nit), int(res.status), str(res.message)
+
+    def step(self, x: np.ndarray) -> np.ndarray:
+        """One outer step: an inner L-BFGS run under the current weights, then a weight update.
+
+        Parameters
+        ----------
+        x : (R,) float64
+            The current logits.
+
+        Returns
+        -------
+        x : (R,) float64
+            The logits after the inner run. The step appends a record to
+            :attr:`history` and sets :attr:`converged`.
+
+        Notes
+        -----
+        The inner run takes ``min(inner_iters, max_iter - iterations)``
+        iterations at most. Then ``D <- momentum D + (1 - momentum) D(q)``
+        and ``omega <- Eq. 6 (D)``. The step has converged when the inner
+        run did (or took no iteration) and either the weights moved less than
+        ``weight_tol`` or the selection settled: the inner run was ended by
+        the ``stable_iters`` rule and changed the sign of at most
+        ``stable_tol R`` logits in all.
+        """
+        omega, sel_before = self.omega, x > 0
+        watch = _SelectionWatch(x, self.n_flip, self.stable_iters)
+
+        def fun(xo):
+            self.nfev += 1
+            return self.objective.loss_grad_rows(xo, self.rows, self.q_full, omega)
+
+        def after_iteration(xk, fk):
+            self.iiter += 1
+            for callback in self.callbacks:  # first: the iteration happened even if the selection settled
+                callback(self, xk, fk)
+            watch(xk)
+
+        n_iter = min(self.inner_iters, self.max_iter - self.iterations)
+        x, f, nit, status, self.message = self._minimize(fun, x, n_iter, after_iteration)
+        if watch.fired:
+            status, self.message = 0, f"selection unchanged for {self.stable_iters} iterations"
+        self.iterations += nit
+        self.D = self.momentum * self.D + (1.0 - self.momentum) * self.objective.residuals(self._q(x))
+        new_omega = self._weights(self.D)
+        change = float(np.max(np.abs(new_omega - omega)))
+        settled = watch.fired and int(np.count_nonzero((x > 0) != sel_before)) <= self.n_flip
+        self.history.append({"loss": float(f), "iterations": nit, "weights": new_omega.tolist(),
+                             "residuals": self.D.tolist(), "weight_change": change, "selection_settled": settled})
+        self.omega = new_omega
+        self.converged = (status == 0 or nit == 0) and (change < self.weight_tol or settled)
+        return x
+
+    def run(self, x: np.ndarray) -> np.ndarray:
+        """Outer steps from ``x`` (R,) until a step converges or ``max_iter`` iterations are spent.
+
+        At most ``max_iter`` outer steps (each runs at least one iteration
+        unless already optimal). Returns the final logits (R,).
+        """
+        if self.rows.size == 0:
+            return x
+        for _ in range(self.max_iter):
+            if self.iterations >= self.max_iter:
+                break
+            x = self.step(x)
+            if self.converged:
+                break
+        return x
+
+    def finalize(self, x: np.ndarray) -> MethodResult:
+        """The :class:`MethodResult` of the solve ending at logits ``x`` (R,); see :func:`weighted_bce`."""
+        obj = self.objective
+        if self.rows.size == 0:
+            return MethodResult(q=self.problem.prior.copy(), iterations=0, view_weights=np.zeros(self.problem.n_views),
+                                history=[], observed=obj.evidence,
+                                info={"function_evaluations": 0, "message": "no usable pixel (every known pixel has "
+                                         f"alpha < alpha_min = {self.alpha_min:g})", "outer_steps": 0,
+                                      "seconds_setup": self.seconds_setup, "seconds_passes": 0.0,
+                                      "seconds_pixels": 0.0})
+        return MethodResult(q=self._q(x), iterations=self.iterations, view_weights=self.omega, history=self.history,
+                            observed=obj.evidence,
+                            info={"function_evaluations": self.nfev, "message": self.message,
+                                  "outer_steps": len(self.history), "seconds_setup": self.seconds_setup,
+                                  "seconds_passes": obj.seconds["passes"] - self._setup_seconds["passes"],
+                                  "seconds_pixels": obj.seconds["pixels"] - self._setup_seconds["pixels"]})
+
+    def solve(self, **options) -> MethodResult:
+        """``finalize(run(setup(**options)))``: the whole solve; ``options`` as for :meth:`setup`."""
+        x = self.setup(**options)
+        x = self.run(x)
+        return self.finalize(x)
+
+
+def _report(solver: WeightedBCE, x: np.ndarray, loss: float) -> None:
+    """Callback forwarding each iteration to the progress of :func:`~seed2gs_inverse.solvers.solve`."""
+    report_progress(solver.iiter, solver.max_iter, loss)
+
+
 def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, momentum: float = 0.5,
                  reweight: bool = True, normalize: bool = False, alpha_min: float = 1e-3, eps: float = 1e-4,
                  max_iter: int = 200, inner_iters: int = 20, weight_tol: float = 1e-3, ftol: float = 1e-10,
                  gtol: float = 1e-9, init_clip: float = 0.1, maxcor: int = 5, start: str = "auto",
                  optimizer: str = "scipy", stable_iters: int = 0, stable_tol: float = 1e-4) -> MethodResult:
-    """Seed2GS reliability-weighted BCE; see the module docstring.
+    """Seed2GS reliability-weighted BCE (Eqs. 6-8), registered as ``solve(method="weighted_bce")``.
+
+    Runs :class:`WeightedBCE` with the progress of
+    :func:`~seed2gs_inverse.solvers.solve` as its callback; the module
+    docstring gives the objective, its gradient and the view weights.
 
     Parameters
     ----------
     problem : Problem
     r_min : float, default 0.05
-        Weight floor of Eq. 6 (before mean normalisation), in [0, 1].
+        Weight floor of Eq. 6 (before mean normalisation), in [0, 1]; chosen
+        on benchmarks/bench_solvers.py, whose masks include views with
+        switched identities.
     lam : float, default 0.5
-        Temperature ``lambda_tau`` of Eq. 6, > 0.
+        Temperature ``lambda`` of Eq. 6, > 0.
     momentum : float, default 0.5
         Running residual ``D <- momentum D + (1 - momentum) D(q)``, in [0, 1).
     reweight : bool, default True
         False fixes all view weights at 1 (the unweighted ablation).
     normalize : bool, default False
-        Predict the literal ``W q`` (False) or ``W q / alpha`` with pixel
-        weights ``alpha`` (True).
+        Predict the literal ``W q`` with pixel weights 1 (False) or
+        ``W q / alpha`` with pixel weights ``alpha`` (True).
     alpha_min : float, default 1e-3
-        Pixels with less rendered opacity are ignored.
+        Pixels with less rendered opacity are left out, in [0, 1).
     eps : float, default 1e-4
-        Probability clip of the BCE.
+        Probability clip of the BCE, in (0, 0.5).
     max_iter : int, default 200
-        Total L-BFGS iterations.
+        Total L-BFGS iterations, >= 1.
     inner_iters : int, default 20
-        L-BFGS iterations between view-weight updates.
+        L-BFGS iterations between view-weight updates, >= 1.
     weight_tol : float, default 1e-3
         Stop when the weights change less than this (max abs) and the inner
         run converged.
-    ftol, gtol : float
+    ftol, gtol : float, default 1e-10, 1e-9
         L-BFGS tolerances, as in scipy's L-BFGS-B: stop when the relative
         loss decrease is at most ``ftol`` or ``max |dL/dl| <= gtol`` (the
         loss is a per-pixel mean, O(1)).
     init_clip : float, default 0.1
-        The starting ``q`` is the prior clipped to ``[init_clip, 1 - init_clip]``.
+        The starting ``q`` is clipped to ``[init_clip, 1 - init_clip]``, in (0, 0.5).
     maxcor : int, default 5
         L-BFGS memory (pairs kept); the update costs O(maxcor N).
     start : {"auto", "vote", "prior", "half"}, default "auto"
@@ -421,162 +576,49 @@ def weighted_bce(problem: Problem, *, r_min: float = 0.05, lam: float = 0.5, mom
         alone; ``"half"`` 0.5 where no ``init`` is given (the prior
         otherwise); ``"auto"`` the prior when ``init`` is given, else the vote.
     optimizer : {"scipy", "lbfgs"}, default "scipy"
-        scipy's L-BFGS-B or the faster built-in L-BFGS (module docstring).
+        scipy's L-BFGS-B (the reference), or :func:`~._lbfgs.lbfgs`, whose
+        curvature memory carries over between outer steps; scipy is the
+        default because neither wins on the selections of
+        benchmarks/bench_solvers.py and benchmarks/bench_extract.py.
     stable_iters : int, default 0 (off)
         An inner run also ends when the selection ``q > 1/2`` of the
         optimised Gaussians has changed for at most ``stable_tol`` of them
         in each of the last ``stable_iters`` iterations, and the solve ends
-        when a whole inner run (each under view weights from the q before
-        it) left the selection so unchanged. 0 disables the rule (only the loss tolerances and
-        ``max_iter`` stop). With ``start="vote", stable_iters=3`` the 13
-        cases of ``benchmarks/bench_extract.py`` (``--set
-        'solver_options={"start":"vote","stable_iters":3}'``, load 1.2-1.5,
-        when the option landed with ``max_iter=30``) scored a mean held-out
-        mIoU of 0.949 against 0.950 with the defaults, in 5.4 s instead of
-        6.6 s per extraction; it lost held-out mIoU on eroded masks in a
-        procedural comparison of the solvers and takes a back view of
-        ``tests/test_unseen_surfaces.py`` below its bound, so it is not the
-        default.
+        when a whole inner run left the selection so unchanged. 0 disables
+        the rule (only the loss tolerances and ``max_iter`` stop); off by
+        default because it trades held-out accuracy on eroded masks for
+        time (benchmarks/bench_extract.py).
     stable_tol : float, default 1e-4
         Fraction of the optimised Gaussians allowed to flip per iteration
         while the selection counts as unchanged, in [0, 1).
 
     Returns
     -------
-    MethodResult with ``q``, ``iterations``, ``view_weights`` (final omega; 0 for a
-    view without usable pixels),
-    ``history`` (one record per outer step: ``loss``, ``iterations``,
-    ``weights``, ``residuals``), ``observed`` ((N,) bool, the Gaussians with
-    weight on a usable pixel; :func:`solve` gives the others the prior) and
-    ``info`` (``function_evaluations``, the convergence ``message``,
-    ``outer_steps``, ``seconds_setup``: the objective, the start and the
-    first view weights, before the first iteration, and after it
-    ``seconds_passes`` and ``seconds_pixels``: the sparse products and the
-    per-pixel work of the evaluations; the rest of the method's time is the
-    optimiser's own and the reweighting). Without any usable
-    pixel (every known pixel has ``alpha < alpha_min``) nothing is fitted:
-    ``q`` is the prior and every view weight 0.
+    MethodResult
+        ``q`` (N,) in A's dtype; ``iterations`` (L-BFGS iterations in all);
+        ``view_weights`` (V,) float64, the final ``omega`` (0 for a view
+        without usable pixels); ``history``, one record per outer step with
+        ``loss``, ``iterations``, ``weights``, ``residuals``,
+        ``weight_change`` and ``selection_settled``; ``observed`` (N,) bool,
+        the Gaussians with weight on a usable pixel (:func:`solve` gives the
+        others the prior); ``info`` with ``function_evaluations``, the
+        convergence ``message``, ``outer_steps``, ``seconds_setup`` (the
+        objective, the start and the first view weights) and, after the
+        setup, ``seconds_passes`` and ``seconds_pixels`` (the sparse
+        products and the per-pixel work of the evaluations). Without any
+        usable pixel nothing is fitted: ``q`` is the prior and every view
+        weight 0.
+
+    Raises
+    ------
+    ValidationError
+        An option value outside the ranges above.
     """
-    _check(dict(r_min=r_min, lam=lam, momentum=momentum, reweight=reweight, normalize=normalize,
-                alpha_min=alpha_min, eps=eps, max_iter=max_iter, inner_iters=inner_iters, weight_tol=weight_tol,
-                ftol=ftol, gtol=gtol, init_clip=init_clip, maxcor=maxcor, start=start, optimizer=optimizer,
-                stable_iters=stable_iters, stable_tol=stable_tol))
-    t_start = time.perf_counter()
-    obj = BCEObjective(problem, normalize=normalize, alpha_min=alpha_min, eps=eps)
-    V = problem.n_views
-    # Views without a usable pixel (lost masks, or nothing above alpha_min) take no part in the
-    # statistics; Gaussians seen by no usable pixel have no evidence and keep the prior.
-    active = obj.s_view > 0
-    rows = np.flatnonzero(obj.evidence)
-    if rows.size == 0:
-        return MethodResult(q=problem.prior.copy(), iterations=0, view_weights=np.zeros(V), history=[],
-                            observed=obj.evidence,
-                            info={"function_evaluations": 0, "message": "no usable pixel (every known pixel has "
-                                     f"alpha < alpha_min = {alpha_min:g})", "outer_steps": 0,
-                                  "seconds_setup": time.perf_counter() - t_start, "seconds_passes": 0.0,
-                                  "seconds_pixels": 0.0})
-    if start == "vote" or (start == "auto" and not problem.init_given):
-        # The vote is the closed-form answer of the same evidence: most Gaussians start on the
-        # side they end on, so the selection settles in a few iterations instead of dozens.
-        q0 = np.where(problem.observed, voting(problem).q, problem.prior)
-    elif start == "half" and not problem.init_given:
-        q0 = np.full(problem.n_gaussians, 0.5)
-    else:
-        q0 = problem.prior
-    # q of every Gaussian. Only the logits x of the Gaussians with evidence (rows) move: the
-    # others have no weight on a usable pixel, so neither the loss nor the result (solve gives
-    # them the prior) depends on their q.
-    q_start = np.clip(q0, init_clip, 1.0 - init_clip)
-    x = _logit(q_start[rows])
-    q_full = q_start.astype(obj.dtype)  # in A's dtype: the products take it without a conversion
-    q_full[rows] = expit(x)  # as every evaluation computes it, so the start's residuals are reused
-    nfev = [0]
-
-    def q_of(xo):
-        q_full[rows] = expit(xo)
-        return q_full.copy()
-
-    n_flip = max(int(stable_tol * rows.size), 0)
-
-    class _Stable:
-        """Callback: StopIteration once the selection (logit > 0) held still for ``stable_iters`` iterations."""
-
-        def __init__(self, x0):
-            self.sel, self.calm, self.fired = x0 > 0, 0, False
-
-        def __call__(self, xk):
-            sel = np.asarray(xk) > 0
-            flips = int(np.count_nonzero(sel != self.sel))
-            self.sel = sel
-            self.calm = self.calm + 1 if flips <= n_flip else 0
-            if stable_iters and self.calm >= stable_iters:
-                self.fired = True
-                raise StopIteration
-
-    def weights_of(D):
-        omega = np.zeros(V)
-        omega[active] = view_weights(D[active], r_min, lam) if reweight else 1.0
-        return omega
-
-    D = obj.residuals(q_of(x))
-    omega = weights_of(D)
-    t_setup = time.perf_counter() - t_start
-    setup_parts = dict(obj.seconds)
-    history, total, message = [], 0, ""
-    # The curvature pairs carry over between outer steps: a reweighting changes the loss only
-    # mildly, and a fresh memory would restart each step with a short steepest-descent step.
-    memory = deque(maxlen=int(maxcor))
-    done = [0]
-
-    def step(loss):  # progress of solve(..., progress=...): one report per L-BFGS iteration
-        done[0] += 1
-        report_progress(done[0], max_iter, loss)
-
-    for _ in range(max_iter):  # outer steps; each runs >= 1 iteration unless already optimal
-        if total >= max_iter:
-            break
-        n_inner = min(inner_iters, max_iter - total)
-
-        def fun(xo, omega=omega):
-            nfev[0] += 1
-            return obj.loss_grad_rows(xo, rows, q_full, omega)
-
-        sel_before = x > 0
-        stable = _Stable(x)
-
-        def after_iteration(xk, fk, stable=stable):
-            step(fk)  # progress first: the iteration happened even if the selection has settled
-            stable(xk)
-
-        if optimizer == "lbfgs":
-            x, f, nit, status, message = _lbfgs(fun, x, n_inner, ftol, gtol, memory, callback=after_iteration)
-        else:
-            def callback(intermediate_result):
-                after_iteration(intermediate_result.x, intermediate_result.fun)
-
-            res = minimize(fun, x, jac=True, method="L-BFGS-B", callback=callback,
-                           options={"maxiter": n_inner, "maxcor": int(maxcor), "ftol": ftol, "gtol": gtol})
-            x, f, nit, status, message = res.x, float(res.fun), int(res.nit), int(res.status), str(res.message)
-        if stable.fired:
-            status, message = 0, f"selection unchanged for {stable_iters} iterations"
-        total += nit
-        D = momentum * D + (1.0 - momentum) * obj.residuals(q_of(x))
-        new_omega = weights_of(D)
-        change = float(np.max(np.abs(new_omega - omega)))
-        # Settled: a whole inner run left the selection as it was (the first run's view weights
-        # already come from the start's residuals).
-        settled = stable.fired and int(np.count_nonzero((x > 0) != sel_before)) <= n_flip
-        history.append({"loss": float(f), "iterations": nit, "weights": new_omega.tolist(),
-                        "residuals": D.tolist(), "weight_change": change, "selection_settled": settled})
-        omega = new_omega
-        if (status == 0 or nit == 0) and (change < weight_tol or settled):
-            break
-    return MethodResult(q=q_of(x), iterations=total, view_weights=omega, history=history,
-                        observed=obj.evidence,
-                        info={"function_evaluations": nfev[0], "message": message, "outer_steps": len(history),
-                              "seconds_setup": t_setup,
-                              "seconds_passes": obj.seconds["passes"] - setup_parts["passes"],
-                              "seconds_pixels": obj.seconds["pixels"] - setup_parts["pixels"]})
+    solver = WeightedBCE(problem, callbacks=[_report])
+    return solver.solve(r_min=r_min, lam=lam, momentum=momentum, reweight=reweight, normalize=normalize,
+                        alpha_min=alpha_min, eps=eps, max_iter=max_iter, inner_iters=inner_iters,
+                        weight_tol=weight_tol, ftol=ftol, gtol=gtol, init_clip=init_clip, maxcor=maxcor,
+                        start=start, optimizer=optimizer, stable_iters=stable_iters, stable_tol=stable_tol)
 
 
 register_method("weighted_bce", weighted_bce, check=_check)
