@@ -9,5 +9,6 @@ import threading
 
 
 def dask_setup(worker):  # noqa: ARG001 - dask's preload hook
+    """Ignore SIGINT in this worker process (signals can be set only from the main thread)."""
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)

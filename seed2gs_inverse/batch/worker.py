@@ -63,8 +63,10 @@ class JobResult:
     status : {"done", "failed"}
     error : str or None
         ``"ErrorType: message"`` of a failed job.
-    scene, camera : str
-        What the job named (the camera as its spec).
+    scene : str
+        The job's scene file.
+    camera : str or dict
+        The job's camera as its spec (``FILE[:NAME]``, a look-at table or a camera record).
     prompt : dict
         The prompt's kind and values.
     n_gaussians, n_selected, n_views : int or None
@@ -98,7 +100,7 @@ class JobResult:
     status: str
     error: str | None = None
     scene: str = ""
-    camera: object = None
+    camera: str | dict | None = None
     prompt: dict = field(default_factory=dict)
     n_gaussians: int | None = None
     n_selected: int | None = None
