@@ -36,6 +36,11 @@ from ..errors import ValidationError
 
 __all__ = ["batch_client", "available_cores", "dashboard_address"]
 
+#: Run in every embedded worker process at its (re)start. Given to Dask by file path, so that it is
+#: imported on its own: as a module name it would import this package, and with it the pipeline and
+#: Numba, before the worker can take its first task.
+_WORKER_PRELOAD = os.path.join(os.path.dirname(os.path.abspath(__file__)), "_worker_preload.py")
+
 _SPAWN_HINT = ("If a script calls extract_many at its top level: worker processes start by importing the "
                "script, so each would start the batch again; put that code under "
                "'if __name__ == \"__main__\":', or run with client=\"sequential\"")
@@ -148,7 +153,7 @@ def _embedded_client(n_workers: int, threads: int):
                           "distributed.worker.daemon": False,
                           # Ctrl-C reaches the whole process group: the workers (also those a nanny
                           # starts again) leave it to this process, which closes the cluster
-                          "distributed.worker.preload": ["seed2gs_inverse.batch._worker_preload"]}):
+                          "distributed.worker.preload": [_WORKER_PRELOAD]}):
         if getattr(multiprocessing.current_process(), "_inheriting", False):
             raise ValidationError(_SPAWN_HINT)  # a worker process re-importing the user's script
         try:
