@@ -39,6 +39,11 @@ its ``[defaults]`` table applies to every job and a job overrides any of it
 Every error names the file and the job. Jobs are plain data: they travel to
 the workers of a cluster, which must see the same paths (a shared file
 system), so relative paths are made absolute against the jobs file.
+
+A Dask worker imports this module on its event loop, when it unpickles a
+job; so :class:`~seed2gs_inverse.pipeline.ExtractSettings`, which imports the
+pipeline, is imported where the options are checked, in the process that
+builds the jobs.
 """
 
 from __future__ import annotations
@@ -60,7 +65,6 @@ from ..frontend.prompts import BoxPrompt, MaskPrompt, PointPrompt, TextPrompt
 from ..io import read_camera
 from ..io.cameras import split_camera_spec
 from ..io.tables import read_table
-from ..pipeline.settings import ExtractSettings
 
 __all__ = ["Job", "read_jobs", "jobs_from_table", "extract_option_names", "PROMPT_KEYS"]
 
@@ -82,6 +86,8 @@ def extract_option_names() -> tuple:
     Taken from ``ExtractSettings``, so the list never goes stale;
     ``progress`` and the other keywords the runner sets are left out.
     """
+    from ..pipeline.settings import ExtractSettings  # deferred: see the module docstring
+
     return tuple(n for n in ExtractSettings.names() if n not in _RESERVED)
 
 
@@ -95,6 +101,8 @@ def _check_options(options, where: str) -> dict:
     if unknown:
         raise ValidationError(f"{where}: unknown option(s) {', '.join(map(repr, unknown))}; "
                               f"valid options: {', '.join(valid)}")
+    from ..pipeline.settings import ExtractSettings  # deferred: see the module docstring
+
     try:  # the values too, here, rather than on a worker after the cluster started
         ExtractSettings().replace(**options)
     except ValidationError as exc:

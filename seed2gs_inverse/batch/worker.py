@@ -12,6 +12,10 @@ same worker reuses the arrays instead of reading the file again (the runner
 submits jobs grouped by scene, so each worker meets each scene once). A
 models configuration (ONNX sessions) is likewise opened once per process
 (:func:`job_models`), not once per job.
+
+A Dask worker imports this module on its event loop, when it unpickles its
+first task; so the pipeline (and Numba) are imported inside :func:`run_job`,
+in the task's thread, where a slow import holds up no heartbeat.
 """
 
 from __future__ import annotations
@@ -26,14 +30,12 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import numba
 import numpy as np
 
 from .._memory import peak_rss_mb
 from ..errors import FormatError, ValidationError
 from ..frontend import config as models_config
 from ..io import read_scene
-from ..pipeline import extract
 from ..scene import GaussianScene
 from .cluster import available_cores
 
@@ -167,6 +169,8 @@ def _limit_threads() -> None:
         nthreads = max(1, int(get_worker().state.nthreads))
     except (ImportError, ValueError, AttributeError):
         return
+    import numba  # deferred: see the module docstring
+
     cores = available_cores()
     numba.set_num_threads(max(1, min(numba.config.NUMBA_NUM_THREADS, cores // nthreads)))
 
@@ -272,6 +276,8 @@ def run_job(job: Job, output=None, attempt: int = 1) -> JobResult:
     JobResult
         ``failed`` with the error for any exception the job raises.
     """
+    from ..pipeline import extract  # deferred: see the module docstring
+
     t_start = time.perf_counter()
     res = JobResult(name=job.name, status="failed", scene=job.scene, fingerprint=job.fingerprint(),
                     camera=job.to_dict()["camera"], prompt=job.to_dict()["prompt"],

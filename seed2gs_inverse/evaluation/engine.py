@@ -23,6 +23,10 @@ then runs the protocol on those records:
 4. the report (:mod:`.report`) averages them as
    :func:`~seed2gs_inverse.metrics.protocol_mean` does (views -> query ->
    scene -> overall).
+
+A Dask worker imports this module on its event loop, when it unpickles a
+:func:`score_frame` task; so the rasterizer (and Numba) is imported inside
+:func:`score_frame`, in the task's thread.
 """
 
 from __future__ import annotations
@@ -47,7 +51,6 @@ from ..frontend.prompts import MaskPrompt, TextPrompt
 from ..io import read_cameras
 from ..io._common import warn_caller
 from ..metrics import boundary_iou, iou
-from ..raster import build_operator
 from .report import QUERY_COLUMNS, csv_table, grid_png, remove_stale_masks, report_tables
 
 __all__ = ["LerfScene", "read_gt_mask", "mask_image_shape", "natural_key", "image_stem", "find_scene_file",
@@ -396,6 +399,8 @@ def score_frame(scene_file, camera: Camera, queries: list, outdirs: list, gt_pat
     FormatError
         A predicted mask could not be written.
     """
+    from ..raster import build_operator  # deferred: see the module docstring
+
     scene, _, _ = cached_scene(os.fspath(scene_file))
     W = build_operator(scene, camera).W
     out = []
