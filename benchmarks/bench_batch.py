@@ -1,4 +1,4 @@
-"""Batch extraction throughput: sequential vs a 1-worker and a 2-worker Dask cluster (issue 13).
+"""Batch extraction throughput: sequential vs a 1-worker and a 2-worker Dask cluster.
 
 8 jobs over 2 scenes: 4 box prompts on the real firepit scene
 (``firepit_562k_sh0.ply``, ``overview`` camera: fire pit, table, two chairs)
@@ -47,7 +47,14 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
+import cv2
+import numba
 import numpy as np
+
+import seed2gs_inverse as sgi
+from seed2gs_inverse.batch import Job, batch_client, extract_many
+from seed2gs_inverse.io import write_cameras, write_scene
+from seed2gs_inverse.synthetic import make_scene, render_label_masks
 
 DATA = Path(os.environ.get("SEED2GS_DATA", Path(__file__).resolve().parents[1].parent / "shared" / "data"))
 
@@ -61,13 +68,6 @@ def _load() -> str:
 
 
 def make_jobs(tmp: Path, views: int, n_per_object: int):
-    import cv2
-
-    import seed2gs_inverse as sgi
-    from seed2gs_inverse.batch import Job
-    from seed2gs_inverse.io import write_cameras, write_scene
-    from seed2gs_inverse.synthetic import make_scene, render_label_masks
-
     s = make_scene(seed=0, n_per_object=n_per_object)
     write_scene(tmp / "procedural.ply", s.scene)
     cam = s.reference_camera(640, 480)
@@ -104,8 +104,6 @@ def make_jobs(tmp: Path, views: int, n_per_object: int):
 
 
 def run_mode(label, jobs, warm, out: Path, n_workers, threads=None):
-    from seed2gs_inverse.batch import batch_client, extract_many
-
     print(f"\n== {label}  [{_load()}]", flush=True)
     t0 = time.perf_counter()
     with batch_client("sequential" if n_workers is None else None, n_workers=n_workers,
@@ -121,8 +119,6 @@ def run_mode(label, jobs, warm, out: Path, n_workers, threads=None):
             print(f"cluster start {t_start:.1f} s, warm-up {t_warm:.1f} s; NUMBA_NUM_THREADS per worker: "
                   f"{sorted(threads.values())}")
         else:
-            import numba
-
             print(f"warm-up {t_warm:.1f} s; numba threads {numba.get_num_threads()}")
         t0 = time.perf_counter()
         res = extract_many(jobs, where, output=out, resume=False, progress=False)

@@ -1,4 +1,4 @@
-"""Whole-object extraction suite: composites with exact truth (issue 10 benchmark).
+"""Whole-object extraction suite: composites with exact truth.
 
 Every case stands one object *in contact* on a surface of a background
 (the real firepit patio or, for firepit-box-60, a chair seat on it,
@@ -17,7 +17,7 @@ grid, the far side included): per view IoU / boundary IoU of
 mean (mIoU, mBIoU) and the minimum, the 3D IoU of the membership, the axis
 error (angle between the orbit axis extract used and the true up) and the
 wall time of ``extract()``; below each case its per-stage seconds next to
-baselines measured right after it (``bench_speed.same_run_baselines``: one
+baselines measured right after it (``_common.same_run_baselines``: one
 960x540 render of the case's scene from the reference pose, one forward and
 one transposed pass over the extraction's own operator stack) and the
 extraction's wall time in renders (``--no-timing`` skips them). The machine
@@ -68,8 +68,17 @@ import numpy as np
 _ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(_ROOT))  # this checkout's package, not whichever one is installed
 
+from _common import extract_kwargs, parse_set, same_run_baselines  # noqa: E402
+
+from seed2gs_inverse import Camera, build_operator, extract, read_camera, read_scene, render  # noqa: E402
+from seed2gs_inverse.metrics import boundary_iou, iou, membership_scores  # noqa: E402
+from seed2gs_inverse.pipeline.up_axis import estimate_up  # noqa: E402
+from seed2gs_inverse.synthetic import compose, pose_on_point  # noqa: E402
+from seed2gs_inverse.synthetic.ground import make_ground_scene, place_object  # noqa: E402
+
 
 def _data_dir() -> Path:
+    """The shared data: ``$SEED2GS_DATA``, else ``shared/data`` beside the checkout or beside its parent."""
     if "SEED2GS_DATA" in os.environ:
         return Path(os.environ["SEED2GS_DATA"])
     # ../shared/data beside the checkout (or beside its parent, for git worktrees)
@@ -132,13 +141,13 @@ SCANNED = {"guitar": ("guitar_90k.compressed.ply", (0.0, -1.0, 0.0), 1.6),
 
 
 def _unit(v):
+    """``v`` as a float64 unit vector."""
     v = np.asarray(v, np.float64)
     return v / np.linalg.norm(v)
 
 
 def _look(center, up, e1, e2, az, el, dist, w, h, fov=50.0):
-    from seed2gs_inverse import Camera
-
+    """Look-at camera at ``center`` from azimuth ``az`` / elevation ``el`` (degrees) in the frame (e1, e2, up)."""
     a, e = np.radians(az), np.radians(el)
     d = np.cos(e) * (np.cos(a) * e1 + np.sin(a) * e2) + np.sin(e) * up
     return Camera.look_at(center + dist * d, center, up, fov, w, h)
@@ -148,10 +157,6 @@ class Built:
     """A composed case: scene, truth, true up, reference camera, seed mask, held-out views."""
 
     def __init__(self, case: Case, quick: bool, cache: dict):
-        from seed2gs_inverse import build_operator, render
-        from seed2gs_inverse.synthetic.ground import make_ground_scene, place_object
-        from seed2gs_inverse.synthetic import compose, pose_on_point
-
         self.case = case
         if case.background == "firepit":
             firepit, up, floor = cache["firepit"]
@@ -221,6 +226,7 @@ class Built:
             self.held_out.append((f"az{case.azimuth + daz:g}/el{el:g}", op, t))
 
     def _truth_mask(self, cam, build_operator):
+        """(H, W) bool ``W(c) 1_object > 0.5`` in ``cam`` (empty when the object is out of view)."""
         uv, z = cam.project(self.scene.means[self.truth])
         ok = np.isfinite(uv).all(1) & (z > cam.near)
         if not ok.any():
@@ -241,13 +247,9 @@ class Built:
         if kind in SCANNED:  # (file, its up in its own coordinates, height in firepit units)
             name, up, height = SCANNED[kind]
             if kind not in cache:
-                from seed2gs_inverse import read_scene
-
                 cache[kind] = read_scene(DATA / name)
             return cache[kind], up, height * (1.0 if firepit_units else 0.6)
         # A procedural object cut out of a ground scene; its up is that scene's up.
-        from seed2gs_inverse.synthetic.ground import make_ground_scene
-
         gs = make_ground_scene(100 + PROCEDURAL.index(kind), objects=(kind,), clutter=())
         obj = gs.scene.subset(gs.object_mask(kind))
         h = {"table": 0.75, "box": 0.45, "vase": 0.5, "plush": 0.5}[kind]
@@ -255,9 +257,7 @@ class Built:
 
 
 def _firepit_cache(cache):
-    from seed2gs_inverse import read_camera, read_scene, render
-    from seed2gs_inverse.pipeline.up_axis import estimate_up
-
+    """Fill ``cache`` with the firepit (scene, true up, floor-point function) and the unicorn."""
     firepit = read_scene(DATA / "firepit_562k_sh0.ply")
     cam = read_camera(DATA / "firepit_cameras.json:overview")
     base = render(firepit, cam)
@@ -276,38 +276,8 @@ def _firepit_cache(cache):
     cache["unicorn"] = read_scene(DATA / "unicorn_49k_sh3.ply")
 
 
-def _parse_set(items):
-    out = {}
-    for item in items or ():
-        if "=" not in item:
-            raise SystemExit(f"--set needs KEY=VALUE, got {item!r}")
-        k, v = item.split("=", 1)
-        try:
-            out[k] = json.loads(v)
-        except json.JSONDecodeError:
-            out[k] = v
-    return out
-
-
-def extract_kwargs(options: dict, true_up=None) -> dict:
-    """``extract()`` keywords from ``--set`` options: ``tracker.NAME`` builds a GeometricTracker, ``up=truth``."""
-    opts = {k: v for k, v in options.items() if not k.startswith("tracker.")}
-    if isinstance(opts.get("up"), str) and opts["up"] == "truth":
-        if true_up is None:
-            raise SystemExit("--set up=truth: this benchmark has no true up")
-        opts["up"] = true_up
-    tracker_kw = {k[len("tracker."):]: v for k, v in options.items() if k.startswith("tracker.")}
-    if tracker_kw:
-        from seed2gs_inverse.frontend.model_free import GeometricTracker
-
-        opts["tracker"] = GeometricTracker(**tracker_kw)
-    return opts
-
-
 def run_case(built: Built, options: dict, timing: bool = True):
-    from seed2gs_inverse import extract
-    from seed2gs_inverse.metrics import boundary_iou, iou, membership_scores
-
+    """Extract one case and score it on its held-out views (with the same-run baselines when ``timing``)."""
     opts = extract_kwargs(options, built.up)
     t0 = time.perf_counter()
     ex = extract(built.scene, built.camera, built.seed, progress=False, **opts)
@@ -326,8 +296,6 @@ def run_case(built: Built, options: dict, timing: bool = True):
            "seed_px": int(built.seed.sum()), "views": views, "n_views": len(ex.views), "ex": ex,
            "stages": {k: float(v) for k, v in ex.seconds.items()}}
     if timing:
-        from bench_speed import same_run_baselines
-
         # one 960x540 render of the case's scene from the reference pose, and two passes over
         # the extraction's own stack, measured now: the units its wall time is read in
         cam = _look(built.center, built.up, built.e1, built.e2, built.case.azimuth, built.case.pitch,
@@ -379,7 +347,7 @@ def main(argv=None) -> int:
     p.add_argument("--extra", action="store_true",
                    help="the real scanned objects (EXTRA_CASES: guitar, biker) instead of the 13-case suite")
     args = p.parse_args(argv)
-    options = _parse_set(args.set)
+    options = parse_set(args.set)
 
     pool = EXTRA_CASES if args.extra else CASES
     cases = list(enumerate(pool))
@@ -410,16 +378,10 @@ def main(argv=None) -> int:
     if have_data and any(c.background == "firepit" or c.obj == "unicorn" for _, c in cases):
         _firepit_cache(cache)
     # Warm-up (Numba compilation) so the first case's time is not inflated.
-    from seed2gs_inverse import Camera, build_operator
-    from seed2gs_inverse.synthetic.ground import make_ground_scene
-
     warm = make_ground_scene(0, objects=("box",), clutter=(), density=0.2, n_per_object=100)
     wcam = warm.camera("box", 0, 30, 3.0, 64, 48)
-    from seed2gs_inverse import extract
-
     extract(warm.scene, wcam, (build_operator(warm.scene, wcam).W @ warm.object_mask("box").astype(np.float32)
                                ).reshape(wcam.image_shape) > 0.5, progress=False, n_views=6)
-    del Camera
 
     rows = []
     print(f"{'#':>2} {'case':<20} {'seed':>6} {'mIoU':>6} {'mBIoU':>6} {'3D IoU':>6} {'min':>6} "

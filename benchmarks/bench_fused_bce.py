@@ -1,15 +1,15 @@
-"""What a fused forward-BCE-adjoint sweep would save over the solver's evaluation (issue 11; a measurement, not a feature).
+"""What a fused forward-BCE-adjoint sweep would save over the solver's evaluation (a measurement, not a feature).
 
 weighted_bce evaluates its loss and gradient as two scipy passes over the
 stack (``A q`` and ``A^T g``) with the per-pixel BCE in numpy between them.
 Each weight is read twice. A sweep that, row by row, forms ``pred_u = W_u q``,
 the BCE and ``g_u``, and adds ``W_u^T g_u`` at once reads each weight once.
-It needs a compiled kernel, which ``solvers/`` may not import (issue 9's
-layering), so this benchmark writes one in Numba *here* to measure the
+It needs a compiled kernel, which ``solvers/`` may not import (the layers of
+``docs/architecture.md``), so this benchmark writes one in Numba *here* to measure the
 gain before anyone decides where such a kernel could live.
 
-Scene and stack: bench_speed's extraction (the firepit with the unicorn,
-default settings). Printed, each the median of repeated runs on that stack,
+Scene and stack: bench_speed's extraction (``_common.default_extraction``:
+the firepit with the unicorn, default settings). Printed, each the median of repeated runs on that stack,
 with the load average:
 
 * one forward and one transposed pass (the baseline of ``bench_speed``);
@@ -32,10 +32,16 @@ from pathlib import Path
 
 import numpy as np
 from numba import njit
+from threadpoolctl import threadpool_limits
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import bench_speed  # noqa: E402 - the scene and the extraction of bench_speed
+from _common import default_extraction, load_average, median_time  # noqa: E402
+
+from seed2gs_inverse import _threads  # noqa: E402
+from seed2gs_inverse.operators import _passes  # noqa: E402
+from seed2gs_inverse.solvers._common import prepare  # noqa: E402
+from seed2gs_inverse.solvers.weighted_bce import BCEObjective  # noqa: E402
 
 
 @njit(nogil=True, cache=False)
@@ -64,19 +70,12 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--repeat", type=int, default=15)
     args = p.parse_args(argv)
-    from threadpoolctl import threadpool_limits
-
-    from seed2gs_inverse import _threads
-    from seed2gs_inverse.operators import _passes
-    from seed2gs_inverse.solvers._common import prepare
-    from seed2gs_inverse.solvers.weighted_bce import BCEObjective
-
-    extraction = bench_speed.default_extraction("bench_fused_bce")
+    extraction = default_extraction("bench_fused_bce")
     if extraction is None:
         return 0
     scene, ex = extraction
     stack, masks = ex.operators, ex.masks
-    problem = prepare(stack, masks, ex.lift.support)
+    problem = prepare(stack, masks, ex.lift.g0)
     obj = BCEObjective(problem)
     if not obj.binary:
         print("bench_fused_bce: the masks are not binary; the sweep here covers binary targets only. Skipped.")
@@ -124,15 +123,15 @@ def main(argv=None) -> int:
         loss_ref, grad_ref = obj.loss_grad_q(q, omega)
         obj._q_last = None
         loss_f, grad_f = fused()
-        t_fwd = bench_speed._median_time(lambda: stack.matvec(q32), args.repeat)
-        t_adj = bench_speed._median_time(lambda: stack.rmatvec(r), args.repeat)
+        t_fwd = median_time(lambda: stack.matvec(q32), args.repeat)
+        t_adj = median_time(lambda: stack.rmatvec(r), args.repeat)
 
         def today():
             obj._q_last = None  # no reuse: a fresh point each time, as in the optimiser
             return obj.loss_grad_q(q, omega)
 
-        t_today = bench_speed._median_time(today, args.repeat)
-        t_fused = bench_speed._median_time(fused, args.repeat)
+        t_today = median_time(today, args.repeat)
+        t_fused = median_time(fused, args.repeat)
     two = t_fwd + t_adj
     err_g = float(np.abs(grad_f - grad_ref).max() / max(np.abs(grad_ref).max(), 1e-300))
     print(f"stack: {views} views, {stack.shape[0]:,} pixels x {n:,} Gaussians, nnz {stack.nnz:,}; "
@@ -143,7 +142,7 @@ def main(argv=None) -> int:
           f"({t_fused / t_today:.2f}x the time of today's)")
     print(f"agreement: loss rel. error {abs(loss_f - loss_ref) / abs(loss_ref):.1e}, gradient max rel. error "
           f"{err_g:.1e}")
-    print(f"load average at the end {bench_speed._load():.1f}")
+    print(f"load average at the end {load_average():.1f}")
     return 0
 
 

@@ -1,4 +1,4 @@
-"""Building the Gaussian affinity graph, against the straightforward formula in the same run (issue 11).
+"""Building the Gaussian affinity graph, against the straightforward formula in the same run.
 
 The model-free pipeline builds :func:`~seed2gs_inverse.graph.gaussian_graph`
 over the Gaussians within three lift radii of the object (on a second
@@ -31,6 +31,11 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
+from seed2gs_inverse.graph import gaussian_graph
+from seed2gs_inverse.io import read_scene
+from seed2gs_inverse.scene import quat_to_rotmat
+from seed2gs_inverse.sh import SH_C0
+
 DATA = Path(os.environ.get("SEED2GS_DATA", Path(__file__).resolve().parents[1].parent / "shared" / "data"))
 # the fire pit's centre in the firepit scene's frame (the seed lift of the box prompt above)
 FIRE_PIT = (-0.372, 1.530, -0.687)
@@ -38,9 +43,6 @@ FIRE_PIT = (-0.372, 1.530, -0.687)
 
 def reference_graph(scene, k, subset, sigma_color=0.1, sigma_normal=0.2):
     """The graph of the module docstring of :mod:`seed2gs_inverse.graph`, written out directly."""
-    from seed2gs_inverse.scene import quat_to_rotmat
-    from seed2gs_inverse.sh import SH_C0
-
     n, idx = len(scene), np.asarray(subset)
     m = idx.size
     x = scene.means[idx].astype(np.float64)
@@ -80,9 +82,6 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--repeat", type=int, default=3)
     args = p.parse_args(argv)
-    from seed2gs_inverse.graph import gaussian_graph
-    from seed2gs_inverse.io import read_scene
-
     path = DATA / "firepit_562k_sh0.ply"
     if not path.is_file():
         print(f"bench_graph: {path} not found; set SEED2GS_DATA. Skipped.")

@@ -25,6 +25,7 @@ import tracemalloc
 from pathlib import Path
 
 import numpy as np
+import plyfile
 
 from seed2gs_inverse.io import read_scene, write_scene
 
@@ -87,8 +88,6 @@ def main(argv=None) -> int:
         print(f"{name:<28s} {size / 1e6:6.1f} {n:10,d} {t_read:8.3f} {t_raw:7.4f} "
               f"{t_read / t_raw:6.1f} {peak / 1e6:8.1f} {peak / decoded:10.2f}")
         if name.endswith(".ply") and not name.endswith(".compressed.ply"):
-            import plyfile
-
             # plyfile memory-maps by default; np.array forces the data to be read.
             t_ply = best_time(lambda: np.array(plyfile.PlyData.read(str(path))["vertex"].data),
                               args.repeat)

@@ -12,7 +12,7 @@ whole patio; near plane 0.2 as the reference image):
 * parity with the independent reference rendering (mean absolute difference);
 * with ``--competing-load``: the render and the operator build again while
   two busy-loop processes compete for the cores, and the ratio to the
-  quiet figures (the "holds under load" check of issue 11);
+  quiet figures (the "holds under load" check);
 * a baseline measured in the same run: one sparse product ``W @ colors``
   with the operator just built (what applying the operator costs), and the
   ratio of each figure to the project's marks (render < 1 s, operator < 1 s,
@@ -28,6 +28,7 @@ Exits 0 with a message when the data directory is absent.
 from __future__ import annotations
 
 import argparse
+import importlib
 import os
 import platform
 import subprocess
@@ -37,6 +38,13 @@ import time
 from pathlib import Path
 
 import numpy as np
+import scipy.sparse as sp
+
+from seed2gs_inverse.camera import Camera
+from seed2gs_inverse.io import read_camera, read_scene
+from seed2gs_inverse.pipeline.vaas import flat_orbit
+from seed2gs_inverse.raster import FrozenScene, build_operator, cone_cull, project_gaussians, render
+from seed2gs_inverse.raster.rasterize import _rasterize
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -108,11 +116,6 @@ def main(argv=None) -> int:
     if not (data / "firepit_562k_sh0.ply").is_file():
         print(f"bench_render: firepit_562k_sh0.ply not found in {data}; nothing to measure")
         return 0
-
-    from seed2gs_inverse.camera import Camera
-    from seed2gs_inverse.io import read_camera, read_scene
-    from seed2gs_inverse.raster import build_operator, project_gaussians, render
-    from seed2gs_inverse.raster.rasterize import _rasterize
 
     threads = os.environ.get("NUMBA_NUM_THREADS", "default")
     load = os.getloadavg()[0]
@@ -198,13 +201,6 @@ def _orbit_views(scene, cam, depth, repeat):
     pass's log disabled); only the parallel binning and cone culling are
     shared. Checks that both give the same W.
     """
-    import importlib
-
-    import scipy.sparse as sp
-
-    from seed2gs_inverse.pipeline.vaas import flat_orbit
-    from seed2gs_inverse.raster import FrozenScene, build_operator, cone_cull
-
     render_mod = importlib.import_module("seed2gs_inverse.raster.rasterize")
     extract_mod = importlib.import_module("seed2gs_inverse.pipeline.extract")
     x0, y0, x1, y1 = 533, 276, 645, 368

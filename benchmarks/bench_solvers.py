@@ -39,10 +39,12 @@ import numpy as np
 
 from seed2gs_inverse.camera import Camera
 from seed2gs_inverse.comparison import compare
+from seed2gs_inverse.io import read_cameras, read_scene
 from seed2gs_inverse.operators import OperatorStack
-from seed2gs_inverse.raster import build_operator
+from seed2gs_inverse.raster import build_operator, render
 from seed2gs_inverse.solvers import available_methods, solve
-from seed2gs_inverse.synthetic import NOISE_KINDS, make_scene, masks_from_labels, perturb_masks
+from seed2gs_inverse.synthetic import (NOISE_KINDS, compose, make_scene, masks_from_labels, perturb_masks,
+                                       pose_on_point, surface_point)
 
 REPO = Path(__file__).resolve().parents[1]
 UP = np.array([0.0, -1.0, 0.0])
@@ -81,10 +83,6 @@ def _orbit(center, radius, n_views, width, height, fov=50.0):
 
 
 def composite_problem(data: Path, n_views: int, width: int):
-    from seed2gs_inverse.io import read_cameras, read_scene
-    from seed2gs_inverse.raster import render
-    from seed2gs_inverse.synthetic import compose, pose_on_point, surface_point
-
     fire = read_scene(data / "firepit_562k_sh0.ply")
     uni = read_scene(data / "unicorn_49k_sh3.ply")
     cam = next(c for c in read_cameras(data / "firepit_cameras.json") if c.name == "overview")

@@ -1,4 +1,4 @@
-"""Speed of one extraction next to same-run baselines (issue 11).
+"""Speed of one extraction next to same-run baselines.
 
 Scene: the firepit (562k Gaussians) with the unicorn composited at pose 0 of
 ``bench_extract.py`` (the seed is the truth rendered into the overview
@@ -30,12 +30,13 @@ same run and on the same machine state:
 * the load average at the start and at the end.
 
 Medians over ``--repeat`` runs are printed last (weighted_bce's ratio with its range over the
-runs: the VM's noise moves it by a few tenths). ``--competing-load`` starts
-two busy-loop processes for the duration (the "operators stage under load"
-check of issue 11); they are stopped by their process ids at the end.
+runs). ``--competing-load`` starts two busy-loop processes for the duration
+(the operators stage under load); they are stopped by their process ids at
+the end.
 
-:func:`same_run_baselines` is the baseline measurement on its own, for other
-benchmarks (``bench_extract``).
+The scene, the baselines and the ``--set`` options come from ``_common.py``
+(:func:`~_common.same_run_baselines` is the baseline measurement on its own,
+which ``bench_extract.py`` prints too).
 
 Usage::
 
@@ -47,78 +48,20 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import resource
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
+from _common import (DATA, extract_kwargs, firepit_unicorn_problem, load_average, parse_set,
+                     same_run_baselines)
 
-REPO = Path(__file__).resolve().parents[1]
-DATA = Path(os.environ.get("SEED2GS_DATA", REPO.parent / "shared" / "data"))
-
-# bench_extract.py's pose 0: overview pixel on the patio floor, unicorn yaw (deg), height.
-POSE0 = ((400, 470), 20.0, 0.8)
-
-
-def _load() -> float:
-    try:
-        return float(os.getloadavg()[0])
-    except (AttributeError, OSError):
-        return float("nan")
-
-
-def _median_time(fn, repeat: int) -> float:
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
-
-
-def same_run_baselines(scene, camera, stack=None, repeat: int = 3) -> dict:
-    """Baselines to print next to an extraction's timings, measured now.
-
-    Parameters
-    ----------
-    scene : GaussianScene or FrozenScene
-    camera : Camera
-        The render baseline's camera (960x540 in the benchmarks).
-    stack : OperatorStack, optional
-        The extraction's own operators: adds one forward pass ``A q`` and one
-        transposed pass ``A^T r`` (random float32 vectors), through the
-        stack's own ``matvec`` / ``rmatvec`` (the path the solvers use).
-    repeat : int
-        The render is the median of ``repeat`` runs, each pass the median of
-        at least 15 (alternating forward and transposed), after one warm-up.
-
-    Returns
-    -------
-    dict
-        ``render_s``, ``load``; with ``stack`` also ``forward_s``,
-        ``adjoint_s``, ``two_passes_s``, ``nnz``.
-    """
-    from seed2gs_inverse.raster import render
-
-    render(scene, camera)  # warm-up (kernel compilation when the cache is cold)
-    out = {"render_s": _median_time(lambda: render(scene, camera), repeat), "load": _load()}
-    if stack is not None:
-        rng = np.random.default_rng(0)
-        q = rng.random(stack.shape[1]).astype(np.float32)
-        r = rng.random(stack.shape[0]).astype(np.float32)
-        stack.matvec(q)
-        stack.rmatvec(r)
-        # Passes take milliseconds: many alternating samples, so that a passing slowdown of the
-        # machine does not set the unit every solver ratio is expressed in.
-        fwd, adj = [], []
-        for _ in range(max(repeat, 15)):
-            fwd.append(_median_time(lambda: stack.matvec(q), 1))
-            adj.append(_median_time(lambda: stack.rmatvec(r), 1))
-        out["forward_s"], out["adjoint_s"] = float(np.median(fwd)), float(np.median(adj))
-        out["two_passes_s"] = out["forward_s"] + out["adjoint_s"]
-        out["nnz"] = int(stack.nnz)
-    return out
+from seed2gs_inverse import Camera
+from seed2gs_inverse.metrics import boundary_iou, iou, membership_scores
+from seed2gs_inverse.pipeline import extract
+from seed2gs_inverse.raster import build_operator
+from seed2gs_inverse.solvers import solve
 
 
 def _reset_peak() -> bool:
@@ -132,19 +75,17 @@ def _reset_peak() -> bool:
 
 
 def _peak_rss_gb(reset_ok: bool) -> float:
+    """Peak resident memory in GiB: VmHWM since the reset, else the process peak."""
     if reset_ok:
         with open("/proc/self/status") as f:
             for line in f:
                 if line.startswith("VmHWM:"):
                     return int(line.split()[1]) / 2 ** 20
-    import resource
-
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2 ** 20
 
 
 def _held_out(center, up, forward, dist, w=480, h=270):
-    from seed2gs_inverse import Camera
-
+    """Five object-centric look-at cameras around ``center`` at ``dist`` that the pipeline never renders."""
     e1 = forward - (forward @ up) * up
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(up, e1)
@@ -157,58 +98,13 @@ def _held_out(center, up, forward, dist, w=480, h=270):
 
 
 def _busy_load(n: int) -> list:
+    """``n`` busy-loop processes (stopped by the caller)."""
     code = "while True:\n    pass\n"
     return [subprocess.Popen([sys.executable, "-c", code]) for _ in range(n)]
 
 
-def _problem(views_arg):
-    from seed2gs_inverse.io import read_camera, read_scene
-    from seed2gs_inverse.raster import build_operator, render
-    from seed2gs_inverse.pipeline.up_axis import estimate_up
-    from seed2gs_inverse.synthetic import compose, pose_on_point
-
-    firepit = read_scene(DATA / "firepit_562k_sh0.ply")
-    unicorn = read_scene(DATA / "unicorn_49k_sh3.ply")
-    cam = read_camera(DATA / "firepit_cameras.json:overview")
-    t0 = time.perf_counter()
-    base = render(firepit, cam)
-    first = time.perf_counter() - t0
-    up = estimate_up(firepit, cam)
-    (px, py), yaw, height = POSE0
-    ray = np.array([(px + 0.5 - cam.cx) / cam.fx, (py + 0.5 - cam.cy) / cam.fy, 1.0])
-    anchor = cam.rotation.T @ (ray * float(base.depth[py, px]) - cam.translation)
-    pose = pose_on_point(unicorn, anchor, up, object_up=(0.0, -1.0, 0.0), height=height, yaw_deg=yaw,
-                         quantile=0.01)
-    scene, labels = compose(firepit, [(unicorn, pose)], remove_overlap=True)
-    truth = labels == 1
-    uv, _ = cam.project(scene.means[truth])
-    x0, y0 = np.floor(np.nanmin(uv, 0)).astype(int) - 4
-    x1, y1 = np.ceil(np.nanmax(uv, 0)).astype(int) + 4
-    roi = (max(x0, 0), max(y0, 0), min(x1, cam.width), min(y1, cam.height))
-    op = build_operator(scene, cam, roi=roi)
-    seed = (op.W @ truth.astype(np.float32)).reshape(cam.image_shape) > 0.5
-    return scene, truth, cam, seed, up, first
-
-
-def default_extraction(name: str, views: int = 24):
-    """``(scene, extraction)``: the firepit + unicorn scene of :func:`_problem` and its extraction with
-    default settings, for benchmarks of the later stages on a real stack (``name``, the benchmark, heads
-    the messages). Prints the machine line first; without the real scenes it prints that the benchmark
-    is skipped and returns None."""
-    from seed2gs_inverse.pipeline import extract
-
-    if not (DATA / "firepit_562k_sh0.ply").is_file():
-        print(f"{name}: real scenes not found in {DATA}; set SEED2GS_DATA. Skipped.")
-        return None
-    print(f"machine: {os.cpu_count()} CPUs, load average {_load():.1f}")
-    scene, _, cam, seed, _, _ = _problem(views)
-    return scene, extract(scene, cam, seed, n_views=views, progress=False)
-
-
 def _accuracy(scene, truth, up, cam, selected):
-    from seed2gs_inverse.metrics import boundary_iou, iou, membership_scores
-    from seed2gs_inverse.raster import build_operator
-
+    """(held-out mIoU, mBIoU, 3D IoU) of the selection ``selected`` against ``truth``."""
     centre = scene.means[truth].astype(np.float64).mean(0)
     size = np.linalg.norm(scene.means[truth] - centre, axis=1).max()
     ious, bious = [], []
@@ -228,10 +124,7 @@ def run_once(scene, truth, cam, seed, up, views: int, method: str, accuracy: boo
 
     ``options``: further ``extract()`` keywords (``--set``).
     """
-    from seed2gs_inverse.pipeline import extract
-    from seed2gs_inverse.solvers import solve
-
-    load0 = _load()
+    load0 = load_average()
     reset_ok = _reset_peak()
     t0 = time.perf_counter()
     ex = extract(scene, cam, seed, n_views=views, method=method, progress=False, **(options or {}))
@@ -271,7 +164,7 @@ def run_once(scene, truth, cam, seed, up, views: int, method: str, accuracy: boo
            "selected": int(ex.selected.sum()), "vote_selected": int(vote.selected().sum())}
     if accuracy:
         row["miou"], row["mbiou"], row["iou3d"] = _accuracy(scene, truth, up, cam, ex.selected)
-    row["load_end"] = _load()
+    row["load_end"] = load_average()
     return row
 
 
@@ -282,6 +175,7 @@ def _split(r) -> str:
 
 
 def _print_row(k, r):
+    """The lines of run ``k``."""
     st = r["stages"]
     acc = (f" | held-out mIoU {r['miou']:.3f} mBIoU {r['mbiou']:.3f} 3D IoU {r['iou3d']:.3f}"
            if "miou" in r else "")
@@ -310,18 +204,16 @@ def main(argv=None) -> int:
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="extract() keyword as in bench_extract.py, e.g. --set min_weight=0 (repeatable)")
     args = p.parse_args(argv)
-    from bench_extract import _parse_set, extract_kwargs
-
-    options = _parse_set(args.set)
+    options = parse_set(args.set)
     if not (DATA / "firepit_562k_sh0.ply").is_file():
         print(f"bench_speed: real scenes not found in {DATA}; set SEED2GS_DATA. Skipped.")
         return 0
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
-          f"NUMBA_NUM_THREADS={os.environ.get('NUMBA_NUM_THREADS', 'default')}, load average {_load():.1f}")
+          f"NUMBA_NUM_THREADS={os.environ.get('NUMBA_NUM_THREADS', 'default')}, load average {load_average():.1f}")
     print(f"extract options: {options or 'defaults'}")
     busy = _busy_load(2) if args.competing_load else []
     try:
-        scene, truth, cam, seed, up, first = _problem(args.views)
+        scene, truth, cam, seed, up, first = firepit_unicorn_problem(args.views)
         print(f"first render of the process (includes kernel compilation when the cache is cold): {first:.2f} s; "
               f"{'with' if busy else 'without'} a competing 2-process busy loop")
         rows = []

@@ -30,7 +30,10 @@ import time
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 
+from seed2gs_inverse.io import read_cameras, read_scene
+from seed2gs_inverse.raster import build_operator, render
 from seed2gs_inverse.scene import GaussianScene
 from seed2gs_inverse.synthetic import (NOISE_KINDS, compose, make_scene, masks_from_labels,
                                        perturb_masks, pose_on_point, surface_point)
@@ -74,9 +77,6 @@ def bench_noise(n_views):
 
 
 def bench_composite(data, out):
-    from seed2gs_inverse.io import read_cameras, read_scene
-    from seed2gs_inverse.raster import build_operator, render
-
     fire = read_scene(data / "firepit_562k_sh0.ply")
     uni = read_scene(data / "unicorn_49k_sh3.ply")
     cam = next(c for c in read_cameras(data / "firepit_cameras.json") if c.name == "overview")
@@ -100,8 +100,6 @@ def bench_composite(data, out):
     print(f"  ground-truth unicorn mask at {half.width}x{half.height}: {int(mask.sum())} pixels "
           f"(operator built in {t_op:.2f} s, nnz {op.W.nnz})")
     if out is not None:
-        from PIL import Image
-
         out.mkdir(parents=True, exist_ok=True)
         rgb = render(scene, cam).rgb
         Image.fromarray((np.clip(rgb, 0, 1) * 255).astype(np.uint8)).save(out / "composite_overview.png")

@@ -1,4 +1,4 @@
-"""Orbit axis (issue 10, part 1): axis error and held-out accuracy, old ``up="level"`` vs ``up="auto"``.
+"""Orbit axis: axis error and held-out accuracy, ``up="level"`` vs ``up="auto"``.
 
 Cases with exact truth:
 
@@ -12,7 +12,7 @@ Cases with exact truth:
 
 For each case the reference is a level look-at camera (no roll) at a given
 pitch, the seed is the truth rendered into it, and ``extract()`` runs with
-``up="level"`` (the previous default) and ``up="auto"``. Scored on 8
+``up="level"`` (a level orbit about the reference camera's up) and ``up="auto"``. Scored on 8
 held-out views all around the object (azimuth every 45 degrees, offset
 from the pipeline's own, elevations alternating 10 and 40 degrees above the
 true ground), never rendered by the pipeline: mIoU, min IoU per view, and
@@ -36,6 +36,16 @@ import numpy as np
 _ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(_ROOT))  # this checkout's package, not whichever one is installed
 
+from seed2gs_inverse import Camera  # noqa: E402
+from seed2gs_inverse.io import read_camera, read_scene  # noqa: E402
+from seed2gs_inverse.metrics import iou  # noqa: E402
+from seed2gs_inverse.pipeline import extract  # noqa: E402
+from seed2gs_inverse.pipeline.up_axis import estimate_up_axis  # noqa: E402
+from seed2gs_inverse.pipeline.up_axis import estimate_up  # noqa: E402
+from seed2gs_inverse.raster import build_operator, render  # noqa: E402
+from seed2gs_inverse.synthetic import compose, pose_on_point  # noqa: E402
+from seed2gs_inverse.synthetic.ground import make_ground_scene  # noqa: E402
+
 DATA = Path(os.environ.get("SEED2GS_DATA", _ROOT.parent / "shared" / "data"))
 
 #: Procedural cases: (seed, object, reference azimuth, reference pitch in degrees).
@@ -58,8 +68,6 @@ def _basis(up):
 
 
 def _look(center, up, az, el, dist, w, h, fov=50.0):
-    from seed2gs_inverse import Camera
-
     e1, e2 = _basis(up)
     a, e = np.radians(az), np.radians(el)
     d = np.cos(e) * (np.cos(a) * e1 + np.sin(a) * e2) + np.sin(e) * up
@@ -72,9 +80,6 @@ def _held_out(center, up, dist, ref_az, w=320, h=240):
 
 
 def _score(scene, truth, selected, cams):
-    from seed2gs_inverse.metrics import iou
-    from seed2gs_inverse.raster import build_operator
-
     ious = []
     for c in cams:
         op = build_operator(scene, c)
@@ -87,11 +92,6 @@ def _score(scene, truth, selected, cams):
 
 
 def _run_case(name, scene, truth, ref, true_up, center, dist, ref_az, args, rows):
-    from seed2gs_inverse.raster import build_operator
-    from seed2gs_inverse.pipeline import extract
-    from seed2gs_inverse.pipeline.up_axis import estimate_up_axis
-    from seed2gs_inverse.pipeline.up_axis import estimate_up
-
     op = build_operator(scene, ref)
     seed = (op.W @ truth.astype(np.float32)).reshape(ref.image_shape) > 0.5
     if seed.sum() < 50:
@@ -150,8 +150,6 @@ def main(argv=None) -> int:
     p.add_argument("--axis-only", action="store_true", help="only the axis errors (no extraction)")
     args = p.parse_args(argv)
 
-    from seed2gs_inverse.synthetic.ground import make_ground_scene
-
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
           f"NUMBA_NUM_THREADS={os.environ.get('NUMBA_NUM_THREADS', 'default')}, "
           f"load average {os.getloadavg()[0]:.1f}")
@@ -164,10 +162,6 @@ def main(argv=None) -> int:
                   g.object_center(obj), dist, az, args, rows)
 
     if args.firepit and (DATA / "firepit_562k_sh0.ply").is_file():
-        from seed2gs_inverse.io import read_camera, read_scene
-        from seed2gs_inverse.raster import render
-        from seed2gs_inverse.synthetic import compose, pose_on_point
-
         firepit = read_scene(DATA / "firepit_562k_sh0.ply")
         unicorn = read_scene(DATA / "unicorn_49k_sh3.ply")
         over = read_camera(str(DATA / "firepit_cameras.json") + ":overview")

@@ -557,7 +557,7 @@ def test_the_dashboard_of_an_existing_scheduler_is_named_only_when_it_serves_its
     import time
     from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
-    from seed2gs_inverse.batch.runner import _dashboard
+    from seed2gs_inverse.batch.cluster import dashboard_address as _dashboard
 
     slow_started = [0.0]
 

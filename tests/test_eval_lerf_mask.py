@@ -156,7 +156,7 @@ def test_eval_layout_errors(dataset, tmp_path, capsys):
     (mine / "jobs" / "summary.json").write_text(json.dumps({"jobs": [{"name": "x", "status": "done"}]}))
     with pytest.raises(ValidationError, match="holds per_query.csv of no earlier evaluation"):
         evaluate_lerf_mask(root / "data", root / "scenes", mine, oracle_seed=True)
-    from seed2gs_inverse.evaluation.lerf_mask import _check_output
+    from seed2gs_inverse.evaluation.engine import check_output as _check_output
 
     (mine / "per_query.csv").unlink()
     (mine / "masks").mkdir()
@@ -194,7 +194,7 @@ def test_eval_layout_warnings_and_the_oracle_seed_of_empty_masks(dataset, tmp_pa
     import cv2
 
     from seed2gs_inverse.evaluation import read_lerf_mask
-    from seed2gs_inverse.evaluation.lerf_mask import lerf_jobs
+    from seed2gs_inverse.evaluation import lerf_jobs
 
     root, _ = dataset
     data = tmp_path / "data"
@@ -353,7 +353,7 @@ def test_a_query_selects_q_strictly_above_its_threshold(dataset, tmp_path):
     """score_frame renders the Gaussians with ``q > threshold`` of the job's report: q exactly at the
     threshold (where a solver leaves Gaussians without evidence) selects nothing."""
     from seed2gs_inverse.batch.worker import clear_scene_cache
-    from seed2gs_inverse.evaluation.lerf_mask import score_frame
+    from seed2gs_inverse.evaluation import score_frame
 
     root, info = dataset
     sphere = info["blocks"]["synthetic"].object_mask("sphere")

@@ -7,12 +7,15 @@
     results = sgi.extract_many(jobs, output="results/")        # embedded LocalCluster
     results = sgi.extract_many(jobs, "tcp://head:8786", output="results/")  # a cluster
 
-See :mod:`.jobs` for the jobs file and :mod:`.runner` for where jobs run,
-failures, retries and resume.
+See :mod:`.jobs` for the jobs file, :mod:`.runner` for scheduling, failures,
+retries and resume, :mod:`.cluster` for where jobs run, :mod:`.summary` for
+the results directory, and :mod:`.worker` for what runs on a worker.
 """
 
+from .cluster import batch_client
 from .jobs import Job, extract_option_names, jobs_from_table, read_jobs
-from .runner import SUMMARY_COLUMNS, batch_client, extract_many
+from .runner import extract_many
+from .summary import SUMMARY_COLUMNS
 from .worker import JobResult, run_job
 
 __all__ = ["Job", "JobResult", "read_jobs", "jobs_from_table", "extract_option_names", "extract_many",

@@ -39,6 +39,11 @@ its ``[defaults]`` table applies to every job and a job overrides any of it
 Every error names the file and the job. Jobs are plain data: they travel to
 the workers of a cluster, which must see the same paths (a shared file
 system), so relative paths are made absolute against the jobs file.
+
+A Dask worker imports this module on its event loop, when it unpickles a
+job; so :class:`~seed2gs_inverse.pipeline.ExtractSettings`, which imports the
+pipeline, is imported where the options are checked, in the process that
+builds the jobs.
 """
 
 from __future__ import annotations
@@ -56,6 +61,9 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import FormatError, ValidationError
+from ..frontend.prompts import BoxPrompt, MaskPrompt, PointPrompt, TextPrompt
+from ..io import read_camera
+from ..io.cameras import split_camera_spec
 from ..io.tables import read_table
 
 __all__ = ["Job", "read_jobs", "jobs_from_table", "extract_option_names", "PROMPT_KEYS"]
@@ -76,9 +84,9 @@ def extract_option_names() -> tuple:
     """Names that a job's ``options`` table may hold: the keyword options of ``extract()``.
 
     Taken from ``ExtractSettings``, so the list never goes stale;
-    ``progress`` (the runner's) is left out.
+    ``progress`` and the other keywords the runner sets are left out.
     """
-    from ..pipeline.settings import ExtractSettings
+    from ..pipeline.settings import ExtractSettings  # deferred: see the module docstring
 
     return tuple(n for n in ExtractSettings.names() if n not in _RESERVED)
 
@@ -93,7 +101,7 @@ def _check_options(options, where: str) -> dict:
     if unknown:
         raise ValidationError(f"{where}: unknown option(s) {', '.join(map(repr, unknown))}; "
                               f"valid options: {', '.join(valid)}")
-    from ..pipeline.settings import ExtractSettings
+    from ..pipeline.settings import ExtractSettings  # deferred: see the module docstring
 
     try:  # the values too, here, rather than on a worker after the cluster started
         ExtractSettings().replace(**options)
@@ -104,8 +112,6 @@ def _check_options(options, where: str) -> dict:
 
 def _prompt_spec(prompt) -> dict:
     """JSON-ready description of a prompt (for summaries and the job fingerprint)."""
-    from ..frontend.prompts import BoxPrompt, MaskPrompt, PointPrompt, TextPrompt
-
     if isinstance(prompt, MaskPrompt):
         if isinstance(prompt.mask, (str, os.PathLike)):
             return {"kind": "mask", "mask": os.fspath(prompt.mask)}
@@ -125,6 +131,7 @@ def _prompt_spec(prompt) -> dict:
 
 
 def _camera_spec(camera):
+    """JSON-ready description of a job's camera: a Camera's record, a look-at table, or the spec string."""
     if isinstance(camera, Camera):
         return {"camera": camera.to_dict()}
     if isinstance(camera, Mapping):
@@ -171,8 +178,6 @@ class Job:
     figure: bool = True
 
     def __post_init__(self):
-        from ..frontend.prompts import MaskPrompt, TextPrompt
-
         if not isinstance(self.name, str) or not _NAME.match(self.name):
             raise ValidationError(
                 f"job name {self.name!r} is not a valid folder name: use 1-128 letters, digits, "
@@ -222,8 +227,6 @@ class Job:
             return self.camera
         if isinstance(self.camera, Mapping):
             return _look_at(self.camera, f"job {self.name!r}")
-        from ..io import read_camera
-
         return read_camera(self.camera)
 
     # -- bookkeeping ----------------------------------------------------------
@@ -236,8 +239,6 @@ class Job:
     def input_files(self) -> dict:
         """The files the job reads, by role: ``scene``, ``camera`` (unless the camera is
         given in full), ``mask`` (a mask prompt's image) and ``models``."""
-        from ..frontend.prompts import MaskPrompt
-
         files = {"scene": self.scene}
         if isinstance(self.camera, str):
             files["camera"] = _camera_file(self.camera)
@@ -275,12 +276,11 @@ def _stamp(path: str):
 
 def _camera_file(spec: str) -> str:
     """The file of a camera spec ``FILE[:NAME|INDEX]`` (the rule of ``read_camera``)."""
-    from ..io.cameras import split_camera_spec
-
     return split_camera_spec(spec)[0]
 
 
 def _jsonable(value):
+    """``value`` with mappings, sequences and numpy values made JSON types (recursively)."""
     if isinstance(value, Mapping):
         return {str(k): _jsonable(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
@@ -293,6 +293,7 @@ def _jsonable(value):
 
 
 def _vector(where, key, value, n=3) -> np.ndarray:
+    """(n,) float64 of a look-at camera's ``key``; ValidationError unless ``n`` finite numbers."""
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
@@ -303,6 +304,7 @@ def _vector(where, key, value, n=3) -> np.ndarray:
 
 
 def _look_at(spec: Mapping, where: str) -> Camera:
+    """The camera of a look-at table ``{eye, target, up, fov, width, height}``, checked key by key."""
     unknown = sorted(set(spec) - _LOOK_AT_KEYS)
     if unknown:
         raise ValidationError(f"{where}: unknown look-at camera key(s) {unknown}; "
@@ -332,21 +334,19 @@ def _look_at(spec: Mapping, where: str) -> Camera:
 # jobs.toml
 # ---------------------------------------------------------------------------
 def _resolve(base: Path, value: str) -> str:
+    """``value`` (``~`` expanded) as an absolute path, relative ones taken against ``base``."""
     p = Path(os.path.expanduser(value))
     return os.fspath(p if p.is_absolute() else (base / p).resolve())
 
 
 def _resolve_camera(base: Path, value: str) -> str:
     """Absolute camera spec; the ``:NAME`` selector stays as given (split as ``read_camera`` splits it)."""
-    from ..io.cameras import split_camera_spec
-
     path, selector = split_camera_spec(value, lambda s: os.path.exists(_resolve(base, s)))
     return _resolve(base, path) if selector is None else f"{_resolve(base, path)}:{selector}"
 
 
 def _prompt_from_table(t: Mapping, where: str, base: Path):
-    from ..frontend.prompts import BoxPrompt, MaskPrompt, PointPrompt, TextPrompt
-
+    """The one prompt of a job table (``mask``, ``box``, ``point`` with ``negative``, or ``text``)."""
     given = [k for k in PROMPT_KEYS if k in t]
     if len(given) != 1:
         raise ValidationError(f"{where}: give exactly one prompt ({', '.join(PROMPT_KEYS)}), "
@@ -388,6 +388,7 @@ def _clicks(where, key, value) -> np.ndarray:
 
 
 def _numbers(where, key, value, flat: bool = True) -> np.ndarray:
+    """float64 array of a regular list of finite numbers (raveled when ``flat``)."""
     try:
         arr = np.asarray(value, dtype=np.float64)  # a ragged list is a ValueError too
     except (TypeError, ValueError):
@@ -408,6 +409,18 @@ def jobs_from_table(table: Mapping, base=".", source: str = "jobs") -> list[Job]
         Directory that relative paths are relative to.
     source : str
         Name used in error messages (the file).
+
+    Returns
+    -------
+    list of Job
+        In the order of ``jobs``.
+
+    Raises
+    ------
+    FormatError
+        The table's layout is wrong (unknown keys, no jobs, repeated names).
+    ValidationError
+        A job's values are wrong (the message names the file and the job).
     """
     base = Path(base)
     if not isinstance(table, Mapping):
@@ -480,7 +493,13 @@ def jobs_from_table(table: Mapping, base=".", source: str = "jobs") -> list[Job]
 
 
 def read_jobs(path) -> list[Job]:
-    """Read a ``jobs.toml`` (or ``.json`` with the same layout) file; see the module docstring."""
+    """Read a ``jobs.toml`` (or ``.json`` with the same layout) file; see the module docstring.
+
+    Raises
+    ------
+    FormatError, ValidationError
+        As :func:`jobs_from_table`, or a file that cannot be read or parsed.
+    """
     p = Path(path)
     table = read_table(p, "jobs file")
     return jobs_from_table(table, base=p.resolve().parent, source=os.fspath(p))

@@ -12,6 +12,10 @@ same worker reuses the arrays instead of reading the file again (the runner
 submits jobs grouped by scene, so each worker meets each scene once). A
 models configuration (ONNX sessions) is likewise opened once per process
 (:func:`job_models`), not once per job.
+
+A Dask worker imports this module on its event loop, when it unpickles its
+first task; so the pipeline (and Numba) are imported inside :func:`run_job`,
+in the task's thread, where a slow import holds up no heartbeat.
 """
 
 from __future__ import annotations
@@ -24,18 +28,28 @@ import traceback
 from collections import OrderedDict
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .._memory import peak_rss_mb
+from ..errors import FormatError, ValidationError
+from ..frontend import config as models_config
+from ..io import read_scene
+from ..scene import GaussianScene
+from .cluster import available_cores
 
-__all__ = ["JobResult", "run_job", "job_models", "scene_cache_info", "clear_scene_cache", "SCENE_CACHE_SIZE"]
+if TYPE_CHECKING:
+    from .jobs import Job
+
+__all__ = ["JobResult", "run_job", "job_models", "cached_scene", "scene_cache_info", "clear_scene_cache",
+           "SCENE_CACHE_SIZE"]
 
 #: Scenes kept per worker process (least recently used dropped first).
 SCENE_CACHE_SIZE = 2
 
 _lock = threading.Lock()
-_scenes: "OrderedDict[tuple, object]" = OrderedDict()
+_scenes: OrderedDict[tuple, GaussianScene] = OrderedDict()
 _reads: list = []          # (path, seconds) of every read by this process
 _models: dict = {}         # (path, size, mtime) of a models file -> (grounder, tracker)
 _model_loads: list = []    # path of every models file this process opened
@@ -51,8 +65,10 @@ class JobResult:
     status : {"done", "failed"}
     error : str or None
         ``"ErrorType: message"`` of a failed job.
-    scene, camera : str
-        What the job named (the camera as its spec).
+    scene : str
+        The job's scene file.
+    camera : str or dict
+        The job's camera as its spec (``FILE[:NAME]``, a look-at table or a camera record).
     prompt : dict
         The prompt's kind and values.
     n_gaussians, n_selected, n_views : int or None
@@ -86,7 +102,7 @@ class JobResult:
     status: str
     error: str | None = None
     scene: str = ""
-    camera: object = None
+    camera: str | dict | None = None
     prompt: dict = field(default_factory=dict)
     n_gaussians: int | None = None
     n_selected: int | None = None
@@ -104,6 +120,7 @@ class JobResult:
 
     @property
     def ok(self) -> bool:
+        """Whether the job is done."""
         return self.status == "done"
 
     def load_q(self) -> np.ndarray:
@@ -111,8 +128,6 @@ class JobResult:
         if self.q is not None:
             return self.q
         if self.outdir is None or self.status != "done":
-            from ..errors import ValidationError
-
             raise ValidationError(f"job {self.name!r} has no q ({self.status}"
                                   f"{': ' + self.error if self.error else ''})")
         return np.load(Path(self.outdir) / "q.npy", allow_pickle=False)
@@ -124,12 +139,14 @@ class JobResult:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict) -> "JobResult":
+    def from_dict(cls, d: dict) -> JobResult:
+        """The result a :meth:`to_dict` record describes (unknown keys are ignored)."""
         known = set(cls.__dataclass_fields__) - {"q"}
         return cls(**{k: v for k, v in d.items() if k in known})
 
 
 def _worker_name() -> str:
+    """The address of the Dask worker running this task, ``"local"`` outside one."""
     try:
         from distributed import get_worker
 
@@ -152,16 +169,26 @@ def _limit_threads() -> None:
         nthreads = max(1, int(get_worker().state.nthreads))
     except (ImportError, ValueError, AttributeError):
         return
-    import numba
+    import numba  # deferred: see the module docstring
 
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    cores = available_cores()
     numba.set_num_threads(max(1, min(numba.config.NUMBA_NUM_THREADS, cores // nthreads)))
 
 
-def _scene(path: str):
-    """(scene, seconds spent reading, came from cache) for ``path``; read at most once per process."""
-    from ..io import read_scene
+def cached_scene(path: str) -> tuple[GaussianScene, float, bool]:
+    """``(scene, seconds spent reading, came from the cache)`` of the scene file ``path``.
 
+    Read at most once per process while it stays among the last
+    :data:`SCENE_CACHE_SIZE` scenes used; keyed by the file's real path,
+    size and modification time, so a rewritten file is read again.
+
+    Raises
+    ------
+    FileNotFoundError
+        ``path`` does not exist (naming it).
+    FormatError
+        As :func:`~seed2gs_inverse.io.read_scene`.
+    """
     st = os.stat(path)  # FileNotFoundError names the file
     key = (os.path.realpath(path), st.st_size, st.st_mtime_ns)
     with _lock:  # one reader per file at a time; the others wait and reuse it
@@ -210,21 +237,18 @@ def job_models(path):
     try:
         st = os.stat(path)
     except FileNotFoundError:
-        from ..errors import FormatError
-
         raise FormatError(f"{path}: models configuration file not found") from None
     key = (os.path.realpath(path), st.st_size, st.st_mtime_ns)
     with _lock:
         if key not in _models:
-            from ..frontend.config import load_models
-
-            models = load_models(path)
+            models = models_config.load_models(path)
             _model_loads.append(key[0])
             _models[key] = (models.grounder(), models.tracker())
         return _models[key]
 
 
-def _error_text(exc: BaseException, job=None) -> str:
+def _error_text(exc: BaseException, job: Job | None = None) -> str:
+    """``"ErrorType: first line of the message"``; a missing file is named with its role in ``job``."""
     msg = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
     if isinstance(exc, FileNotFoundError) and exc.filename:
         roles = {} if job is None else {f: role for role, f in job.input_files().items()}
@@ -233,7 +257,7 @@ def _error_text(exc: BaseException, job=None) -> str:
     return f"{type(exc).__name__}: {msg}" if msg else type(exc).__name__
 
 
-def run_job(job, output=None, attempt: int = 1) -> JobResult:
+def run_job(job: Job, output=None, attempt: int = 1) -> JobResult:
     """Run one job here (on a worker, or in this process) and write its folder.
 
     Parameters
@@ -252,7 +276,7 @@ def run_job(job, output=None, attempt: int = 1) -> JobResult:
     JobResult
         ``failed`` with the error for any exception the job raises.
     """
-    from ..pipeline import extract
+    from ..pipeline import extract  # deferred: see the module docstring
 
     t_start = time.perf_counter()
     res = JobResult(name=job.name, status="failed", scene=job.scene, fingerprint=job.fingerprint(),
@@ -265,7 +289,7 @@ def run_job(job, output=None, attempt: int = 1) -> JobResult:
         camera = job.read_camera()  # cheap checks first
         seconds["camera"] = time.perf_counter() - t0
         grounder, tracker = job_models(job.models)
-        scene, seconds["read"], res.scene_cached = _scene(job.scene)
+        scene, seconds["read"], res.scene_cached = cached_scene(job.scene)
         res.n_gaussians = int(len(scene))
         ex = extract(scene, camera, job.prompt, grounder=grounder, tracker=tracker, **job.extract_kwargs())
         seconds.update({k: float(v) for k, v in ex.seconds.items()})

@@ -5,6 +5,10 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from .._validation import check_int
+from ..batch import extract_many, read_jobs
+from ..errors import ValidationError
+
 __all__ = ["register", "add_cluster_arguments", "client_from_args"]
 
 
@@ -21,10 +25,14 @@ def add_cluster_arguments(p) -> None:
 
 
 def client_from_args(args):
-    from ..errors import ValidationError
+    """The ``client`` of ``extract_many`` that --scheduler / --workers / --sequential ask for.
 
-    if args.workers is not None and args.workers < 1:
-        raise ValidationError(f"--workers must be >= 1, got {args.workers}")
+    Raises
+    ------
+    ValidationError
+        ``--workers`` below 1, or given with ``--scheduler`` / ``--sequential``.
+    """
+    check_int("--workers", args.workers, lo=1, optional=True)
     if args.workers is not None and (args.scheduler or args.sequential):
         raise ValidationError("--workers sizes the embedded cluster; it does not go with "
                               "--scheduler or --sequential")
@@ -32,6 +40,7 @@ def client_from_args(args):
 
 
 def register(subparsers) -> None:
+    """Add ``seed2gs batch`` to the command's subparsers."""
     p = subparsers.add_parser(
         "batch", help="run many extractions from a jobs file (Dask)",
         description="Run every job of JOBS (TOML: [defaults] and [[jobs]] with scene, camera, one "
@@ -47,8 +56,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from ..batch import extract_many, read_jobs
-
+    """Run ``seed2gs batch``: print the counts, and each failed job on stderr; 1 when a job failed."""
     client = client_from_args(args)
     jobs = read_jobs(args.jobs)  # every job checked before anything starts
     progress = False if args.no_progress else None

@@ -5,6 +5,10 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from .._validation import check_int
+from ..evaluation import evaluate_3d_ovs, evaluate_lerf_mask
+from ..pipeline.settings import LIMITS
+from ..solvers import available_methods
 from ._batch import add_cluster_arguments, client_from_args
 
 __all__ = ["register"]
@@ -17,6 +21,7 @@ _LAYOUTS = {
 
 
 def _add_arguments(q, name: str) -> None:
+    """The arguments of one ``seed2gs eval BENCHMARK`` (``name``: its dataset layout)."""
     q.add_argument("data", metavar="DATA_DIR", help="dataset root (one folder per scene)")
     q.add_argument("--scenes", required=True, metavar="SCENE_DIR", help="trained 3DGS scenes")
     q.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="report directory (created)")
@@ -28,8 +33,6 @@ def _add_arguments(q, name: str) -> None:
                            "test frame; the file is checked before anything runs")
     q.add_argument("--only", nargs="+", metavar="SCENE", default=None, help="evaluate only these scenes")
     q.add_argument("--views", type=int, default=None, help="views per VAAS clip, 2..360 (default: extract's, 24)")
-    from ..solvers import available_methods
-
     methods = available_methods()
     q.add_argument("--method", default=None, choices=methods, metavar="METHOD",
                    help=f"solver: {', '.join(methods)} (default: extract's, weighted_bce)")
@@ -40,6 +43,7 @@ def _add_arguments(q, name: str) -> None:
 
 
 def register(subparsers) -> None:
+    """Add ``seed2gs eval lerf-mask`` and ``seed2gs eval 3d-ovs`` to the command's subparsers."""
     p = subparsers.add_parser("eval", help="evaluate on a benchmark (LERF-Mask, 3D-OVS)",
                               description="Score extraction on a benchmark dataset.")
     sub = p.add_subparsers(dest="eval_command", metavar="BENCHMARK")
@@ -60,18 +64,12 @@ def register(subparsers) -> None:
 
 
 def run_eval(args) -> int:
-    from ..errors import ValidationError
-    from ..evaluation import evaluate_3d_ovs, evaluate_lerf_mask
-
+    """Run ``seed2gs eval``: print the per-scene table, and each failed job on stderr; 1 when a job failed."""
     client = client_from_args(args)
     options = {}
     if args.views is not None:
-        from ..pipeline.settings import LIMITS
-
         lo, hi = LIMITS["n_views"]  # ExtractSettings' range, said with the option's name
-        if not lo <= args.views <= hi:
-            raise ValidationError(f"--views must be in {lo}..{hi}, got {args.views}")
-        options["n_views"] = args.views
+        options["n_views"] = check_int("--views", args.views, lo=lo, hi=hi)
     if args.method is not None:
         options["method"] = args.method
     evaluate = evaluate_3d_ovs if args.eval_layout == "3d-ovs" else evaluate_lerf_mask

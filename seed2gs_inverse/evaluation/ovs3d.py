@@ -16,7 +16,7 @@ of that image. A mask pixel is the class where its grey level is 255: the
 loader keeps ``(grey / 255.0).astype(int8)``, which is 1 only at 255. The
 trained scenes are found in ``SCENE_DIR`` as for LERF-Mask.
 
-Scoring is the LERF-Mask protocol of :mod:`.lerf_mask` (every class is one
+Scoring is the LERF-Mask protocol of :mod:`.engine` (every class is one
 query, extracted once and rendered into every annotated frame; IoU and
 boundary IoU per frame, means over frames, classes, scenes). That is not
 3D-OVS's own metric: the paper scores a semantic segmentation (one class per
@@ -29,10 +29,14 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..errors import ValidationError
-from .lerf_mask import (LerfScene, _at_size, _cameras, _check_output, _scene_file, _scene_names, _seed_mode,
-                        _stem, evaluate_scenes, read_gt_mask)
+from .engine import (LerfScene, camera_at_size, check_output, evaluate_scenes, find_scene_file, image_stem,
+                     read_gt_mask, read_scene_cameras, scene_names, seed_mode)
+
+if TYPE_CHECKING:
+    from ..camera import Camera
 
 __all__ = ["read_3d_ovs", "evaluate_3d_ovs", "OVS_GT_THRESHOLD"]
 
@@ -41,6 +45,8 @@ OVS_GT_THRESHOLD = 254
 
 
 def _classes(path: Path) -> list:
+    """The sorted class names of ``classes.txt`` (as the loader sorts them); ValidationError when
+    the file is not UTF-8, names no class or names one twice."""
     try:
         lines = path.read_text("utf-8").splitlines()
     except UnicodeDecodeError as exc:
@@ -54,14 +60,14 @@ def _classes(path: Path) -> list:
     return sorted(classes)  # the loader sorts them
 
 
-def _frame_camera(idx: int, images: list, cams: list, where: str):
+def _frame_camera(idx: int, images: list, cams: list, where: str) -> Camera:
     """The camera of image ``idx`` of the sorted ``images/`` (else of the sorted camera names)."""
     if images:
         if idx >= len(images):
             raise ValidationError(f"{where}: frame {idx} but images/ holds only {len(images)} images")
         name = images[idx]
         for c in cams:
-            if c.name == name or _stem(c.name or "") == _stem(name):
+            if c.name == name or image_stem(c.name or "") == image_stem(name):
                 return c
         raise ValidationError(f"{where}: image {name} (frame {idx}) has no camera in the COLMAP model")
     if idx >= len(cams):
@@ -87,9 +93,16 @@ def read_3d_ovs(data_dir, scenes_dir, scenes=None) -> list:
         ``queries``: the classes with a non-empty mask in some frame;
         ``frames``: the annotated frames with a non-empty mask; ``gt``: the
         non-empty masks only.
+
+    Raises
+    ------
+    ValidationError
+        A bad ``classes.txt``, a frame folder that is no image number, a
+        missing class mask, masks of one frame that differ in size, a frame
+        without camera, or a scene whose masks are all empty.
     """
     data_dir, scenes_dir = Path(data_dir), Path(scenes_dir)
-    names = _scene_names(data_dir, scenes_dir, scenes, "segmentations/classes.txt",
+    names = scene_names(data_dir, scenes_dir, scenes, "segmentations/classes.txt",
                          "<scene>/segmentations/classes.txt (3D-OVS layout)")
     out = []
     for name in names:
@@ -105,7 +118,7 @@ def read_3d_ovs(data_dir, scenes_dir, scenes=None) -> list:
         if not folders:
             raise ValidationError(f"{seg}: no frame folders")
         folders.sort(key=lambda p: int(p.name))
-        cams = sorted(_cameras(root, scenes_dir, name), key=lambda c: c.name or "")
+        cams = sorted(read_scene_cameras(root, scenes_dir, name), key=lambda c: c.name or "")
         # the images in name order, as the official loader lists them; hidden files (.DS_Store) are no image
         images = sorted(p.name for p in (root / "images").iterdir()
                         if p.is_file() and not p.name.startswith(".")) if (root / "images").is_dir() else []
@@ -127,10 +140,10 @@ def read_3d_ovs(data_dir, scenes_dir, scenes=None) -> list:
                     queries.add(c)
             if any(k[0] == f for k in gt):
                 frames.append(f)
-                cameras[f] = _at_size(_frame_camera(int(f), images, cams, f"{fd}"), shape, f"{fd}")
+                cameras[f] = camera_at_size(_frame_camera(int(f), images, cams, f"{fd}"), shape, f"{fd}")
         if not queries:
             raise ValidationError(f"{seg}: every mask is empty (object pixels are 255)")
-        out.append(LerfScene(name, _scene_file(scenes_dir, name), frames, sorted(queries), cameras, gt,
+        out.append(LerfScene(name, find_scene_file(scenes_dir, name), frames, sorted(queries), cameras, gt,
                              gt_threshold=OVS_GT_THRESHOLD))
     return out
 
@@ -145,8 +158,8 @@ def evaluate_3d_ovs(data_dir, scenes_dir, output, *, oracle_seed: bool | None = 
     a text query) and ``report.json``'s ``protocol`` says how it differs
     from 3D-OVS's own metric.
     """
-    out = _check_output(output)
-    oracle = _seed_mode(oracle_seed, models)
+    out = check_output(output)
+    oracle = seed_mode(oracle_seed, models)
     dataset = read_3d_ovs(data_dir, scenes_dir, scenes)
     return evaluate_scenes(dataset, out, oracle_seed=oracle, models=models, options=options, client=client,
                            n_workers=n_workers, resume=resume, progress=progress, log=log,
