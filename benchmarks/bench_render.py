@@ -206,7 +206,7 @@ def _orbit_views(scene, cam, depth, repeat):
     from seed2gs_inverse.raster import FrozenScene, build_operator, cone_cull
 
     render_mod = importlib.import_module("seed2gs_inverse.raster.rasterize")
-    extract_mod = importlib.import_module("seed2gs_inverse.pipeline.extract")
+    extract_mod = importlib.import_module("seed2gs_inverse.pipeline.stages")
     x0, y0, x1, y1 = 533, 276, 645, 368
     u, v = (x0 + x1) // 2, (y0 + y1) // 2
     z = float(depth[v, u])

@@ -159,7 +159,7 @@ class _CompareBar:
         if self.enabled:
             from tqdm import tqdm
 
-            from ..pipeline.extract import _Progress
+            from ..progress import Progress as _Progress
 
             self._bar = tqdm(total=self.n, desc="compare", unit="method", leave=False, file=sys.stderr,
                              mininterval=_Progress.MININTERVAL)
