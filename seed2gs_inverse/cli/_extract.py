@@ -275,14 +275,18 @@ def _up_cameras(path, where: str):
     return read_cameras(path)
 
 
-#: Options added after reports were first written, with the value that keeps
-#: the behaviour from before them (a report without the option replays so).
+#: Options a recorded report may lack, with the value that replays such a
+#: report as it ran (the option off).
 _ADDED_OPTIONS = {"seed_connected": False, "support_background": False}
 
 
 def _recorded_settings(rep: dict, progress: bool):
-    """The settings of a recorded run as it ran: options the report predates are off, and solver
-    options whose defaults changed since (``resolved.solver_options``) are pinned."""
+    """The settings of a recorded run as it ran.
+
+    Options the report lacks take their :data:`_ADDED_OPTIONS` value, and
+    solver options that differ from today's defaults are pinned to the
+    recorded ``resolved.solver_options``.
+    """
     settings = ExtractSettings.from_dict({**_ADDED_OPTIONS, **rep["settings"], "progress": progress})
     ran = (rep.get("resolved") or {}).get("solver_options")
     now = {k: v for k, v in settings.solver_kwargs().items() if isinstance(v, (int, float, str, bool))}
