@@ -66,7 +66,10 @@ class Progress:
 
     @property
     def solve_callback(self) -> Callable[[SolveProgress], None] | None:
-        """The ``solve(..., progress=)`` hook drawing on this bar; None when disabled (the solver then skips its reports)."""
+        """The ``solve(..., progress=)`` hook drawing on this bar.
+
+        None when disabled, so the solver skips its reports.
+        """
         return self._solve_step if self._bar is not None else None
 
     def _solve_step(self, p: SolveProgress) -> None:

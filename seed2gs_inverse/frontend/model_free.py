@@ -18,13 +18,13 @@ For frame ``k`` and each pixel ``p`` with rendered alpha above ``alpha_min``:
    something else is in front, ``X`` was occluded in ``j``; the 2x2 range
    keeps oblique surfaces, whose depth changes a lot within a pixel, and is
    not used across silhouettes, where it would span foreground and
-   background), and
-   the colours of ``p`` and ``p'`` agree within ``color_tol`` (surfaces that
-   meet at equal depth, like an object standing on the ground, differ in
-   colour);
+   background), and the colours of ``p`` and ``p'`` agree within
+   ``color_tol`` (surfaces that meet at equal depth, like an object standing
+   on the ground, differ in colour);
 3. the label is copied from the first source that sees ``X`` and has a
-   label there that is not within ``boundary_band`` pixels of a 0/1 edge, trying the seed frame 0 first (no drift where the reference saw
-   the surface), then the already labelled views nearest to frame ``k``
+   label there that is not within ``boundary_band`` pixels of a 0/1 edge,
+   trying the seed frame 0 first (no drift where the reference saw the
+   surface), then the already labelled views nearest to frame ``k``
    (earlier frames of the clip, plus labelled ``references`` such as the
    flat clip when the spiral is tracked): a surface hidden for a few frames
    behind an occluder gets its label back from a view that saw it.
@@ -73,10 +73,10 @@ support :math:`\sum_q k c \ge` ``min_support`` (relative to the kernel mass);
 otherwise it stays NaN (unknown): the tracker does not guess.
 
 **More passes of the fill (``fill_passes``, default 1).** A second pass runs
-the filter again on the labels the first pass decided (same kernel, :math:`y^{(t+1)}` = the decision
-rule applied to :math:`\hat y[y^{(t)}]` on the pixels still unknown): pixels
-whose support was too small or too mixed in the first pass are decided from
-their newly decided neighbours. More passes spread labels further from any
+the filter again on the labels the first pass decided (same kernel,
+:math:`y^{(t+1)}` = the decision rule applied to :math:`\hat y[y^{(t)}]` on
+the pixels still unknown): pixels whose support was too small or too mixed
+in the first pass are decided from their newly decided neighbours. More passes spread labels further from any
 evidence; the default of one pass was chosen on benchmarks/bench_extract.py.
 
 **Observed labels and fill decisions (``refill``).** A label is *observed*

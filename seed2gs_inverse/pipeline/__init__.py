@@ -19,6 +19,6 @@ from .up_axis import UpEstimate, estimate_up_axis
 from .vaas import (ClipFrame, VAASPlan, estimate_up, flat_orbit, orbit_cameras, run_vaas, spiral_orbit,
                    vaas_amplitude)
 
-__all__ = ["extract", "Extraction", "save_extraction", "ExtractSettings", "seed_lift", "SeedLift", "ClipFrame", "VAASPlan", "flat_orbit",
-           "spiral_orbit", "orbit_cameras", "run_vaas", "vaas_amplitude", "estimate_up", "report_figure",
-           "estimate_up_axis", "UpEstimate", "point_object_mask", "PointObject"]
+__all__ = ["extract", "Extraction", "save_extraction", "ExtractSettings", "seed_lift", "SeedLift", "ClipFrame",
+           "VAASPlan", "flat_orbit", "spiral_orbit", "orbit_cameras", "run_vaas", "vaas_amplitude", "estimate_up",
+           "report_figure", "estimate_up_axis", "UpEstimate", "point_object_mask", "PointObject"]

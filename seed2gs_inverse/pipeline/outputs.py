@@ -1,4 +1,4 @@
-"""An extraction's files: :func:`save_extraction`, what ``seed2gs extract``, ``seed2gs demo`` and the batch workers write.
+"""An extraction's files (:func:`save_extraction`): what ``seed2gs extract``, ``demo`` and the batch write.
 
 ``OUTDIR`` receives ``object.<fmt>`` and ``remainder.<fmt>`` (the selected
 Gaussians and the rest), ``q.npy`` (float32 q), ``report.json``
