@@ -202,7 +202,7 @@ def _orbit_views(scene, cam, depth, repeat):
     shared. Checks that both give the same W.
     """
     render_mod = importlib.import_module("seed2gs_inverse.raster.rasterize")
-    extract_mod = importlib.import_module("seed2gs_inverse.pipeline.extract")
+    extract_mod = importlib.import_module("seed2gs_inverse.pipeline.stages")
     x0, y0, x1, y1 = 533, 276, 645, 368
     u, v = (x0 + x1) // 2, (y0 + y1) // 2
     z = float(depth[v, u])

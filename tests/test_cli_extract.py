@@ -225,7 +225,7 @@ def test_progress_bars_only_on_a_terminal(files, capsys, tmp_path, monkeypatch):
 
     import sys
 
-    from seed2gs_inverse.pipeline.extract import _Progress
+    from seed2gs_inverse.progress import Progress as _Progress
 
     monkeypatch.setattr(sys.stderr, "isatty", lambda: True, raising=False)
     monkeypatch.setattr(_Progress, "MININTERVAL", 0.0)  # redraw on every update: the loss shows however fast

@@ -221,7 +221,7 @@ def test_cli_solve_and_compare_show_progress_only_on_a_terminal(run_cli, scene_f
     assert run_cli(*cmp_args) == 0
     err = capsys.readouterr().err
     assert "\r" not in err and "loss" not in err  # stderr is not a terminal here: no bars
-    from seed2gs_inverse.pipeline.extract import _Progress
+    from seed2gs_inverse.progress import Progress as _Progress
 
     monkeypatch.setattr(sys.stderr, "isatty", lambda: True, raising=False)
     monkeypatch.setattr(_Progress, "MININTERVAL", 0.0)  # redraw on every update: the loss shows however fast

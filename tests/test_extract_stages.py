@@ -31,10 +31,12 @@ from seed2gs_inverse.frontend.sam2 import SAM2VideoTracker
 from seed2gs_inverse.operators import scene_fingerprint
 from seed2gs_inverse.raster import build_operator, render
 from seed2gs_inverse.pipeline import ExtractSettings, extract, seed_lift
+from seed2gs_inverse.progress import Progress, StageTimer
 from seed2gs_inverse.solvers import solve
 from seed2gs_inverse.synthetic import make_scene
 
 ex_mod = importlib.import_module("seed2gs_inverse.pipeline.extract")
+stages_mod = importlib.import_module("seed2gs_inverse.pipeline.stages")
 DATA = Path(__file__).resolve().parent / "data"
 
 
@@ -136,7 +138,7 @@ def test_reference_view_full_and_capped(syn, setup, staged):
     ref = staged.ref
     assert ref.scale == 1.0 and ref.camera is cam
     ys, xs = np.nonzero(seed)
-    x0, y0, x1, y1 = ref_box = ex_mod._mask_roi(seed)
+    x0, y0, x1, y1 = ref_box = stages_mod._mask_roi(seed)
     assert x0 <= xs.min() and xs.max() < x1 and y0 <= ys.min() and ys.max() < y1
     want = build_operator(syn.scene, cam, roi=ref_box)
     assert abs(ref.operator.W - want.W).max() == 0
@@ -158,7 +160,7 @@ def test_lift_seed_is_seed_lift(syn, setup, staged):
     cam, _ = setup
     op = staged.ref.operator
     want = seed_lift(syn.scene, cam, staged.ref.seed, op.rendering.depth, op.W)
-    np.testing.assert_array_equal(staged.lift.support, want.support)
+    np.testing.assert_array_equal(staged.lift.g0, want.support)
     np.testing.assert_array_equal(staged.lift.center, want.center)
     assert staged.lift.radius == want.radius
 
@@ -181,7 +183,7 @@ def test_orbit_views_frames_carry_their_operators(syn, setup, staged):
         np.testing.assert_array_equal(f.depth, op.rendering.depth)
         # the culled operator (cut at cull_far) equals the uncut one on the pixels that it keeps,
         # and the uncut culled one equals the plain build_operator (exact culling)
-        roi = ex_mod._roi_box(f.camera, lift.center, lift.radius, 2.0)
+        roi = stages_mod._roi_box(f.camera, lift.center, lift.radius, 2.0)
         plain = build_operator(syn.scene, f.camera, roi=roi)
         r = ex_mod.Renderer(syn.scene)
         exact = r.operator(f.camera, roi=roi, cull=True, far=None)
@@ -192,7 +194,7 @@ def test_orbit_views_frames_carry_their_operators(syn, setup, staged):
     from seed2gs_inverse.pipeline.up_axis import estimate_up
 
     base = cam.scaled(o.view_scale)
-    est = estimate_up_axis(syn.scene, base, support=lift.support, center=lift.center, radius=lift.radius)
+    est = estimate_up_axis(syn.scene, base, support=lift.g0, center=lift.center, radius=lift.radius)
     np.testing.assert_array_equal(o.up, est.axis)
     assert o.up_info == {**est.summary(), "warning": est.warning()}
     # that of up="level" is estimate_up's from the reference weights; a vector is normalised
@@ -273,12 +275,12 @@ def test_solve_selection_equals_the_old_evidence_reset(syn, staged):
     masks = [m for _, m in staged.labelled]
     off = staged.settings.replace(seed_connected=False)  # the solver's selection as it is
     sel = ex_mod.solve_selection(staged.stack, masks, staged.lift, off)  # smoothness 0: off
-    raw = solve(staged.stack, masks, method="weighted_bce", init=staged.lift.support,
+    raw = solve(staged.stack, masks, method="weighted_bce", init=staged.lift.g0,
                 **SOLVER_DEFAULTS["weighted_bce"])
     weak = _evidence(syn, staged.labelled) < 0.05
     assert 0 < weak.sum() < len(weak)
     want = np.asarray(raw.q, np.float32).copy()
-    want[weak] = staged.lift.support[weak]
+    want[weak] = staged.lift.g0[weak]
     np.testing.assert_array_equal(sel.q, want)
     assert sel.n_weak_evidence == int(weak.sum())
     assert sel.threshold == 0.5 and np.array_equal(sel.selected, sel.q > 0.5)
@@ -294,11 +296,11 @@ def test_solve_selection_with_the_graph_regulariser(syn, staged):
     """
     assert staged.graph is not None and staged.graph.nnz > 0
     assert staged.masks is not None and len(staged.masks) == len(staged.labelled)
-    raw = solve(staged.stack, staged.masks, method="weighted_bce", init=staged.lift.support,
+    raw = solve(staged.stack, staged.masks, method="weighted_bce", init=staged.lift.g0,
                 **SOLVER_DEFAULTS["weighted_bce"])
     e = _evidence(syn, staged.labelled)
     e[e < 0.05] = 0.0
-    p = staged.lift.support.astype(np.float64)
+    p = staged.lift.g0.astype(np.float64)
     G = staged.graph.tocsr()
     nodes = np.flatnonzero(np.asarray(G.sum(axis=1)).ravel() > 0)  # the graph's nodes; the rest decouple
     Gd = G[nodes][:, nodes].toarray()
@@ -441,19 +443,19 @@ def test_geometric_tracker_uses_references(syn, staged):
 
 
 def test_progress_bar_is_owned_by_its_with_block(capsys):
-    with ex_mod._Progress("views", True, total=3) as bar:
+    with Progress("views", True, total=3) as bar:
         for _ in range(3):
             bar.update()
         assert bar._bar is not None and bar._bar.n == 3
     assert bar._bar is None  # closed on leaving the block
     assert "views" in capsys.readouterr().err
-    with ex_mod._Progress("quiet", False) as off:
+    with Progress("quiet", False) as off:
         off.update()
     assert off._bar is None and capsys.readouterr().err == ""
 
 
 def test_stage_timer_moves_seconds_between_stages():
-    t = ex_mod._StageTimer()
+    t = StageTimer(ex_mod.STAGES)
     with t("vaas"):
         pass
     t.seconds["vaas"] = 1.0
@@ -466,7 +468,7 @@ def test_solve_selection_reads_masks_as_the_solver_does(syn, staged):
     """The islands' votes read the masks by the solver's rule: uint8 0/255 masks voted 255 times too much for
     object (keeping every island), a generator of masks was empty by the time of the vote, and a list of
     views (which solve takes) had no rmatvec."""
-    from seed2gs_inverse.pipeline.extract import _votes
+    from seed2gs_inverse.pipeline.stages import _votes
 
     binary = [np.asarray(m) > 0.5 for m in staged.masks]  # every pixel decided (NaN > 0.5 is False)
     obj, decided = _votes(staged.stack, [b.astype(np.float32) for b in binary])

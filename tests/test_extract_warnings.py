@@ -57,7 +57,7 @@ def test_a_camera_inside_the_object_s_surface_is_said(sphere):
     ex, _ = _run(scene, cam, _object_mask(scene, labels, cam), info)
     notes = " | ".join(ex.resolved["warnings"])
     assert "touches every border of the reference image" in notes
-    assert "lifted to only" in notes and ex.lift.n_support < 10
+    assert "lifted to only" in notes and ex.lift.n_g0 < 10
 
 
 def test_orbit_views_without_weights_are_said(sphere):

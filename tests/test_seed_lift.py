@@ -29,7 +29,7 @@ def _visible(op, labels):
 def test_lift_recovers_visible_object(setup, use_w):
     scene, labels, info, cam, op, truth2d = setup
     lift = seed_lift(scene, cam, truth2d, op.rendering.depth, op.W if use_w else None)
-    sup = lift.support
+    sup = lift.g0
     assert lift.mode == ("contribution" if use_w else "center")
     precision = (sup & labels).sum() / sup.sum()
     recall_visible = (sup & _visible(op, labels)).sum() / _visible(op, labels).sum()
@@ -75,8 +75,8 @@ def test_components_drop_a_detached_blob():
     both = (op.W @ np.r_[labels, np.ones(k, bool)].astype(np.float32)).reshape(cam.image_shape) > 0.3
     lift = seed_lift(scene2, cam, both, op.rendering.depth, op.W)
     assert lift.n_components >= 2 and lift.kept_components < lift.n_components
-    assert not lift.support[len(scene):].any()
-    assert (lift.support & lab2).sum() / lift.support.sum() > 0.97
+    assert not lift.g0[len(scene):].any()
+    assert (lift.g0 & lab2).sum() / lift.g0.sum() > 0.97
 
 
 def test_components_on_two_clusters():
@@ -181,9 +181,9 @@ def test_components_are_kept_by_their_mask_contribution_and_the_box_is_robust():
     score = {g: inside[group == g].sum() for g in groups}
     assert max(score, key=score.get) == "opaque"  # the construction: weight and count disagree
     assert 0.2 < score["half"] / score["opaque"] < 0.9 and score["faint"] / score["opaque"] < 0.2
-    np.testing.assert_array_equal(lift.support, group != "faint")
+    np.testing.assert_array_equal(lift.g0, group != "faint")
     assert (lift.n_components, lift.kept_components) == (3, 2)
-    lo, hi = np.percentile(means[lift.support], [2, 98], axis=0)
+    lo, hi = np.percentile(means[lift.g0], [2, 98], axis=0)
     np.testing.assert_allclose(lift.bbox, [lo, hi], atol=1e-6)
     np.testing.assert_allclose(lift.center, 0.5 * (lo + hi), atol=1e-6)
     assert lift.radius == pytest.approx(max(0.5 * np.linalg.norm(hi - lo), 3 * 0.05), rel=1e-6)

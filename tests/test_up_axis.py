@@ -271,7 +271,7 @@ def test_a_flat_patch_of_the_unseen_object_does_not_win_over_the_ground(shared_d
         seed = (op.W @ truth.astype(np.float32)).reshape(cam.image_shape) > 0.5
         dist *= np.sqrt(seed.sum() / 4000.0)
     lift = seed_lift(gs.scene, cam, seed, op.rendering.depth, op.W)
-    est = estimate_up_axis(gs.scene, cam, support=lift.support, center=lift.center, radius=lift.radius)
+    est = estimate_up_axis(gs.scene, cam, support=lift.g0, center=lift.center, radius=lift.radius)
     local = est.details["support_plane"]["normal"]
     assert angle_deg(local, up) > 30  # the trap is there
     assert est.method == "scene-plane" and angle_deg(est.axis, up) < 1.0

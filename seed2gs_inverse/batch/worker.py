@@ -265,7 +265,7 @@ def run_job(job: Job, output=None, attempt: int = 1) -> JobResult:
     job : Job
     output : path, optional
         Results directory; the job's folder ``output/<name>`` is written
-        atomically by :func:`~seed2gs_inverse.cli._extract.write_outputs`
+        atomically by :func:`~seed2gs_inverse.pipeline.save_extraction`
         (replacing an older one). None: nothing is written and ``q`` is
         returned in the result.
     attempt : int
@@ -297,11 +297,11 @@ def run_job(job: Job, output=None, attempt: int = 1) -> JobResult:
         res.n_views = int(len(ex.views))
         t0 = time.perf_counter()
         if output is not None:
-            from ..cli._extract import write_outputs
+            from ..pipeline import save_extraction
 
             outdir = Path(output) / job.name
-            write_outputs(ex, outdir, job.format, force=True, figure=job.figure,
-                          sections={"batch": {"job": job.name, "fingerprint": res.fingerprint}})
+            save_extraction(ex, outdir, job.format, force=True, figure=job.figure,
+                            sections={"batch": {"job": job.name, "fingerprint": res.fingerprint}})
             if job.figure:
                 import matplotlib.pyplot as plt
 

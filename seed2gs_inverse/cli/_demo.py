@@ -118,10 +118,10 @@ def run(args) -> int:
     print("seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in ex.seconds.items())
           + f"  (extract {ex.total_seconds:.2f}, demo {time.perf_counter() - t0:.2f})")
     if args.output:
-        from ._extract import write_outputs
-
         demo = {"seed": args.seed, "object": args.object, "views": args.views,
                 "size": f"{args.size[0]} {args.size[1]}", "method": args.method}
-        write_outputs(ex, args.output, force=args.force, sections={"demo": demo})
+        from ..pipeline import save_extraction
+
+        save_extraction(ex, args.output, force=args.force, sections={"demo": demo})
         print(f"wrote {args.output}/")
     return 0

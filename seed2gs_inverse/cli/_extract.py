@@ -14,18 +14,25 @@ import json
 import os
 import shlex
 import sys
-import warnings
 from pathlib import Path
 
+import numba
 import numpy as np
 
-from .._atomic import atomic_path
+from .. import __version__
 from .._memory import peak_rss_mb
+from ..camera import Camera
 from ..errors import FormatError, ValidationError
+from ..frontend.config import resolve_models
+from ..frontend.prompts import GRABCUT_SEED, TEXT_NEEDS_GROUNDER, BoxPrompt, MaskPrompt, PointPrompt, TextPrompt
+from ..io import read_camera, read_cameras, read_scene
+from ..operators import scene_fingerprint
+from ..pipeline import ExtractSettings, extract, save_extraction
+from ..pipeline.report import seed_summary
 from ._common import (DEFAULT_VIEWS, add_method_arguments, check_input_file, check_output, look_at_camera,
-                      parse_options, progress_enabled)
+                      parse_options, parse_vector, progress_enabled)
 
-__all__ = ["register", "write_outputs", "settings_from_args", "seed_summary_line"]
+__all__ = ["register", "settings_from_args", "seed_summary_line"]
 
 #: Options that set ExtractSettings (None on the command line = not given).
 _SETTING_FLAGS = {"method": "--method", "views": "--views", "orbit_scale": "--orbit-scale",
@@ -38,6 +45,7 @@ _PROMPT_FLAGS = {"mask": "--mask", "box": "--box", "point": "--point", "prompt":
 
 
 def register(subparsers) -> None:
+    """Add ``seed2gs extract`` to ``subparsers``."""
     p = subparsers.add_parser(
         "extract", help="extract one object from a 3DGS scene (Algorithm 1)",
         description="Extract the object a prompt points at in the view of one camera. Writes "
@@ -113,8 +121,6 @@ def register(subparsers) -> None:
 
 # -- prompts ---------------------------------------------------------------------------------
 def _prompt_from_args(args):
-    from ..frontend.prompts import TEXT_NEEDS_GROUNDER, BoxPrompt, MaskPrompt, PointPrompt, TextPrompt
-
     if args.negative and args.point is None:
         raise ValidationError("--negative clicks need at least one --point")
     if args.mask is not None:
@@ -145,8 +151,6 @@ def _sha256(path) -> str:
 
 def _prompt_record(prompt) -> dict:
     """JSON description of a prompt from which :func:`_prompt_from_record` rebuilds it."""
-    from ..frontend.prompts import BoxPrompt, MaskPrompt, PointPrompt
-
     if isinstance(prompt, MaskPrompt):
         path = os.path.abspath(os.fspath(prompt.mask))
         return {"kind": "mask", "path": path, "sha256": _sha256(path)}
@@ -162,8 +166,6 @@ def _prompt_record(prompt) -> dict:
 
 
 def _prompt_from_record(rec: dict, where: str):
-    from ..frontend.prompts import BoxPrompt, MaskPrompt, PointPrompt, TextPrompt
-
     kind = rec.get("kind") if isinstance(rec, dict) else None
     try:
         if kind == "mask":
@@ -185,16 +187,6 @@ def _prompt_from_record(rec: dict, where: str):
     raise FormatError(f"{where}: run.prompt has an unknown kind {kind!r}")
 
 
-def _models(path):
-    try:
-        from ..frontend.config import resolve_models
-    except ImportError:  # pragma: no cover - the ONNX front end is optional
-        if path is not None:
-            raise ValidationError("--models needs the ONNX front end (seed2gs_inverse.frontend.config)")
-        return None
-    return resolve_models(path)
-
-
 # -- outputs ---------------------------------------------------------------------------------
 def seed_summary_line(summary: dict) -> str:
     """``seed: 412 px = 38% of the object's box (28x39 px); covers 45% of the object's silhouette``."""
@@ -206,57 +198,10 @@ def seed_summary_line(summary: dict) -> str:
             f"covers {s['share_of_object']:.0%} of the object's silhouette")
 
 
-def write_outputs(extraction, outdir, fmt: str = "ply", force: bool = False, figure: bool = True,
-                  run_info: dict | None = None, sections: dict | None = None) -> Path:
-    """Write object/remainder scenes, q.npy, report.json (and report.png) into ``outdir``.
-
-    Everything goes to a temporary directory next to ``outdir`` that is
-    renamed at the end, so a failure leaves no partial output. ``run_info``
-    becomes the report's ``run`` section (what ``--from-report`` reads);
-    ``sections`` adds sections of the writer's own (``batch``: the batch job;
-    ``demo``: the demo's arguments).
-    """
-    from ..io import write_scene
-    from ..pipeline.report import seed_summary
-
-    out = check_output(outdir, "-o", directory=True, force=force, kind="extract")
-    with atomic_path(out, directory=True) as tmp:
-        outputs = {}
-        for part, subset in (("object", extraction.object_scene()), ("remainder", extraction.remainder_scene())):
-            if len(subset) == 0 and fmt == "splat":
-                # .splat has no header: an empty file could not be read back as a scene
-                warnings.warn(f"the {part} is empty (0 Gaussians): {part}.splat is not written "
-                              f"(report.json's outputs say so); q.npy and report.json are", stacklevel=2)
-                outputs[part] = None
-                continue
-            with warnings.catch_warnings(record=True) as caught:  # they name the temporary directory
-                warnings.simplefilter("always")
-                write_scene(tmp / f"{part}.{fmt}", subset)
-            for w in caught:  # ... so say them again with the user's path
-                warnings.warn(str(w.message).replace(os.fspath(tmp), os.fspath(out)), w.category, stacklevel=2)
-            outputs[part] = f"{part}.{fmt}"
-        np.save(tmp / "q.npy", np.asarray(extraction.q, np.float32), allow_pickle=False)
-        report = extraction.report()
-        report["seed"] = seed_summary(extraction)
-        report["outputs"] = {**outputs, "q": "q.npy"}
-        if run_info is not None:
-            report["run"] = run_info
-        report.update(sections or {})
-        with open(tmp / "report.json", "w") as fh:
-            json.dump(report, fh, indent=2)
-        if figure:
-            from ..pipeline.report import report_figure
-
-            report_figure(extraction).savefig(tmp / "report.png", dpi=100)
-    return out
-
-
 # -- settings --------------------------------------------------------------------------------
 def _up(text):
     if text is None or text in ("auto", "level", "camera"):
         return text
-    from ._common import parse_vector
-
     try:
         return tuple(parse_vector("--up", text).tolist())
     except ValidationError as exc:
@@ -268,8 +213,6 @@ def _up(text):
 
 def settings_from_args(args):
     """The :class:`~seed2gs_inverse.pipeline.ExtractSettings` of the command line (validated)."""
-    from ..pipeline import ExtractSettings
-
     method = args.method or "weighted_bce"
     given = {"method": method, "n_views": args.views, "orbit_scale": args.orbit_scale,
              "threshold": args.threshold, "up": _up(args.up), "point_mode": args.point_mode,
@@ -327,23 +270,23 @@ def _up_cameras(path, where: str):
     """The capture cameras of ``--cameras`` (or of a recorded run), read and validated; None without."""
     if path is None:
         return None
-    from ..io import read_cameras
-
     if not os.path.exists(path):
         raise ValidationError(f"{where} {path}: no such file")
     return read_cameras(path)
 
 
-#: Options added after reports were first written, with the value that keeps
-#: the behaviour from before them (a report without the option replays so).
+#: Options a recorded report may lack, with the value that replays such a
+#: report as it ran (the option off).
 _ADDED_OPTIONS = {"seed_connected": False, "support_background": False}
 
 
 def _recorded_settings(rep: dict, progress: bool):
-    """The settings of a recorded run as it ran: options the report predates are off, and solver
-    options whose defaults changed since (``resolved.solver_options``) are pinned."""
-    from ..pipeline import ExtractSettings
+    """The settings of a recorded run as it ran.
 
+    Options the report lacks take their :data:`_ADDED_OPTIONS` value, and
+    solver options that differ from today's defaults are pinned to the
+    recorded ``resolved.solver_options``.
+    """
     settings = ExtractSettings.from_dict({**_ADDED_OPTIONS, **rep["settings"], "progress": progress})
     ran = (rep.get("resolved") or {}).get("solver_options")
     now = {k: v for k, v in settings.solver_kwargs().items() if isinstance(v, (int, float, str, bool))}
@@ -354,8 +297,6 @@ def _recorded_settings(rep: dict, progress: bool):
 
 def _from_report(args):
     """(scene path, camera, camera spec, prompt, settings, models path, format, run) of a recorded run."""
-    from ..camera import Camera
-
     given = [flag for name, flag in {**_SETTING_FLAGS, **_PROMPT_FLAGS}.items()
              if getattr(args, name, None) not in (None, [], False)]
     if given:
@@ -396,12 +337,7 @@ def _reference_camera(args):
 
 
 def run(args) -> int:
-    from .. import __version__
-    from ..frontend.prompts import GRABCUT_SEED
-    from ..io import read_camera, read_scene
-    from ..operators import scene_fingerprint
-    from ..pipeline import extract
-
+    """``seed2gs extract``: read the inputs, run :func:`~seed2gs_inverse.pipeline.extract`, write OUTDIR."""
     # Everything cheap first: outputs, settings, inputs; the expensive work last.
     out = check_output(args.output, "-o", directory=True, force=args.force, kind="extract")
     recorded = None
@@ -421,14 +357,10 @@ def run(args) -> int:
             camera = read_camera(args.camera)
     cameras_path = args.cameras if recorded is None else (recorded.get("up_cameras") or {}).get("path")
     up_cameras = _up_cameras(cameras_path, "--cameras" if recorded is None else "run.up_cameras:")
-    models = _models(models_path)
+    models = resolve_models(models_path)
     grounder = models.grounder() if models is not None else None
     tracker = models.tracker() if models is not None else None
-    from ..frontend.prompts import TextPrompt
-
     if grounder is None and isinstance(prompt, TextPrompt):
-        from ..frontend.prompts import TEXT_NEEDS_GROUNDER
-
         raise ValidationError(TEXT_NEEDS_GROUNDER)
     scene_sha = _sha256(scene_path)
     scene = read_scene(scene_path)
@@ -458,9 +390,7 @@ def run(args) -> int:
         "numba_threads": _numba_threads(),
         "peak_rss_mb": peak_rss_mb(),  # of this process: reading the scene and the extraction
     }
-    write_outputs(ex, out, fmt, force=args.force, run_info=run_info)
-    from ..pipeline.report import seed_summary
-
+    save_extraction(ex, out, fmt, force=args.force, run_info=run_info)
     s = ex.seconds
     print(f"extracted {int(ex.selected.sum())} of {len(scene)} Gaussians -> {out}/object.{fmt} "
           f"({len(ex.views)} views, {ex.total_seconds:.1f} s: "
@@ -477,8 +407,6 @@ def run(args) -> int:
 
 def _numba_threads():
     try:
-        import numba
-
         return int(numba.get_num_threads())
     except Exception:  # pragma: no cover - numba is a dependency; report what we can
         return None

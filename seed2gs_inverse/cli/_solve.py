@@ -22,7 +22,7 @@ from ..errors import ValidationError
 from ..io import read_masks
 from ..io._common import load_npy
 from ..operators import OperatorStack
-from ..pipeline.extract import _Progress
+from ..progress import Progress as _Progress
 from ..solvers import available_methods, solve
 from ..solvers._common import prior_from_init
 from ._common import SolveBar, add_method_arguments, check_output, parse_options, progress_enabled

@@ -4,6 +4,17 @@ A ``Grounder`` turns a reference image and a prompt into candidate masks; a
 ``Tracker`` propagates the seed mask along a rendered clip. Implementations
 are either model-free (OpenCV and the known geometry of rendered views) or run
 user-supplied ONNX files; nothing downloads weights.
+
+A tracker may offer more than ``track``; the pipeline asks for each of these
+through this module, never by the tracker's class:
+
+* ``wants_regularizer`` (bool attribute, default False,
+  :func:`wants_regularizer`): the tracker leaves what it cannot decide
+  unknown and counts on the solve's graph regulariser;
+* :class:`SupportPlaneTracker`: it can label the support surface under the
+  object as background (``support_plane``, ``with_support_plane``);
+* :class:`LabelFiller`: it can decide the unknown pixels of one labelled
+  frame from the frame's image (``fill_labels``).
 """
 
 from __future__ import annotations
@@ -13,7 +24,7 @@ from typing import Any, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
-__all__ = ["Candidate", "Detection", "Grounder", "Tracker"]
+__all__ = ["Candidate", "Detection", "Grounder", "Tracker", "SupportPlaneTracker", "LabelFiller", "wants_regularizer"]
 
 
 @dataclass
@@ -77,8 +88,54 @@ class Tracker(Protocol):
     (the pipeline passes the tracked flat clip when it tracks the spiral, and
     always passes the argument): a tracker may use them as extra sources or
     ignore them, but must accept the argument.
+
+    Optional: a class attribute ``wants_regularizer = True`` declares that
+    the tracker leaves surfaces it cannot decide unknown (NaN) and relies on
+    the graph-Laplacian regulariser of the solve to decide the Gaussians only
+    those pixels see: ``ExtractSettings(smoothness=None)`` then resolves to
+    :data:`~seed2gs_inverse.pipeline.settings.MODEL_FREE_SMOOTHNESS`, and to
+    0 for a tracker without it (:func:`wants_regularizer`).
     """
 
     def track(self, frames: Sequence[Any], seed_mask: np.ndarray,
               references: Sequence[tuple[Any, np.ndarray]] = ()) -> list[np.ndarray]:
         ...
+
+
+@runtime_checkable
+class SupportPlaneTracker(Protocol):
+    """A tracker that labels the support band under the object as background.
+
+    ``support_plane`` is ``(normal, point)``, the band
+    :math:`\\{x : n \\cdot (x - x_s) \\le 0\\}`, or None when the tracker has
+    none; ``with_support_plane(normal, point)`` returns a copy of the
+    tracker that uses that band (the tracker itself is left as it is). The
+    pipeline hands such a tracker the support surface it finds under the
+    object (:func:`~seed2gs_inverse.pipeline.stages.support_band`) unless it
+    has a plane of its own.
+    """
+
+    support_plane: Any
+
+    def with_support_plane(self, normal: np.ndarray, point: np.ndarray) -> Tracker:
+        ...
+
+
+@runtime_checkable
+class LabelFiller(Protocol):
+    """Decides the unknown pixels of one frame's labels from the frame's image.
+
+    ``fill_labels(rgb, depth, labels)`` takes the frame's ``rgb`` (H, W, 3)
+    and ``depth`` (H, W) and its ``labels`` (H, W) float (NaN = unknown) and
+    returns new (H, W) labels, NaN where it cannot decide. The pipeline calls
+    it on the masks that 3D label completion leaves partly unknown
+    (:func:`~seed2gs_inverse.pipeline.stages.complete_masks`).
+    """
+
+    def fill_labels(self, rgb: np.ndarray, depth: np.ndarray, labels: np.ndarray) -> np.ndarray:
+        ...
+
+
+def wants_regularizer(tracker: Any) -> bool:
+    """Whether ``tracker`` declares ``wants_regularizer`` (see :class:`Tracker`); False when it does not."""
+    return bool(getattr(tracker, "wants_regularizer", False))

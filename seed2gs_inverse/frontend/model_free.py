@@ -18,13 +18,13 @@ For frame ``k`` and each pixel ``p`` with rendered alpha above ``alpha_min``:
    something else is in front, ``X`` was occluded in ``j``; the 2x2 range
    keeps oblique surfaces, whose depth changes a lot within a pixel, and is
    not used across silhouettes, where it would span foreground and
-   background), and
-   the colours of ``p`` and ``p'`` agree within ``color_tol`` (surfaces that
-   meet at equal depth, like an object standing on the ground, differ in
-   colour);
+   background), and the colours of ``p`` and ``p'`` agree within
+   ``color_tol`` (surfaces that meet at equal depth, like an object standing
+   on the ground, differ in colour);
 3. the label is copied from the first source that sees ``X`` and has a
-   label there that is not within ``boundary_band`` pixels of a 0/1 edge, trying the seed frame 0 first (no drift where the reference saw
-   the surface), then the already labelled views nearest to frame ``k``
+   label there that is not within ``boundary_band`` pixels of a 0/1 edge,
+   trying the seed frame 0 first (no drift where the reference saw the
+   surface), then the already labelled views nearest to frame ``k``
    (earlier frames of the clip, plus labelled ``references`` such as the
    flat clip when the spiral is tracked): a surface hidden for a few frames
    behind an occluder gets its label back from a view that saw it.
@@ -73,11 +73,11 @@ support :math:`\sum_q k c \ge` ``min_support`` (relative to the kernel mass);
 otherwise it stays NaN (unknown): the tracker does not guess.
 
 **More passes of the fill (``fill_passes``, default 1).** A second pass runs
-the filter again on the labels the first pass decided (same kernel, :math:`y^{(t+1)}` = the decision
-rule applied to :math:`\hat y[y^{(t)}]` on the pixels still unknown): pixels
-whose support was too small or too mixed in the first pass are decided from
-their newly decided neighbours. More passes spread labels further from any
-evidence (3 passes scored lower on benchmarks/bench_extract.py than 2).
+the filter again on the labels the first pass decided (same kernel,
+:math:`y^{(t+1)}` = the decision rule applied to :math:`\hat y[y^{(t)}]` on
+the pixels still unknown): pixels whose support was too small or too mixed
+in the first pass are decided from their newly decided neighbours. More passes spread labels further from any
+evidence; the default of one pass was chosen on benchmarks/bench_extract.py.
 
 **Observed labels and fill decisions (``refill``).** A label is *observed*
 when it comes from the seed through a chain of warps (steps 1-3), and *filled*
@@ -101,7 +101,7 @@ decisions: a copied fill decision that the view's own observations
 contradict is overridden, one they leave undecided keeps its label. The
 second pass (use ``fill_passes=2`` with it: one pass alone leaves too much
 undecided) then runs on every label so decided, so revealed surfaces far
-from any observation (the far side of a plush) still grow band by band
+from any observation (an object's far side) still grow band by band
 around the orbit. Without ``refill`` copied fill decisions count as
 observed. The tracker remembers which labels of the
 masks it returned were filled (per frame, by weak reference), so the flat
@@ -111,19 +111,25 @@ spiral; other references count as observed.
 
 from __future__ import annotations
 
+import copy
 import numbers
 import weakref
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
+import cv2
 import numpy as np
 
+from .._validation import check_real
 from ..errors import ValidationError
 from ..geometry import unit_vector
+
+if TYPE_CHECKING:
+    from ..camera import Camera
 
 __all__ = ["GeometricTracker", "warp_labels"]
 
 
-def _pixel_rays(camera) -> np.ndarray:
+def _pixel_rays(camera: Camera) -> np.ndarray:
     """Camera-frame rays (H, W, 3) with z = 1 through the pixel centres."""
     h, w = camera.image_shape
     x = (np.arange(w) + 0.5 - camera.cx) / camera.fx
@@ -135,7 +141,7 @@ def _pixel_rays(camera) -> np.ndarray:
     return rays
 
 
-def _world_points(camera, depth: np.ndarray, where=None) -> np.ndarray:
+def _world_points(camera: Camera, depth: np.ndarray, where: np.ndarray | None = None) -> np.ndarray:
     """World points of the pixels (all (H, W, 3), or (M, 3) at the bool mask ``where``) at rendered ``depth``."""
     pc = _pixel_rays(camera)
     d = np.asarray(depth, np.float64)
@@ -158,8 +164,6 @@ def _on_support(frame, normal: np.ndarray, point: np.ndarray, alignment: float) 
 
 def _core(labels: np.ndarray, band: int) -> np.ndarray:
     """Labels with a band of ``band`` px on each side of every 0/1 boundary set to NaN."""
-    import cv2
-
     if band <= 0:
         return labels
     k = np.ones((2 * band + 1, 2 * band + 1), np.uint8)
@@ -253,33 +257,38 @@ def warp_labels(dst, src, src_labels: np.ndarray, *, alpha_min: float = 0.5,
 
 
 class GeometricTracker:
-    """Model-free :class:`~seed2gs_inverse.frontend.base.Tracker` for rendered clips.
+    r"""Model-free :class:`~seed2gs_inverse.frontend.base.Tracker` for rendered clips.
+
+    It also takes a support plane
+    (:class:`~seed2gs_inverse.frontend.base.SupportPlaneTracker`), fills
+    one frame's unknown labels on request
+    (:class:`~seed2gs_inverse.frontend.base.LabelFiller`) and declares
+    ``wants_regularizer``: pixels it cannot decide stay unknown (NaN), for
+    the graph regulariser of the solve to decide.
 
     Parameters
     ----------
     alpha_min : float
-        Rendered alpha below which a pixel is empty space (label 0).
+        Rendered alpha below which a pixel is empty space (label 0), in (0, 1).
     depth_tol : float
-        Relative z-test tolerance of the warp (1 % of depth).
+        Relative z-test tolerance of the warp (1 % of depth), > 0.
     fill : bool
         Decide pixels no source sees with the edge-aware filter.
     fill_radius : float
-        Spatial sigma of the filter as a fraction of the image diagonal.
+        Spatial sigma of the filter as a fraction of the image diagonal, > 0.
     fill_sigma_color : float
-        Colour sigma of the filter (RGB in [0, 1]).
+        Colour sigma of the filter (RGB in [0, 1]), > 0.
     fill_depth_jump : float
         Relative depth step that the filter weighs like a colour step of
         ``fill_sigma_color`` (3 %): labels do not spread across silhouettes.
     decisive : float
-        ``delta``: a revealed pixel is labelled only when the filtered value
-        is within ``delta`` of 0 or 1. A stricter fill (0.01-0.05) leaves
-        more to the 3D graph regulariser of
-        :func:`~seed2gs_inverse.pipeline.extract.extract`; measured on
-        benchmarks/bench_extract.py it helps some cases and hurts others
-        (firepit-unicorn-29 0.949 -> 0.926, yard-plush-35 0.979 -> 0.944 at
-        0.05), so 0.2 stays the default.
+        :math:`\delta` in [0, 0.5): a revealed pixel is labelled only when the
+        filtered value is within :math:`\delta` of 0 or 1. A stricter fill
+        leaves more to the 3D graph regulariser of
+        :func:`~seed2gs_inverse.pipeline.extract.extract`; 0.2 was chosen on
+        benchmarks/bench_extract.py.
     min_support : float
-        Minimum normalised weight of decided pixels around a revealed pixel.
+        Minimum normalised weight of decided pixels around a revealed pixel, in [0, 1).
     boundary_band : int
         Source labels within this many pixels of a 0/1 boundary are not
         copied (treated as unknown): a source boundary is only accurate to a
@@ -298,76 +307,61 @@ class GeometricTracker:
     refill : bool
         The first fill pass of each view uses its observed labels only and
         re-decides the fill decisions copied from other views (module
-        docstring): fill errors at contact lines no longer drift around the
+        docstring), so fill errors at contact lines do not drift around the
         orbit. Use with ``fill_passes=2``. False (default): copied fill
-        decisions count as observed.
+        decisions count as observed; the support rule (``support_plane``)
+        stops the errors at contact lines that refill addresses, and the
+        default was chosen on benchmarks/bench_extract.py.
     support_plane : (normal, point) or None
-        The support band :math:`n \\cdot (x - x_s) \\le 0` under the object
+        The support band :math:`n \cdot (x - x_s) \le 0` under the object
         (module docstring): its pixels that face along ``normal`` are
         labelled 0 in every frame but the seed's. None (default): no such
-        rule. :func:`~seed2gs_inverse.pipeline.extract` passes the band of
-        :func:`~seed2gs_inverse.pipeline.support.support_surface` to the
-        model-free tracker (``ExtractSettings.support_background``).
+        rule. :func:`~seed2gs_inverse.pipeline.extract.extract` passes the
+        band of :func:`~seed2gs_inverse.pipeline.support.support_surface`
+        to a tracker without one (``ExtractSettings.support_background``).
     support_alignment : float
-        :math:`|n \\cdot \\nu|` a support pixel needs, in (0, 1] (0.8: the
+        :math:`|n \cdot \nu|` a support pixel needs, in (0, 1] (0.8: the
         surface within about 37 degrees of level).
     fill_passes : int
-        Passes of the fill per view (module docstring), >= 1.
-        Measured on benchmarks/bench_extract.py (13 cases, mean held-out
-        mIoU / mBIoU) with the defaults of ``extract`` when the support
-        rule landed (``min_weight`` 0.01, weighted_bce ``max_iter`` 30):
-        1 pass without refill 0.973 / 0.913 (load 1.2-1.4); ``refill=True,
-        fill_passes=2`` scored a little lower on both, with the same worst
-        case. Before the support rule refill won (CHANGELOG, issue 10):
-        it was the first remedy for the errors at contact lines that the
-        support rule now stops; it also loses on a back view of the plush
-        scene of tests/test_unseen_surfaces.py (below its 0.9 bound).
+        Passes of the fill per view (module docstring), >= 1; one pass
+        without ``refill`` was chosen on benchmarks/bench_extract.py.
+
+    Raises
+    ------
+    ValidationError
+        Any parameter out of its range.
     """
+
+    #: Pixels no view decides stay NaN: the solve's graph regulariser decides them
+    #: (:func:`~seed2gs_inverse.frontend.base.wants_regularizer`).
+    wants_regularizer = True
 
     def __init__(self, alpha_min: float = 0.5, depth_tol: float = 0.01, fill: bool = True,
                  fill_radius: float = 0.1, fill_sigma_color: float = 0.15, decisive: float = 0.2,
                  min_support: float = 0.02, max_sources: int = 4, boundary_band: int = 0,
                  color_tol: float | None = 0.15, fill_depth_jump: float = 0.03, refill: bool = False,
                  fill_passes: int = 1, support_plane=None, support_alignment: float = 0.8):
-        if not 0 < alpha_min < 1:
-            raise ValidationError(f"alpha_min must be in (0, 1), got {alpha_min!r}")
-        if not depth_tol > 0:
-            raise ValidationError(f"depth_tol must be positive, got {depth_tol!r}")
-        if not 0 <= decisive < 0.5:
-            raise ValidationError(f"decisive must be in [0, 0.5), got {decisive!r}")
-        # NaN fails every comparison below: it is refused like any other value out of range (a NaN
-        # fill radius or support used to switch the fill off without a word).
-        for name, v in (("fill_radius", fill_radius), ("fill_sigma_color", fill_sigma_color)):
-            if not (isinstance(v, numbers.Real) and 0 < v < np.inf):
-                raise ValidationError(f"{name} must be a positive number, got {v!r}")
-        if not (isinstance(min_support, numbers.Real) and 0 <= min_support < 1):
-            raise ValidationError(f"min_support must be in [0, 1), got {min_support!r}")
-        if color_tol is not None and not (isinstance(color_tol, numbers.Real) and 0 <= color_tol < np.inf):
-            raise ValidationError(f"color_tol must be a number >= 0 or None, got {color_tol!r}")
+        # NaN fails every range check: it is refused like any other value out of range.
+        self.alpha_min = check_real("alpha_min", alpha_min, lo=0, hi=1, lo_open=True, hi_open=True)
+        self.depth_tol = check_real("depth_tol", depth_tol, lo=0, lo_open=True)
+        self.decisive = check_real("decisive", decisive, lo=0, hi=0.5, hi_open=True)
+        self.fill_radius = check_real("fill_radius", fill_radius, lo=0, lo_open=True)
+        self.fill_sigma_color = check_real("fill_sigma_color", fill_sigma_color, lo=0, lo_open=True)
+        self.min_support = check_real("min_support", min_support, lo=0, hi=1, hi_open=True)
+        self.color_tol = check_real("color_tol", color_tol, lo=0, optional=True)
         for name, v, lo in (("max_sources", max_sources, 1), ("boundary_band", boundary_band, 0)):
             if (isinstance(v, bool) or not isinstance(v, numbers.Real) or not float(v).is_integer()
-                    or v < lo):  # 3.0 is 3; 2.5 was truncated to 2, a negative band clamped to 0
+                    or v < lo):  # 3.0 is 3; 2.5 is refused, not truncated, and a negative band too
                 raise ValidationError(f"{name} must be a whole number >= {lo}, got {v!r}")
-        self.alpha_min = float(alpha_min)
-        self.depth_tol = float(depth_tol)
-        self.fill = bool(fill)
-        self.fill_radius = float(fill_radius)
-        self.fill_sigma_color = float(fill_sigma_color)
-        self.decisive = float(decisive)
-        self.min_support = float(min_support)
         self.max_sources = int(max_sources)
         self.boundary_band = int(boundary_band)
-        self.color_tol = None if color_tol is None else float(color_tol)
-        if not fill_depth_jump > 0:
-            raise ValidationError(f"fill_depth_jump must be positive, got {fill_depth_jump!r}")
-        self.fill_depth_jump = float(fill_depth_jump)
-        self.refill = bool(refill)
+        self.fill_depth_jump = check_real("fill_depth_jump", fill_depth_jump, lo=0, lo_open=True)
         if isinstance(fill_passes, bool) or int(fill_passes) != fill_passes or fill_passes < 1:
             raise ValidationError(f"fill_passes must be an integer >= 1, got {fill_passes!r}")
         self.fill_passes = int(fill_passes)
-        if not 0 < support_alignment <= 1:
-            raise ValidationError(f"support_alignment must be in (0, 1], got {support_alignment!r}")
-        self.support_alignment = float(support_alignment)
+        self.support_alignment = check_real("support_alignment", support_alignment, lo=0, hi=1, lo_open=True)
+        self.fill = bool(fill)
+        self.refill = bool(refill)
         self.support_plane = self._plane(support_plane)
         # id(frame) -> (weak reference to the frame, (H, W) bool: label filled,
         # not observed) for the masks this tracker returned (module docstring).
@@ -478,8 +472,6 @@ class GeometricTracker:
 
     def with_support_plane(self, normal, point) -> "GeometricTracker":
         """A copy of this tracker with ``support_plane=(normal, point)`` (this one is left as it is)."""
-        import copy
-
         out = copy.copy(self)
         out.support_plane = self._plane((normal, point))
         out._filled = {}
@@ -546,9 +538,7 @@ class GeometricTracker:
         return lab
 
     def _filter(self, rgb: np.ndarray, depth: np.ndarray):
-        """The frame's edge-aware filter (built once per frame, used by both passes)."""
-        import cv2
-
+        """The frame's edge-aware filter (built once per frame, used by every pass)."""
         h, w = depth.shape
         sigma_s = max(1.0, self.fill_radius * float(np.hypot(h, w)))
         # Guide: RGB plus log-depth scaled so that a relative depth jump of

@@ -8,7 +8,18 @@ both, so a partial seed is seen at once.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+import cv2
 import numpy as np
+
+from ..raster import render
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
+
+    from .extraction import Extraction
 
 __all__ = ["report_figure", "seed_summary"]
 
@@ -36,12 +47,10 @@ def _box(mask):
     return int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1
 
 
-def _object_rendering(ex):
+def _object_rendering(ex: Extraction) -> tuple:
     """The selected Gaussians rendered alone from the reference camera (cached on the extraction)."""
     cached = getattr(ex, "_object_rendering", None)
     if cached is None:
-        from ..raster import render
-
         cam = ex.reference_camera
         obj = ex.object_scene()
         if len(obj):
@@ -53,7 +62,7 @@ def _object_rendering(ex):
     return cached
 
 
-def seed_summary(extraction) -> dict:
+def seed_summary(extraction: Extraction) -> dict:
     """How large the seed ``m*`` is next to the extracted object, in the reference view.
 
     The object's silhouette is where the selected Gaussians, rendered alone
@@ -118,20 +127,18 @@ def _orbit_window(camera, center, radius, scale=2.0):
 
 
 def _square(img, size=200):
-    import cv2
-
     return cv2.resize(np.ascontiguousarray(img, np.float32), (size, size), interpolation=cv2.INTER_AREA
                       if img.shape[0] > size else cv2.INTER_LINEAR)
 
 
-def _rect(ax, box, color, ls="-"):
+def _rect(ax: Axes, box, color, ls="-"):
     from matplotlib.patches import Rectangle
 
     x0, y0, x1, y1 = box
     ax.add_patch(Rectangle((x0 - 0.5, y0 - 0.5), x1 - x0, y1 - y0, fill=False, ec=color, lw=1.2, ls=ls))
 
 
-def report_figure(extraction, n_strip: int = 8):
+def report_figure(extraction: Extraction, n_strip: int = 8) -> Figure:
     """Figure: the seed on the reference, the object alone (cropped to it), the remainder, orbit views.
 
     Row 1 (large panels): the reference canvas ``I_r`` with the seed ``m*``
@@ -147,8 +154,6 @@ def report_figure(extraction, n_strip: int = 8):
     """
     from matplotlib.figure import Figure
     from matplotlib.gridspec import GridSpec
-
-    from ..raster import render
 
     ex = extraction
     cam = ex.reference_camera

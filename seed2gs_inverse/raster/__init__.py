@@ -14,5 +14,6 @@ from .cull import cone_cull
 from .frozen import FrozenScene
 from .project import MODES, Projection, project_gaussians
 from .rasterize import build_operator, render
+from .renderer import Renderer  # many views of one frozen scene (the pipeline's); not in __all__
 
 __all__ = ["render", "build_operator", "project_gaussians", "Projection", "cone_cull", "FrozenScene", "MODES"]

@@ -1,0 +1,600 @@
+"""The stages of Algorithm 1, each a function with explicit inputs and outputs, and their records.
+
+:func:`~seed2gs_inverse.pipeline.extract.extract` runs them in this order;
+each can be run, tested and timed on its own::
+
+    render_reference   reference canvas I_r                       -> Rendering
+    seed_from_prompt   seed mask m* (prompt / grounder; a point
+                       prompt grows to the whole object in 3D)     -> (seed, prompt_info)
+    reference_view     W(c_r) around the seed, at the lift size    -> ReferenceView
+    lift_seed          seed lift (G0, o, extent)                   -> SeedLift
+    orbit_views        orbit axis (orbit_axis: support plane, ...)
+                       then VAAS: flat orbit + visibility-adaptive
+                       ascending spiral, each frame with its W(c)  -> OrbitViews
+    support_band       the support surface under the object, for
+                       a tracker that takes a support plane        -> (SupportSurface or None, report)
+    track_clips        the tracker propagates m* over both clips   -> list of (ClipFrame, mask)
+    evidence_graph     Gaussian kNN graph around the object (when
+                       smoothness > 0 or completion is on)         -> sparse (N, N) or None
+    complete_masks     3D label completion of the unknown pixels
+                       (completion="reference" / "tracked")        -> list of masks
+    stack_operators    the supervision views' operators            -> OperatorStack
+    solve_selection    solver (initialised from G0, graph-Laplacian
+                       regulariser when smoothness > 0) + threshold,
+                       kept where connected to G0 in 3D             -> Selection
+
+The trackers are reached only through the protocols of
+:mod:`seed2gs_inverse.frontend.base` (``Tracker``, and the optional
+``SupportPlaneTracker`` and ``LabelFiller``).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Sequence
+
+import cv2
+import numpy as np
+
+from ..errors import ValidationError
+from ..frontend.base import SupportPlaneTracker
+from ..frontend.prompts import PointPrompt, seed_mask_from_prompt
+from ..operators import OperatorStack, as_stack, scene_fingerprint
+from ..solvers import solve
+from ..solvers._common import normalize_mask
+from .completion import GRAPH_DEFAULTS, complete_membership, fill_unknown, object_graph, tracked_membership
+from .point_object import point_object_mask
+from .islands import seed_connected
+from .seed_lift import seed_lift
+from .support import SUPPORT_DEFAULTS, support_surface
+from .up_axis import WEAK_CONFIDENCE, camera_list, estimate_up, estimate_up_axis
+from .vaas import ClipFrame, run_vaas
+
+if TYPE_CHECKING:
+    import scipy.sparse as sp
+
+    from ..camera import Camera
+    from ..frontend.base import LabelFiller, Tracker
+    from ..operators import Rendering, ViewOperator
+    from ..progress import Progress
+    from ..raster import Renderer
+    from ..scene import GaussianScene
+    from ..solvers import SolveResult
+    from .seed_lift import SeedLift
+    from .settings import ExtractSettings
+    from .support import SupportSurface
+    from .vaas import VAASPlan
+
+__all__ = ["ReferenceView", "OrbitViews", "Selection", "render_reference", "seed_from_prompt", "reference_view",
+           "lift_seed", "orbit_axis", "orbit_views", "support_band", "track_clips", "evidence_graph",
+           "complete_masks", "stack_operators", "solve_selection"]
+
+
+# -- stage records ------------------------------------------------------------------------------
+@dataclass
+class ReferenceView:
+    """The reference view at the lift resolution: frame 0 of both clips and the first supervision view.
+
+    Attributes
+    ----------
+    camera : Camera
+        ``c_r`` scaled by ``scale`` (the camera itself when ``scale == 1``).
+    scale : float
+        Reference resolution relative to the camera (``max_reference_pixels`` cap).
+    seed : (h, w) bool
+        ``m*`` at that resolution.
+    operator : ViewOperator
+        ``W(c_r)`` composited in a box around the seed, with its rendering.
+    """
+
+    camera: Camera
+    scale: float
+    seed: np.ndarray
+    operator: ViewOperator
+
+
+@dataclass
+class OrbitViews:
+    """The VAAS clips, rendered: every frame carries its operator (``frame.operator``).
+
+    Attributes
+    ----------
+    plan : VAASPlan
+    flat, spiral : list of ClipFrame
+        ``spiral`` is empty when the spiral is skipped. Frame 0 of each clip
+        is the reference view (:class:`ReferenceView`).
+    view_scale : float
+        Orbit view resolution relative to the camera.
+    up : (3,) float64
+        The orbit axis used.
+    up_info : dict
+        :func:`orbit_axis`'s report: ``axis``, ``method``, ``confidence``, ``details``.
+    """
+
+    plan: VAASPlan
+    flat: list
+    spiral: list
+    view_scale: float
+    up: np.ndarray
+    up_info: dict = field(default_factory=dict)
+
+    def clips(self) -> list:
+        """``[("flat", frames), ("spiral", frames)]`` (no spiral entry when it was skipped)."""
+        return [("flat", self.flat)] + ([("spiral", self.spiral)] if self.spiral else [])
+
+
+@dataclass
+class Selection:
+    """The solve: its ``result``, the threshold tau and the selection.
+
+    Attributes
+    ----------
+    result : SolveResult
+        The solver's result; its ``q`` already carries the ``min_evidence``
+        reset or the regulariser.
+    q : (N,) float32
+        ``result.q``, set to 0 on the ``n_disconnected`` Gaussians of islands
+        apart from G0 (with ``settings.seed_connected``).
+    threshold : float
+        tau.
+    selected : (N,) bool
+        ``q > tau``.
+    n_disconnected : int
+        Gaussians above tau in islands apart from G0, set to 0.
+    """
+
+    result: SolveResult
+    q: np.ndarray
+    threshold: float
+    selected: np.ndarray
+    n_disconnected: int = 0
+
+    @property
+    def n_weak_evidence(self) -> int:
+        """Gaussians without real evidence (reset to the prior or decided by the regulariser)."""
+        return int(self.result.info.get("n_weak_evidence", 0))
+
+
+# -- pixel boxes and resolutions ----------------------------------------------------------------
+def _resize_mask(mask: np.ndarray, shape: tuple) -> np.ndarray:
+    """Area-average a boolean mask to ``shape`` (H, W) and threshold at 0.5."""
+    h, w = shape
+    if mask.shape == (h, w):
+        return mask.astype(bool)
+    m = cv2.resize(mask.astype(np.float32), (w, h), interpolation=cv2.INTER_AREA)
+    return m > 0.5
+
+
+def _view_scale(camera: Camera, scale: float, max_pixels: int | None) -> float:
+    """``scale``, lowered so that ``camera.scaled(scale)`` has about ``max_pixels`` pixels (None: no cap).
+
+    ``Camera.scaled`` rounds each side to whole pixels, so the count may pass
+    ``max_pixels`` by up to a row and a column. Both are validated by
+    :class:`~seed2gs_inverse.pipeline.settings.ExtractSettings`.
+    """
+    s = float(scale)
+    if max_pixels is not None:
+        s = min(s, np.sqrt(int(max_pixels) / (camera.width * camera.height)))
+    return s
+
+
+def _mask_roi(mask: np.ndarray, margin: float = 0.25, pad: int = 8) -> tuple:
+    """Box (x0, y0, x1, y1) around a mask, grown by ``margin`` of its size plus ``pad`` px."""
+    ys, xs = np.nonzero(mask)
+    h, w = mask.shape
+    mx = int(margin * (xs.max() - xs.min() + 1)) + pad
+    my = int(margin * (ys.max() - ys.min() + 1)) + pad
+    return (max(int(xs.min()) - mx, 0), max(int(ys.min()) - my, 0),
+            min(int(xs.max()) + 1 + mx, w), min(int(ys.max()) + 1 + my, h))
+
+
+def _roi_box(camera: Camera, center: np.ndarray, radius: float, margin: float | None) -> tuple | None:
+    """Pixel box (x0, y0, x1, y1) holding the projection of the sphere (center, margin * radius).
+
+    The sphere is sampled densely (400 points) and the box grown by 2 px;
+    None (the whole image) when ``margin`` is None or the camera is inside
+    or near the sphere.
+    """
+    if margin is None:
+        return None
+    r = float(margin) * float(radius)
+    c = np.asarray(center, dtype=np.float64)
+    if camera.world_to_view(c[None])[0, 2] - r <= camera.near:
+        return None
+    k = np.arange(400) + 0.5
+    phi = np.arccos(1 - 2 * k / 400)
+    th = np.pi * (1 + 5 ** 0.5) * k
+    pts = c + r * np.stack([np.cos(th) * np.sin(phi), np.sin(th) * np.sin(phi), np.cos(phi)], 1)
+    uv, _ = camera.project(pts)
+    x0 = int(np.clip(np.floor(uv[:, 0].min()) - 2, 0, camera.width))
+    x1 = int(np.clip(np.ceil(uv[:, 0].max()) + 2, 0, camera.width))
+    y0 = int(np.clip(np.floor(uv[:, 1].min()) - 2, 0, camera.height))
+    y1 = int(np.clip(np.ceil(uv[:, 1].max()) + 2, 0, camera.height))
+    if x1 <= x0 or y1 <= y0:
+        return (0, 0, 1, 1)
+    return (x0, y0, x1, y1)
+
+
+# -- the stages ---------------------------------------------------------------------------------
+def render_reference(renderer: Renderer, camera: Camera) -> Rendering:
+    """Stage 1: the reference canvas ``I_r`` (the full-resolution rendering of ``camera``).
+
+    Raises
+    ------
+    ValidationError
+        The camera sees (almost) nothing: max alpha < 0.05.
+    """
+    ref = renderer.render(camera)
+    if float(ref.alpha.max()) < 0.05:
+        raise ValidationError(
+            f"the reference camera sees nothing of the scene (max rendered alpha "
+            f"{float(ref.alpha.max()):.3g}); check the camera pose and the scene's coordinates")
+    return ref
+
+
+def seed_from_prompt(prompt: Any, reference: Rendering, grounder=None, *, point_mode: str = "region",
+                     scene: GaussianScene | None = None, camera: Camera | None = None,
+                     mode: str = "classic") -> tuple[np.ndarray, dict]:
+    """Stage 2: the seed mask ``m*`` (H, W) bool of ``prompt`` on the reference canvas, and the prompt info.
+
+    See :func:`~seed2gs_inverse.frontend.prompts.seed_mask_from_prompt`; text
+    prompts need ``grounder``. With ``point_mode="object"`` a
+    :class:`~seed2gs_inverse.frontend.prompts.PointPrompt` returns the whole
+    clicked object instead of its colour region: the region is lifted,
+    grown in 3D down to the support plane and projected back
+    (:func:`~seed2gs_inverse.pipeline.point_object.point_object_mask`, which
+    needs the ``scene``, the reference ``camera`` and the rasterization
+    ``mode``); ``prompt_info`` then carries its growth facts.
+
+    Raises
+    ------
+    ValidationError
+        The seed covers only empty space (rendered alpha <= 0.05), or
+        ``point_mode`` is not ``"object"`` or ``"region"``.
+    """
+    if point_mode == "object" and isinstance(prompt, PointPrompt):
+        if scene is None or camera is None:
+            raise ValidationError("seed_from_prompt: point_mode='object' needs the scene and the reference camera")
+        po = point_object_mask(scene, camera, prompt.points, prompt.labels, rendering=reference, mode=mode,
+                               region=prompt)
+        seed, info = po.mask, po.info
+    elif point_mode not in ("object", "region"):
+        raise ValidationError(f"point_mode must be 'object' or 'region', got {point_mode!r}")
+    else:
+        seed, info = seed_mask_from_prompt(prompt, reference.rgb, depth=reference.depth, alpha=reference.alpha,
+                                           grounder=grounder)
+    if not (seed & (reference.alpha > 0.05)).any():
+        raise ValidationError("the seed mask covers only empty space in the reference view: "
+                              "it does not touch the scene")
+    return seed, info
+
+
+def reference_view(renderer: Renderer, camera: Camera, seed: np.ndarray,
+                   max_reference_pixels: int | None) -> ReferenceView:
+    """Stage 3: ``W(c_r)`` at the camera's resolution capped at ``max_reference_pixels``.
+
+    The seed is area-averaged to that resolution (threshold 0.5) and the
+    operator composited only in its box grown by a quarter of its size plus
+    8 px (:func:`_mask_roi`): the lift needs no more, and the same operator
+    is frame 0 of both clips.
+
+    Raises
+    ------
+    ValidationError
+        The seed vanishes at that resolution.
+    """
+    scale = _view_scale(camera, 1.0, max_reference_pixels)
+    cam = camera if scale == 1.0 else camera.scaled(scale)
+    seed_ref = _resize_mask(seed, cam.image_shape)
+    if not seed_ref.any():
+        raise ValidationError(
+            f"the seed mask ({int(seed.sum())} px) vanishes at the lift resolution "
+            f"{cam.width}x{cam.height}; raise max_reference_pixels or give a larger mask")
+    return ReferenceView(cam, scale, seed_ref, renderer.operator(cam, roi=_mask_roi(seed_ref)))
+
+
+def lift_seed(scene: GaussianScene, ref: ReferenceView, lift_options: dict | None = None) -> SeedLift:
+    """Stage 4: the seed lift (support G0, centre ``o``, extent) from the reference view's W and depth."""
+    op = ref.operator
+    return seed_lift(scene, ref.camera, ref.seed, op.rendering.depth, op.W, **dict(lift_options or {}))
+
+
+def orbit_axis(up, scene: GaussianScene, base: Camera, ref: ReferenceView, lift: SeedLift,
+               up_cameras: Sequence[Camera] | None = None) -> dict:
+    """The VAAS axis of the ``up`` setting, as a report dict ``{axis, method, confidence, details}``.
+
+    ``"auto"``: :func:`~seed2gs_inverse.pipeline.up_axis.estimate_up_axis`
+    (support plane under the lift's G0, scene plane, the no-roll prior of
+    ``base`` and the capture cameras ``up_cameras``); a weak estimate warns,
+    naming ``--up``. ``"level"``: the image-up of ``base`` with its pitch
+    removed, weighted by the reference view's operator
+    (:func:`~seed2gs_inverse.pipeline.up_axis.estimate_up`); ``"camera"``: the
+    image-up itself; a vector: that vector, normalised. ``confidence`` is
+    None unless estimated. The warnings name the caller of
+    :func:`orbit_views` (``stacklevel=4``).
+    """
+    if isinstance(up, str) and up == "auto":
+        if up_cameras is not None:
+            up_cameras = camera_list(up_cameras, "up_cameras")  # read once: a generator too
+        est = estimate_up_axis(scene, base, support=lift.g0, center=lift.center, radius=lift.radius,
+                               cameras=up_cameras)
+        if est.weak:
+            warnings.warn(est.warning(), stacklevel=4)
+        return {**est.summary(), "warning": est.warning()}
+    if isinstance(up, str) and up == "level":
+        axis = estimate_up(scene, base, weights=np.asarray(ref.operator.W.sum(axis=0)).ravel())
+        return {"axis": np.asarray(axis, float).tolist(), "method": "level", "confidence": None, "details": {}}
+    if isinstance(up, str) and up == "camera":
+        return {"axis": base.up.tolist(), "method": "camera", "confidence": None, "details": {}}
+    axis = np.asarray(up, dtype=np.float64)  # validated by ExtractSettings
+    axis = axis / np.linalg.norm(axis)
+    if axis @ base.up < -0.5:
+        # y-up against y-down (OpenGL against OpenCV/COLMAP) is an easy mistake, and a support
+        # "below" an upside-down object would be looked for above it. (From a camera looking
+        # straight down the true up is across the image: hence more than 120 degrees, not 90.)
+        warnings.warn(f"up {np.round(axis, 3).tolist()} points down in the reference view; the orbits "
+                      f"and the support surface take it as given (negate it if the scene's up is the "
+                      f"other way)", stacklevel=4)
+    return {"axis": axis.tolist(), "method": "user", "confidence": None, "details": {}}
+
+
+def _clip_frame(op: ViewOperator, clip: str, index: int) -> ClipFrame:
+    r = op.rendering
+    return ClipFrame(r.rgb, r.depth, r.alpha, op.camera, clip, index, operator=op)
+
+
+def orbit_views(renderer: Renderer, camera: Camera, ref: ReferenceView, lift: SeedLift,
+                settings: ExtractSettings, progress: Progress | None = None,
+                up_cameras: Sequence[Camera] | None = None) -> OrbitViews:
+    """Stage 5: the orbit axis (:func:`orbit_axis`), then VAAS (flat orbit, visibility, ascending spiral).
+
+    Each view is rendered with its operator. The orbit views have the
+    camera's geometry at ``view_scale`` (``orbit_scale`` capped at
+    ``max_view_pixels``), zoomed to ``zoom_margin * extent`` about ``o``,
+    composited only inside the projected sphere of ``roi_margin * extent``
+    and, with ``cull``, rasterized from the Gaussians of that cone (cut at
+    ``cull_far * extent`` behind ``o``). Frame 0 of each clip is the
+    reference view itself (``ref``, at its own resolution). ``progress``
+    counts one step per view rendered.
+    """
+    s = settings
+    scene = renderer.scene
+    view_scale = _view_scale(camera, s.orbit_scale, s.max_view_pixels)
+    base = camera.scaled(view_scale)  # the orbits' base camera (geometry + view resolution)
+    up_info = orbit_axis(s.up, scene, base, ref, lift, up_cameras)
+    up = np.asarray(up_info["axis"], dtype=np.float64)
+
+    def view(cam: Camera, clip: str, k: int) -> ClipFrame:
+        if cam is base:
+            op = ref.operator  # frame 0 is the reference view itself, at the lift resolution
+        else:
+            roi = _roi_box(cam, lift.center, lift.radius, s.roi_margin)
+            far = None if not s.cull or s.cull_far is None else float(
+                np.linalg.norm(cam.center - lift.center) + s.cull_far * lift.radius)
+            op = renderer.operator(cam, roi=roi, min_weight=s.min_weight, cull=s.cull, far=far)
+        if progress is not None:
+            progress.update()
+        return _clip_frame(op, clip, k)
+
+    sigma = scene.scales.max(axis=1)[lift.g0]
+    plan, flat, spiral = run_vaas(
+        scene.means[lift.g0], sigma, base, lift.center, view, n_views=s.n_views, a_max_deg=s.a_max_deg,
+        gamma=s.gamma, skip_deg=s.skip_deg, profile=s.profile, max_elevation_deg=s.max_elevation_deg,
+        fit_radius=None if s.zoom_margin is None else s.zoom_margin * lift.radius, up=up)
+    return OrbitViews(plan, flat, spiral, view_scale, up, up_info)
+
+
+def support_band(scene: GaussianScene, lift: SeedLift, orbits: OrbitViews, settings: ExtractSettings,
+                 tracker: Tracker | None = None) -> tuple[SupportSurface | None, dict]:
+    """Stage 5b: the support surface under the object, for a tracker's ``support_plane``.
+
+    :func:`~.support.support_surface` about the orbit axis, when
+    ``settings.support_background`` is on, ``tracker`` takes a support plane
+    (:class:`~seed2gs_inverse.frontend.base.SupportPlaneTracker`, as the
+    model-free tracker does; any other tracker: None) and has none of its
+    own, and the axis is trusted (the user's vector, or an estimate with
+    confidence >= :data:`~.up_axis.WEAK_CONFIDENCE`). Returns
+    ``(surface or None, report)`` with ``report`` the JSON-ready
+    ``resolved["support"]``: the surface's fields and ``used: True``, or
+    ``used: False`` and the reason.
+    """
+    info = orbits.up_info or {}
+    if not settings.support_background:
+        reason = "support_background is off"
+    elif not isinstance(tracker, SupportPlaneTracker):
+        reason = "not the model-free tracker"
+    elif tracker.support_plane is not None:
+        reason = "the tracker has its own support_plane"
+    elif info.get("method") != "user" and (info.get("confidence") or 0.0) < WEAK_CONFIDENCE:
+        reason = f"the orbit axis is not trusted (method {info.get('method')}, confidence {info.get('confidence')})"
+    else:
+        surface = support_surface(scene, lift.g0, lift.center, lift.radius, orbits.up, **SUPPORT_DEFAULTS)
+        if surface is not None:
+            return surface, {"used": True, **surface.summary()}
+        reason = "no level surface below the object"
+    return None, {"used": False, "reason": reason}
+
+
+def track_clips(tracker: Tracker, orbits: OrbitViews, seed: np.ndarray, progress: Progress | None = None) -> list:
+    """Stage 6: the tracker propagates ``seed`` (frame 0) along each clip.
+
+    ``tracker.track(frames, seed, references=labelled)`` receives the views
+    labelled so far (the flat clip when tracking the spiral). Returns the
+    supervision views as ``(ClipFrame, mask)`` pairs: the flat clip, then
+    the spiral without its frame 0 (the reference view again); masks are
+    float32 at the frame's resolution, NaN = unknown. ``progress`` counts
+    one step per clip.
+
+    Raises
+    ------
+    ValidationError
+        The tracker breaks its protocol: ``track`` does not accept
+        ``references``, returns no sequence, or the wrong number or shape of masks.
+    """
+    labelled = []
+    for name, frames in orbits.clips():
+        try:
+            res = tracker.track(frames, seed, references=tuple(labelled))
+        except TypeError as e:
+            if "references" not in str(e):
+                raise
+            raise ValidationError(f"tracker {type(tracker).__name__}: track() must accept references=() "
+                                  f"(the Tracker protocol, seed2gs_inverse.frontend.base); got: {e}") from None
+        try:
+            out = list(res)
+        except TypeError:
+            raise ValidationError(f"tracker {type(tracker).__name__}: track() returned {type(res).__name__}; it "
+                                  f"must return one (H, W) mask per frame (the Tracker protocol, "
+                                  f"seed2gs_inverse.frontend.base)") from None
+        if len(out) != len(frames):
+            raise ValidationError(f"tracker returned {len(out)} masks for a {name} clip of {len(frames)} frames")
+        for k, (f, m) in enumerate(zip(frames, out)):
+            if name == "spiral" and k == 0:
+                continue  # the reference view is already the flat clip's frame 0
+            m = np.asarray(m, dtype=np.float32)
+            if m.shape != f.camera.image_shape:
+                raise ValidationError(f"tracker mask {k} of the {name} clip has shape {m.shape}, "
+                                      f"expected {f.camera.image_shape}")
+            labelled.append((f, m))
+        if progress is not None:
+            progress.update()
+    return labelled
+
+
+def evidence_graph(scene: GaussianScene, lift: SeedLift, settings: ExtractSettings,
+                   smoothness: float) -> sp.csr_matrix | None:
+    """Stage 6b: the Gaussian affinity graph around the object, or None when nothing needs it.
+
+    :func:`~seed2gs_inverse.pipeline.completion.object_graph` about the
+    lift's centre (``region`` lift radii, :data:`~.completion.GRAPH_DEFAULTS`
+    updated by ``settings.graph_options``), built when the regulariser is on
+    (``smoothness > 0``, resolved) or ``settings.completion`` is set.
+    """
+    if not (smoothness > 0 or settings.completion):
+        return None
+    return object_graph(scene, lift.center, lift.radius, **{**GRAPH_DEFAULTS, **settings.graph_options})
+
+
+def complete_masks(graph: sp.csr_matrix | None, labelled: list, lift: SeedLift, ref: ReferenceView,
+                   completion: str | None, filler: LabelFiller | None = None) -> list:
+    """Stage 6c: the supervision masks, their unknown pixels filled by 3D label completion.
+
+    ``completion=None``: the tracker's masks as they are. ``"reference"``:
+    random-walker labels on ``graph`` seeded by the reference's labels alone
+    (:func:`~.completion.complete_membership` from G0, the reference
+    operator's column sums and the lift's membership); ``"tracked"``: seeded
+    by every pixel the tracker decided (:func:`~.completion.tracked_membership`,
+    prior G0). Either is rendered into each view and decides the unknown
+    pixels it is sure of (:func:`~.completion.fill_unknown`). ``filler``
+    (a :class:`~seed2gs_inverse.frontend.base.LabelFiller`) then decides
+    what is still unknown with its 2D fill. Returns float32 masks, one per
+    ``(frame, mask)`` of ``labelled``.
+
+    Raises
+    ------
+    ValidationError
+        ``completion`` is not None, ``"reference"`` or ``"tracked"``.
+    """
+    masks = [m for _, m in labelled]
+    if not completion:
+        return masks
+    ops = [f.operator for f, _ in labelled]
+    if completion == "reference":
+        q_c = complete_membership(graph, lift.g0, np.asarray(ref.operator.W.sum(axis=0)).ravel(),
+                                  lift.membership)
+    elif completion == "tracked":
+        q_c = tracked_membership(graph, ops, masks, prior=lift.g0.astype(np.float64))
+    else:
+        raise ValidationError(f"completion must be None, 'reference' or 'tracked', got {completion!r}")
+    masks = fill_unknown(ops, masks, q_c)
+    if filler is not None:
+        masks = [m if not np.isnan(m).any() else
+                 filler.fill_labels(op.rendering.rgb, op.rendering.depth, m).astype(np.float32)
+                 for op, m in zip(ops, masks)]
+    return masks
+
+
+def stack_operators(labelled: list, scene: GaussianScene) -> OperatorStack:
+    """Stage 7: the ``OperatorStack`` of the supervision views (``frame.operator`` of each pair)."""
+    return OperatorStack([f.operator for f, _ in labelled], fingerprint=scene_fingerprint(scene))
+
+
+def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, progress=None, *,
+                    graph: sp.csr_matrix | None = None, smoothness: float = 0.0,
+                    scene: GaussianScene | None = None) -> Selection:
+    """Stage 8: ``q`` from the solver initialised from G0, and ``selected = q > tau``.
+
+    Parameters
+    ----------
+    stack : OperatorStack or sequence of ViewOperator
+        The supervision views.
+    masks : iterable of (h, w) arrays
+        One mask per view (read twice, so a generator is fine too).
+    lift : SeedLift
+    settings : ExtractSettings
+    progress : callable, optional
+        The solver's per-iteration hook (``solve(..., progress=)``).
+    graph : (N, N) sparse, optional
+        :func:`evidence_graph`'s graph, for the regulariser.
+    smoothness : float
+        The resolved regulariser weight lambda (0: off).
+    scene : GaussianScene, optional
+        The scene of the operators; needed (its means) with
+        ``settings.seed_connected``.
+
+    Returns
+    -------
+    Selection
+
+    Raises
+    ------
+    ValidationError
+        ``settings.seed_connected`` without ``scene``.
+
+    Notes
+    -----
+    ``solve(stack, masks, method, init=G0, min_evidence=settings.min_evidence,
+    smoothness=smoothness, graph=graph, **settings.solver_kwargs())``:
+    Gaussians seen (almost) only on unknown pixels carry no evidence (an
+    unregularised fit could drive their logits anywhere on a trace of
+    weight), so the solver gives them the prior (G0 membership), or, with
+    ``smoothness > 0``, the harmonic extension of their neighbours on the
+    graph. ``tau`` is ``settings.threshold`` or the solver's own. With
+    ``settings.seed_connected`` (default) the Gaussians above ``tau`` in
+    islands apart from G0 that the masks do not call object
+    (:func:`~.islands.seed_connected` with the masks' votes) get ``q = 0``,
+    the prior of Gaussians outside G0 (``result.q`` keeps the solver's
+    values).
+    """
+    masks = list(masks)  # read twice (the solve, the islands' votes): a generator too
+    stack = as_stack(stack, masks)
+    result = solve(stack, masks, method=settings.method, init=lift.g0, min_evidence=settings.min_evidence,
+                   progress=progress, smoothness=smoothness, graph=graph, **settings.solver_kwargs())
+    q = np.asarray(result.q, dtype=np.float32)
+    tau = result.threshold if settings.threshold is None else float(settings.threshold)
+    n_removed = 0
+    if settings.seed_connected:
+        if scene is None:
+            raise ValidationError("solve_selection: settings.seed_connected needs the scene (scene=, for its "
+                                  "Gaussian means); pass it or set seed_connected=False")
+        graph_kw = {k: settings.lift_options[k] for k in ("k_neighbors", "link_factor") if k in settings.lift_options}
+        island = (q > tau) & ~seed_connected(scene.means, q > tau, lift.g0, votes=_votes(stack, masks),
+                                             **graph_kw)  # the lift's graph
+        # islands hold no G0 Gaussian: they take the prior of the Gaussians outside G0 (0)
+        q = np.where(island, np.float32(0), q)
+        n_removed = int(island.sum())
+    selected = q > tau
+    return Selection(result, q, tau, selected, n_removed)
+
+
+def _votes(stack: OperatorStack, masks: list) -> tuple[np.ndarray, np.ndarray]:
+    """``(A^T (k y), A^T k)``: each Gaussian's weight on object pixels and on decided pixels (two passes).
+
+    The masks are read by the solver's rule (uint8 0/255 is 0/1, NaN unknown).
+    """
+    y = np.concatenate([normalize_mask(m, v.image_shape, f"view {i}").ravel()
+                        for i, (v, m) in enumerate(zip(stack, masks))])
+    decided = ~np.isnan(y)
+    return (stack.rmatvec(np.where(decided, y, np.float32(0))),
+            stack.rmatvec(decided.astype(np.float32)))

@@ -1,0 +1,77 @@
+"""One frozen scene's renderings and operators, for a caller that needs many views of it (:class:`Renderer`)."""
+
+from __future__ import annotations
+
+import time
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .cull import cone_cull
+from .frozen import FrozenScene
+from .rasterize import build_operator, render
+
+if TYPE_CHECKING:
+    from ..camera import Camera
+    from ..operators import Rendering, ViewOperator
+    from ..scene import GaussianScene
+
+__all__ = ["Renderer"]
+
+
+class Renderer:
+    """Renders and operators ``W(c)`` of one frozen scene, in one rasterization mode.
+
+    Holds a :class:`~seed2gs_inverse.raster.FrozenScene`, so the
+    view-independent activations of the scene (covariance factors,
+    opacities, SH-0 colours, 3-sigma sizes) are computed once for all the
+    views of an extraction instead of per view (identical results).
+
+    Parameters
+    ----------
+    scene : GaussianScene
+        The scene; ``renderer.scene`` keeps it.
+    mode : str
+        Rasterization mode of every view (:data:`~seed2gs_inverse.raster.MODES`).
+
+    Attributes
+    ----------
+    operator_seconds : float
+        Wall seconds spent in :meth:`operator` so far, so that a caller can
+        count them under its own stage.
+    """
+
+    def __init__(self, scene: GaussianScene, mode: str = "classic"):
+        self.scene = scene
+        self.frozen = FrozenScene(scene)
+        self.mode = mode
+        self.operator_seconds = 0.0
+
+    def render(self, camera: Camera) -> Rendering:
+        """The full rendering of ``camera``."""
+        return render(self.frozen, camera, mode=self.mode)
+
+    def operator(self, camera: Camera, roi: tuple | None = None, min_weight: float = 0.0, cull: bool = False,
+                 far: float | None = None) -> ViewOperator:
+        """``W(camera)`` with its rendering, composited only in ``roi``.
+
+        Parameters
+        ----------
+        camera : Camera
+        roi : (x0, y0, x1, y1) int, optional
+            Pixel box (exclusive max) to composite; None: the whole image.
+        min_weight : float
+            Weights below this are dropped (:func:`~seed2gs_inverse.raster.build_operator`).
+        cull : bool
+            Rasterize only the Gaussians that can reach the ``roi`` pixels
+            (:func:`~seed2gs_inverse.raster.cone_cull`, cut at depth ``far``
+            when given). W's columns stay scene indices, and the operator is
+            the same when ``far`` is None.
+        far : float, optional
+            Depth beyond which the cull drops Gaussians.
+        """
+        t0 = time.perf_counter()
+        subset: np.ndarray | None = cone_cull(self.frozen, camera, roi, far) if cull else None
+        op = build_operator(self.frozen, camera, roi=roi, min_weight=min_weight, mode=self.mode, subset=subset)
+        self.operator_seconds += time.perf_counter() - t0
+        return op
