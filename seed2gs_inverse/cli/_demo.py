@@ -1,17 +1,25 @@
-"""``seed2gs demo``: the whole pipeline on a built-in procedural scene with known truth."""
+"""``seed2gs demo``: the whole pipeline on a built-in procedural scene with known truth.
+
+The pipeline, the rasterizer and the procedural scenes are imported where
+they run, not at the top: they load Numba and its compiled kernels, which
+building the ``seed2gs`` parser (every call, ``--help`` included) must not.
+"""
 
 from __future__ import annotations
 
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..camera import Camera
 from ..errors import ValidationError
 from ..metrics import boundary_iou, iou, membership_scores
-from ..pipeline import Extraction, ExtractSettings, extract
-from ..synthetic import make_scene
+from ..pipeline.settings import ExtractSettings
 from ._common import DEFAULT_VIEWS, add_method_arguments, check_output
+
+if TYPE_CHECKING:
+    from ..pipeline.extraction import Extraction
 
 __all__ = ["register", "run_demo"]
 
@@ -65,9 +73,9 @@ def held_out_cameras(center, frame, dist, width, height) -> list[Camera]:
 def run_demo(seed=0, obj="box", views=DEFAULT_VIEWS, size=(192, 144),
              method="weighted_bce") -> tuple[Extraction, dict]:
     """Extract ``obj`` from the procedural scene; returns (extraction, scores dict)."""
-    # Deferred: the rasterizer loads Numba and its compiled kernels, which `seed2gs --help`
-    # (importing this module to build the parser) must not pay for.
+    from ..pipeline import extract  # deferred: see the module docstring
     from ..raster import build_operator
+    from ..synthetic import make_scene
 
     syn = make_scene(seed=seed)
     label = syn._check_label(obj if not str(obj).isdigit() else int(obj))
@@ -102,6 +110,8 @@ def run(args) -> int:
     if args.output and not args.summary:
         check_output(args.output, "-o", directory=True, force=args.force, kind="extract")  # before the work
     if args.summary:
+        from ..synthetic import make_scene  # deferred: see the module docstring
+
         print("\n".join(_summary(make_scene(seed=args.seed))))
         return 0
     t0 = time.perf_counter()

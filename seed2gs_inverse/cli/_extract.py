@@ -16,7 +16,6 @@ import shlex
 import sys
 from pathlib import Path
 
-import numba
 import numpy as np
 
 from .. import __version__
@@ -27,8 +26,7 @@ from ..frontend.config import resolve_models
 from ..frontend.prompts import GRABCUT_SEED, TEXT_NEEDS_GROUNDER, BoxPrompt, MaskPrompt, PointPrompt, TextPrompt
 from ..io import read_camera, read_cameras, read_scene
 from ..operators import scene_fingerprint
-from ..pipeline import ExtractSettings, extract, save_extraction
-from ..pipeline.report import seed_summary
+from ..pipeline.settings import ExtractSettings
 from ._common import (DEFAULT_VIEWS, add_method_arguments, check_input_file, check_output, look_at_camera,
                       parse_options, parse_vector, progress_enabled)
 
@@ -338,6 +336,11 @@ def _reference_camera(args):
 
 def run(args) -> int:
     """``seed2gs extract``: read the inputs, run :func:`~seed2gs_inverse.pipeline.extract`, write OUTDIR."""
+    # The pipeline imports the rasterizer, and so Numba: imported here, not at the top, so that
+    # building the command line's parser (every `seed2gs` call, --help included) does not load it.
+    from ..pipeline import extract, save_extraction
+    from ..pipeline.report import seed_summary
+
     # Everything cheap first: outputs, settings, inputs; the expensive work last.
     out = check_output(args.output, "-o", directory=True, force=args.force, kind="extract")
     recorded = None
@@ -407,6 +410,8 @@ def run(args) -> int:
 
 def _numba_threads():
     try:
+        import numba  # loaded by the extraction already; deferred for the parser's sake (see run)
+
         return int(numba.get_num_threads())
     except Exception:  # pragma: no cover - numba is a dependency; report what we can
         return None

@@ -3,21 +3,43 @@
 :mod:`~.extract` runs the stages of :mod:`~.stages` and returns an
 :class:`Extraction` (:mod:`~.extraction`), whose files
 :func:`save_extraction` writes (:mod:`~.outputs`); :mod:`~.seed_lift`, :mod:`~.vaas`,
-:mod:`~.up_axis`, :mod:`~.support`, :mod:`~.completion` and
+:mod:`~.up_axis`, :mod:`~.support`, :mod:`~.completion`, :mod:`~.islands` and
 :mod:`~.point_object` hold the algorithms the stages call, :mod:`~.settings`
 every option and :mod:`~.report` the report figure.
+
+The names are imported from their module on first use (PEP 562), as in the
+package's own ``__init__``: the stages import the rasterizer and so Numba, and
+``import seed2gs_inverse.pipeline.settings`` (the command line's parser needs
+the settings' defaults) must not.
 """
 
-from .extract import extract
-from .extraction import Extraction
-from .outputs import save_extraction
-from .settings import ExtractSettings
-from .seed_lift import SeedLift, seed_lift
-from .point_object import PointObject, point_object_mask
-from .report import report_figure
-from .up_axis import UpEstimate, estimate_up, estimate_up_axis
-from .vaas import ClipFrame, VAASPlan, flat_orbit, orbit_cameras, run_vaas, spiral_orbit, vaas_amplitude
+from __future__ import annotations
+
+import importlib
+
+# public name -> module of this package that defines it
+_LAZY = {
+    "extract": "extract", "Extraction": "extraction", "save_extraction": "outputs", "ExtractSettings": "settings",
+    "seed_lift": "seed_lift", "SeedLift": "seed_lift", "point_object_mask": "point_object",
+    "PointObject": "point_object", "report_figure": "report", "UpEstimate": "up_axis", "estimate_up": "up_axis",
+    "estimate_up_axis": "up_axis",
+    **dict.fromkeys(["ClipFrame", "VAASPlan", "flat_orbit", "orbit_cameras", "run_vaas", "spiral_orbit",
+                     "vaas_amplitude"], "vaas"),
+}
 
 __all__ = ["extract", "Extraction", "save_extraction", "ExtractSettings", "seed_lift", "SeedLift", "ClipFrame",
            "VAASPlan", "flat_orbit", "spiral_orbit", "orbit_cameras", "run_vaas", "vaas_amplitude", "estimate_up",
            "report_figure", "estimate_up_axis", "UpEstimate", "point_object_mask", "PointObject"]
+
+
+def __getattr__(name: str):
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'seed2gs_inverse.pipeline' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value  # cache: later lookups skip __getattr__
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))
