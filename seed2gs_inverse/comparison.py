@@ -114,15 +114,13 @@ class Comparison:
 
     def plot(self, path) -> None:
         """Bar chart of mIoU, mBIoU and 3D IoU per method (PNG)."""
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
+        from matplotlib.figure import Figure  # deferred: matplotlib is only needed to plot
 
         names = [r["method"] for r in self.rows]
         metrics = [("miou", "2D mIoU"), ("mbiou", "2D mBIoU"), ("iou3d", "3D IoU")]
         x = np.arange(len(names))
-        fig, ax = plt.subplots(figsize=(1.6 + 1.5 * len(names), 3.4))
+        fig = Figure(figsize=(1.6 + 1.5 * len(names), 3.4))
+        ax = fig.subplots()
         width = 0.8 / len(metrics)
         for j, (key, label) in enumerate(metrics):
             ax.bar(x + (j - 1) * width, [r[key] for r in self.rows], width, label=label)
@@ -133,7 +131,6 @@ class Comparison:
         ax.set_title("solver comparison")
         fig.tight_layout()
         fig.savefig(path, format="png", dpi=100)
-        plt.close(fig)
 
 
 def compare(operators, masks, truth, methods=None, holdout_every: int | None = 4, holdout=None, init=None,

@@ -88,11 +88,8 @@ def batch_client(client=None, n_workers: int | None = None, n_jobs: int | None =
     if isinstance(client, str) and client == "sequential":
         yield None
         return
-    try:
-        import dask
-        from distributed import Client
-    except ImportError:  # pragma: no cover - a declared dependency
-        raise ValidationError("batch extraction needs dask.distributed: pip install 'dask[distributed]'") from None
+    dask, distributed = _dask_distributed()
+    Client = distributed.Client
     if isinstance(client, Client):
         yield client
         return
@@ -127,11 +124,21 @@ def batch_client(client=None, n_workers: int | None = None, n_jobs: int | None =
         yield c
 
 
+def _dask_distributed() -> tuple:
+    """The ``dask`` and ``distributed`` modules, imported on first use (see the module docstring)."""
+    try:
+        import dask
+        import distributed
+    except ImportError:  # pragma: no cover - a declared dependency
+        raise ValidationError("batch extraction needs dask.distributed: pip install 'dask[distributed]'") from None
+    return dask, distributed
+
+
 @contextmanager
 def _embedded_client(n_workers: int, threads: int):
     """A client of a new ``LocalCluster`` of ``n_workers`` processes with ``threads`` Numba threads each."""
-    import dask
-    from distributed import Client, LocalCluster
+    dask, distributed = _dask_distributed()
+    Client, LocalCluster = distributed.Client, distributed.LocalCluster
 
     env = {"NUMBA_NUM_THREADS": str(threads), "OMP_NUM_THREADS": str(threads),
            "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",

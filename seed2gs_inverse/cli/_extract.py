@@ -338,8 +338,7 @@ def run(args) -> int:
     """``seed2gs extract``: read the inputs, run :func:`~seed2gs_inverse.pipeline.extract`, write OUTDIR."""
     # The pipeline imports the rasterizer, and so Numba: imported here, not at the top, so that
     # building the command line's parser (every `seed2gs` call, --help included) does not load it.
-    from ..pipeline import extract, save_extraction
-    from ..pipeline.report import seed_summary
+    from ..pipeline import extract, report, save_extraction
 
     # Everything cheap first: outputs, settings, inputs; the expensive work last.
     out = check_output(args.output, "-o", directory=True, force=args.force, kind="extract")
@@ -401,7 +400,7 @@ def run(args) -> int:
           + ("" if run_info["peak_rss_mb"] is None else f"; peak memory {run_info['peak_rss_mb'] / 1024:.2f} GB")
           + ")")
     if int(ex.selected.sum()):  # (an empty selection was warned about by extract)
-        print(seed_summary_line(seed_summary(ex)))
+        print(seed_summary_line(report.seed_summary(ex)))
     if models is None:  # with models, SAM2 would have tracked even a mask/box/point seed
         print("note: no models configured; the seed was tracked by the model-free tracker",
               file=sys.stderr)

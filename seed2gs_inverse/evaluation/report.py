@@ -145,16 +145,14 @@ def grid_png(dataset, preds, per_frame, failed=frozenset()) -> bytes | None:
     the query failed (``failed``: its ``(scene, query)`` pairs; scored 0
     where it has truth). None when there is no query or no frame.
     """
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # deferred: matplotlib is only needed to plot
 
     rows = [(sc, q) for sc in dataset for q in sc.queries]
     n_cols = max((len(sc.frames) for sc in dataset), default=0)
     if not rows or not n_cols:
         return None
-    fig, axes = plt.subplots(len(rows), n_cols, figsize=(2.4 * n_cols, 2.0 * len(rows)), squeeze=False)
+    fig = Figure(figsize=(2.4 * n_cols, 2.0 * len(rows)))
+    axes = fig.subplots(len(rows), n_cols, squeeze=False)
     for i, (sc, q) in enumerate(rows):
         for j in range(n_cols):
             ax = axes[i, j]
@@ -186,5 +184,4 @@ def grid_png(dataset, preds, per_frame, failed=frozenset()) -> bytes | None:
     fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=80)
-    plt.close(fig)
     return buf.getvalue()
