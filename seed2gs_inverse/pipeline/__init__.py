@@ -16,6 +16,8 @@ the settings' defaults) must not.
 from __future__ import annotations
 
 import importlib
+import sys
+import types
 
 # public name -> module of this package that defines it
 _LAZY = {
@@ -43,3 +45,21 @@ def __getattr__(name: str):
 
 def __dir__():
     return sorted(set(globals()) | set(_LAZY))
+
+
+class _Package(types.ModuleType):
+    """This package, whose public functions win over their namesake submodules.
+
+    Importing ``pipeline.extract`` (or ``pipeline.seed_lift``) binds the
+    submodule on the package, which would replace the function of the same
+    name for everyone after it; an eager ``from .extract import extract``
+    prevented that, and would load Numba here.
+    """
+
+    def __setattr__(self, name, value):
+        if isinstance(value, types.ModuleType) and _LAZY.get(name) == name:
+            value = getattr(value, name)
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package
