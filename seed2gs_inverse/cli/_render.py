@@ -139,7 +139,7 @@ def run(args) -> int:
                                           else r.depth, "depth")))
     if alpha_path is not None:
         items.append((alpha_path, _encode(alpha_path, r.alpha, "alpha")))
-    write_files(items)
+    write_files(items, replace=args.force)
     covered = float((r.alpha > 0).mean())
     print(f"rendered {len(scene)} Gaussians at {cam.width}x{cam.height} in {seconds:.2f} s "
           f"({covered:.0%} of pixels covered); wrote {', '.join(str(p) for p, _ in items)}")

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._atomic import output_lock
 from ..errors import ValidationError
 from ..io import detect_format, read_cameras, read_scene, write_scene
 from ..io.formats import output_format
@@ -116,7 +117,8 @@ def convert(args) -> int:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         scene = read_scene(args.input, drop_nonfinite=args.drop_nonfinite)
-        write_scene(args.output, scene)
+        with output_lock(args.output, f"OUT {args.output}", replace=args.force):  # only --force replaces
+            write_scene(args.output, scene)
     _print_warnings("convert", caught)
     degree = scene.sh_degree if fmt == "ply" else 0
     print(f"wrote {args.output} ({fmt}): {len(scene):,} Gaussians, SH degree {degree}")

@@ -91,7 +91,7 @@ def solve_command(args) -> int:
           file=sys.stderr, flush=True)
     with SolveBar(args.method, progress_enabled(args.no_progress)) as bar:
         result = solve(stack, masks, method=args.method, init=init, progress=bar.solve_callback, **options)
-    write_files([(out, _npy_bytes(result.q))])
+    write_files([(out, _npy_bytes(result.q))], replace=args.force)
     sel = result.selected()
     print(f"{out}: method {result.method}, {int(sel.sum()):,} of {sel.size:,} Gaussians selected "
           f"(q > {result.threshold:.3g}), {int(result.unobserved.sum()):,} unobserved, "
@@ -136,7 +136,7 @@ def compare_command(args) -> int:
         d = Path(args.output)
         png = io.BytesIO()
         result.plot(png)
-        with atomic_path(d, directory=True) as tmp:  # all or nothing; --force replaces the earlier report
+        with atomic_path(d, directory=True, replace=args.force) as tmp:  # all or nothing; only --force replaces
             (tmp / "comparison.csv").write_bytes(result.to_csv().encode())
             (tmp / "comparison.json").write_bytes(result.to_json().encode())
             (tmp / "comparison.png").write_bytes(png.getvalue())
