@@ -118,7 +118,7 @@ def _lock_owner(path: Path) -> str:
 
 
 def _busy(target, label, path: Path) -> ValidationError:
-    return ValidationError(f"{label}: {target} is being written by another seed2gs process "
+    return ValidationError(f"{label + ': ' if label else ''}{target} is being written by another seed2gs process "
                            f"({_lock_owner(path)}; lock file {path}): wait for it to finish, or choose "
                            f"another output")
 
@@ -137,16 +137,15 @@ def _take_lock(path: Path, target, label) -> int:
                     path.unlink(missing_ok=True)  # a stale lock: its owner has exited
                     continue
                 raise _busy(target, label, path) from None
-            except OSError as exc:
-                raise ValidationError(f"{label}: cannot create the lock file {path} "
-                                      f"({exc.strerror or exc})") from None
+            except OSError as exc:  # a read-only or full directory: said as the write itself would
+                raise _naming(exc, target) from exc
             os.write(fd, me)
             return fd
         try:
             fd = os.open(path, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0),
                          0o644)
-        except OSError as exc:
-            raise ValidationError(f"{label}: cannot create the lock file {path} ({exc.strerror or exc})") from None
+        except OSError as exc:  # a read-only or full directory: said as the write itself would
+            raise _naming(exc, target) from exc
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -196,7 +195,7 @@ def output_lock(target, label: str | None = None, *, replace: bool | None = None
         lock file is ``.NAME.lock`` there (:func:`lock_file`), holding
         ``"PID HOST"`` of the owner, and is removed on release.
     label : str, optional
-        How the error names the output (``"-o out"``); default: the path.
+        What the error names first (``"-o out"``), before the path.
     replace : bool, optional
         Whether :func:`atomic_path` writes of ``target`` inside the block
         may replace an existing target (None: as they are told).
@@ -206,6 +205,8 @@ def output_lock(target, label: str | None = None, *, replace: bool | None = None
     ValidationError
         Another process holds the lock: the message names its PID (and host,
         when another). A lock file whose owner has exited is taken over.
+    OSError
+        The lock file cannot be created (``"<reason> while writing <target>"``).
 
     Notes
     -----
@@ -218,7 +219,6 @@ def output_lock(target, label: str | None = None, *, replace: bool | None = None
     """
     path = lock_file(target)
     key = os.path.abspath(path)
-    label = label or os.fspath(target)
     with _HELD_GUARD:
         held = _HELD.get(key)
         if held is None:
