@@ -244,3 +244,22 @@ def test_a_killed_batch_leaves_its_journal_and_the_next_run_folds_it(tmp_path, f
     doc = json.loads((res / "summary.json").read_text())
     assert [j["name"] for j in doc["jobs"]] == ["j1", "j2", "j3"]
     assert not lock_file(res / "summary.json").exists()
+
+
+def test_seed2gs_convert_without_force_keeps_an_output_that_appears_while_it_runs(tmp_path, monkeypatch, capsys):
+    from seed2gs_inverse.cli import _scene
+    from seed2gs_inverse.io import read_scene, write_scene
+    from seed2gs_inverse.synthetic import make_scene
+
+    src, out = tmp_path / "in.ply", tmp_path / "out.splat"
+    write_scene(src, make_scene(seed=1, n_per_object=20).scene)
+
+    def read_while_another_process_writes_out(path, **kw):
+        out.write_bytes(b"theirs")  # OUT appears after the command checked it
+        return read_scene(path, **kw)
+
+    monkeypatch.setattr(_scene, "read_scene", read_while_another_process_writes_out)
+    assert main(["convert", str(src), str(out)]) != 0
+    assert "exists; use --force" in capsys.readouterr().err
+    assert out.read_bytes() == b"theirs"
+    assert _leftovers(tmp_path, out.name) == []

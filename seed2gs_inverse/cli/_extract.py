@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from .._atomic import output_lock
 from .._memory import peak_rss_mb
+from .._output_paths import locks_outputs
 from ..camera import Camera
 from ..errors import FormatError, ValidationError
 from ..frontend.config import resolve_models
@@ -335,24 +335,15 @@ def _reference_camera(args):
     return look_at_camera(args.look_at, args.look_up, args.fov, args.size, up_option="--look-up")
 
 
+@locks_outputs(("output", "-o"))
 def run(args) -> int:
-    """``seed2gs extract``: read the inputs, run :func:`~seed2gs_inverse.pipeline.extract`, write OUTDIR.
-
-    OUTDIR's lock is held from the start (another ``seed2gs`` writing it stops at once, naming this
-    process), and without ``--force`` nothing there is replaced, not even an OUTDIR that appears meanwhile.
-    """
-    # Everything cheap first: outputs, settings, inputs; the expensive work last.
-    out = check_output(args.output, "-o", directory=True, force=args.force, kind="extract")
-    with output_lock(out, f"-o {args.output}", replace=args.force):
-        return _run(args, out)
-
-
-def _run(args, out) -> int:
-    """:func:`run` once OUTDIR is checked and locked."""
+    """``seed2gs extract``: read the inputs, run :func:`~seed2gs_inverse.pipeline.extract`, write OUTDIR."""
     # The pipeline imports the rasterizer, and so Numba: imported here, not at the top, so that
     # building the command line's parser (every `seed2gs` call, --help included) does not load it.
     from ..pipeline import extract, report, save_extraction
 
+    # Everything cheap first: outputs, settings, inputs; the expensive work last.
+    out = check_output(args.output, "-o", directory=True, force=args.force, kind="extract")
     recorded = None
     if args.from_report is not None:
         scene_path, camera, spec, prompt, settings, models_path, fmt, recorded = _from_report(args)

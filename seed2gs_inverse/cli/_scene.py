@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._atomic import output_lock
+from .._output_paths import locks_outputs
 from ..errors import ValidationError
 from ..io import detect_format, read_cameras, read_scene, write_scene
 from ..io.formats import output_format
@@ -108,6 +108,7 @@ def info(args) -> int:
     return 0
 
 
+@locks_outputs(("output", "OUT"))
 def convert(args) -> int:
     """``seed2gs convert``: read a scene and write it in the format of OUT's extension."""
     fmt = output_format(args.output)  # fail before reading a large input
@@ -117,8 +118,7 @@ def convert(args) -> int:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         scene = read_scene(args.input, drop_nonfinite=args.drop_nonfinite)
-        with output_lock(args.output, f"OUT {args.output}", replace=args.force):  # only --force replaces
-            write_scene(args.output, scene)
+        write_scene(args.output, scene)
     _print_warnings("convert", caught)
     degree = scene.sh_degree if fmt == "ply" else 0
     print(f"wrote {args.output} ({fmt}): {len(scene):,} Gaussians, SH degree {degree}")

@@ -17,6 +17,7 @@ import numpy as np
 from tqdm import tqdm
 
 from .._atomic import atomic_path, write_files
+from .._output_paths import locks_outputs
 from ..comparison import compare, holdout_views
 from ..errors import ValidationError
 from ..io import read_masks
@@ -72,6 +73,7 @@ def _npy_bytes(arr) -> bytes:
     return buf.getvalue()
 
 
+@locks_outputs(("output", "-o"))
 def solve_command(args) -> int:
     """``seed2gs solve``: fit q to the masks with one method and write it as ``.npy``."""
     options = parse_options(args.option, args.method)  # fail fast on a typo, before loading anything
@@ -99,6 +101,7 @@ def solve_command(args) -> int:
     return 0
 
 
+@locks_outputs(("output", "-o"))
 def compare_command(args) -> int:
     """``seed2gs compare``: fit every method, print the score table, optionally write the report."""
     methods = [m.strip() for m in args.methods.split(",") if m.strip()] if args.methods else None
