@@ -43,8 +43,7 @@ from ..errors import ValidationError
 from .cluster import batch_client, dashboard_address
 from .jobs import Job, read_jobs
 from .summary import (SUMMARY_COLUMNS, JobJournal, check_output_dir, fold_journal, is_batch_folder, read_summary,
-                      remove_folder,
-                      write_summary)
+                      remove_folder, write_summary)
 from .worker import JobResult, clear_scene_cache, run_job
 
 __all__ = ["extract_many", "batch_client", "check_output_dir", "SUMMARY_COLUMNS"]
