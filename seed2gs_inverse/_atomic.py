@@ -10,10 +10,20 @@ temporary sibling. Temporaries are therefore named
 ``.NAME.HOST-PID-XXXXXXXX.tmp[.ext]`` (``.old`` for a replaced directory on
 its way out), and the next write to the same target removes the ones that
 are clearly abandoned (:func:`clean_stale_temps`) with a warning.
+
+Concurrent writers of one target are kept apart by :func:`output_lock`: a
+lock file ``.NAME.lock`` beside the target, held with ``fcntl.flock`` (an
+exclusive create where there is no ``fcntl``) and holding the owner's PID
+and host, so that a second writer stops at once with an error naming the
+first. A write that must not replace anything (``replace=False``: a command
+without ``--force``) is renamed into place with a rename that refuses an
+existing target (:func:`rename_noreplace`), so a target that appears while
+the output is being made is never replaced either.
 """
 
 from __future__ import annotations
 
+import ctypes
 import errno
 import fnmatch
 import hashlib
@@ -23,7 +33,9 @@ import re
 import shutil
 import socket
 import stat
+import sys
 import tempfile
+import threading
 import time
 import warnings
 from contextlib import ExitStack, contextmanager
@@ -31,8 +43,14 @@ from pathlib import Path
 
 from .errors import ValidationError
 
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - Windows: locks by exclusive create
+    fcntl = None
+
 __all__ = ["atomic_path", "write_files", "check_output_parent", "check_writable", "clean_stale_temps",
-           "not_an_earlier_output", "OUTPUT_KINDS", "STALE_AGE_S"]
+           "not_an_earlier_output", "OUTPUT_KINDS", "STALE_AGE_S", "output_lock", "lock_file",
+           "rename_noreplace"]
 
 #: A temporary whose creator cannot be checked (another host, or a name
 #: without the host-pid tag) is abandoned after this long.
@@ -66,6 +84,218 @@ def _pid_alive(pid: int) -> bool:
     except (PermissionError, OverflowError, ValueError):
         return True  # exists (another user's), or not a pid we can judge: keep
     return True
+
+
+def lock_file(target) -> Path:
+    """The lock file of ``target``: ``.NAME.lock`` in the same directory."""
+    target = Path(target)
+    parent = target.parent if str(target.parent) else Path(".")
+    return parent / f".{target.name}.lock"
+
+
+# Locks this process holds: lock file (absolute) -> [fd, depth, replace, pid]. Nested and
+# repeated locks of one target by this process (a command, then its atomic write) share one.
+_HELD: dict = {}
+_HELD_GUARD = threading.Lock()
+if hasattr(os, "register_at_fork"):
+    # a forked child shares the parent's flock but is not its owner: it must take the lock anew (and fail)
+    os.register_at_fork(after_in_child=_HELD.clear)
+
+
+def _lock_owner(path: Path) -> str:
+    """Who holds the lock file ``path``, in words ("PID 123", "PID 123 on host h", or unknown)."""
+    for attempt in range(3):  # the owner writes its PID just after taking the lock
+        try:
+            text = path.read_text("utf-8", "replace")[:200].split()
+        except OSError:
+            text = []
+        if text:
+            pid, host = text[0], text[1] if len(text) > 1 else ""
+            where = "" if host in ("", socket.gethostname()) else f" on host {host}"
+            return f"PID {pid}{where}"
+        time.sleep(0.02)
+    return "a process whose PID could not be read"
+
+
+def _busy(target, label, path: Path) -> ValidationError:
+    return ValidationError(f"{label + ': ' if label else ''}{target} is being written by another seed2gs process "
+                           f"({_lock_owner(path)}; lock file {path}): wait for it to finish, or choose "
+                           f"another output")
+
+
+def _take_lock(path: Path, target, label) -> int:
+    """Take the lock file ``path``; its open descriptor (-1: locking is not supported there)."""
+    me = f"{os.getpid()} {socket.gethostname()}\n".encode()
+    for _ in range(20):  # retried only while earlier owners remove the file under us
+        if fcntl is None:
+            try:
+                fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+            except FileExistsError:
+                words = path.read_text("utf-8", "replace").split() if path.is_file() else []
+                if (len(words) >= 2 and words[0].isdigit() and words[1] == socket.gethostname()
+                        and not _pid_alive(int(words[0]))):
+                    path.unlink(missing_ok=True)  # a stale lock: its owner has exited
+                    continue
+                raise _busy(target, label, path) from None
+            except OSError as exc:  # a read-only or full directory: said as the write itself would
+                raise _naming(exc, target) from exc
+            os.write(fd, me)
+            return fd
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0),
+                         0o644)
+        except OSError as exc:  # a read-only or full directory: said as the write itself would
+            raise _naming(exc, target) from exc
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            raise _busy(target, label, path) from None
+        except OSError:  # a file system without flock: go on unlocked (the rename still refuses to replace)
+            os.close(fd)
+            return -1
+        # A lock file left by an exited owner is not locked: taken over here (stale). One its owner
+        # removed between our open and our lock is another file than the one at ``path`` now: retry.
+        try:
+            now = os.stat(path, follow_symlinks=False)
+        except FileNotFoundError:
+            now = None
+        mine = os.fstat(fd)
+        if now is None or (now.st_ino, now.st_dev) != (mine.st_ino, mine.st_dev):
+            os.close(fd)
+            continue
+        os.ftruncate(fd, 0)
+        os.write(fd, me)
+        return fd
+    raise _busy(target, label, path)
+
+
+def _drop_lock(path: Path, fd: int) -> None:
+    """Remove the lock file ``path`` (while still holding it, so no one else can be holding it) and close ``fd``."""
+    if fd < 0:
+        return
+    try:
+        now = os.stat(path, follow_symlinks=False)
+        mine = os.fstat(fd)
+        if (now.st_ino, now.st_dev) == (mine.st_ino, mine.st_dev):
+            os.unlink(path)
+    except OSError:
+        pass
+    os.close(fd)
+
+
+@contextmanager
+def output_lock(target, label: str | None = None, *, replace: bool | None = None):
+    """Hold the lock of the output ``target`` for the duration of the block.
+
+    Parameters
+    ----------
+    target : path-like
+        The file or directory being written. Its directory must exist; the
+        lock file is ``.NAME.lock`` there (:func:`lock_file`), holding
+        ``"PID HOST"`` of the owner, and is removed on release.
+    label : str, optional
+        What the error names first (``"-o out"``), before the path.
+    replace : bool, optional
+        Whether :func:`atomic_path` writes of ``target`` inside the block
+        may replace an existing target (None: as they are told).
+
+    Raises
+    ------
+    ValidationError
+        Another process holds the lock: the message names its PID (and host,
+        when another). A lock file whose owner has exited is taken over.
+    OSError
+        The lock file cannot be created (``"<reason> while writing <target>"``).
+
+    Notes
+    -----
+    The lock is taken with ``fcntl.flock``, which the operating system
+    releases when its owner exits, however it exits; where there is no
+    ``fcntl``, by an exclusive create, a stale file being recognised by its
+    dead PID on this host. Within one process the lock is re-entrant (all
+    threads share it). On a file system without ``flock`` the block runs
+    unlocked.
+    """
+    path = lock_file(target)
+    key = os.path.abspath(path)
+    with _HELD_GUARD:
+        held = _HELD.get(key)
+        if held is None:
+            held = _HELD[key] = [_take_lock(path, target, label), 0, replace]
+        held[1] += 1
+    try:
+        yield path
+    finally:
+        with _HELD_GUARD:
+            held[1] -= 1
+            if held[1] == 0 and _HELD.get(key) is held:
+                del _HELD[key]
+                _drop_lock(path, held[0])
+
+
+def _held_replace(target):
+    """The ``replace`` of an enclosing :func:`output_lock` of ``target`` in this process (None: none said)."""
+    with _HELD_GUARD:
+        held = _HELD.get(os.path.abspath(lock_file(target)))
+    return None if held is None else held[2]
+
+
+_RENAME_NOREPLACE = 1
+_AT_FDCWD = -100
+_renameat2 = []  # [function or None], looked up on first use
+
+
+def _libc_renameat2():
+    if not _renameat2:
+        fn = None
+        if sys.platform.startswith("linux"):
+            try:
+                fn = getattr(ctypes.CDLL(None, use_errno=True), "renameat2", None)
+            except OSError:
+                fn = None
+            if fn is not None:
+                fn.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+                fn.restype = ctypes.c_int
+        _renameat2.append(fn)
+    return _renameat2[0]
+
+
+def rename_noreplace(src, dst) -> None:
+    """Rename ``src`` (a file or directory) to ``dst``, which must not exist; FileExistsError if it does.
+
+    Atomic where the kernel and file system offer ``renameat2(RENAME_NOREPLACE)``
+    (Linux). Elsewhere a file is hard-linked to ``dst`` (which fails on an
+    existing one) and ``src`` removed; a directory is renamed after a check,
+    and a rename never moves a directory onto a non-empty one.
+    """
+    src, dst = os.fspath(src), os.fspath(dst)
+    fn = _libc_renameat2()
+    if fn is not None:
+        if fn(_AT_FDCWD, os.fsencode(src), _AT_FDCWD, os.fsencode(dst), _RENAME_NOREPLACE) == 0:
+            return
+        err = ctypes.get_errno()
+        if err not in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP, errno.ENOTSUP):
+            raise OSError(err, os.strerror(err), src, None, dst) if err != errno.EEXIST else \
+                FileExistsError(err, os.strerror(err), dst)
+    if os.path.lexists(dst):
+        raise FileExistsError(errno.EEXIST, os.strerror(errno.EEXIST), dst)
+    if not os.path.isdir(src):
+        try:
+            os.link(src, dst, follow_symlinks=False)
+        except FileExistsError:
+            raise
+        except OSError:  # no hard links here (FAT, some network file systems): checked just above
+            os.rename(src, dst)
+            return
+        os.unlink(src)
+        return
+    try:
+        os.rename(src, dst)
+    except OSError as exc:
+        if exc.errno in (errno.ENOTEMPTY, errno.EEXIST, errno.ENOTDIR, errno.EISDIR):
+            raise FileExistsError(errno.EEXIST, os.strerror(errno.EEXIST), dst) from None
+        raise
 
 
 def clean_stale_temps(target, now: float | None = None) -> list:
@@ -148,7 +378,7 @@ def _replaced_mode(target: Path, directory: bool):
 
 
 @contextmanager
-def atomic_path(target, directory: bool = False):
+def atomic_path(target, directory: bool = False, *, replace: bool | None = None):
     """Yield a temporary sibling of ``target``; move it onto ``target`` on success.
 
     Parameters
@@ -158,18 +388,43 @@ def atomic_path(target, directory: bool = False):
     directory : bool
         Yield an empty temporary directory instead of a file path. An existing
         ``target`` directory is replaced only after the new one is complete.
+    replace : bool, optional
+        Whether an existing ``target`` may be replaced. False: an existing
+        target is an error before the block runs, and one that appears while
+        it runs is not replaced either (the new output is discarded, with
+        an error). None: as an enclosing :func:`output_lock` of ``target``
+        says, else True.
 
     The temporary path gets the permissions a plain ``open``/``mkdir`` would
     (``mkstemp``/``mkdtemp`` create private ones), or those of the file it
     replaces. If the block raises, the
     temporary path is removed and the exception propagates. Abandoned
     temporaries of earlier, killed writes to the same target are removed
-    first (:func:`clean_stale_temps`, with a warning).
+    first (:func:`clean_stale_temps`, with a warning). The write holds the
+    target's :func:`output_lock` throughout.
+
+    Raises
+    ------
+    ValidationError
+        The parent directory is missing; another process holds the
+        target's lock; or, without ``replace``, the target exists or
+        appeared during the write.
     """
     target = Path(target)
     parent = target.parent if str(target.parent) else Path(".")
     if not parent.is_dir():  # say so with the caller's path, not with a temporary name inside it
         raise ValidationError(f"{target}: the directory {parent} does not exist (create it first)")
+    with output_lock(target):
+        if replace is None:
+            replace = _held_replace(target) is not False
+        if not replace and os.path.lexists(target):
+            raise ValidationError(f"{target} exists; use --force to replace it")
+        with _atomic_path_locked(target, parent, directory, replace) as tmp:
+            yield tmp
+
+
+@contextmanager
+def _atomic_path_locked(target: Path, parent: Path, directory: bool, replace: bool):
     clean_stale_temps(target)
     prefix = _temp_prefix(target.name)
     try:
@@ -187,7 +442,14 @@ def atomic_path(target, directory: bool = False):
     try:
         yield tmp
         os.chmod(tmp, _replaced_mode(target, directory) or mode & ~_umask())
-        if directory and target.exists():
+        if not replace:
+            try:
+                rename_noreplace(tmp, target)
+            except FileExistsError:
+                raise ValidationError(f"{target} appeared while this output was being made (written by "
+                                      f"another process?); it was not replaced and this output was discarded: "
+                                      f"use --force to replace it, or choose another path") from None
+        elif directory and target.exists():
             old = Path(tempfile.mkdtemp(prefix=prefix, suffix=".old", dir=parent))
             try:
                 os.replace(target, old / "previous")
@@ -225,16 +487,17 @@ def _naming(exc: OSError, target) -> OSError:
     return err
 
 
-def write_files(items) -> None:
+def write_files(items, *, replace: bool | None = None) -> None:
     """Write every ``(path, bytes)`` pair or none of them.
 
     All payloads are written to temporary files first; only when every one
-    is complete are they renamed onto their targets.
+    is complete are they renamed onto their targets. ``replace`` is
+    :func:`atomic_path`'s.
     """
     items = [(Path(p), payload) for p, payload in items]
     with ExitStack() as stack:
         for path, payload in items:
-            tmp = stack.enter_context(atomic_path(path))
+            tmp = stack.enter_context(atomic_path(path, replace=replace))
             tmp.write_bytes(payload)
 
 

@@ -3,18 +3,22 @@
 The ``seed2gs`` commands and
 :func:`~seed2gs_inverse.pipeline.outputs.save_extraction` (and through it
 the batch workers) call it first, so a typo fails at once and never after
-minutes of work.
+minutes of work. A command that writes outputs holds their locks for its
+whole run (:func:`locks_outputs`), so a second process writing the same
+output stops at once.
 """
 
 from __future__ import annotations
 
+import functools
 import os
+from contextlib import ExitStack
 from pathlib import Path
 
-from ._atomic import check_writable, not_an_earlier_output
+from ._atomic import check_writable, not_an_earlier_output, output_lock
 from .errors import ValidationError
 
-__all__ = ["check_output"]
+__all__ = ["check_output", "locks_outputs"]
 
 
 def check_output(path, option: str, *, directory: bool = False, force: bool = False, kind: str | None = None) -> Path:
@@ -73,3 +77,42 @@ def check_output(path, option: str, *, directory: bool = False, force: bool = Fa
                                       f"choose another path")
     return p
 
+
+
+def locks_outputs(*options, force: str = "force"):
+    """Decorator of a command's ``run(args)``: hold the lock of each output it names for the whole run.
+
+    Parameters
+    ----------
+    *options : (str, str)
+        ``(attribute of args, option name)`` of each output path, e.g.
+        ``("output", "-o")``; a None or empty attribute is skipped.
+    force : str
+        The attribute of args that allows replacing an existing output.
+
+    Notes
+    -----
+    Each output gets :func:`~seed2gs_inverse._atomic.output_lock` with
+    ``replace`` set by ``force``: another process writing it makes the
+    command fail at once with an error naming that process, and the
+    command's writes of it never replace an existing target without
+    ``force``, even one that appears while the command runs. An output
+    whose directory is missing or cannot take the lock file is left to the
+    command's own checks (:func:`check_output`), which say so.
+    """
+    def decorate(run):
+        @functools.wraps(run)
+        def locked(args):
+            with ExitStack() as held:
+                for attr, option in options:
+                    path = getattr(args, attr, None)
+                    if not path or not (Path(path).parent if str(Path(path).parent) else Path(".")).is_dir():
+                        continue
+                    try:
+                        held.enter_context(output_lock(path, f"{option} {path}",
+                                                       replace=bool(getattr(args, force, False))))
+                    except OSError:
+                        continue
+                return run(args)
+        return locked
+    return decorate

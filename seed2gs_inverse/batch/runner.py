@@ -10,9 +10,14 @@ the scheduler hands out from its own queue as threads come free (so no
 worker idles while another holds queued jobs), and each worker process
 keeps the scenes it read (:mod:`.worker`), so a scene is read once per
 worker, not once per job. With an output directory every job writes its folder
-atomically (as ``seed2gs extract -o`` does) and the runner keeps
-``summary.csv`` / ``summary.json`` up to date after every job
-(:mod:`.summary`), so an interrupted batch leaves a consistent record.
+atomically (as ``seed2gs extract -o`` does), the runner appends each finished
+job to the directory's journal and folds it into ``summary.csv`` /
+``summary.json`` at the end (:mod:`.summary`; a journal left by a killed run
+is folded when the next run starts), so an interrupted batch leaves a
+consistent record. The runner holds the directory's lock
+(:func:`~seed2gs_inverse._atomic.output_lock` on its ``summary.json``) for
+the whole run: a second batch into the same directory stops at once with an
+error naming the first.
 
 Failures: a job that raises is recorded as ``failed`` with its message and
 the batch goes on; a job whose worker process dies (killed, out of memory)
@@ -27,17 +32,18 @@ import os
 import sys
 import time
 import uuid
+from contextlib import ExitStack
 from pathlib import Path
 
 from tqdm import tqdm
 
-from .._atomic import not_an_earlier_output
+from .._atomic import not_an_earlier_output, output_lock
 from .._validation import check_int
 from ..errors import ValidationError
 from .cluster import batch_client, dashboard_address
 from .jobs import Job, read_jobs
-from .summary import (SUMMARY_COLUMNS, check_output_dir, is_batch_folder, read_summary, remove_folder,
-                      write_summary)
+from .summary import (SUMMARY_COLUMNS, JobJournal, check_output_dir, fold_journal, is_batch_folder, read_summary,
+                      remove_folder, write_summary)
 from .worker import JobResult, clear_scene_cache, run_job
 
 __all__ = ["extract_many", "batch_client", "check_output_dir", "SUMMARY_COLUMNS"]
@@ -83,7 +89,8 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
         interrupted runner stopped recording); any other existing
         ``output/<name>`` is an error, as is a ``summary.json`` that is not
         a batch's. A job that fails leaves no folder (one from an earlier
-        run of that name is removed).
+        run of that name is removed). Another batch running into
+        ``output`` is an error that names its process.
     n_workers : int, optional
         Worker processes of the embedded cluster.
     threads_per_worker : int, optional
@@ -126,7 +133,22 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
             if progress:
                 print(msg, file=sys.stderr)
 
-    out, owned, created = _open_output(output, jobs)
+    created = False
+    try:
+        with ExitStack() as held:
+            out, owned, created = _open_output(output, jobs, held)
+            return _extract_many(jobs, client, out, owned, resume=resume, n_workers=n_workers,
+                                 threads_per_worker=threads_per_worker, progress=progress, retries=retries, log=log)
+    except BaseException:
+        # Nothing ran (no cluster, no scheduler): leave no empty results directory behind.
+        if created and not any(out.iterdir()):
+            out.rmdir()
+        raise
+
+
+def _extract_many(jobs, client, out, owned, *, resume, n_workers, threads_per_worker, progress, retries,
+                  log) -> list:
+    """:func:`extract_many` once the results directory (if any) is open and locked."""
     results, todo = _split_resumed(jobs, out, owned if resume else {})
     if out is not None:
         _check_rewrites(out, todo)
@@ -156,48 +178,63 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
         if out is not None:
             if res.status != "done" and (out / res.name).is_dir() and is_batch_folder(out / res.name, owned):
                 remove_folder(out / res.name)  # an earlier run's result for another description
-            summary()
+            journal.append(res)  # the summary is written once, at the end (or by the next run after a kill)
 
     bar = tqdm(total=len(jobs), initial=len(results), desc="jobs", unit="job", file=sys.stderr) if progress else None
+    journal = None if out is None else JobJournal(out)
+    finished = False
     try:
         _run_jobs(todo, client, out, record, meta, n_workers=n_workers, threads_per_worker=threads_per_worker,
                   retries=retries, log=log)
-    except BaseException:
-        # Nothing ran (no cluster, no scheduler): leave no empty results directory behind.
-        if created and out is not None and not any(out.iterdir()):
-            out.rmdir()
-        raise
+        finished = True
     finally:
         if bar is not None:
             bar.close()
-    if out is not None and not todo:
-        summary()
+        if journal is not None:
+            journal.close()
+            if finished or journal.count:
+                summary()  # also when interrupted: the jobs finished so far
+            else:
+                journal.path.unlink(missing_ok=True)  # nothing recorded
     return [results[j.name] for j in jobs]
 
 
-def _open_output(output, jobs: list) -> tuple:
+def _open_output(output, jobs: list, held: ExitStack) -> tuple:
     """``(out, owned, created)``: the results directory (absolute; None without ``output``), the
     summary entries of earlier runs there, and whether this run creates the directory.
+
+    The directory's lock is taken on ``held`` (released when it closes), then
+    a journal left by a killed run is folded into the summary.
 
     Raises
     ------
     ValidationError
-        The directory cannot be written, its summary is not a batch's, or it
-        holds a job's folder that no earlier batch wrote.
+        The directory cannot be written, another process holds its lock, its
+        summary is not a batch's, or it holds a job's folder that no earlier
+        batch wrote.
     """
     if output is None:
         return None, {}, False
     out = check_output_dir(output)
     created = not out.exists()
     out = out.resolve()  # workers may run elsewhere: give them an absolute path
-    owned = read_summary(out)
-    foreign = [j.name for j in jobs if (out / j.name).exists() and not is_batch_folder(out / j.name, owned)]
-    if foreign:
-        raise ValidationError(
-            f"output {out} already holds {', '.join(foreign)}, which no earlier batch there wrote "
-            f"(not in its summary.json): move {'it' if len(foreign) == 1 else 'them'} away, rename the "
-            f"job{'' if len(foreign) == 1 else 's'}, or choose another output directory")
     out.mkdir(exist_ok=True)
+    try:
+        with ExitStack() as lock:
+            lock.enter_context(output_lock(out / "summary.json", f"output {out}"))
+            fold_journal(out)  # a killed run's finished jobs
+            owned = read_summary(out)
+            foreign = [j.name for j in jobs if (out / j.name).exists() and not is_batch_folder(out / j.name, owned)]
+            if foreign:
+                raise ValidationError(
+                    f"output {out} already holds {', '.join(foreign)}, which no earlier batch there wrote "
+                    f"(not in its summary.json): move {'it' if len(foreign) == 1 else 'them'} away, rename the "
+                    f"job{'' if len(foreign) == 1 else 's'}, or choose another output directory")
+            held.push(lock.pop_all())
+    except BaseException:
+        if created and not any(out.iterdir()):
+            out.rmdir()
+        raise
     return out, owned, created
 
 

@@ -3,10 +3,17 @@
 ``summary.json`` (``{"meta", "counts", "jobs"}``, one record per job, as
 :meth:`~seed2gs_inverse.batch.JobResult.to_dict` writes it) and
 ``summary.csv`` (:data:`SUMMARY_COLUMNS`, then ``seconds_<stage>``) are
-rewritten together, atomically, after every job, so an interrupted batch
-leaves a consistent record. The summary is also the batch's claim on the
-directory: a job folder is replaced only when the summary lists it as done
-or its ``report.json`` names the job (:func:`is_batch_folder`).
+rewritten together, atomically, at the end of a run. While it runs, each
+finished job is appended as one JSON line to ``summary.journal``
+(:class:`JobJournal`), in time independent of how many jobs came before;
+:func:`read_summary` reads the journal on top of the summary, and
+:func:`write_summary` folds it in, so a batch killed at any point leaves
+a consistent record that the next run completes. :func:`write_summary`
+re-reads the records on disk and keeps those of jobs it does not write, so
+no job's record is lost to another writer. The summary is also the batch's
+claim on the directory: a job folder is replaced only when the summary
+lists it as done or its ``report.json`` names the job
+(:func:`is_batch_folder`).
 """
 
 from __future__ import annotations
@@ -17,19 +24,24 @@ import json
 import os
 import shutil
 import tempfile
+import time
 from pathlib import Path
 
 from .._atomic import check_writable, write_files
 from ..errors import ValidationError
 
-__all__ = ["SUMMARY_COLUMNS", "STAGES", "read_summary", "write_summary", "is_batch_folder", "check_output_dir",
-           "remove_folder", "result_counts"]
+__all__ = ["SUMMARY_COLUMNS", "STAGES", "JOURNAL", "JobJournal", "read_summary", "write_summary", "fold_journal",
+           "is_batch_folder", "check_output_dir", "remove_folder", "result_counts"]
 
 #: Columns of ``summary.csv`` (per-stage seconds follow as ``seconds_<stage>``).
 SUMMARY_COLUMNS = ("name", "status", "n_gaussians", "n_selected", "n_views", "total_seconds", "worker",
                    "attempts", "scene_cached", "peak_rss_mb", "scene", "prompt", "outdir", "error")
 #: The stages whose seconds ``summary.csv`` lists, in order.
 STAGES = ("read", "camera", "render", "grounding", "lift", "vaas", "tracking", "operators", "solve", "write")
+#: The journal of finished jobs not yet folded into the summary (JSON lines, in the results directory).
+JOURNAL = "summary.journal"
+#: At most this many seconds pass between two fsyncs of the journal (each line is flushed at once).
+JOURNAL_SYNC_S = 1.0
 
 
 def read_summary(output: Path) -> dict:
@@ -55,19 +67,85 @@ def read_summary(output: Path) -> dict:
     ValidationError
         ``summary.json`` (or, without it, ``summary.csv``) is not a batch summary.
     """
+    entries = _read_doc(output)[1]
+    entries.update(_read_journal(output / JOURNAL))
+    return entries
+
+
+def _usable(entries) -> dict:
+    # entries the runner can read back (a hand-edited line without them is dropped, not a crash)
+    return {d["name"]: d for d in entries if isinstance(d, dict) and isinstance(d.get("name"), str)
+            and d.get("status") in ("done", "failed")}
+
+
+def _read_doc(output: Path) -> tuple:
+    """``(meta, entries)`` of ``summary.json`` in ``output`` (``({}, {})`` without one)."""
     p = output / "summary.json"
     if not p.exists():
         _check_summary_csv(output / "summary.csv")
-        return {}
+        return {}, {}
     try:
         doc = json.loads(p.read_text("utf-8"))
-        entries = doc["jobs"]
-        # entries the runner can read back (a hand-edited line without them is dropped, not a crash)
-        return {d["name"]: d for d in entries if isinstance(d, dict) and isinstance(d.get("name"), str)
-                and d.get("status") in ("done", "failed")}
-    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError, RecursionError) as exc:
+        meta = doc.get("meta")
+        return (meta if isinstance(meta, dict) else {}), _usable(doc["jobs"])
+    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError, AttributeError, RecursionError) as exc:
         raise ValidationError(f"{p} is not the summary of a seed2gs batch ({type(exc).__name__}: {exc}); "
                               f"choose another output directory, or move that file away") from None
+
+
+def _read_journal(path: Path) -> dict:
+    """The job records of the journal ``path`` by name, later lines winning; a line that does not
+    parse (the last one of a killed writer) is skipped."""
+    try:
+        with open(path, encoding="utf-8", errors="replace") as fh:
+            lines = fh.readlines()
+    except FileNotFoundError:
+        return {}
+    except OSError as exc:
+        raise ValidationError(f"{path}: cannot read the batch journal ({exc.strerror or exc}); move it away") \
+            from None
+    records = []
+    for line in lines:
+        try:
+            records.append(json.loads(line))
+        except (ValueError, RecursionError):
+            continue
+    return _usable(records)
+
+
+class JobJournal:
+    """Append-only record of the jobs a run finishes: ``output/summary.journal``, one JSON line each.
+
+    :meth:`append` writes and flushes one line (a killed process loses
+    none of the lines written before), and fsyncs at most every
+    :data:`JOURNAL_SYNC_S` seconds (and on :meth:`close`); its cost does
+    not depend on how many jobs came before. :func:`write_summary` folds
+    the journal into the summary and removes it.
+    """
+
+    def __init__(self, output: Path):
+        self.path = Path(output) / JOURNAL
+        self.count = 0
+        self._fh = open(self.path, "a", encoding="utf-8")
+        if self._fh.tell() > 0:
+            self._fh.write("\n")  # after a killed writer's partial line, start a fresh one
+        self._synced = time.monotonic()
+
+    def append(self, result) -> None:
+        """Record the JobResult ``result``."""
+        self._fh.write(json.dumps(result.to_dict(), sort_keys=True) + "\n")
+        self._fh.flush()
+        self.count += 1
+        if time.monotonic() - self._synced > JOURNAL_SYNC_S:
+            os.fsync(self._fh.fileno())
+            self._synced = time.monotonic()
+
+    def close(self) -> None:
+        """Flush, fsync and close the journal (it stays until folded)."""
+        if not self._fh.closed:
+            self._fh.flush()
+            os.fsync(self._fh.fileno())
+            self._fh.close()
 
 
 def _check_summary_csv(path: Path) -> None:
@@ -135,9 +213,20 @@ def remove_folder(path: Path) -> None:
 
 
 def write_summary(output: Path, results: list, meta: dict) -> None:
-    """Write ``summary.json`` and ``summary.csv`` of ``results`` (JobResults) into ``output``, atomically."""
+    """Write ``summary.json`` and ``summary.csv`` of ``results`` (JobResults) into ``output``, atomically.
+
+    The records already there (:func:`read_summary`: the summary and the
+    journal) of jobs ``results`` does not name follow those of ``results``,
+    so no other writer's job is dropped; the journal, folded in, is then
+    removed.
+    """
     rows = [r.to_dict() for r in results]
-    doc = {"meta": meta, "counts": result_counts(results), "jobs": rows}
+    names = {d["name"] for d in rows}
+    rows += [d for n, d in read_summary(output).items() if n not in names]
+    counts = {"jobs": len(rows), "done": sum(d.get("status") == "done" for d in rows),
+              "failed": sum(d.get("status") == "failed" for d in rows),
+              "resumed": sum(bool(d.get("resumed")) for d in rows)}
+    doc = {"meta": meta, "counts": counts, "jobs": rows}
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow([*SUMMARY_COLUMNS, *(f"seconds_{s}" for s in STAGES)])
@@ -146,10 +235,27 @@ def write_summary(output: Path, results: list, meta: dict) -> None:
         for col in SUMMARY_COLUMNS:
             v = d.get(col)
             cells.append(json.dumps(v, sort_keys=True) if isinstance(v, dict) else ("" if v is None else v))
-        cells += [f"{d['seconds'][s]:.3f}" if s in d["seconds"] else "" for s in STAGES]
+        seconds = d.get("seconds") if isinstance(d.get("seconds"), dict) else {}
+        cells += [_seconds(seconds.get(s)) for s in STAGES]
         w.writerow(cells)
     write_files([(output / "summary.json", json.dumps(doc, indent=1).encode("utf-8")),
                  (output / "summary.csv", buf.getvalue().encode("utf-8"))])
+    try:
+        os.unlink(output / JOURNAL)
+    except FileNotFoundError:
+        pass
+
+
+def _seconds(v) -> str:
+    return f"{v:.3f}" if isinstance(v, (int, float)) and not isinstance(v, bool) else ""
+
+
+def fold_journal(output: Path) -> bool:
+    """Fold a journal left in ``output`` (by a killed run) into its summary; whether there was one."""
+    if not (Path(output) / JOURNAL).exists():
+        return False
+    write_summary(Path(output), [], _read_doc(Path(output))[0])
+    return True
 
 
 def result_counts(results) -> dict:

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .._output_paths import locks_outputs
 from ..camera import Camera
 from ..errors import ValidationError
 from ..metrics import boundary_iou, iou, membership_scores
@@ -101,6 +102,7 @@ def run_demo(seed=0, obj="box", views=DEFAULT_VIEWS, size=(192, 144),
     return ex, scores
 
 
+@locks_outputs(("output", "-o"))
 def run(args) -> int:
     """``seed2gs demo``: extract an object of the procedural scene and print its scores."""
     if args.seed < 0:

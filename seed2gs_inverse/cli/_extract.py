@@ -20,6 +20,7 @@ import numpy as np
 
 from .. import __version__
 from .._memory import peak_rss_mb
+from .._output_paths import locks_outputs
 from ..camera import Camera
 from ..errors import FormatError, ValidationError
 from ..frontend.config import resolve_models
@@ -334,6 +335,7 @@ def _reference_camera(args):
     return look_at_camera(args.look_at, args.look_up, args.fov, args.size, up_option="--look-up")
 
 
+@locks_outputs(("output", "-o"))
 def run(args) -> int:
     """``seed2gs extract``: read the inputs, run :func:`~seed2gs_inverse.pipeline.extract`, write OUTDIR."""
     # The pipeline imports the rasterizer, and so Numba: imported here, not at the top, so that

@@ -6,6 +6,7 @@ import sys
 
 from tqdm import tqdm
 
+from .._output_paths import locks_outputs
 from .._validation import as_real
 from ..errors import ValidationError
 from ..io import read_cameras, read_scene
@@ -50,6 +51,7 @@ def register(subparsers) -> None:
     i.set_defaults(func=info)
 
 
+@locks_outputs(("output", "-o"), force="overwrite")
 def build(args) -> int:
     """``seed2gs operators build``: render every camera once and save the operator stack."""
     # Deferred: the rasterizer loads Numba and its compiled kernels, which `seed2gs --help`

@@ -10,6 +10,7 @@ import numpy as np
 from PIL import Image
 
 from .._atomic import write_files
+from .._output_paths import locks_outputs
 from .._validation import as_real
 from ..camera import Camera
 from ..errors import ValidationError
@@ -110,6 +111,7 @@ def _encode(path, array, kind):
     return buf.getvalue()
 
 
+@locks_outputs(("output", "-o"), ("depth", "--depth"), ("alpha", "--alpha"))
 def run(args) -> int:
     """``seed2gs render``: rasterize the scene from one camera and write the requested images."""
     # Deferred: the rasterizer loads Numba and its compiled kernels, which `seed2gs --help`
@@ -139,7 +141,7 @@ def run(args) -> int:
                                           else r.depth, "depth")))
     if alpha_path is not None:
         items.append((alpha_path, _encode(alpha_path, r.alpha, "alpha")))
-    write_files(items)
+    write_files(items, replace=args.force)
     covered = float((r.alpha > 0).mean())
     print(f"rendered {len(scene)} Gaussians at {cam.width}x{cam.height} in {seconds:.2f} s "
           f"({covered:.0%} of pixels covered); wrote {', '.join(str(p) for p, _ in items)}")

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._output_paths import locks_outputs
 from ..errors import ValidationError
 from ..io import detect_format, read_cameras, read_scene, write_scene
 from ..io.formats import output_format
@@ -107,6 +108,7 @@ def info(args) -> int:
     return 0
 
 
+@locks_outputs(("output", "OUT"))
 def convert(args) -> int:
     """``seed2gs convert``: read a scene and write it in the format of OUT's extension."""
     fmt = output_format(args.output)  # fail before reading a large input

@@ -17,6 +17,7 @@ import numpy as np
 from tqdm import tqdm
 
 from .._atomic import atomic_path, write_files
+from .._output_paths import locks_outputs
 from ..comparison import compare, holdout_views
 from ..errors import ValidationError
 from ..io import read_masks
@@ -72,6 +73,7 @@ def _npy_bytes(arr) -> bytes:
     return buf.getvalue()
 
 
+@locks_outputs(("output", "-o"))
 def solve_command(args) -> int:
     """``seed2gs solve``: fit q to the masks with one method and write it as ``.npy``."""
     options = parse_options(args.option, args.method)  # fail fast on a typo, before loading anything
@@ -91,7 +93,7 @@ def solve_command(args) -> int:
           file=sys.stderr, flush=True)
     with SolveBar(args.method, progress_enabled(args.no_progress)) as bar:
         result = solve(stack, masks, method=args.method, init=init, progress=bar.solve_callback, **options)
-    write_files([(out, _npy_bytes(result.q))])
+    write_files([(out, _npy_bytes(result.q))], replace=args.force)
     sel = result.selected()
     print(f"{out}: method {result.method}, {int(sel.sum()):,} of {sel.size:,} Gaussians selected "
           f"(q > {result.threshold:.3g}), {int(result.unobserved.sum()):,} unobserved, "
@@ -99,6 +101,7 @@ def solve_command(args) -> int:
     return 0
 
 
+@locks_outputs(("output", "-o"))
 def compare_command(args) -> int:
     """``seed2gs compare``: fit every method, print the score table, optionally write the report."""
     methods = [m.strip() for m in args.methods.split(",") if m.strip()] if args.methods else None
@@ -136,7 +139,7 @@ def compare_command(args) -> int:
         d = Path(args.output)
         png = io.BytesIO()
         result.plot(png)
-        with atomic_path(d, directory=True) as tmp:  # all or nothing; --force replaces the earlier report
+        with atomic_path(d, directory=True, replace=args.force) as tmp:  # all or nothing; only --force replaces
             (tmp / "comparison.csv").write_bytes(result.to_csv().encode())
             (tmp / "comparison.json").write_bytes(result.to_json().encode())
             (tmp / "comparison.png").write_bytes(png.getvalue())

@@ -123,7 +123,7 @@ def run(args) -> int:
     if out is None:
         viz.membership_plot(scene, q, off_screen=False, **kw).show()
         return 0
-    with atomic_path(out) as tmp:  # a failure leaves nothing behind
+    with atomic_path(out, replace=args.force) as tmp:  # a failure leaves nothing behind
         img = viz.membership_plot(scene, q, screenshot=str(tmp), off_screen=True, **kw)
     # the Gaussians membership_plot draws: above --min-opacity, with --threshold q above it, and as
     # ellipsoids at most --max-glyphs of those (a random subset, which it warns about)

@@ -100,7 +100,8 @@ def save(views, fingerprint, directory, overwrite: bool = False) -> Path:
     """
     target = check_target(directory, overwrite)
     _check_space(views, target)
-    with atomic_path(target, directory=True) as tmp:
+    # without overwrite, an empty directory found by check_target is the only thing replaced
+    with atomic_path(target, directory=True, replace=overwrite or target.exists()) as tmp:
         entries = []
         for i, v in enumerate(views):
             W = v.W

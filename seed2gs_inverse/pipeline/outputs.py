@@ -66,13 +66,17 @@ def save_extraction(extraction: Extraction, outdir: str | os.PathLike, fmt: str 
     Notes
     -----
     Everything goes to a temporary directory next to ``outdir`` that is
-    renamed at the end, so a failure leaves no partial output.
+    renamed at the end, so a failure leaves no partial output. The write
+    holds ``outdir``'s lock (:func:`~seed2gs_inverse._atomic.output_lock`:
+    another process writing it is an error), and without ``force`` an
+    ``outdir`` that appears meanwhile is not replaced (an error; nothing is
+    left behind).
     ``report.json`` is :meth:`~seed2gs_inverse.pipeline.extraction.Extraction.report` with ``seed``
     (:func:`~seed2gs_inverse.pipeline.report.seed_summary`), ``outputs``
     and the given sections.
     """
     out = check_output(outdir, "-o", directory=True, force=force, kind="extract")
-    with atomic_path(out, directory=True) as tmp:
+    with atomic_path(out, directory=True, replace=force) as tmp:
         outputs = {}
         for part, subset in (("object", extraction.object_scene()), ("remainder", extraction.remainder_scene())):
             if len(subset) == 0 and fmt == "splat":
