@@ -391,3 +391,25 @@ def test_cli_from_report_with_bad_grabcut_counts_is_one_line(tmp_path, capsys, m
         assert rc == 2 and len(err.strip().splitlines()) == 1, err
         assert "iterations" in err and f"1..{GRABCUT_MAX_ITERATIONS}" in err and "Traceback" not in err
         assert not (tmp_path / f"again{k}").exists()
+
+
+# ---------------------------------------------------------------- model files that are not files
+def test_model_and_tokenizer_paths_that_are_pipes_or_huge_are_refused(tmp_path, monkeypatch):
+    """A FIFO given as an ONNX or tokenizer file is refused at once (reading it would block for ever),
+    and a tokenizer file beyond the size cap is refused before it is read."""
+    from seed2gs_inverse.frontend import tokenizer
+
+    fifo = tmp_path / "model.onnx"
+    os.mkfifo(fifo)
+    with pytest.raises(FormatError, match=r"model\.onnx: not a regular file"):
+        OnnxModel(fifo, "sam2.encoder", [])
+    for name in ("tokenizer.json", "vocab.txt"):
+        os.mkfifo(tmp_path / name)
+        with pytest.raises(FormatError, match=rf"{name}: not a regular file"):
+            tokenizer.BertTokenizer.from_file(tmp_path / name)
+    big = tmp_path / "big" / "tokenizer.json"
+    big.parent.mkdir()
+    big.write_text('{"model": {"type": "BPE"}}' + " " * 100)
+    monkeypatch.setattr(tokenizer, "MAX_TOKENIZER_BYTES", 64)
+    with pytest.raises(FormatError, match=r"big/tokenizer\.json: 126 bytes, more than the 64"):
+        tokenizer.ClipTokenizer.from_file(big)

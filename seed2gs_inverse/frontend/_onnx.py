@@ -177,6 +177,9 @@ class OnnxModel:
     def __init__(self, path, role: str, layouts: Sequence[Layout], providers=None):
         self.path = Path(path)
         self.role = role
+        if self.path.exists() and not self.path.is_file():
+            raise FormatError(f"{self.path}: not a regular file (a directory, pipe or device); give the ONNX "
+                              f"file for {role} in the models configuration")
         if not self.path.is_file():
             raise FormatError(f"{self.path}: ONNX file for {role} not found "
                               "(check the path in the models configuration)")
