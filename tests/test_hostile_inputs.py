@@ -98,6 +98,19 @@ def test_read_image_refuses_special_files(tmp_path):
         read_image(tmp_path / "gone.png", lambda im: np.asarray(im))
 
 
+def test_truncated_and_junk_mask_files_are_format_errors(tmp_path):
+    image = np.zeros((48, 64, 3), np.float32)
+    full = tmp_path / "full.png"
+    Image.fromarray(np.random.default_rng(0).integers(0, 256, (48, 64), np.uint8)).save(full)
+    cut = tmp_path / "cut.png"
+    cut.write_bytes(full.read_bytes()[:len(full.read_bytes()) // 2])
+    junk = tmp_path / "junk.png"
+    junk.write_bytes(b"not an image at all")
+    for f in (cut, junk):
+        with pytest.raises(FormatError, match=rf"{f.name}: not a readable mask image"):
+            MaskPrompt(f).to_mask(image)
+
+
 def test_mask_prompt_file_refused_before_decoding(bomb, no_decoding):
     image = np.zeros((48, 64, 3), np.float32)
     with pytest.raises(FormatError, match=_limit_message(bomb)):
