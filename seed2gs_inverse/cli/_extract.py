@@ -26,6 +26,7 @@ from ..errors import FormatError, ValidationError
 from ..frontend.config import resolve_models
 from ..frontend.prompts import GRABCUT_SEED, TEXT_NEEDS_GROUNDER, BoxPrompt, MaskPrompt, PointPrompt, TextPrompt
 from ..io import read_camera, read_cameras, read_scene
+from ..io.images import image_shape
 from ..operators import scene_fingerprint
 from ..pipeline.settings import ExtractSettings
 from ._common import (DEFAULT_VIEWS, add_method_arguments, check_input_file, check_output, look_at_camera,
@@ -65,7 +66,8 @@ def register(subparsers) -> None:
                    help="with --look-at: vertical field of view in degrees (default 60)")
     p.add_argument("--size", default=None, metavar="WxH", help="with --look-at: image size (default 960x540)")
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--mask", metavar="PNG", help="seed mask image at the camera's resolution (non-zero = object)")
+    g.add_argument("--mask", metavar="PNG", help="seed mask PNG at the camera's resolution (non-zero = object; "
+                                                 "with transparency, non-zero alpha)")
     g.add_argument("--box", nargs=4, type=float, metavar=("X0", "Y0", "X1", "Y1"),
                    help="box around the object in pixels (GrabCut turns it into the seed)")
     g.add_argument("--point", nargs=2, type=float, action="append", metavar=("X", "Y"),
@@ -124,6 +126,7 @@ def _prompt_from_args(args):
         raise ValidationError("--negative clicks need at least one --point")
     if args.mask is not None:
         check_input_file(args.mask, "--mask")
+        image_shape(args.mask, "--mask image")  # its header, within the image limits, before any work
         return MaskPrompt(args.mask)
     if args.box is not None:
         return BoxPrompt(args.box)

@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
+from PIL import ImageOps
 
 from ..errors import FormatError, ValidationError
 from ..frontend.config import ENV_VAR, resolve_models
+from ..io.images import read_image
 
 __all__ = ["register"]
 
@@ -31,6 +35,18 @@ def _layouts(obj) -> list[str]:
             for m in vars(obj).values() if hasattr(m, "session") and hasattr(m, "layout")]
 
 
+def _rgb(im) -> np.ndarray:
+    """(H, W, 3) float32 RGB in [0, 1] of an opened image (EXIF orientation applied, 16-bit grey scaled)."""
+    im = ImageOps.exif_transpose(im)
+    if im.mode.startswith("I"):  # 16-bit grey
+        grey = np.asarray(im, np.float32) / 65535.0
+    elif im.mode == "F":
+        grey = np.asarray(im, np.float32)
+    else:
+        return np.asarray(im.convert("RGB"), np.float32) / 255.0
+    return np.repeat(np.clip(grey, 0.0, 1.0)[..., None], 3, axis=2)
+
+
 def run(args) -> int:
     """``seed2gs models``: open and describe every configured model; with --image, ground --prompt."""
     if (args.image is None) != (args.prompt is None):
@@ -52,13 +68,9 @@ def run(args) -> int:
         return 0
     if grounder is None:
         raise ValidationError("--prompt needs a grounding source in the configuration")
-    # Deferred: OpenCV is large to load and only this branch reads an image.
-    import cv2
-
-    bgr = cv2.imread(str(args.image), cv2.IMREAD_COLOR)
-    if bgr is None:
-        raise FormatError(f"{args.image}: cannot read the image (PNG or JPEG expected)")
-    image = bgr[:, :, ::-1].astype(np.float32) / 255.0
+    if not os.path.exists(args.image):
+        raise FormatError(f"{args.image}: no such image file (--image)")
+    image = read_image(args.image, _rgb, "--image")
     cands = grounder.ground(image, args.prompt)
     if not cands:
         print(f"no candidate for {args.prompt!r}")

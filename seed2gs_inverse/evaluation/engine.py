@@ -39,7 +39,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from PIL import Image, UnidentifiedImageError
 
 from .._atomic import atomic_path, write_files
 from ..batch import Job, batch_client, extract_many
@@ -50,6 +49,7 @@ from ..errors import FormatError, ValidationError
 from ..frontend.prompts import MaskPrompt, TextPrompt
 from ..io import read_cameras
 from ..io._common import warn_caller
+from ..io.images import read_image
 from ..metrics import boundary_iou, iou
 from .report import QUERY_COLUMNS, csv_table, grid_png, remove_stale_masks, report_tables
 
@@ -144,7 +144,9 @@ def read_gt_mask(path, threshold: int = 128) -> np.ndarray:
     FileNotFoundError
         ``path`` does not exist.
     FormatError
-        ``path`` is no readable image.
+        ``path`` is no readable image, or declares more pixels than
+        :data:`~seed2gs_inverse.io.images.MAX_IMAGE_PIXELS` (checked before
+        any pixel is decoded).
     """
     return _read_mask_image(path, lambda im: np.asarray(im.convert("L")) > threshold)
 
@@ -155,14 +157,8 @@ def mask_image_shape(path) -> tuple:
 
 
 def _read_mask_image(path, read):
-    """``read(image)`` of the image file ``path`` (PIL); FormatError naming the file when it is no image."""
-    try:
-        with Image.open(path) as im:
-            return read(im)
-    except FileNotFoundError:
-        raise FileNotFoundError(2, "No such file", os.fspath(path)) from None
-    except (UnidentifiedImageError, OSError) as exc:
-        raise FormatError(f"{path}: not a readable mask image ({exc})") from None
+    """``read(image)`` of the image file ``path``, bounded as :func:`~seed2gs_inverse.io.images.read_image`."""
+    return read_image(path, read, "mask image")
 
 
 def find_scene_file(scenes_dir: Path, name: str) -> Path:

@@ -18,7 +18,15 @@ import numpy as np
 
 from ..errors import FormatError
 
-__all__ = ["Port", "Layout", "OnnxModel", "format_ports"]
+__all__ = ["Port", "Layout", "OnnxModel", "format_ports", "MAX_FIXED_DIM"]
+
+#: Largest fixed input size accepted on any axis of a model's input. The
+#: toolkit feeds inputs of the sizes a file fixes (an image resized to its
+#: side, zero masks and language features of its shapes); the supported
+#: exports fix at most 1333 pixels a side and 1024 features, and a 4096 x
+#: 4096 RGB float32 input is 192 MiB, while a file claiming 65536 would make
+#: every call allocate 48 GiB.
+MAX_FIXED_DIM = 4096
 
 # onnxruntime's type strings and the numpy dtype each one is fed with.
 _ORT_TO_NUMPY = {
@@ -113,6 +121,16 @@ def _mismatch(port: Port, arg) -> str | None:
     return None
 
 
+def _check_fixed_sizes(path, role: str, inputs) -> None:
+    """FormatError naming the file and the limit when an input fixes an axis above :data:`MAX_FIXED_DIM`."""
+    for arg in inputs:
+        for axis, d in enumerate(arg.shape or []):
+            if isinstance(d, int) and d > MAX_FIXED_DIM:
+                raise FormatError(f"{path}: input {arg.name} of the {role} model fixes axis {axis} at {d}, "
+                                  f"above the limit of {MAX_FIXED_DIM} (the toolkit allocates inputs of the "
+                                  "sizes a file fixes); a corrupt or hostile file")
+
+
 def _check(session, layout: Layout) -> list[str]:
     """Problems of ``session`` against ``layout`` (empty when it matches)."""
     problems = []
@@ -150,14 +168,18 @@ class OnnxModel:
     Raises
     ------
     FormatError
-        The file is missing, unreadable, not a valid ONNX model, or matches
-        none of the layouts; the message names the file, the expected
-        layout(s) and the found signature.
+        The file is missing, unreadable, not a valid ONNX model, fixes an
+        input axis above :data:`MAX_FIXED_DIM`, or matches none of the
+        layouts; the message names the file, the expected layout(s) and the
+        found signature (or the limit).
     """
 
     def __init__(self, path, role: str, layouts: Sequence[Layout], providers=None):
         self.path = Path(path)
         self.role = role
+        if self.path.exists() and not self.path.is_file():
+            raise FormatError(f"{self.path}: not a regular file (a directory, pipe or device); give the ONNX "
+                              f"file for {role} in the models configuration")
         if not self.path.is_file():
             raise FormatError(f"{self.path}: ONNX file for {role} not found "
                               "(check the path in the models configuration)")
@@ -171,6 +193,7 @@ class OnnxModel:
         except Exception as exc:  # onnxruntime raises its own pybind exception types
             first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
             raise FormatError(f"{self.path}: cannot load the ONNX model for {role}: {first}") from None
+        _check_fixed_sizes(self.path, role, self.session.get_inputs())
         reports = []
         for layout in layouts:
             problems = _check(self.session, layout)
@@ -196,7 +219,7 @@ class OnnxModel:
         return name in self._outputs
 
     def input_dim(self, name: str, axis: int, default: int | None = None) -> int | None:
-        """Fixed size of ``axis`` of input ``name``, or ``default`` when dynamic."""
+        """Fixed size of ``axis`` of input ``name`` (at most :data:`MAX_FIXED_DIM`), or ``default`` when dynamic."""
         shape = self._inputs[name].shape
         if shape is None or axis >= len(shape) or not isinstance(shape[axis], int) or shape[axis] <= 0:
             return default

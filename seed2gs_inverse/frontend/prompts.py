@@ -4,7 +4,8 @@ A prompt turns the rendered reference canvas into the seed mask ``m*`` of
 Algorithm 1. Three kinds work without any learned model:
 
 ``MaskPrompt``
-    the mask itself, as an array or an image file (non-zero = object).
+    the mask itself, as an array or a PNG file (non-zero = object; floats
+    above 0.5).
 ``BoxPrompt``
     a box ``x0, y0, x1, y1`` in pixels (exclusive max, like ``Candidate.box``),
     turned into a mask with OpenCV GrabCut on the rendered reference.
@@ -26,8 +27,10 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .._validation import check_vector
+from .._validation import check_int, check_real, check_vector
+from ..camera import MAX_IMAGE_SIDE
 from ..errors import FormatError, ValidationError
+from ..io.images import read_image
 from ._imaging import opencv
 from .base import Candidate, Grounder
 
@@ -64,6 +67,19 @@ def _grabcut(image: np.ndarray, init: np.ndarray, iterations: int) -> np.ndarray
     img = _to_uint8(image)
     _run_seeded(lambda: cv2.grabCut(img, labels, None, bgd, fgd, int(iterations), cv2.GC_INIT_WITH_MASK))
     return np.isin(labels, (cv2.GC_FGD, cv2.GC_PR_FGD))
+
+
+#: Most GrabCut rounds a prompt may ask for. GrabCut settles within a few
+#: rounds (the default is 5) and each round is a full graph cut of the
+#: reference image, so the cap keeps a mistyped count from running for hours.
+GRABCUT_MAX_ITERATIONS = 100
+
+
+def _check_grabcut(prompt: str, iterations, alpha_min) -> None:
+    """ValidationError naming the argument unless ``iterations`` is in 1..GRABCUT_MAX_ITERATIONS and
+    ``alpha_min`` in [0, 1]."""
+    check_int(f"{prompt}(iterations=)", iterations, lo=1, hi=GRABCUT_MAX_ITERATIONS)
+    check_real(f"{prompt}(alpha_min=)", alpha_min, lo=0.0, hi=1.0)
 
 
 #: Seed of OpenCV's random generator for GrabCut (see :func:`_run_seeded`): -1
@@ -115,9 +131,17 @@ class MaskPrompt:
     Parameters
     ----------
     mask : (H, W) array or str or os.PathLike
-        Boolean/numeric array (values > 0.5 are the object) or an image file
-        (PNG/JPEG...; a pixel is the object when its grey value exceeds 127,
-        or, for images with an alpha channel, when its alpha does).
+        A boolean or numeric array, or a lossless image file (PNG). Which
+        pixels are the object (see :func:`object_pixels`): for booleans and
+        integers, every non-zero value (so 0/1 and 0/255 masks both work);
+        for floats, values above 0.5 (a mask of probabilities in [0, 1]; NaN
+        is background). An 8- or 16-bit image file follows the integer rule
+        on its grey (or, in colour, its largest channel) value; an image
+        with transparency uses its alpha channel instead (non-zero alpha is
+        the object), and a 32-bit float image the float rule. The file's
+        header is checked against the reference view's size and the image
+        limits of :func:`~seed2gs_inverse.io.images.read_image` before its
+        pixels are decoded.
     """
 
     mask: Any
@@ -126,38 +150,85 @@ class MaskPrompt:
         """(H, W) bool seed mask, checked against the reference ``image``'s size and non-empty."""
         h, w = np.asarray(image).shape[:2]
         if isinstance(self.mask, (str, os.PathLike)):
-            arr = read_mask_image(self.mask)
+            arr = read_mask_image(self.mask, (h, w))
             name = f"mask file {os.fspath(self.mask)}"
         else:
             arr = np.asarray(self.mask)
             name = "mask"
             if arr.dtype.kind not in "biuf":
                 raise ValidationError(f"{name} must be a boolean or numeric array, got dtype {arr.dtype}")
-            arr = np.nan_to_num(arr.astype(np.float64), nan=0.0) > 0.5
+            arr = object_pixels(arr)
         if arr.shape != (h, w):
-            raise ValidationError(
-                f"{name} has shape {arr.shape} but the reference view is {h}x{w} (H, W); "
-                f"draw the mask at the reference camera's resolution")
+            raise _mask_shape_error(name, arr.shape, h, w)
         if not arr.any():
-            raise ValidationError(f"{name} is empty: mark the object with non-zero pixels")
+            raise ValidationError(f"{name} is empty: mark the object with non-zero pixels (values above 0.5 "
+                                  f"in a float mask)")
         return arr
 
 
-def read_mask_image(path) -> np.ndarray:
-    """Read a mask image: (H, W) bool, alpha channel if present, else grey > 127."""
-    cv2 = opencv()
-    p = os.fspath(path)
-    if not os.path.isfile(p):
-        raise FileNotFoundError(2, "No such file", p)
-    img = cv2.imread(p, cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise FormatError(f"mask file {p}: not an image OpenCV can read (use PNG)")
-    if img.ndim == 3 and img.shape[2] == 4:
-        img = img[..., 3]
-    elif img.ndim == 3:
-        img = img.max(axis=2)
-    scale = 65535 if img.dtype == np.uint16 else 255
-    return img.astype(np.float64) / scale > 0.5
+def object_pixels(values: np.ndarray) -> np.ndarray:
+    """Which pixels of a mask array are the object: bool of the same shape.
+
+    Booleans and integers: every non-zero value (0/1 and 0/255 masks alike).
+    Floats: values above 0.5, the rule for probabilities in [0, 1]; NaN is
+    background.
+    """
+    arr = np.asarray(values)
+    if arr.dtype.kind == "f":
+        with np.errstate(invalid="ignore"):
+            return arr > 0.5
+    return arr != 0
+
+
+def _mask_shape_error(name: str, shape, h: int, w: int) -> ValidationError:
+    return ValidationError(f"{name} has shape {tuple(shape)} but the reference view is {h}x{w} (H, W); "
+                           f"draw the mask at the reference camera's resolution")
+
+
+#: Pillow modes read as they are (integer, bool or float pixels); others are converted to RGB first.
+_PLAIN_MODES = ("1", "L", "I", "I;16", "I;16L", "I;16B", "I;16N", "F")
+
+
+def _image_object_pixels(im, name: str, shape) -> np.ndarray:
+    """Object pixels of the opened (not yet decoded) mask image ``im`` (see :class:`MaskPrompt`)."""
+    if im.format in ("JPEG", "MPO"):
+        raise FormatError(f"{name}: a lossy {im.format} image, whose compression turns the background's 0 into "
+                          f"other values; save the mask as PNG (0 = background, non-zero = object)")
+    if shape is not None and (im.height, im.width) != tuple(shape):
+        raise _mask_shape_error(name, (im.height, im.width), *shape)
+    if im.mode in ("RGBA", "LA", "PA", "La", "RGBa") or "transparency" in im.info:
+        rgba = np.asarray(im.convert("RGBA"))
+        if rgba[..., 3].min() < 255:  # a cut-out: the alpha channel is the mask
+            return rgba[..., 3] != 0
+        return rgba[..., :3].max(axis=2) != 0
+    if im.mode in _PLAIN_MODES:
+        return object_pixels(np.asarray(im))
+    return np.asarray(im.convert("RGB")).max(axis=2) != 0
+
+
+def read_mask_image(path, shape=None) -> np.ndarray:
+    """(H, W) bool object pixels of the mask image file ``path`` (rules in :class:`MaskPrompt`).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A lossless image file (PNG).
+    shape : (H, W) or None
+        When given, the size the file's header must declare, checked before
+        its pixels are decoded.
+
+    Raises
+    ------
+    FileNotFoundError
+        ``path`` does not exist.
+    FormatError
+        Not a regular file, not an image, a lossy JPEG, or an image beyond
+        the limits of :func:`~seed2gs_inverse.io.images.read_image`.
+    ValidationError
+        The image is not of size ``shape``.
+    """
+    name = f"mask file {os.fspath(path)}"
+    return read_image(path, lambda im: _image_object_pixels(im, name, shape), "mask image")
 
 
 @dataclass
@@ -165,10 +236,18 @@ class BoxPrompt:
     """A box ``(x0, y0, x1, y1)`` in pixels, exclusive max, turned into a mask by GrabCut.
 
     The box is clipped to the image. Pixels outside it are background;
-    inside, GrabCut (``iterations`` rounds) separates the object from what
-    the box also covers. Where the reference rendering is transparent
-    (alpha < ``alpha_min``) there is nothing to select, so those pixels are
-    fixed to background.
+    inside, GrabCut (``iterations`` rounds, 1 to
+    :data:`GRABCUT_MAX_ITERATIONS`) separates the object from what the box
+    also covers. Where the reference rendering is transparent (alpha <
+    ``alpha_min``, in [0, 1]) there is nothing to select, so those pixels
+    are fixed to background.
+
+    Raises
+    ------
+    ValidationError
+        When made and when used: a box that is not four finite numbers
+        with ``x0 < x1`` and ``y0 < y1``, or ``iterations`` / ``alpha_min``
+        out of range; the message names the argument.
     """
 
     box: Sequence[float]
@@ -179,7 +258,8 @@ class BoxPrompt:
         self._checked()  # when made (a batch job's box fails before any cluster starts) and when used
 
     def _checked(self) -> np.ndarray:
-        """The box as a float64 (4,) array with x0 < x1 and y0 < y1, or a ValidationError."""
+        """The box as a float64 (4,) array with x0 < x1 and y0 < y1 (parameters checked too), or a ValidationError."""
+        _check_grabcut("BoxPrompt", self.iterations, self.alpha_min)
         try:
             b = check_vector("box", self.box, 4)
         except ValidationError:
@@ -230,6 +310,18 @@ class PointPrompt:
     regions that hold a positive click are kept (GrabCut's colour model would
     otherwise also claim look-alike objects elsewhere in the view). Discs of
     ``radius`` pixels around the clicks are fixed to their label.
+
+    ``color_tol`` lies in [0, 1], ``depth_tol`` is a finite number >= 0,
+    ``radius`` a whole number from 0 to
+    :data:`~seed2gs_inverse.camera.MAX_IMAGE_SIDE` (a larger disc covers any
+    view), ``iterations`` and ``alpha_min`` as for :class:`BoxPrompt`.
+
+    Raises
+    ------
+    ValidationError
+        When made and when used: a parameter out of range (the message
+        names it); when used, clicks that are not finite, outside the
+        image, or labels other than 0/1.
     """
 
     points: Sequence[Sequence[float]]
@@ -240,8 +332,19 @@ class PointPrompt:
     iterations: int = 5
     alpha_min: float = 0.05
 
+    def __post_init__(self):
+        self._check_parameters()
+
+    def _check_parameters(self) -> None:
+        """ValidationError naming the first parameter out of its range."""
+        check_real("PointPrompt(color_tol=)", self.color_tol, lo=0.0, hi=1.0)
+        check_real("PointPrompt(depth_tol=)", self.depth_tol, lo=0.0)
+        check_int("PointPrompt(radius=)", self.radius, lo=0, hi=MAX_IMAGE_SIDE)
+        _check_grabcut("PointPrompt", self.iterations, self.alpha_min)
+
     def _checked(self, h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
         """Clicks as (P, 2) int pixels and labels (P,) 0/1, inside an ``h`` x ``w`` image."""
+        self._check_parameters()  # a mutable dataclass: checked when made and when used
         pts = np.asarray(self.points, dtype=np.float64).reshape(-1, 2) if len(self.points) else np.zeros((0, 2))
         if pts.shape[0] == 0 or not np.all(np.isfinite(pts)):
             raise ValidationError("point prompt needs at least one finite click (x, y)")

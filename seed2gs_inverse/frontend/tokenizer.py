@@ -29,12 +29,28 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import FormatError, ValidationError
+from ..io._common import check_regular
 
 __all__ = ["BertTokenizer", "ClipTokenizer", "load_tokenizer"]
 
 
+#: Largest tokenizer file read (bytes). Public tokenizer.json files are a few
+#: megabytes (BERT's and CLIP's under 4 MB, multilingual ones under 20 MB);
+#: the cap keeps a device or a huge file from being read into memory.
+MAX_TOKENIZER_BYTES = 64 << 20
+
+
+def _check_file(path: Path) -> None:
+    """FormatError naming ``path`` when it exists but is not a regular file of at most MAX_TOKENIZER_BYTES."""
+    check_regular(path, "tokenizer file")  # a FIFO would block the read for ever, /dev/zero never end
+    if path.is_file() and path.stat().st_size > MAX_TOKENIZER_BYTES:
+        raise FormatError(f"{path}: {path.stat().st_size} bytes, more than the {MAX_TOKENIZER_BYTES} a tokenizer "
+                          f"file may have; check the path in the models configuration")
+
+
 def _read_json(path: Path) -> dict:
     """The JSON object of a tokenizer.json (with a ``model`` object), or a FormatError naming the file."""
+    _check_file(path)
     try:
         with open(path, "r", encoding="utf-8") as fh:
             data = json.load(fh)
@@ -81,6 +97,7 @@ def _special_token(path: Path, key: str):
         f = path.parent / name
         if not f.is_file():
             continue
+        _check_file(f)
         try:
             value = json.loads(f.read_text(encoding="utf-8")).get(key)
         except (OSError, UnicodeDecodeError, json.JSONDecodeError, AttributeError):
@@ -159,6 +176,7 @@ class BertTokenizer(_Base):
         """Read a ``tokenizer.json`` (WordPiece model) or a plain ``vocab.txt``."""
         path = Path(path)
         if path.suffix == ".txt":
+            _check_file(path)
             if not path.is_file():
                 raise FormatError(f"{path}: vocabulary file not found")
             tk = _library()

@@ -15,10 +15,10 @@ import re
 from pathlib import Path
 
 import numpy as np
-from PIL import Image, UnidentifiedImageError
 
 from ..errors import FormatError, ValidationError
 from ._common import load_npy
+from .images import read_image
 
 __all__ = ["read_masks", "MASK_NAME"]
 
@@ -64,26 +64,27 @@ def _read_one(f: Path, shape=None, k: int = 0) -> np.ndarray:
         if arr.dtype.kind not in "buif":
             raise FormatError(f"{f}: mask dtype {arr.dtype} is not supported; use bool, uint8 or float")
         return arr
-    try:
-        with Image.open(f) as im:
-            if im.format != "PNG":
-                raise FormatError(f"{f}: a {im.format} image under a .png name; masks are lossless PNG "
-                                  "(a lossy format blurs 0/255 into other values)")
-            if shape is not None and im.size != (shape[1], shape[0]):
-                raise _wrong_shape(f, (im.size[1], im.size[0]), shape, k)
-            grey = np.asarray(im.convert("L"))
-            if im.mode in ("RGBA", "LA", "PA") or "transparency" in im.info:
-                # A cut-out keeps its mask in the alpha channel, which converting to grey drops: refused
-                # unless the grey values mark the same pixels as the alpha (a mask saved with a
-                # transparent background)
-                alpha = np.asarray(im.convert("RGBA").getchannel("A"))
-                if alpha.min() < 255 and np.any((grey > 0) != (alpha > 0)):
-                    raise FormatError(f"{f}: the PNG's transparency marks other pixels than its grey values "
-                                      f"(mode {im.mode}: a cut-out?); save the mask itself as 8-bit greyscale "
-                                      "(0 = background, 255 = object)")
-            return grey
-    except (UnidentifiedImageError, OSError, Image.DecompressionBombError) as exc:
-        raise FormatError(f"{f}: not a readable PNG ({exc})") from None
+    return read_image(f, lambda im: _png_grey(im, f, shape, k), "PNG")
+
+
+def _png_grey(im, f: Path, shape, k: int) -> np.ndarray:
+    """(H, W) uint8 grey values of the opened PNG ``im``, after the format and shape checks."""
+    if im.format != "PNG":
+        raise FormatError(f"{f}: a {im.format} image under a .png name; masks are lossless PNG "
+                          "(a lossy format blurs 0/255 into other values)")
+    if shape is not None and im.size != (shape[1], shape[0]):
+        raise _wrong_shape(f, (im.size[1], im.size[0]), shape, k)
+    grey = np.asarray(im.convert("L"))
+    if im.mode in ("RGBA", "LA", "PA") or "transparency" in im.info:
+        # A cut-out keeps its mask in the alpha channel, which converting to grey drops: refused
+        # unless the grey values mark the same pixels as the alpha (a mask saved with a
+        # transparent background)
+        alpha = np.asarray(im.convert("RGBA").getchannel("A"))
+        if alpha.min() < 255 and np.any((grey > 0) != (alpha > 0)):
+            raise FormatError(f"{f}: the PNG's transparency marks other pixels than its grey values "
+                              f"(mode {im.mode}: a cut-out?); save the mask itself as 8-bit greyscale "
+                              "(0 = background, 255 = object)")
+    return grey
 
 
 def _wrong_shape(f: Path, got, shape, k: int) -> ValidationError:
@@ -128,7 +129,10 @@ def read_masks(directory, n_views: int | None = None, image_shapes=None) -> list
         view (e.g. ``view_000.png`` and ``view_000.npy``), an unreadable file, a mask that is neither
         (H, W) nor flat, or of an unsupported dtype, a ``.png`` that is not a
         PNG, or a PNG that is transparent anywhere (a cut-out, whose mask
-        would be its alpha). The message names the file.
+        would be its alpha), or a PNG that declares more pixels than
+        :data:`~seed2gs_inverse.io.images.MAX_IMAGE_PIXELS` or a side above
+        :data:`~seed2gs_inverse.camera.MAX_IMAGE_SIDE` (checked from its
+        header, before any pixel is decoded). The message names the file.
     ValidationError
         Bad ``n_views`` / ``image_shapes``, wrong number of masks, or a mask
         whose shape differs from its view's image (naming the file and the
