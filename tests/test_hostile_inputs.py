@@ -372,20 +372,13 @@ def test_parameters_changed_after_construction_are_checked_when_used(monkeypatch
         point.to_mask(image)
 
 
-def test_cli_from_report_with_bad_grabcut_counts_is_one_line(tmp_path, capsys, monkeypatch):
+def test_cli_from_report_with_bad_grabcut_counts_is_one_line(tmp_path, capsys):
     """A report whose box prompt records a hostile GrabCut count fails in one line, before any work."""
     import json
 
     from seed2gs_inverse.io import write_cameras, write_scene
     from seed2gs_inverse.synthetic import make_scene
 
-    import importlib
-
-    import seed2gs_inverse.pipeline as pipeline
-
-    # A test module that imported ``seed2gs_inverse.pipeline.extract`` first leaves the package attribute
-    # ``extract`` bound to that submodule instead of the lazily resolved function the CLI imports.
-    monkeypatch.setattr(pipeline, "extract", importlib.import_module("seed2gs_inverse.pipeline.extract").extract)
     syn = make_scene(seed=0)
     write_scene(tmp_path / "scene.ply", syn.scene)
     write_cameras(tmp_path / "cameras.json", [syn.reference_camera(64, 48)])
