@@ -27,6 +27,7 @@ remainder keep at its place.
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 
 from .errors import ValidationError
 from .operators import as_stack
@@ -294,24 +295,32 @@ def object_region(means, selected, quantile: float = 0.02, margin: float = 0.1) 
     return np.all((proj >= lo - pad) & (proj <= hi + pad), axis=1)
 
 
-def _alone_alphas(W, depth: np.ndarray, rows: np.ndarray, members: np.ndarray) -> np.ndarray:
+def _alone_alphas(W, camera, means: np.ndarray, rows: np.ndarray, members: np.ndarray) -> np.ndarray:
     """(len(rows), K) alpha of each member set rendered alone at ``rows``, de-composited from ``W``.
 
-    ``depth`` (N,) orders each pixel's Gaussians front to back; ``members``
-    is (N, K) bool. See :func:`remainder_share`'s Notes.
+    Each pixel's Gaussians are taken front to back by the view depth of
+    their means in ``camera``; ``members`` is (N, K) bool. See
+    :func:`remainder_share`'s Notes.
     """
     sub = W[rows]
-    counts = np.diff(sub.indptr)
+    present = np.zeros(W.shape[1], bool)
+    present[sub.indices] = True
+    cols = np.flatnonzero(present)
+    front_to_back = cols[np.argsort(camera.world_to_view(means[cols])[:, 2], kind="stable")]
+    rank = np.zeros(W.shape[1], sub.indices.dtype)
+    rank[front_to_back] = np.arange(front_to_back.size)
+    # each row's entries in depth order: columns renamed by depth rank, then sorted row by row
+    ordered = sp.csr_matrix((sub.data, rank[sub.indices], sub.indptr), shape=(len(rows), front_to_back.size))
+    ordered.has_sorted_indices = False
+    ordered.sort_indices()
+    counts = np.diff(ordered.indptr)
     pix = np.repeat(np.arange(len(rows)), counts)
-    cols = sub.indices
-    w = np.asarray(sub.data, np.float64)
-    order = np.lexsort((depth[cols], pix))
-    pix, cols, w = pix[order], cols[order], w[order]
+    cols = front_to_back[ordered.indices]
+    w = np.asarray(ordered.data, np.float64)
     run = np.cumsum(w)
-    before = np.concatenate([[0.0], run])[sub.indptr[:-1]]  # the weight in front of each pixel's first entry
+    before = np.concatenate([[0.0], run])[ordered.indptr[:-1]]  # the weight in front of each row's first entry
     t = 1.0 - (run - w - np.repeat(before, counts))  # transmittance in front of each entry
-    a = np.clip(w / np.maximum(t, 1e-12), 0.0, 0.99)
-    log_keep = np.log1p(-a)
+    log_keep = np.log1p(-np.clip(w / np.maximum(t, 1e-12), 0.0, 0.99))
     out = np.empty((len(rows), members.shape[1]))
     for k in range(members.shape[1]):
         out[:, k] = 1.0 - np.exp(np.bincount(pix, weights=log_keep * members[cols, k], minlength=len(rows)))
@@ -407,7 +416,7 @@ def remainder_share(operators, selected, means, *, footprint: float = 0.25, quan
         if rows.size == 0:
             per_view.append(float("nan"))
             continue
-        a = _alone_alphas(v.W, v.camera.world_to_view(x)[:, 2], rows, members)
+        a = _alone_alphas(v.W, v.camera, x, rows, members)
         g, o = float(a[:, 0].sum()), float(a[:, 1].sum())
         ghost, whole = ghost + g, whole + o
         per_view.append(g / o if o > 0 else float("nan"))
