@@ -28,12 +28,14 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from .errors import ValidationError
 from .operators import as_stack
 
 __all__ = ["iou", "boundary_iou", "mask_boundary", "boundary_width", "protocol_mean", "membership_scores",
-           "alpha_scores", "remainder_share", "object_region"]
+           "alpha_scores", "remainder_share", "object_region", "nearby_remainder"]
 
 
 def _pair(pred, truth, name: str = "masks") -> tuple:
@@ -282,6 +284,11 @@ def object_region(means, selected, quantile: float = 0.02, margin: float = 0.1) 
     if not 0 <= quantile < 0.5 or margin < 0:
         raise ValidationError(f"object_region: quantile must be in [0, 0.5) and margin >= 0, got {quantile} "
                               f"and {margin}")
+    return _box(x, sel, quantile, margin, 0.0)
+
+
+def _box(x: np.ndarray, sel: np.ndarray, quantile: float, margin: float, extra: float) -> np.ndarray:
+    """:func:`object_region`'s box, grown by ``extra`` more on every side."""
     pts = x[sel]
     if pts.shape[0] == 0:
         return np.zeros(x.shape[0], bool)
@@ -291,15 +298,75 @@ def object_region(means, selected, quantile: float = 0.02, margin: float = 0.1) 
     proj = (x - mu) @ axes
     lo = np.quantile(proj[sel], quantile, axis=0)
     hi = np.quantile(proj[sel], 1.0 - quantile, axis=0)
-    pad = margin * float(np.max(hi - lo))
+    pad = margin * float(np.max(hi - lo)) + extra
     return np.all((proj >= lo - pad) & (proj <= hi + pad), axis=1)
 
 
-def _alone_alphas(W, camera, means: np.ndarray, rows: np.ndarray, members: np.ndarray) -> np.ndarray:
-    """(len(rows), K) alpha of each member set rendered alone at ``rows``, de-composited from ``W``.
+def _spacing(points: np.ndarray, n_probe: int = 4096) -> float:
+    """Median distance from (up to ``n_probe`` evenly picked) points to their nearest other point."""
+    if points.shape[0] < 2:
+        return 0.0
+    probe = points[:: max(1, points.shape[0] // n_probe)]
+    d = cKDTree(points).query(probe, k=2)[0][:, 1]
+    return float(np.median(d))
+
+
+def nearby_remainder(means, selected, quantile: float = 0.02, margin: float = 0.1, reach: float = 2.0) -> np.ndarray:
+    """Bool (N,): unselected Gaussians in the object's region that the rest of the scene does not continue into.
+
+    Parameters
+    ----------
+    means : (N, 3) array
+    selected : (N,) bool
+    quantile, margin : float
+        The object's region (:func:`object_region`).
+    reach : float > 0
+        Two Gaussians are linked when their means lie within ``reach``
+        times the typical spacing (below).
+
+    Notes
+    -----
+    ``C`` = the unselected Gaussians of the region ``B``
+    (:func:`object_region`); ``O`` = the unselected Gaussians outside
+    ``B`` but within ``r`` of it (the box grown by ``r``). With ``h`` the
+    larger of the median nearest-neighbour distances within the selection
+    and within ``C`` and ``O``, ``r = reach h``; Gaussians of ``C`` and
+    ``O`` closer than ``r`` are linked, and a Gaussian of ``C`` belongs to
+    the nearby remainder when its linked component holds no Gaussian of
+    ``O``. The ground under the object and a wall it stands against run
+    on beyond the region and stay out; inner layers, shells and parts left
+    inside it, and not touching the rest of the scene, are in.
+    """
+    x = np.asarray(means, np.float64)
+    sel = np.asarray(selected, bool)
+    cand = object_region(x, sel, quantile, margin) & ~sel
+    if not cand.any():
+        return cand
+    if not reach > 0:
+        raise ValidationError(f"nearby_remainder: reach must be > 0, got {reach}")
+    h0 = _spacing(x[sel])
+    first = _box(x, sel, quantile, margin, reach * h0) & ~sel
+    h = max(h0, _spacing(x[first]))
+    r = reach * h
+    ring = _box(x, sel, quantile, margin, r) & ~sel & ~cand
+    idx = np.flatnonzero(cand | ring)
+    pairs = cKDTree(x[idx]).query_pairs(r, output_type="ndarray")
+    graph = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(idx.size, idx.size))
+    _, comp = connected_components(graph, directed=False)
+    outside = np.zeros(comp.max() + 1, bool)
+    outside[comp[ring[idx]]] = True
+    out = np.zeros(x.shape[0], bool)
+    out[idx[cand[idx] & ~outside[comp]]] = True
+    return out
+
+
+def _alone_alphas(W, camera, means: np.ndarray, rows: np.ndarray, selected: np.ndarray,
+                  nearby: np.ndarray) -> tuple:
+    """``(alpha_G, alpha_S+G)`` at ``rows``: the ghosts and the object's region rendered alone, from ``W``.
 
     Each pixel's Gaussians are taken front to back by the view depth of
-    their means in ``camera``; ``members`` is (N, K) bool. See
+    their means in ``camera``; the ghosts ``G(u)`` are the ``nearby``
+    Gaussians in front of the pixel's deepest selected one. See
     :func:`remainder_share`'s Notes.
     """
     sub = W[rows]
@@ -321,14 +388,22 @@ def _alone_alphas(W, camera, means: np.ndarray, rows: np.ndarray, members: np.nd
     before = np.concatenate([[0.0], run])[ordered.indptr[:-1]]  # the weight in front of each row's first entry
     t = 1.0 - (run - w - np.repeat(before, counts))  # transmittance in front of each entry
     log_keep = np.log1p(-np.clip(w / np.maximum(t, 1e-12), 0.0, 0.99))
-    out = np.empty((len(rows), members.shape[1]))
-    for k in range(members.shape[1]):
-        out[:, k] = 1.0 - np.exp(np.bincount(pix, weights=log_keep * members[cols, k], minlength=len(rows)))
-    return out
+    # the deepest selected entry of each row (entries run front to back, rows one after the other)
+    is_sel = selected[cols]
+    at = np.flatnonzero(is_sel)
+    last = np.full(len(rows), -1, np.int64)
+    if at.size:
+        ends = np.r_[pix[at][1:] != pix[at][:-1], True]
+        last[pix[at][ends]] = at[ends]
+    ghost = nearby[cols] & (np.arange(cols.size) < last[pix])
+    n = len(rows)
+    alpha_g = 1.0 - np.exp(np.bincount(pix, weights=log_keep * ghost, minlength=n))
+    alpha_sg = 1.0 - np.exp(np.bincount(pix, weights=log_keep * (ghost | is_sel), minlength=n))
+    return alpha_g, alpha_sg
 
 
 def remainder_share(operators, selected, means, *, footprint: float = 0.25, quantile: float = 0.02,
-                    margin: float = 0.1) -> dict:
+                    margin: float = 0.1, reach: float = 2.0) -> dict:
     """The share of the object's alpha that the remainder keeps at the object's place: ghosts left behind.
 
     Needs no truth: it reads the views an extraction rendered (their
@@ -347,8 +422,8 @@ def remainder_share(operators, selected, means, *, footprint: float = 0.25, quan
     footprint : float in (0, 1]
         A pixel is in the object's footprint where the selection's
         weight ``W(c) 1_S`` is at least this.
-    quantile, margin : float
-        The object's region (:func:`object_region`).
+    quantile, margin, reach : float
+        The nearby remainder (:func:`nearby_remainder`).
 
     Returns
     -------
@@ -366,13 +441,16 @@ def remainder_share(operators, selected, means, *, footprint: float = 0.25, quan
 
     Notes
     -----
-    With ``S`` the selection, ``B`` the Gaussians in the selection's
-    robust bounding box (:func:`object_region`) and the nearby remainder
-    ``R = B \\setminus S``, each view's footprint is
+    With ``S`` the selection and ``R`` the nearby remainder
+    (:func:`nearby_remainder`: unselected Gaussians in the selection's
+    robust bounding box that the rest of the scene does not continue
+    into), each view's footprint is
     ``F(c) = {u : (W(c) 1_S)(u) >= footprint}``. At a pixel, with its
     Gaussians ordered front to back by the depth of their means (the
-    rasterizer's order), every Gaussian's own alpha follows from the
-    weights:
+    rasterizer's order), the ghosts ``G(u)`` are the Gaussians of ``R`` in
+    front of the deepest Gaussian of ``S`` there (inside the object along
+    the ray, or in front of it), and every Gaussian's own alpha follows
+    from the weights:
 
     .. math::
 
@@ -384,16 +462,20 @@ def remainder_share(operators, selected, means, *, footprint: float = 0.25, quan
 
     .. math::
 
-        share = \\sum_c \\sum_{u \\in F(c)} \\alpha_R(u) \\Big/
-                \\sum_c \\sum_{u \\in F(c)} \\alpha_{S \\cup R}(u)
+        share = \\sum_c \\sum_{u \\in F(c)} \\alpha_{G(u)}(u) \\Big/
+                \\sum_c \\sum_{u \\in F(c)} \\alpha_{S \\cup G(u)}(u)
 
     (a view's share: the same sums over that view): how opaque what stays
     at the object's place is once the object is removed, next to the
-    object's region rendered alone. Only Gaussians inside the object's
-    region count, so the ground or a wall that shows where the object was
-    after its removal is not a ghost. A Gaussian the rasterizer did not
-    reach (behind a pixel whose transmittance fell below its cut-off) has
-    no weight there and counts for nothing at that pixel.
+    object with those ghosts rendered alone. The region keeps out what
+    stands apart from the object (an occluder in front of it), the
+    continuity what runs on beyond it (the ground under its base, a wall
+    it stands against) and the depth clause what lies behind it: they
+    show where the object was after its removal and are no ghosts. A
+    Gaussian the rasterizer did not reach (behind a pixel whose
+    transmittance fell below its cut-off) has no weight there and counts
+    for nothing at that pixel; weights an operator dropped (its
+    ``min_weight``) are missing from the transmittance too.
     """
     stack = as_stack(operators)
     n = stack.n_gaussians
@@ -407,8 +489,7 @@ def remainder_share(operators, selected, means, *, footprint: float = 0.25, quan
         if v.camera is None:
             raise ValidationError(f"remainder_share: view {i} has no camera; the depth order of its "
                                   f"Gaussians needs one (operators from build_operator carry theirs)")
-    r = object_region(x, s, quantile, margin) & ~s
-    members = np.stack([r, s | r], axis=1)
+    r = nearby_remainder(x, s, quantile, margin, reach)
     ghost, whole, per_view, n_px = 0.0, 0.0, [], 0
     for v in stack:
         rows = np.flatnonzero(np.asarray(v.W @ s.astype(np.float32)) >= footprint)
@@ -416,8 +497,8 @@ def remainder_share(operators, selected, means, *, footprint: float = 0.25, quan
         if rows.size == 0:
             per_view.append(float("nan"))
             continue
-        a = _alone_alphas(v.W, v.camera, x, rows, members)
-        g, o = float(a[:, 0].sum()), float(a[:, 1].sum())
+        a_g, a_sg = _alone_alphas(v.W, v.camera, x, rows, s, r)
+        g, o = float(a_g.sum()), float(a_sg.sum())
         ghost, whole = ghost + g, whole + o
         per_view.append(g / o if o > 0 else float("nan"))
     seen = [p for p in per_view if not np.isnan(p)]

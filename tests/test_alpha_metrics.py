@@ -11,7 +11,7 @@ import scipy.sparse as sp
 from seed2gs_inverse import Camera, GaussianScene
 from seed2gs_inverse.cli._extract import seed_summary_line
 from seed2gs_inverse.errors import ValidationError
-from seed2gs_inverse.metrics import alpha_scores, object_region, remainder_share
+from seed2gs_inverse.metrics import alpha_scores, nearby_remainder, object_region, remainder_share
 from seed2gs_inverse.operators import ViewOperator
 from seed2gs_inverse.raster import build_operator, render
 
@@ -112,12 +112,14 @@ def _wall(z, half, n_side, opacity=0.95):
 
 
 def _scene(parts):
+    """A scene of parts ``(means, sigma, opacity[, quats])``: sigma (n,) isotropic or (n, 3) per axis."""
     means = np.vstack([p[0] for p in parts])
-    sig = np.concatenate([p[1] for p in parts])
+    sig = np.vstack([np.broadcast_to(np.asarray(p[1], float).reshape(len(p[0]), -1), (len(p[0]), 3))
+                     for p in parts])
+    quats = np.vstack([p[3] if len(p) > 3 else np.tile([1.0, 0, 0, 0], (len(p[0]), 1)) for p in parts])
     op = np.clip(np.concatenate([p[2] for p in parts]), 1e-4, 1 - 1e-4)
     n = len(means)
-    scene = GaussianScene(means, np.tile([1.0, 0, 0, 0], (n, 1)), np.log(np.repeat(sig[:, None], 3, 1)),
-                          np.log(op / (1 - op)), np.full((n, 1, 3), 0.5))
+    scene = GaussianScene(means, quats, np.log(sig), np.log(op / (1 - op)), np.full((n, 1, 3), 0.5))
     labels = np.concatenate([np.full(len(p[0]), k) for k, p in enumerate(parts)])
     return scene, labels
 
@@ -177,6 +179,79 @@ def test_a_wall_seen_through_a_clean_selection_is_not_a_ghost():
     assert wall > 0.1 * (wall + obj)
 
 
+def _ground(y, half, n_side, opacity=0.95):
+    """Flat surfels on the plane ``y`` (normal along y: local z turned onto y)."""
+    u = np.linspace(-half, half, n_side)
+    xx, zz = np.meshgrid(u, u)
+    pts = np.stack([xx.ravel(), np.full(xx.size, y), zz.ravel()], 1)
+    st = 0.7 * (u[1] - u[0])
+    quat = [np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0]
+    return (pts, np.tile([st, st, 0.1 * st], (xx.size, 1)), np.full(xx.size, opacity),
+            np.tile(quat, (xx.size, 1)))
+
+
+def test_the_ground_under_a_clean_selection_is_not_a_ghost():
+    # a half-transparent ball resting on the ground, seen from above: the ground under it lies in the
+    # ball's region (the box's margin), shows through it, and shows where it was once removed; it is
+    # behind the ball along every ray, so it is no ghost
+    scene, labels = _scene([_sphere(300, 0.5, 0.3), _ground(0.52, 1.2, 60)])
+    ops = _views(scene, [0, 90, 180, 270], elevation=50.0) + _views(scene, [45], elevation=10.0)
+    ball = labels == 0
+    r = remainder_share(ops, ball, scene.means)
+    assert r["n_nearby"] == 0 and r["share"] == 0.0
+    # the ball's box does hold ground, which rendered alone covers much of the ball's footprint
+    in_box = object_region(scene.means, ball) & ~ball
+    assert in_box.sum() > 100
+    cover = [render(scene.subset(in_box), op.camera).alpha[(op.W @ ball.astype(np.float32)).reshape(
+        op.image_shape) >= 0.25].mean() for op in ops]
+    assert min(cover[:4]) > 0.2
+    # an inner ball left unselected inside the same ball is found there, the ground still left out
+    scene, labels = _scene([_sphere(300, 0.5, 0.3), _ground(0.52, 1.2, 60), _sphere(100, 0.3, 0.9)])
+    nearby = nearby_remainder(scene.means, labels == 0)
+    assert np.array_equal(nearby, labels == 2)
+    assert remainder_share(_views(scene, [0, 180], elevation=50.0), labels == 0, scene.means)["share"] > 0.3
+
+
+def _looped_share(ops, sel, nearby, means, footprint=0.25):
+    """remainder_share's definition by loops over each pixel's entries, sorted by depth one by one."""
+    g = o = 0.0
+    for op in ops:
+        z = op.camera.world_to_view(np.asarray(means, np.float64))[:, 2]
+        D = op.W.toarray().astype(np.float64)
+        for u in range(D.shape[0]):
+            ids = list(np.flatnonzero(D[u]))
+            if sum(D[u, i] for i in ids if sel[i]) < footprint:
+                continue
+            ids.sort(key=lambda i: z[i])
+            deepest = max((k for k, i in enumerate(ids) if sel[i]), default=-1)
+            keep_g = keep_sg = 1.0
+            t = 1.0
+            for k, i in enumerate(ids):
+                a = min(D[u, i] / t, 0.99)
+                t -= D[u, i]
+                if nearby[i] and k < deepest:
+                    keep_g *= 1 - a
+                    keep_sg *= 1 - a
+                elif sel[i]:
+                    keep_sg *= 1 - a
+            g += 1 - keep_g
+            o += 1 - keep_sg
+    return g / o
+
+
+def test_remainder_share_matches_a_per_pixel_loop():
+    # both layers partly selected: some unselected Gaussians lie behind a pixel's deepest selected one
+    scene, labels = _scene([_sphere(120, 0.6, 0.4), _sphere(80, 0.4, 0.6)])
+    ops = _views(scene, [30, 200], elevation=35.0)
+    rng = np.random.default_rng(4)
+    sel = rng.random(len(labels)) < 0.6
+    nearby = nearby_remainder(scene.means, sel, margin=0.3)  # a box that holds every Gaussian
+    assert np.array_equal(nearby, ~sel)
+    want = _looped_share(ops, sel, nearby, scene.means)
+    got = remainder_share(ops, sel, scene.means, margin=0.3)["share"]
+    assert want > 0.05 and got == pytest.approx(want, rel=1e-6)
+
+
 def test_remainder_share_matches_renders_of_the_parts_alone():
     # the reference renders the nearby remainder and the object's region alone with the rasterizer;
     # opacities low enough that no pixel of the whole scene reaches the transmittance cut-off (a
@@ -185,7 +260,7 @@ def test_remainder_share_matches_renders_of_the_parts_alone():
     ops = _views(scene, [0, 45, -60])
     rng = np.random.default_rng(1)
     sel = (labels == 0) | ((labels == 1) & (rng.random(len(labels)) < 0.5))
-    nearby = object_region(scene.means, sel) & ~sel
+    nearby = nearby_remainder(scene.means, sel)
     assert nearby.sum() > 10 and not nearby[labels == 2].any()
     g = o = 0.0
     per_view = []
