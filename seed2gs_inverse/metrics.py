@@ -284,22 +284,33 @@ def object_region(means, selected, quantile: float = 0.02, margin: float = 0.1) 
     if not 0 <= quantile < 0.5 or margin < 0:
         raise ValidationError(f"object_region: quantile must be in [0, 0.5) and margin >= 0, got {quantile} "
                               f"and {margin}")
-    return _box(x, sel, quantile, margin, 0.0)
+    return _Box(x, sel, quantile, margin).inside(0.0)
 
 
-def _box(x: np.ndarray, sel: np.ndarray, quantile: float, margin: float, extra: float) -> np.ndarray:
-    """:func:`object_region`'s box, grown by ``extra`` more on every side."""
-    pts = x[sel]
-    if pts.shape[0] == 0:
-        return np.zeros(x.shape[0], bool)
-    mu = pts.mean(0)
-    d = pts - mu
-    _, axes = np.linalg.eigh(d.T @ d)
-    proj = (x - mu) @ axes
-    lo = np.quantile(proj[sel], quantile, axis=0)
-    hi = np.quantile(proj[sel], 1.0 - quantile, axis=0)
-    pad = margin * float(np.max(hi - lo)) + extra
-    return np.all((proj >= lo - pad) & (proj <= hi + pad), axis=1)
+class _Box:
+    """:func:`object_region`'s box of ``sel`` over the points ``x``: ``inside(extra)`` grows it by ``extra`` more."""
+
+    def __init__(self, x: np.ndarray, sel: np.ndarray, quantile: float, margin: float):
+        pts = x[sel]
+        self.empty = pts.shape[0] == 0
+        if self.empty:
+            self.n = x.shape[0]
+            return
+        mu = pts.mean(0)
+        d = pts - mu
+        _, axes = np.linalg.eigh(d.T @ d)
+        c = x - mu
+        # column by column: a (N, 3) x (3, 3) product through BLAS costs far more for tall N
+        self.proj = c[:, :1] * axes[0] + c[:, 1:2] * axes[1] + c[:, 2:] * axes[2]
+        self.lo = np.quantile(self.proj[sel], quantile, axis=0)
+        self.hi = np.quantile(self.proj[sel], 1.0 - quantile, axis=0)
+        self.pad = margin * float(np.max(self.hi - self.lo))
+
+    def inside(self, extra: float) -> np.ndarray:
+        if self.empty:
+            return np.zeros(self.n, bool)
+        p = self.pad + extra
+        return np.all((self.proj >= self.lo - p) & (self.proj <= self.hi + p), axis=1)
 
 
 def _spacing(points: np.ndarray, n_probe: int = 4096) -> float:
@@ -339,16 +350,20 @@ def nearby_remainder(means, selected, quantile: float = 0.02, margin: float = 0.
     """
     x = np.asarray(means, np.float64)
     sel = np.asarray(selected, bool)
-    cand = object_region(x, sel, quantile, margin) & ~sel
+    if x.ndim != 2 or x.shape[1] != 3 or sel.shape != (x.shape[0],):
+        raise ValidationError(f"nearby_remainder: means must be (N, 3) and selected bool (N,), got {x.shape} "
+                              f"and {sel.shape}")
+    if not 0 <= quantile < 0.5 or margin < 0 or not reach > 0:
+        raise ValidationError(f"nearby_remainder: quantile must be in [0, 0.5), margin >= 0 and reach > 0, got "
+                              f"{quantile}, {margin} and {reach}")
+    box = _Box(x, sel, quantile, margin)
+    cand = box.inside(0.0) & ~sel
     if not cand.any():
         return cand
-    if not reach > 0:
-        raise ValidationError(f"nearby_remainder: reach must be > 0, got {reach}")
     h0 = _spacing(x[sel])
-    first = _box(x, sel, quantile, margin, reach * h0) & ~sel
-    h = max(h0, _spacing(x[first]))
+    h = max(h0, _spacing(x[box.inside(reach * h0) & ~sel]))
     r = reach * h
-    ring = _box(x, sel, quantile, margin, r) & ~sel & ~cand
+    ring = box.inside(r) & ~sel & ~cand
     idx = np.flatnonzero(cand | ring)
     pairs = cKDTree(x[idx]).query_pairs(r, output_type="ndarray")
     graph = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(idx.size, idx.size))
