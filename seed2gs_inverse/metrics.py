@@ -377,12 +377,10 @@ def nearby_remainder(means, selected, quantile: float = 0.02, margin: float = 0.
 
 def _alone_alphas(W, camera, means: np.ndarray, rows: np.ndarray, selected: np.ndarray,
                   nearby: np.ndarray) -> tuple:
-    """``(alpha_G, alpha_S+G)`` at ``rows``: the ghosts and the object's region rendered alone, from ``W``.
+    """``(alpha_R, alpha_S+R)`` at ``rows``: the nearby remainder and the object's region rendered alone, from ``W``.
 
     Each pixel's Gaussians are taken front to back by the view depth of
-    their means in ``camera``; the ghosts ``G(u)`` are the ``nearby``
-    Gaussians in front of the pixel's deepest selected one. See
-    :func:`remainder_share`'s Notes.
+    their means in ``camera``. See :func:`remainder_share`'s Notes.
     """
     sub = W[rows]
     present = np.zeros(W.shape[1], bool)
@@ -403,18 +401,11 @@ def _alone_alphas(W, camera, means: np.ndarray, rows: np.ndarray, selected: np.n
     before = np.concatenate([[0.0], run])[ordered.indptr[:-1]]  # the weight in front of each row's first entry
     t = 1.0 - (run - w - np.repeat(before, counts))  # transmittance in front of each entry
     log_keep = np.log1p(-np.clip(w / np.maximum(t, 1e-12), 0.0, 0.99))
-    # the deepest selected entry of each row (entries run front to back, rows one after the other)
-    is_sel = selected[cols]
-    at = np.flatnonzero(is_sel)
-    last = np.full(len(rows), -1, np.int64)
-    if at.size:
-        ends = np.r_[pix[at][1:] != pix[at][:-1], True]
-        last[pix[at][ends]] = at[ends]
-    ghost = nearby[cols] & (np.arange(cols.size) < last[pix])
+    ghost = nearby[cols]
     n = len(rows)
-    alpha_g = 1.0 - np.exp(np.bincount(pix, weights=log_keep * ghost, minlength=n))
-    alpha_sg = 1.0 - np.exp(np.bincount(pix, weights=log_keep * (ghost | is_sel), minlength=n))
-    return alpha_g, alpha_sg
+    alpha_r = 1.0 - np.exp(np.bincount(pix, weights=log_keep * ghost, minlength=n))
+    alpha_sr = 1.0 - np.exp(np.bincount(pix, weights=log_keep * (ghost | selected[cols]), minlength=n))
+    return alpha_r, alpha_sr
 
 
 def remainder_share(operators, selected, means, *, footprint: float = 0.25, quantile: float = 0.02,
@@ -462,10 +453,8 @@ def remainder_share(operators, selected, means, *, footprint: float = 0.25, quan
     into), each view's footprint is
     ``F(c) = {u : (W(c) 1_S)(u) >= footprint}``. At a pixel, with its
     Gaussians ordered front to back by the depth of their means (the
-    rasterizer's order), the ghosts ``G(u)`` are the Gaussians of ``R`` in
-    front of the deepest Gaussian of ``S`` there (inside the object along
-    the ray, or in front of it), and every Gaussian's own alpha follows
-    from the weights:
+    rasterizer's order), every Gaussian's own alpha follows from the
+    weights:
 
     .. math::
 
@@ -477,20 +466,21 @@ def remainder_share(operators, selected, means, *, footprint: float = 0.25, quan
 
     .. math::
 
-        share = \\sum_c \\sum_{u \\in F(c)} \\alpha_{G(u)}(u) \\Big/
-                \\sum_c \\sum_{u \\in F(c)} \\alpha_{S \\cup G(u)}(u)
+        share = \\sum_c \\sum_{u \\in F(c)} \\alpha_R(u) \\Big/
+                \\sum_c \\sum_{u \\in F(c)} \\alpha_{S \\cup R}(u)
 
     (a view's share: the same sums over that view): how opaque what stays
     at the object's place is once the object is removed, next to the
-    object with those ghosts rendered alone. The region keeps out what
-    stands apart from the object (an occluder in front of it), the
-    continuity what runs on beyond it (the ground under its base, a wall
-    it stands against) and the depth clause what lies behind it: they
-    show where the object was after its removal and are no ghosts. A
-    Gaussian the rasterizer did not reach (behind a pixel whose
-    transmittance fell below its cut-off) has no weight there and counts
-    for nothing at that pixel; weights an operator dropped (its
-    ``min_weight``) are missing from the transmittance too.
+    object's region rendered alone. The region keeps out what stands
+    apart from the object (an occluder in front of it), the continuity
+    what runs on beyond it (the ground under its base, a wall it stands
+    against): they show where the object was after its removal and are
+    no ghosts. The figure is a lower bound: a Gaussian the rasterizer did
+    not reach (behind a pixel whose transmittance fell below its cut-off,
+    as behind an opaque selected front layer) has no weight there and
+    counts for nothing at that pixel, although it shows once the object
+    is removed; weights an operator dropped (its ``min_weight``) are
+    missing from the transmittance too.
     """
     stack = as_stack(operators)
     n = stack.n_gaussians

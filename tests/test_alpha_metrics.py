@@ -223,13 +223,12 @@ def _looped_share(ops, sel, nearby, means, footprint=0.25):
             if sum(D[u, i] for i in ids if sel[i]) < footprint:
                 continue
             ids.sort(key=lambda i: z[i])
-            deepest = max((k for k, i in enumerate(ids) if sel[i]), default=-1)
             keep_g = keep_sg = 1.0
             t = 1.0
-            for k, i in enumerate(ids):
+            for i in ids:
                 a = min(D[u, i] / t, 0.99)
                 t -= D[u, i]
-                if nearby[i] and k < deepest:
+                if nearby[i]:
                     keep_g *= 1 - a
                     keep_sg *= 1 - a
                 elif sel[i]:
@@ -240,7 +239,7 @@ def _looped_share(ops, sel, nearby, means, footprint=0.25):
 
 
 def test_remainder_share_matches_a_per_pixel_loop():
-    # both layers partly selected: some unselected Gaussians lie behind a pixel's deepest selected one
+    # both layers partly selected, at random
     scene, labels = _scene([_sphere(120, 0.6, 0.4), _sphere(80, 0.4, 0.6)])
     ops = _views(scene, [30, 200], elevation=35.0)
     rng = np.random.default_rng(4)
