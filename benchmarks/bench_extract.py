@@ -16,7 +16,13 @@ grid, the far side included): per view IoU / boundary IoU of
 ``W(c) 1_selected > 0.5`` against ``W(c) 1_object > 0.5``; per case the
 mean (mIoU, mBIoU) and the minimum, the 3D IoU of the membership, the axis
 error (angle between the orbit axis extract used and the true up) and the
-wall time of ``extract()``; below each case its per-stage seconds next to
+wall time of ``extract()``; on a second line the alpha-weighted recall,
+precision and IoU of the selection against the truth over the held-out views
+(``metrics.alpha_scores``: every Gaussian counted by its compositing weight)
+and the share of the object's alpha that the remainder keeps at the object's
+place (``metrics.remainder_share``, no truth needed) over the held-out views,
+its worst view, and over the extraction's own views (what ``report.json``
+says); below each case its per-stage seconds next to
 baselines measured right after it (``_common.same_run_baselines``: one
 960x540 render of the case's scene from the reference pose, one forward and
 one transposed pass over the extraction's own operator stack) and the
@@ -71,7 +77,7 @@ sys.path.insert(0, str(_ROOT))  # this checkout's package, not whichever one is 
 from _common import extract_kwargs, parse_set, same_run_baselines  # noqa: E402
 
 from seed2gs_inverse import Camera, build_operator, extract, read_camera, read_scene, render  # noqa: E402
-from seed2gs_inverse.metrics import boundary_iou, iou, membership_scores  # noqa: E402
+from seed2gs_inverse.metrics import alpha_scores, boundary_iou, iou, membership_scores, remainder_share  # noqa: E402
 from seed2gs_inverse.pipeline.up_axis import estimate_up  # noqa: E402
 from seed2gs_inverse.synthetic import compose, pose_on_point  # noqa: E402
 from seed2gs_inverse.synthetic.ground import make_ground_scene, place_object  # noqa: E402
@@ -291,7 +297,12 @@ def run_case(built: Built, options: dict, timing: bool = True):
     used_up = _unit(ex.resolved["up"])
     axis_err = float(np.degrees(np.arccos(np.clip(used_up @ built.up, -1, 1))))
     m3 = membership_scores(ex.selected, built.truth)
+    held = [op for _, op, _ in built.held_out]
+    aw = alpha_scores(held, ex.selected, built.truth)
+    ghost = remainder_share(held, ex.selected, built.scene.means)
     out = {"miou": float(np.mean(ious)), "mbiou": float(np.mean(bious)), "iou3d": float(m3["iou"]),
+           "a_recall": aw["recall"], "a_precision": aw["precision"], "a_iou": aw["iou"],
+           "rem": ghost["share"], "rem_worst": ghost["worst_view"], "rem_extract": ex.remainder_summary()["share"],
            "min": float(np.min(ious)), "axis": axis_err, "seconds": wall, "ious": ious,
            "seed_px": int(built.seed.sum()), "views": views, "n_views": len(ex.views), "ex": ex,
            "stages": {k: float(v) for k, v in ex.seconds.items()}}
@@ -304,6 +315,11 @@ def run_case(built: Built, options: dict, timing: bool = True):
         out.update(render_s=base["render_s"], two_passes_s=base["two_passes_s"],
                    renders=wall / base["render_s"])
     return out
+
+
+def _pct(x) -> str:
+    """``x`` as a percentage with one decimal, ``-`` for None or NaN (no footprint)."""
+    return "-" if x is None or np.isnan(x) else f"{100 * x:.1f}%"
 
 
 def _report_grid(path, rows, n_worst=8):
@@ -386,6 +402,8 @@ def main(argv=None) -> int:
     rows = []
     print(f"{'#':>2} {'case':<20} {'seed':>6} {'mIoU':>6} {'mBIoU':>6} {'3D IoU':>6} {'min':>6} "
           f"{'axis':>6} {'s':>6}  held-out IoU per view")
+    print(f"{'':>24}alpha-weighted over the held-out views: recall aR, precision aP, IoU aIoU; rem: the "
+          f"remainder's share of the object's alpha there (worst view), and in the extraction's own views")
     for i, case in cases:
         built = Built(case, args.quick, cache)
         if built.seed.sum() < 50:
@@ -396,6 +414,8 @@ def main(argv=None) -> int:
         print(f"{i:>2} {case.name:<20} {r['seed_px']:>6} {r['miou']:6.3f} {r['mbiou']:6.3f} {r['iou3d']:6.3f} "
               f"{r['min']:6.3f} {r['axis']:6.1f} {r['seconds']:6.2f}  {np.round(r['ious'], 2).tolist()}"
               + (f" ({built.n_moved} moved past occluders)" if built.n_moved else ""))
+        print(f"{'':>24}aR {r['a_recall']:.3f}  aP {r['a_precision']:.3f}  aIoU {r['a_iou']:.3f}  "
+              f"rem {_pct(r['rem'])} (worst view {_pct(r['rem_worst'])}; own views {_pct(r['rem_extract'])})")
         if not args.no_timing:
             print(f"{'':>24}stages " + ", ".join(f"{k} {v:.2f}" for k, v in r["stages"].items())
                   + f" | one 960x540 render {r['render_s']:.3f} s, two passes over its stack "
@@ -412,6 +432,11 @@ def main(argv=None) -> int:
     worst = min(r["miou"] for _, r in rows)
     print(f"   {'mean of ' + str(len(rows)) + ' cases':<20} {'':>6} {mean['miou']:6.3f} {mean['mbiou']:6.3f} "
           f"{mean['iou3d']:6.3f} {mean['min']:6.3f} {mean['axis']:6.1f} {mean['seconds']:6.2f}")
+    for k in ("a_recall", "a_precision", "a_iou", "rem", "rem_worst", "rem_extract"):
+        vals = [r[k] for _, r in rows if r[k] is not None and not np.isnan(r[k])]
+        mean[k] = float(np.mean(vals)) if vals else float("nan")
+    print(f"{'':>24}mean aR {mean['a_recall']:.3f}  aP {mean['a_precision']:.3f}  aIoU {mean['a_iou']:.3f}  "
+          f"rem {_pct(mean['rem'])} (worst view {_pct(mean['rem_worst'])}; own views {_pct(mean['rem_extract'])})")
     print(f"aim: mean mIoU >= 0.95 ({mean['miou'] - 0.95:+.3f}), mBIoU >= 0.88 ({mean['mbiou'] - 0.88:+.3f}), "
           f"every case >= 0.90 (worst {worst:.3f})")
     load1 = os.getloadavg()

@@ -183,6 +183,9 @@ def test_from_report_repeats_the_run(files, capsys, tmp_path):
     # the seed's size is reported on the command line and in the report
     seed = rep["seed"]
     assert f"seed: {seed['seed_pixels']:,} px = {seed['share_of_object_box']:.0%} of the object's box" in out
+    # ... and what the remainder keeps of the object's alpha
+    rem = rep["remainder_share"]
+    assert f"; the remainder keeps {rem['share']:.1%} of the object's alpha (worst view {rem['worst_view']:.1%})" in out
     # repeat it
     assert _run(["extract", "--from-report", first / "report.json", "-o", again]) == 0
     q1, q2 = np.load(first / "q.npy"), np.load(again / "q.npy")

@@ -190,14 +190,23 @@ def _prompt_from_record(rec: dict, where: str):
 
 
 # -- outputs ---------------------------------------------------------------------------------
-def seed_summary_line(summary: dict) -> str:
-    """``seed: 412 px = 38% of the object's box (28x39 px); covers 45% of the object's silhouette``."""
+def seed_summary_line(summary: dict, remainder: dict | None = None) -> str:
+    """``seed: 412 px = 38% of the object's box (28x39 px); covers 45% of the object's silhouette``.
+
+    With ``remainder`` (:meth:`~seed2gs_inverse.pipeline.extraction.Extraction.remainder_summary`)
+    the line goes on with ``; the remainder keeps 3.1% of the object's alpha (worst view 7.4%)``.
+    """
     s = summary
     if not s.get("object_pixels"):
-        return f"seed: {s['seed_pixels']:,} px (the object is not visible in the reference view)"
-    w, h = s["object_box_size"]
-    return (f"seed: {s['seed_pixels']:,} px = {s['share_of_object_box']:.0%} of the object's box ({w}x{h} px); "
-            f"covers {s['share_of_object']:.0%} of the object's silhouette")
+        line = f"seed: {s['seed_pixels']:,} px (the object is not visible in the reference view)"
+    else:
+        w, h = s["object_box_size"]
+        line = (f"seed: {s['seed_pixels']:,} px = {s['share_of_object_box']:.0%} of the object's box "
+                f"({w}x{h} px); covers {s['share_of_object']:.0%} of the object's silhouette")
+    if remainder is not None and remainder.get("share") is not None:
+        line += (f"; the remainder keeps {remainder['share']:.1%} of the object's alpha "
+                 f"(worst view {remainder['worst_view']:.1%})")
+    return line
 
 
 # -- settings --------------------------------------------------------------------------------
@@ -405,7 +414,7 @@ def run(args) -> int:
           + ("" if run_info["peak_rss_mb"] is None else f"; peak memory {run_info['peak_rss_mb'] / 1024:.2f} GB")
           + ")")
     if int(ex.selected.sum()):  # (an empty selection was warned about by extract)
-        print(seed_summary_line(report.seed_summary(ex)))
+        print(seed_summary_line(report.seed_summary(ex), ex.remainder_summary()))
     if models is None:  # with models, SAM2 would have tracked even a mask/box/point seed
         print("note: no models configured; the seed was tracked by the model-free tracker",
               file=sys.stderr)

@@ -14,6 +14,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..metrics import remainder_share
+
 if TYPE_CHECKING:
     from ..camera import Camera
     from ..operators import OperatorStack, Rendering
@@ -94,6 +96,12 @@ class Extraction:
         The orbit axis (:func:`~seed2gs_inverse.pipeline.stages.orbit_axis`):
         ``axis``, ``method`` (how it was chosen), ``confidence`` in [0, 1]
         (None when the user chose it) and ``details``.
+
+    Notes
+    -----
+    ``report()["remainder_share"]`` (:meth:`remainder_summary`) says how
+    much of the object's alpha the remainder keeps at the object's place,
+    measured on :attr:`operators` (no render).
     """
 
     scene: GaussianScene
@@ -115,6 +123,7 @@ class Extraction:
     settings: ExtractSettings | None = None
     resolved: dict = field(default_factory=dict)
     up: dict = field(default_factory=dict)
+    _remainder: dict | None = field(default=None, init=False, repr=False, compare=False)
 
     @property
     def total_seconds(self) -> float:
@@ -129,12 +138,39 @@ class Extraction:
         """The scene with the object removed."""
         return self.scene.subset(~self.selected)
 
+    def remainder_summary(self) -> dict:
+        """What the remainder keeps of the object: :func:`~seed2gs_inverse.metrics.remainder_share` on the run's views.
+
+        Computed once from :attr:`operators` (one sparse pass per view and
+        the footprint's rows) and kept.
+
+        Returns
+        -------
+        dict
+            ``share`` (the share of the object's alpha that the remainder
+            keeps in its footprint, over all supervision views), ``worst_view`` (the
+            largest share of one view), ``n_nearby`` (remainder Gaussians
+            in the object's region) and ``footprint_pixels``; the shares
+            are None when the selection covers no footprint pixel (an empty
+            selection).
+        """
+        if self._remainder is None:
+            r = remainder_share(self.operators, np.asarray(self.selected, bool), self.scene.means)
+            self._remainder = {"share": None if np.isnan(r["share"]) else float(r["share"]),
+                               "worst_view": None if np.isnan(r["worst_view"]) else float(r["worst_view"]),
+                               "n_nearby": r["n_nearby"], "footprint_pixels": r["footprint_pixels"]}
+        return dict(self._remainder)
+
     def report(self) -> dict:
-        """JSON-ready summary: counts, timings, settings (and what they resolved to), VAAS and lift facts."""
+        """JSON-ready summary: counts, timings, settings (and what they resolved to), VAAS and lift facts.
+
+        ``remainder_share`` is :meth:`remainder_summary`.
+        """
         n_unknown = [int(np.isnan(m).sum()) for m in self.masks]
         return {
             "n_gaussians": int(len(self.scene)),
             "n_selected": int(self.selected.sum()),
+            "remainder_share": self.remainder_summary(),
             "threshold": float(self.threshold),
             "seed_pixels": int(self.seed_mask.sum()),
             "prompt": self.prompt_info,

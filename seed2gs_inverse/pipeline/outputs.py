@@ -2,8 +2,10 @@
 
 ``OUTDIR`` receives ``object.<fmt>`` and ``remainder.<fmt>`` (the selected
 Gaussians and the rest), ``q.npy`` (float32 q), ``report.json``
-(:meth:`~seed2gs_inverse.pipeline.extraction.Extraction.report` with the
-seed's size and the writer's own sections) and ``report.png``
+(:meth:`~seed2gs_inverse.pipeline.extraction.Extraction.report`, whose
+``remainder_share`` says how much of the object's alpha the remainder
+keeps at its place, with the seed's size and the writer's own sections)
+and ``report.png``
 (:func:`~seed2gs_inverse.pipeline.report.report_figure`), all or nothing.
 """
 
