@@ -72,7 +72,7 @@ __all__ = ["Job", "read_jobs", "jobs_from_table", "extract_option_names", "PROMP
 PROMPT_KEYS = ("mask", "box", "point", "text")
 _JOB_KEYS = ("name", "scene", "camera", "options", "models", "format", "figure", "negative", *PROMPT_KEYS)
 _LOOK_AT_KEYS = {"eye", "target", "up", "fov", "width", "height"}
-_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,127}")  # whole name: fullmatch, never "$"
 _FORMATS = ("ply", "splat")
 # extract() keywords a job may not set: the runner owns them.
 _RESERVED = {"progress", "grounder", "tracker", "settings"}
@@ -178,7 +178,7 @@ class Job:
     figure: bool = True
 
     def __post_init__(self):
-        if not isinstance(self.name, str) or not _NAME.match(self.name):
+        if not isinstance(self.name, str) or not _NAME.fullmatch(self.name):
             raise ValidationError(
                 f"job name {self.name!r} is not a valid folder name: use 1-128 letters, digits, "
                 f"'.', '_' or '-', starting with a letter or digit")
