@@ -52,8 +52,23 @@ keys = st.one_of(st.sampled_from(KEYS), st.text(max_size=8))
 values = st.recursive(scalars, lambda inner: st.one_of(st.lists(inner, max_size=5),
                                                        st.dictionaries(keys, inner, max_size=5)),
                       max_leaves=20)
+
+
+class Deep:
+    """Stands for ``depth`` nested lists until :func:`apply_edits` (so that its repr stays short)."""
+
+    def __init__(self, depth: int):
+        self.depth = depth
+
+    def __repr__(self) -> str:
+        return f"Deep({self.depth})"
+
+    def expand(self):
+        return json.loads("[" * self.depth + "]" * self.depth)
+
+
 # deep nesting, which recursive parsers and validators must survive
-deep = st.integers(1, 3000).map(lambda n: json.loads("[" * min(n, 900) + "]" * min(n, 900)))
+deep = st.integers(1, 900).map(Deep)
 
 edit = st.tuples(st.sampled_from(["replace", "replace", "delete", "add"]), st.integers(0, 10 ** 6),
                  keys, st.one_of(values, deep))
@@ -61,17 +76,15 @@ edits = st.lists(edit, min_size=1, max_size=4)
 syntax = st.sampled_from(["json", "toml"])
 
 
-def _slots(doc, path=()):
+def _slots(doc):
     """Every (container, key) inside ``doc``."""
-    out = []
-    if isinstance(doc, dict):
-        for k, v in doc.items():
-            out.append((doc, k))
-            out += _slots(v)
-    elif isinstance(doc, list):
-        for i, v in enumerate(doc):
-            out.append((doc, i))
-            out += _slots(v)
+    out, todo = [], [doc]
+    while todo:
+        node = todo.pop()
+        items = node.items() if isinstance(node, dict) else enumerate(node) if isinstance(node, list) else ()
+        for k, v in items:
+            out.append((node, k))
+            todo.append(v)
     return out
 
 
@@ -79,6 +92,8 @@ def apply_edits(doc, changes):
     """``doc`` (deep-copied) with the generated ``changes`` applied."""
     doc = copy.deepcopy(doc)
     for op, where, key, value in changes:
+        if isinstance(value, Deep):
+            value = value.expand()
         slots = _slots(doc)
         containers = [doc] + [c[k] for c, k in slots if isinstance(c[k], (dict, list))]
         if op == "add" or not slots:

@@ -322,3 +322,43 @@ def test_a_file_with_a_newline_after_a_temporary_name_is_not_taken_for_one(tmp_p
     os.utime(mine, (0, 0))  # old enough to be removed if it were taken for an abandoned temporary
     assert _atomic.clean_stale_temps(target) == []
     assert mine.exists()
+
+
+def test_a_mask_folder_ignores_a_name_with_a_trailing_newline(tmp_path):
+    from seed2gs_inverse.io import read_masks
+
+    np.save(tmp_path / "view_000.npy", np.zeros((4, 5), np.float32))
+    (tmp_path / "view_001.npy\n").write_bytes((tmp_path / "view_000.npy").read_bytes())  # not a mask's name
+    assert len(read_masks(tmp_path)) == 1
+
+
+def test_files_named_inside_configurations_are_checked_to_be_regular(tmp_path):
+    fifo = tmp_path / "boxes.json"
+    os.mkfifo(fifo)
+    unblocked = []
+
+    def poke():
+        try:
+            os.close(os.open(fifo, os.O_WRONLY | os.O_NONBLOCK))
+            unblocked.append(True)  # a reader was blocked on the pipe
+        except OSError:
+            pass
+
+    timer = threading.Timer(3.0, poke)  # (a reader blocked on the pipe fails the test instead of hanging it)
+    timer.start()
+    try:
+        cfg = _write(tmp_path / "models.toml", f'[external]\nboxes = "{fifo}"\n')
+        with pytest.raises(FormatError, match=r"\[external\] boxes = .*boxes.json is not a regular file"):
+            load_models(cfg)
+        # a job's fingerprint hashes its models file: bounded, never blocked by a pipe
+        job = Job("a", "s.ply", {"eye": [0, 0, -4], "target": [0, 0, 0], "width": 64, "height": 48},
+                  BoxPrompt([1, 2, 30, 40]), models=str(fifo))
+        job.fingerprint()
+    finally:
+        timer.cancel()
+    assert not unblocked
+    jobs = _write(tmp_path / "jobs.toml", f'[[jobs]]\nname = "a"\nscene = "s.ply"\nmodels = "{fifo}"\n'
+                  'camera = {{ eye = [0, 0, -4], target = [0, 0, 0], width = 64, height = 48 }}\nbox = [1, 2, 30, 40]\n'
+                  .replace("{{", "{").replace("}}", "}"))
+    with pytest.raises(ValidationError, match="is not a regular file"):
+        read_jobs(jobs)

@@ -64,7 +64,7 @@ from ..errors import FormatError, ValidationError
 from ..frontend.prompts import BoxPrompt, MaskPrompt, PointPrompt, TextPrompt
 from ..io import read_camera
 from ..io.cameras import split_camera_spec
-from ..io.tables import read_table
+from ..io.tables import read_small_file, read_table
 
 __all__ = ["Job", "read_jobs", "jobs_from_table", "extract_option_names", "PROMPT_KEYS"]
 
@@ -256,10 +256,9 @@ class Job:
         d = self.to_dict()
         d["inputs"] = {role: _stamp(f) for role, f in self.input_files().items() if role != "models"}
         if self.models is not None:
-            try:
-                with open(self.models, "rb") as fh:
-                    d["models_sha256"] = hashlib.sha256(fh.read()).hexdigest()
-            except OSError:
+            try:  # bounded: never blocks on a pipe or reads a device without end
+                d["models_sha256"] = hashlib.sha256(read_small_file(self.models, "models configuration")).hexdigest()
+            except (OSError, FormatError):
                 d["models_sha256"] = None  # the job fails on it and is re-run next time
         text = json.dumps(d, sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(text.encode("utf-8")).hexdigest()
@@ -475,6 +474,10 @@ def jobs_from_table(table: Mapping, base=".", source: str = "jobs") -> list[Job]
             models = merged.get("models")
             if models is not None and not isinstance(models, str):
                 raise ValidationError(f"{where}: 'models' must be a file path string")
+            if models is not None and os.path.exists(_resolve(base, models)) \
+                    and not os.path.isfile(_resolve(base, models)):
+                raise ValidationError(f"{where}: models file {_resolve(base, models)} is not a regular file (a "
+                                      f"directory, pipe or device); name the models configuration itself")
             if models is not None and not os.path.isfile(_resolve(base, models)):
                 # checked here, once, rather than failing every job on a worker
                 raise ValidationError(f"{where}: models file {_resolve(base, models)} not found "
