@@ -204,6 +204,7 @@ def test_the_valid_report_reaches_the_extraction(recorded, tmp_path, capsys, no_
     ("settings", {"n_views": "many"}, "settings: n_views"),
     ("resolved", {"solver_options": [1]}, "resolved.solver_options must be a section"),
     ("run.scene.fingerprint", 12, "run.scene.fingerprint must be a string"),
+    ("run.scene.path", "/dev/zero", "/dev/zero: not a regular file"),
 ])
 def test_a_crafted_report_is_refused_up_front_naming_the_key(recorded, tmp_path, capsys, no_work, key, value, match):
     rep = _edited(recorded, tmp_path, _set(key, value))

@@ -427,6 +427,7 @@ def _from_report(args):
     prompt = _prompt_from_record(run.get("prompt"), where)
     settings = _recorded_settings(rep, progress_enabled(args.no_progress), where)
     scene_path = args.scene or recorded_path
+    check_regular(scene_path, "scene")
     if not os.path.isfile(scene_path):
         raise ValidationError(f"scene {scene_path}: no such file (give the scene's new path as SCENE)")
     return scene_path, camera, spec, prompt, settings, args.models or models, args.format or fmt, run
