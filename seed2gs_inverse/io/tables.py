@@ -25,9 +25,9 @@ from ._common import check_regular
 
 __all__ = ["read_table", "read_small_file", "MAX_TABLE_BYTES"]
 
-#: Largest configuration, jobs or report file read (bytes). A jobs file of a
-#: hundred thousand jobs stays well below it; parsing holds several times the
-#: file's size in memory, so the limit bounds that too.
+#: Largest configuration, jobs or report file read (bytes): far above what a
+#: configuration, a report or a generated jobs file needs. Parsing holds
+#: several times the file's size in memory, so the limit bounds that too.
 MAX_TABLE_BYTES = 16 * 1024 * 1024
 
 
