@@ -69,7 +69,7 @@ def _temp_pattern(name: str, suffix: str) -> re.Pattern:
     """Our temporaries for ``name``: mkstemp/mkdtemp's 8 random characters, with
     or without the host-pid tag (without it, only the age limit judges them)."""
     return re.compile(rf"^\.{re.escape(name)}\.(?:(?P<host>[0-9a-f]{{6}})-(?P<pid>[0-9]{{1,10}})-)?"
-                      rf"[a-z0-9_]{{8}}\.(?:tmp(?:{re.escape(suffix)})?|old)$")
+                      rf"[a-z0-9_]{{8}}\.(?:tmp(?:{re.escape(suffix)})?|old)\Z")
 
 
 def _pid_alive(pid: int) -> bool:
@@ -461,10 +461,14 @@ def _atomic_path_locked(target: Path, parent: Path, directory: bool, replace: bo
         else:
             os.replace(tmp, target)
     except BaseException as exc:
+        # a short write's cause is learnt from the partial file, so before it is removed
+        short = _short_write(exc, tmp, target, directory)
         if directory:
             shutil.rmtree(tmp, ignore_errors=True)
         elif tmp.exists():
             tmp.unlink()
+        if short is not None:
+            raise short from exc
         if getattr(exc, "_seed2gs_target", None) is not None:
             # from an atomic write inside our temporary directory: name that file's final place
             inner = os.fspath(exc._seed2gs_target)
@@ -485,6 +489,53 @@ def _naming(exc: OSError, target) -> OSError:
         OSError(f"{reason} while writing {target}")
     err._seed2gs_reason, err._seed2gs_target = reason, target
     return err
+
+
+# numpy's message when the operating system accepts fewer bytes than asked (ndarray.tofile, np.save):
+# it names neither the file nor the reason
+_SHORT_WRITE = re.compile(r"\d+ requested and \d+ written")
+
+
+def _short_write(exc: BaseException, tmp: Path, target: Path, directory: bool) -> OSError | None:
+    """The OSError naming the file and the operating system's cause of a short write; None for other errors.
+
+    A write that stopped part-way without an errno (numpy's ``"N requested
+    and M written"``) is retried for one byte on the partial file, which
+    makes the operating system say why (``ENOSPC``, ``EDQUOT``, ``EFBIG``);
+    if that byte goes through, a file system without free blocks is
+    ``ENOSPC``. The file named is the target, or in a temporary directory the
+    file written last, at its final place.
+    """
+    if not (isinstance(exc, OSError) and exc.errno is None and _SHORT_WRITE.fullmatch(str(exc).strip())):
+        return None
+    partial, final = tmp, target
+    if directory:
+        files = [p for p in tmp.rglob("*") if p.is_file() and not p.is_symlink()]
+        partial = max(files, key=lambda p: p.stat().st_mtime_ns) if files else tmp / ".seed2gs-probe"
+        final = target / partial.relative_to(tmp) if files else target
+    cause = _probe_write(partial)
+    if cause is None:
+        try:
+            full = os.statvfs(partial.parent).f_bavail == 0
+        except (OSError, AttributeError):
+            full = False
+        cause = OSError(errno.ENOSPC, os.strerror(errno.ENOSPC)) if full else \
+            OSError(f"the write stopped part-way ({exc}): the disk may be full or a file size limit reached")
+    return _naming(cause, final)
+
+
+def _probe_write(path: Path) -> OSError | None:
+    """Append one byte to ``path`` (created if missing); the OSError the operating system gives, if any."""
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o600)
+        try:
+            os.write(fd, b"\0")
+        finally:
+            os.close(fd)
+    except OSError as exc:
+        if exc.errno is not None:
+            return OSError(exc.errno, exc.strerror or os.strerror(exc.errno))
+    return None
 
 
 def write_files(items, *, replace: bool | None = None) -> None:

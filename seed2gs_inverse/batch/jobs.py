@@ -64,7 +64,7 @@ from ..errors import FormatError, ValidationError
 from ..frontend.prompts import BoxPrompt, MaskPrompt, PointPrompt, TextPrompt
 from ..io import read_camera
 from ..io.cameras import split_camera_spec
-from ..io.tables import read_table
+from ..io.tables import read_small_file, read_table
 
 __all__ = ["Job", "read_jobs", "jobs_from_table", "extract_option_names", "PROMPT_KEYS"]
 
@@ -72,7 +72,7 @@ __all__ = ["Job", "read_jobs", "jobs_from_table", "extract_option_names", "PROMP
 PROMPT_KEYS = ("mask", "box", "point", "text")
 _JOB_KEYS = ("name", "scene", "camera", "options", "models", "format", "figure", "negative", *PROMPT_KEYS)
 _LOOK_AT_KEYS = {"eye", "target", "up", "fov", "width", "height"}
-_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,127}")  # whole name: fullmatch, never "$"
 _FORMATS = ("ply", "splat")
 # extract() keywords a job may not set: the runner owns them.
 _RESERVED = {"progress", "grounder", "tracker", "settings"}
@@ -178,7 +178,7 @@ class Job:
     figure: bool = True
 
     def __post_init__(self):
-        if not isinstance(self.name, str) or not _NAME.match(self.name):
+        if not isinstance(self.name, str) or not _NAME.fullmatch(self.name):
             raise ValidationError(
                 f"job name {self.name!r} is not a valid folder name: use 1-128 letters, digits, "
                 f"'.', '_' or '-', starting with a letter or digit")
@@ -256,10 +256,9 @@ class Job:
         d = self.to_dict()
         d["inputs"] = {role: _stamp(f) for role, f in self.input_files().items() if role != "models"}
         if self.models is not None:
-            try:
-                with open(self.models, "rb") as fh:
-                    d["models_sha256"] = hashlib.sha256(fh.read()).hexdigest()
-            except OSError:
+            try:  # bounded: never blocks on a pipe or reads a device without end
+                d["models_sha256"] = hashlib.sha256(read_small_file(self.models, "models configuration")).hexdigest()
+            except (OSError, FormatError):
                 d["models_sha256"] = None  # the job fails on it and is re-run next time
         text = json.dumps(d, sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(text.encode("utf-8")).hexdigest()
@@ -475,6 +474,10 @@ def jobs_from_table(table: Mapping, base=".", source: str = "jobs") -> list[Job]
             models = merged.get("models")
             if models is not None and not isinstance(models, str):
                 raise ValidationError(f"{where}: 'models' must be a file path string")
+            if models is not None and os.path.exists(_resolve(base, models)) \
+                    and not os.path.isfile(_resolve(base, models)):
+                raise ValidationError(f"{where}: models file {_resolve(base, models)} is not a regular file (a "
+                                      f"directory, pipe or device); name the models configuration itself")
             if models is not None and not os.path.isfile(_resolve(base, models)):
                 # checked here, once, rather than failing every job on a worker
                 raise ValidationError(f"{where}: models file {_resolve(base, models)} not found "

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import shlex
 import sys
@@ -26,7 +27,9 @@ from ..errors import FormatError, ValidationError
 from ..frontend.config import resolve_models
 from ..frontend.prompts import GRABCUT_SEED, TEXT_NEEDS_GROUNDER, BoxPrompt, MaskPrompt, PointPrompt, TextPrompt
 from ..io import read_camera, read_cameras, read_scene
+from ..io._common import check_regular
 from ..io.images import image_shape
+from ..io.tables import read_small_file
 from ..operators import scene_fingerprint
 from ..pipeline.settings import ExtractSettings
 from ._common import (DEFAULT_VIEWS, add_method_arguments, check_input_file, check_output, look_at_camera,
@@ -167,26 +170,111 @@ def _prompt_record(prompt) -> dict:
     return {"kind": "text", "text": prompt.text}
 
 
-def _prompt_from_record(rec: dict, where: str):
-    kind = rec.get("kind") if isinstance(rec, dict) else None
+def _prompt_from_record(rec, where: str):
+    """The prompt of a report's ``run.prompt``, every field's type checked first (FormatError naming it)."""
+    rec = _section(rec, "run.prompt", where)
+    kind = rec.get("kind")
+    if kind not in _PROMPT_KINDS:
+        raise _bad(where, "run.prompt.kind", f"one of {', '.join(_PROMPT_KINDS)}", kind)
+    field = _FieldReader(rec, "run.prompt", where)
     try:
         if kind == "mask":
-            path = rec["path"]
-            if not os.path.isfile(path):
+            path = field.get("path", _is_path, _PATH)
+            digest = field.get("sha256", _is_str, "a string", required=False)
+            if not os.path.exists(path):
                 raise ValidationError(f"{where}: the recorded mask {path} no longer exists")
-            if rec.get("sha256") and _sha256(path) != rec["sha256"]:
+            check_regular(path, "mask image")
+            if digest and _sha256(path) != digest:
                 raise ValidationError(f"{where}: the mask {path} changed since the recorded run (sha256 differs)")
             return MaskPrompt(path)
         if kind == "box":
-            return BoxPrompt(rec["box"], int(rec.get("iterations", 5)), float(rec.get("alpha_min", 0.05)))
+            box = field.get("box", lambda v: _is_numbers(v, 4), "a list of 4 finite numbers [x0, y0, x1, y1]")
+            return BoxPrompt(box, field.get("iterations", _is_int, _INT, default=5),
+                             float(field.get("alpha_min", _is_number, _NUMBER, default=0.05)))
         if kind == "point":
-            return PointPrompt(rec["points"], rec["labels"], float(rec["color_tol"]), float(rec["depth_tol"]),
-                               int(rec["radius"]), int(rec["iterations"]), float(rec["alpha_min"]))
-        if kind == "text":
-            return TextPrompt(str(rec["text"]))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise FormatError(f"{where}: run.prompt is incomplete ({type(exc).__name__}: {exc})") from None
-    raise FormatError(f"{where}: run.prompt has an unknown kind {kind!r}")
+            points = field.get("points", lambda v: isinstance(v, list) and v and all(_is_numbers(p, 2) for p in v),
+                               "a list of clicks [x, y] of finite numbers")
+            labels = field.get("labels", lambda v: isinstance(v, list) and len(v) == len(points)
+                               and all(_is_int(x) and x in (0, 1) for x in v),
+                               "a list of 0 or 1, one per click")
+            return PointPrompt(points, labels, float(field.get("color_tol", _is_number, _NUMBER)),
+                               float(field.get("depth_tol", _is_number, _NUMBER)),
+                               field.get("radius", _is_int, _INT), field.get("iterations", _is_int, _INT),
+                               float(field.get("alpha_min", _is_number, _NUMBER)))
+        return TextPrompt(field.get("text", lambda v: isinstance(v, str) and v.strip() != "", "a non-empty string"))
+    except ValidationError as exc:
+        msg = str(exc)
+        raise FormatError(msg if msg.startswith(where) else f"{where}: run.prompt: {msg}") from None
+
+
+# -- a report's fields -----------------------------------------------------------------------
+_PROMPT_KINDS = ("mask", "box", "point", "text")
+_FORMATS = ("ply", "splat")
+_PATH = "a file path (a non-empty string)"
+_INT = "a whole number"
+_NUMBER = "a finite number"
+
+
+def _is_str(v) -> bool:
+    return isinstance(v, str)
+
+
+def _is_path(v) -> bool:
+    return isinstance(v, str) and v != "" and "\0" not in v
+
+
+def _is_int(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_number(v) -> bool:
+    return _is_int(v) or (isinstance(v, float) and math.isfinite(v))
+
+
+def _is_numbers(v, n: int) -> bool:
+    return isinstance(v, list) and len(v) == n and all(_is_number(x) for x in v)
+
+
+def _shown(value) -> str:
+    """A short one-line rendering of a report's value for messages."""
+    if isinstance(value, (dict, list)):
+        return "a section" if isinstance(value, dict) else f"a list of {len(value)}"
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) > 10 ** 30:
+        return "a number too large"
+    text = json.dumps(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _bad(where: str, key: str, what: str, value) -> FormatError:
+    return FormatError(f"{where}: {key} must be {what}, got {_shown(value)}; repeat the run from an "
+                       f"unedited report.json")
+
+
+def _section(value, key: str, where: str, required: bool = True):
+    """``value`` if it is a section (a dict), None if absent and optional; else a FormatError naming ``key``."""
+    if value is None and not required:
+        return None
+    if not isinstance(value, dict):
+        raise _bad(where, key, "a section (a JSON object)", value)
+    return value
+
+
+class _FieldReader:
+    """Type-checked values of one section of a report, each error naming ``section.key``."""
+
+    def __init__(self, section: dict, name: str, where: str):
+        self.section, self.name, self.where = section, name, where
+
+    def get(self, key: str, ok, what: str, required: bool = True, default=None):
+        value = self.section.get(key)
+        if value is None:
+            if required and default is None:
+                raise FormatError(f"{self.where}: {self.name}.{key} is missing; repeat the run from an "
+                                  f"unedited report.json")
+            return default
+        if not ok(value):
+            raise _bad(self.where, f"{self.name}.{key}", what, value)
+        return value
 
 
 # -- outputs ---------------------------------------------------------------------------------
@@ -250,10 +338,15 @@ def settings_from_args(args):
 
 def _read_report(path) -> dict:
     p = Path(path)
-    check_input_file(p, "--from-report")
     try:
-        rep = json.loads(p.read_text())
-    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+        raw = read_small_file(p, "report")
+    except FileNotFoundError:
+        raise ValidationError(f"--from-report {path}: no such file") from None
+    except FormatError as exc:
+        raise FormatError(f"--from-report {exc}") from None
+    try:
+        rep = json.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError, RecursionError) as exc:  # JSONDecodeError is a ValueError
         raise FormatError(f"--from-report {path}: not a JSON report ({type(exc).__name__})") from None
     run = rep.get("run") if isinstance(rep, dict) else None
     if isinstance(rep, dict) and isinstance(rep.get("demo"), dict):
@@ -291,23 +384,36 @@ def _up_cameras(path, where: str):
 _ADDED_OPTIONS = {"seed_connected": False, "support_background": False}
 
 
-def _recorded_settings(rep: dict, progress: bool):
+def _recorded_settings(rep: dict, progress: bool, where: str):
     """The settings of a recorded run as it ran.
 
     Options the report lacks take their :data:`_ADDED_OPTIONS` value, and
     solver options that differ from today's defaults are pinned to the
-    recorded ``resolved.solver_options``.
+    recorded ``resolved.solver_options``. A value that is not a valid
+    setting is a FormatError naming ``settings`` or ``resolved``.
     """
-    settings = ExtractSettings.from_dict({**_ADDED_OPTIONS, **rep["settings"], "progress": progress})
-    ran = (rep.get("resolved") or {}).get("solver_options")
+    resolved = _section(rep.get("resolved"), "resolved", where, required=False) or {}
+    ran = _section(resolved.get("solver_options"), "resolved.solver_options", where, required=False)
+    try:
+        settings = ExtractSettings.from_dict({**_ADDED_OPTIONS, **rep["settings"], "progress": progress})
+    except ValidationError as exc:
+        raise FormatError(f"{where}: settings: {exc}") from None
     now = {k: v for k, v in settings.solver_kwargs().items() if isinstance(v, (int, float, str, bool))}
-    if isinstance(ran, dict) and ran != now:
-        settings = settings.replace(solver_options={**ran, **settings.solver_options})
+    if ran is not None and ran != now:
+        try:
+            settings = settings.replace(solver_options={**ran, **settings.solver_options})
+        except ValidationError as exc:
+            raise FormatError(f"{where}: resolved.solver_options: {exc}") from None
     return settings
 
 
 def _from_report(args):
-    """(scene path, camera, camera spec, prompt, settings, models path, format, run) of a recorded run."""
+    """(scene path, camera, camera spec, prompt, settings, models path, format, run) of a recorded run.
+
+    The whole report is checked before anything is done with it: every
+    field used, its type, the format name and the paths (FormatError or
+    ValidationError naming the key).
+    """
     given = [flag for name, flag in {**_SETTING_FLAGS, **_PROMPT_FLAGS}.items()
              if getattr(args, name, None) not in (None, [], False)]
     if given:
@@ -315,20 +421,29 @@ def _from_report(args):
     rep = _read_report(args.from_report)
     where = f"--from-report {args.from_report}"
     run = rep["run"]
-    for key, required in (("scene", True), ("camera", True), ("up_cameras", False)):
-        if (required or run.get(key) is not None) and not isinstance(run.get(key), dict):
-            raise FormatError(f"{where}: run.{key} must be a section (a JSON object), got "
-                              f"{json.dumps(run.get(key))[:60]}; repeat the run from an unedited report.json")
+    scene = _FieldReader(_section(run.get("scene"), "run.scene", where), "run.scene", where)
+    recorded_path = scene.get("path", _is_path, _PATH, required=args.scene is None)
+    scene.get("sha256", _is_str, "a string", required=False)
+    scene.get("fingerprint", _is_str, "a string", required=False)
+    cam = _FieldReader(_section(run.get("camera"), "run.camera", where), "run.camera", where)
+    spec = cam.get("spec", _is_str, "a camera spec FILE[:NAME|INDEX] (a string)", required=False)
     try:
-        scene_path = args.scene or run["scene"]["path"]
-        camera = Camera.from_dict(run["camera"]["camera"])
-        spec = run["camera"].get("spec")
-    except (KeyError, TypeError) as exc:
-        raise FormatError(f"{where}: run.scene/run.camera incomplete ({exc})") from None
+        camera = Camera.from_dict(cam.get("camera", lambda v: isinstance(v, dict), "a section (a JSON object)"))
+    except ValidationError as exc:
+        raise FormatError(f"{where}: run.camera.camera: {exc}") from None
+    up = _section(run.get("up_cameras"), "run.up_cameras", where, required=False)
+    if up is not None:
+        _FieldReader(up, "run.up_cameras", where).get("path", _is_path, _PATH)
+    top = _FieldReader(run, "run", where)
+    models = top.get("models", _is_path, _PATH, required=False)
+    fmt = top.get("format", lambda v: v in _FORMATS, f"one of {', '.join(_FORMATS)}", default="ply")
     prompt = _prompt_from_record(run.get("prompt"), where)
-    settings = _recorded_settings(rep, progress_enabled(args.no_progress))
-    fmt = args.format or run.get("format", "ply")
-    return scene_path, camera, spec, prompt, settings, args.models or run.get("models"), fmt, run
+    settings = _recorded_settings(rep, progress_enabled(args.no_progress), where)
+    scene_path = args.scene or recorded_path
+    check_regular(scene_path, "scene")
+    if not os.path.isfile(scene_path):
+        raise ValidationError(f"scene {scene_path}: no such file (give the scene's new path as SCENE)")
+    return scene_path, camera, spec, prompt, settings, args.models or models, args.format or fmt, run
 
 
 def _reference_camera(args):
@@ -359,8 +474,6 @@ def run(args) -> int:
     recorded = None
     if args.from_report is not None:
         scene_path, camera, spec, prompt, settings, models_path, fmt, recorded = _from_report(args)
-        if not os.path.isfile(scene_path):
-            raise ValidationError(f"scene {scene_path}: no such file (give the scene's new path as SCENE)")
     else:
         if args.scene is None:
             raise ValidationError("give the SCENE file (or --from-report REPORT.json)")
@@ -382,13 +495,7 @@ def run(args) -> int:
     scene = read_scene(scene_path)
     fingerprint = scene_fingerprint(scene)
     if recorded is not None:
-        want = recorded.get("scene", {})
-        if want.get("fingerprint") not in (None, fingerprint):
-            raise ValidationError(f"scene {scene_path}: not the recorded scene (fingerprint {fingerprint}, "
-                                  f"recorded {want.get('fingerprint')})")
-        if want.get("sha256") not in (None, scene_sha):
-            print(f"seed2gs extract: warning: {scene_path} differs from the recorded file (same geometry, "
-                  f"other bytes: colours or format); q may differ", file=sys.stderr)
+        _check_recorded_scene(recorded["scene"], scene_path, scene_sha, fingerprint)
     ex = extract(scene, camera, prompt, grounder=grounder, tracker=tracker, settings=settings, up_cameras=up_cameras)
     run_info = {
         "toolkit": f"seed2gs-inverse {__version__}",
@@ -419,6 +526,35 @@ def run(args) -> int:
         print("note: no models configured; the seed was tracked by the model-free tracker",
               file=sys.stderr)
     return 0
+
+
+def _check_recorded_scene(want: dict, scene_path, scene_sha: str, fingerprint: str) -> None:
+    """Compare the scene with the report's record; a warning says what could not be checked.
+
+    A recorded geometry fingerprint that differs is a ValidationError. The
+    warning names what was compared: bytes (sha256) and geometry
+    (fingerprint), and what the report lacked.
+    """
+    recorded_fp, recorded_sha = want.get("fingerprint"), want.get("sha256")
+    if recorded_fp not in (None, fingerprint):
+        raise ValidationError(f"scene {scene_path}: not the recorded scene (fingerprint {fingerprint}, "
+                              f"recorded {recorded_fp})")
+    same_bytes = recorded_sha == scene_sha
+    if recorded_fp is not None and recorded_sha not in (None, scene_sha):
+        note = ("differs from the recorded file (same geometry, other bytes: colours or format); "
+                "q may differ")
+    elif recorded_fp is None and recorded_sha is None:
+        note = ("cannot be compared with the recorded scene: the report records neither its sha256 nor "
+                "its geometry fingerprint; q may differ")
+    elif recorded_fp is None and not same_bytes:
+        note = ("differs from the recorded file (sha256) and the report records no geometry fingerprint, "
+                "so whether the geometry is the same was not checked; q may differ")
+    elif recorded_fp is not None and recorded_sha is None:
+        note = None  # same geometry; the bytes were not recorded
+    else:
+        note = None  # the very bytes recorded
+    if note is not None:
+        print(f"seed2gs extract: warning: {scene_path} {note}", file=sys.stderr)
 
 
 def _numba_threads():

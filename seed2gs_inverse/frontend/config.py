@@ -134,7 +134,11 @@ def _sections(path: Path, data: dict) -> dict:
                 if not isinstance(value, str) or not value:
                     raise FormatError(f"{path}: [{name}] {key} must be a file path string")
                 p = Path(os.path.expanduser(value))
-                sec[key] = p if p.is_absolute() else (path.parent / p)
+                p = p if p.is_absolute() else (path.parent / p)
+                if os.path.exists(p) and not os.path.isfile(p):  # a pipe or device would block or never end
+                    raise FormatError(f"{path}: [{name}] {key} = {p} is not a regular file (a directory, pipe "
+                                      f"or device); name the file itself")
+                sec[key] = p
             elif kind in (int, float):
                 if isinstance(value, bool) or not isinstance(value, (int, float)) or (kind is int and not isinstance(value, int)):
                     raise FormatError(f"{path}: [{name}] {key} must be a{'n integer' if kind is int else ' number'}")

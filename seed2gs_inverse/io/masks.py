@@ -23,7 +23,7 @@ from .images import read_image
 __all__ = ["read_masks", "MASK_NAME"]
 
 #: File names of the masks: ``view_<index>.png`` or ``view_<index>.npy``.
-MASK_NAME = re.compile(r"^view_(\d+)\.(png|npy)$", re.IGNORECASE)
+MASK_NAME = re.compile(r"^view_(\d+)\.(png|npy)\Z", re.IGNORECASE)
 
 
 def _mask_files(d: Path, n_views: int | None = None) -> list[Path]:
