@@ -475,12 +475,18 @@ def remainder_share(operators, selected, means, *, footprint: float = 0.25, quan
     apart from the object (an occluder in front of it), the continuity
     what runs on beyond it (the ground under its base, a wall it stands
     against): they show where the object was after its removal and are
-    no ghosts. The figure is a lower bound: a Gaussian the rasterizer did
-    not reach (behind a pixel whose transmittance fell below its cut-off,
-    as behind an opaque selected front layer) has no weight there and
-    counts for nothing at that pixel, although it shows once the object
-    is removed; weights an operator dropped (its ``min_weight``) are
-    missing from the transmittance too.
+    no ghosts. The figure is an estimate, not a bound, and errs both ways:
+    a Gaussian the rasterizer did not reach (behind a pixel whose
+    transmittance fell below its cut-off, as behind an opaque selected front
+    layer) has no weight there and counts for nothing at that pixel,
+    although it shows once the object is removed (weights an operator
+    dropped, its ``min_weight``, are missing from the transmittance too);
+    and scene Gaussians inside the object's region that the continuity test
+    does not link to the rest of the scene (sparse ground right under the
+    object, clutter touching it) count although they are no part of it,
+    most in views that graze the ground. ``benchmarks/bench_extract.py``
+    prints it beside the truth's alpha-weighted recall, which measures what
+    the remainder really keeps.
     """
     stack = as_stack(operators)
     n = stack.n_gaussians
