@@ -363,3 +363,19 @@ def test_files_named_inside_configurations_are_checked_to_be_regular(tmp_path):
                   .replace("{{", "{").replace("}}", "}"))
     with pytest.raises(ValidationError, match="is not a regular file"):
         read_jobs(jobs)
+
+
+def test_an_external_boxes_file_that_is_a_pipe_or_too_large_is_refused(tmp_path):
+    """The external boxes file is read bounded too: a pipe is refused without blocking, a huge file by size."""
+    from seed2gs_inverse.frontend.external import ExternalBoxes
+    from seed2gs_inverse.io.tables import MAX_TABLE_BYTES
+
+    fifo = tmp_path / "boxes.json"
+    os.mkfifo(fifo)
+    with pytest.raises(FormatError, match="not a regular file"):
+        ExternalBoxes(fifo).detect(np.zeros((8, 8, 3), np.uint8), "x")
+    big = tmp_path / "big.json"
+    with open(big, "wb") as f:  # sparse: its size is refused before a byte is read
+        f.truncate(MAX_TABLE_BYTES + 1)
+    with pytest.raises(FormatError, match="big.json"):
+        ExternalBoxes(big).detect(np.zeros((8, 8, 3), np.uint8), "x")

@@ -23,6 +23,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..errors import FormatError, ValidationError
+from ..io.tables import read_small_file
 from ._imaging import as_box, as_rgb
 from .base import Detection
 
@@ -92,7 +93,8 @@ class ExternalBoxes:
     def _load(self):
         """``(entries, coords, prompt or None)`` of the JSON file, or a FormatError naming it."""
         try:
-            data = json.loads(self._file.read_text(encoding="utf-8"))
+            # bounded: a pipe, a device or a huge file is refused before it is read
+            data = json.loads(read_small_file(self._file, "external boxes file").decode("utf-8"))
         except FileNotFoundError:
             raise FormatError(f"{self._file}: external boxes file not found") from None
         except (UnicodeDecodeError, json.JSONDecodeError) as exc:
