@@ -38,7 +38,7 @@ def _replace(scene: GaussianScene, mask: np.ndarray, part: GaussianScene) -> Gau
     for k, v in scene.extra.items():
         extra[k] = v.copy()
         extra[k][mask] = part.extra[k]
-    return GaussianScene(extra=extra, **arrays)
+    return GaussianScene(extra=extra, layout=scene.layout, **arrays)
 
 
 def _vector(value, name: str, shape) -> np.ndarray:

@@ -114,6 +114,20 @@ def _check_rotation(rotation) -> np.ndarray:
     return rot
 
 
+def _check_layout(layout) -> tuple | None:
+    """``layout`` as a tuple of ``(name, type code)`` string pairs, or ``None``."""
+    if layout is None:
+        return None
+    try:
+        pairs = tuple((name, code) for name, code in layout)
+    except (TypeError, ValueError):
+        pairs = None
+    if pairs is None or not all(isinstance(name, str) and isinstance(code, str) for name, code in pairs):
+        raise ValidationError(f"scene 'layout' must be a sequence of (name, type code) string pairs "
+                              f"or None, got {layout!r:.80}")
+    return pairs
+
+
 @dataclass(eq=False, frozen=True)
 class GaussianScene:
     """A frozen 3DGS scene. See the module docstring for the arrays.
@@ -122,6 +136,14 @@ class GaussianScene:
     contiguous float32. ``extra`` keeps file properties this class does not
     interpret (e.g. ``nx, ny, nz`` or a trainer's custom fields) so they are
     written back unchanged.
+
+    ``layout`` records the property list of the file the scene was read from,
+    as ``((name, numpy type code), ...)`` in file order (e.g.
+    ``(("x", "f4"), ...)``), or is ``None``. It holds names and types only,
+    no values: a writer of the same format uses it to write the scene back
+    with the same properties, order and types while it still fits the
+    arrays. ``subset``, ``copy``, ``transformed`` and ``dataclasses.replace``
+    carry it; ``concat`` keeps it only when every part has the same one.
 
     A scene is immutable once validated, so no NaN or shape error can slip
     in after the checks: the arrays are read-only views, ``extra`` is a
@@ -141,6 +163,7 @@ class GaussianScene:
     opacity_logits: np.ndarray
     sh: np.ndarray
     extra: dict = field(default_factory=dict)
+    layout: tuple | None = None
 
     def __post_init__(self):
         means = _as_float32("means", self.means, (3,), None)
@@ -178,12 +201,13 @@ class GaussianScene:
                           ("opacity_logits", opacity_logits), ("sh", sh)):
             object.__setattr__(self, name, _read_only(arr))
         object.__setattr__(self, "extra", MappingProxyType(extra))
+        object.__setattr__(self, "layout", _check_layout(self.layout))
 
     def __reduce__(self):
         # pickling (multiprocessing, joblib): rebuild through __init__, whose checks make the arrays
         # read-only and ``extra`` a read-only mapping again (a mappingproxy itself cannot be pickled)
         return (type(self), (self.means, self.quats, self.log_scales, self.opacity_logits, self.sh,
-                             dict(self.extra)))
+                             dict(self.extra), self.layout))
 
     # -- basic facts -------------------------------------------------------
     def __len__(self) -> int:
@@ -243,7 +267,7 @@ class GaussianScene:
         """A scene holding its own copies of the arrays (still read-only)."""
         return GaussianScene(self.means.copy(), self.quats.copy(), self.log_scales.copy(),
                              self.opacity_logits.copy(), self.sh.copy(),
-                             {k: v.copy() for k, v in self.extra.items()})
+                             {k: v.copy() for k, v in self.extra.items()}, self.layout)
 
     def subset(self, selection) -> "GaussianScene":
         """The Gaussians picked by an index array or a boolean mask of length N."""
@@ -262,7 +286,7 @@ class GaussianScene:
             raise ValidationError(f"selection must be a bool mask or integer indices, got dtype {sel.dtype}")
         return GaussianScene(self.means[sel], self.quats[sel], self.log_scales[sel],
                              self.opacity_logits[sel], self.sh[sel],
-                             {k: v[sel] for k, v in self.extra.items()})
+                             {k: v[sel] for k, v in self.extra.items()}, self.layout)
 
     @staticmethod
     def concat(scenes: Sequence["GaussianScene"]) -> "GaussianScene":
@@ -285,6 +309,7 @@ class GaussianScene:
         for s in scenes[1:]:
             common &= set(s.extra)
         keys = [key for key in scenes[0].extra if key in common]
+        layouts = {s.layout for s in scenes}
         return GaussianScene(
             np.concatenate([s.means for s in scenes]),
             np.concatenate([s.quats for s in scenes]),
@@ -292,6 +317,7 @@ class GaussianScene:
             np.concatenate([s.opacity_logits for s in scenes]),
             np.concatenate(shs),
             {key: np.concatenate([s.extra[key] for s in scenes]) for key in keys},
+            layouts.pop() if len(layouts) == 1 else None,
         )
 
     def transformed(self, rotation=None, translation=None, scale: float = 1.0) -> "GaussianScene":
@@ -318,4 +344,4 @@ class GaussianScene:
                       else (self.log_scales.astype(np.float64) + np.log(scale)).astype(np.float32))
         sh = rotate_sh(self.sh, rot).astype(np.float32) if turned and self.sh.shape[1] > 1 else self.sh.copy()
         return GaussianScene(means, quats, log_scales, self.opacity_logits.copy(), sh,
-                             {k: v.copy() for k, v in self.extra.items()})
+                             {k: v.copy() for k, v in self.extra.items()}, self.layout)

@@ -36,9 +36,10 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "convert", help="convert a scene between formats",
         description="Read a scene (.ply, .compressed.ply, .splat, .spz) and write it as .ply "
-                    "in the 3DGS trainer's layout (lossless: the 3DGS properties in float32, other "
-                    "vertex properties with their own types) or .splat (lossy: SH degree 0, 8-bit "
-                    "colour and rotation). The output appears only once it is complete.")
+                    "(lossless: a standard PLY input keeps its property list, order and types; "
+                    "other inputs get the 3DGS trainer's layout, the 3DGS properties in float32) "
+                    "or .splat (lossy: SH degree 0, 8-bit colour and rotation). The output "
+                    "appears only once it is complete.")
     p.add_argument("input", metavar="IN", help="input scene file")
     p.add_argument("output", metavar="OUT", help="output scene file (.ply or .splat)")
     p.add_argument("--drop-nonfinite", action="store_true",

@@ -268,7 +268,7 @@ def saturate_opacity(path, opacity_logits: np.ndarray, field: str = "opacity") -
 
 
 def finish_scene(path, means, quats, log_scales, opacity_logits, sh, extra=None,
-                 drop_nonfinite: bool = False, fields=None) -> GaussianScene:
+                 drop_nonfinite: bool = False, fields=None, layout=None) -> GaussianScene:
     """Validate decoded arrays and build the scene.
 
     Infinite opacity logits are read as saturated (:func:`saturate_opacity`).
@@ -278,7 +278,8 @@ def finish_scene(path, means, quats, log_scales, opacity_logits, sh, extra=None,
     maps an array name -- ``"means"``, ``"quats"``, ``"log_scales"``,
     ``"opacity_logits"``, ``"sh"`` or an extra's name -- to the file's names
     of its columns) and the first index; with ``drop_nonfinite=True`` they
-    are removed and a warning says how many and why.
+    are removed and a warning says how many and why. ``layout`` is the
+    file's property list, kept on the scene (see ``GaussianScene.layout``).
     """
     extra = dict(extra or {})
     n = means.shape[0]
@@ -322,7 +323,7 @@ def finish_scene(path, means, quats, log_scales, opacity_logits, sh, extra=None,
         opacity_logits, sh = opacity_logits[keep], sh[keep]
         extra = {k: v[keep] for k, v in extra.items()}
     try:
-        return GaussianScene(means, quats, log_scales, opacity_logits, sh, extra)
+        return GaussianScene(means, quats, log_scales, opacity_logits, sh, extra, layout)
     except ValidationError as exc:  # pragma: no cover - the checks above should catch everything
         raise fail(path, str(exc)) from None
 

@@ -21,7 +21,13 @@ so ``sh[:, 0, c] = f_dc_c`` and ``sh[:, 1 + k, c] = f_rest_{c (K-1) + k}``.
 Reading accepts ASCII, binary little- and big-endian files, any property
 order and any numeric property type (values are converted to float32).
 Normals are put in ``extra`` unless every normal component is zero (the
-trainer's zeros carry no information). Writing always produces binary little-endian
+trainer's zeros carry no information, so no array is kept for them). The
+file's property names and types are kept as ``scene.layout``.
+
+Writing always produces binary little-endian. A scene that still fits the
+layout it was read with is written with the same properties, order and
+types (zeros for normals the file held as zeros), so an unmodified scene or
+a subset of it has the input's header. Any other scene is written as
 float32 in the trainer's order, normals included (zeros unless ``extra``
 holds them), followed by the extra properties in their own dtypes.
 """
@@ -440,7 +446,7 @@ def read_standard_ply(path, header: PlyHeader, drop_nonfinite: bool = False) -> 
                         columns(vert, ["rot_0", "rot_1", "rot_2", "rot_3"]),
                         columns(vert, ["scale_0", "scale_1", "scale_2"]),
                         columns(vert, ["opacity"])[:, 0].copy(), sh, extra, drop_nonfinite,
-                        fields=ply_field_names(k))
+                        fields=ply_field_names(k), layout=tuple(vertex.properties))
 
 
 def ply_field_names(k: int) -> dict:
@@ -460,49 +466,114 @@ def standard_property_names(sh_degree: int) -> list:
             + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"])
 
 
+def _column(scene: GaussianScene, name: str) -> np.ndarray:
+    """The values of one PLY property of ``scene`` (zeros for normals it does not hold)."""
+    if name in scene.extra:
+        return scene.extra[name]
+    if name in _NORMALS:
+        return np.zeros(len(scene), np.float32)
+    k = scene.sh.shape[1]
+    rest = _REST_RE.match(name)
+    if rest:  # channel-major: f_rest_{c (K-1) + j} is coefficient j + 1 of channel c
+        c, j = divmod(int(rest.group(1)), k - 1)
+        return scene.sh[:, 1 + j, c]
+    if name.startswith("f_dc_"):
+        return scene.sh[:, 0, int(name[5:])]
+    if name == "opacity":
+        return scene.opacity_logits
+    for prefix, arr in (("scale_", scene.log_scales), ("rot_", scene.quats)):
+        if name.startswith(prefix):
+            return arr[:, int(name[len(prefix):])]
+    return scene.means[:, "xyz".index(name)]
+
+
+def _own_code(name: str, arr: np.ndarray) -> str:
+    """The PLY type code of an array's own dtype (bool as uchar); int64 and uint64 are refused."""
+    code = arr.dtype.str[1:] if arr.dtype.kind != "b" else "u1"
+    if code not in _NAMES:
+        raise ValidationError(f"extra property '{name}' has dtype {arr.dtype}, which PLY cannot "
+                              f"store; cast it to int32 or float32 first")
+    return code
+
+
+def _holds(values: np.ndarray, code: str) -> bool:
+    """Whether every value survives a cast to the type ``code`` and back unchanged (sign of zero included)."""
+    if values.dtype.kind == "b":
+        return code == "u1"
+    with np.errstate(over="ignore", invalid="ignore"):
+        back = values.astype(code).astype(values.dtype)
+    if values.dtype.kind == "f":
+        return bool(np.array_equal(back, values, equal_nan=True)
+                    and np.array_equal(np.signbit(back), np.signbit(values)))
+    return bool(np.array_equal(back, values))
+
+
+def _layout_names(scene: GaussianScene) -> list | None:
+    """The property names of ``scene.layout`` when it still fits the scene's arrays, else ``None``.
+
+    It fits when it names every standard property of the scene's SH degree
+    (and no other ``f_rest``), every ``extra`` entry and nothing else (normals
+    that the scene does not hold are written as zeros).
+    """
+    layout = scene.layout
+    if not layout:
+        return None
+    names = [name for name, _ in layout]
+    rest = sorted(int(m.group(1)) for m in map(_REST_RE.match, names) if m)
+    standard = set(_REQUIRED) | set(_NORMALS)
+    own = {name for name in names if name not in standard and not _REST_RE.match(name)}
+    fits = (len(set(names)) == len(names)
+            and all(name in names for name in _REQUIRED)
+            and rest == list(range(3 * (scene.sh.shape[1] - 1)))
+            and all(f"f_rest_{i}" in names for i in rest)
+            and own == set(scene.extra) - set(_NORMALS)
+            and all(name in names for name in _NORMALS if name in scene.extra)
+            and all(code in _NAMES for _, code in layout))
+    return names if fits else None
+
+
 def write_standard_ply(path, scene: GaussianScene) -> None:
     """Write ``scene`` as a binary little-endian 3DGS PLY file, atomically.
 
-    Properties follow the trainer's order (see :func:`standard_property_names`)
-    as float32, then the remaining ``scene.extra`` entries with their own
-    dtypes (bool is stored as uchar; int64 and uint64 are rejected because PLY
-    cannot hold them losslessly: cast them first).
+    A scene read from a PLY file is written with that file's properties, in
+    its order and with its types (:attr:`GaussianScene.layout`), as long as
+    the layout still fits the scene: same SH degree, same ``extra`` names.
+    Normals the file held as zeros are written as zeros again. A property
+    whose values its recorded type cannot hold exactly is written in the
+    values' own type instead (float32 for the standard properties).
+
+    Otherwise properties follow the trainer's order (see
+    :func:`standard_property_names`) as float32, then the remaining
+    ``scene.extra`` entries with their own dtypes.
+
+    In both cases bool is stored as uchar; int64 and uint64 extras are
+    rejected because PLY cannot hold them losslessly: cast them first.
     """
     n = len(scene)
-    k = scene.sh.shape[1]
-    base = standard_property_names(scene.sh_degree)
-    fields = [(name, "<f4") for name in base]
-    extras = []
-    for name, arr in scene.extra.items():
-        if name in _NORMALS:
-            continue
-        if name in base or name in _REQUIRED or _REST_RE.match(name) or not _NAME_RE.match(name):
+    for name in scene.extra:
+        if name in _REQUIRED or _REST_RE.match(name) or not _NAME_RE.match(name):
             raise ValidationError(f"extra property '{name}' cannot be written to PLY: the name "
                                   f"is a standard 3DGS property or contains whitespace")
-        code = arr.dtype.str[1:] if arr.dtype.kind != "b" else "u1"
-        if code not in _NAMES:
-            raise ValidationError(f"extra property '{name}' has dtype {arr.dtype}, which PLY cannot "
-                                  f"store; cast it to int32 or float32 first")
-        extras.append(name)
+    names = _layout_names(scene)
+    if names is None:
+        recorded = {}
+        names = standard_property_names(scene.sh_degree)
+        names += [name for name in scene.extra if name not in _NORMALS]
+    else:
+        recorded = dict(scene.layout)
+    fields, values = [], []
+    for name in names:
+        col = _column(scene, name)
+        code = recorded.get(name)
+        if code is None or not _holds(col, code):
+            code = _own_code(name, col)
         fields.append((name, "<" + code))
-    rec = np.zeros(n, dtype=np.dtype(fields))
-    rec["x"], rec["y"], rec["z"] = scene.means.T
-    for name in _NORMALS:
-        if name in scene.extra:
-            rec[name] = scene.extra[name]
-    for c in range(3):
-        rec[f"f_dc_{c}"] = scene.sh[:, 0, c]
-        for j in range(k - 1):
-            rec[f"f_rest_{c * (k - 1) + j}"] = scene.sh[:, 1 + j, c]
-    rec["opacity"] = scene.opacity_logits
-    for i in range(3):
-        rec[f"scale_{i}"] = scene.log_scales[:, i]
-    for i in range(4):
-        rec[f"rot_{i}"] = scene.quats[:, i]
-    for name in extras:
-        rec[name] = scene.extra[name]
+        values.append(col)
+    rec = np.empty(n, dtype=np.dtype(fields))
+    for (name, _), col in zip(fields, values):
+        rec[name] = col
     lines = ["ply", "format binary_little_endian 1.0", f"element vertex {n}"]
-    lines += [f"property {_NAMES[np.dtype(t).str[1:]]} {name}" for name, t in fields]
+    lines += [f"property {_NAMES[t[1:]]} {name}" for name, t in fields]
     lines.append("end_header")
     head = ("\n".join(lines) + "\n").encode("ascii")
     atomic_write(path, [head, rec.tobytes()])
