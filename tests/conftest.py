@@ -1,8 +1,9 @@
 """Shared test fixtures.
 
-Tests generate their own data. Tests marked ``shared_data`` use the real
-scenes of ``../shared/data`` (or ``$SEED2GS_DATA``) and skip with a reason
-when they are absent.
+Tests generate their own data. Tests that use the real scenes of
+``../shared/data`` (or ``$SEED2GS_DATA``) take the ``shared_data`` fixture,
+which marks them ``shared_data`` (``-m shared_data`` selects them all) and
+skips them with a reason when the scenes are absent.
 """
 
 from __future__ import annotations
@@ -20,6 +21,13 @@ def shared_data_dir() -> Path | None:
     env = os.environ.get("SEED2GS_DATA")
     cand = Path(env) if env else REPO.parent / "shared" / "data"
     return cand if cand.is_dir() else None
+
+
+def pytest_collection_modifyitems(config, items):
+    """Mark every test that uses the real scenes (the ``shared_data`` fixture) ``shared_data``."""
+    for item in items:
+        if "shared_data" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.shared_data)
 
 
 @pytest.fixture

@@ -308,6 +308,7 @@ def test_cli_view_counts_what_it_draws_and_refuses_up_with_a_camera(offscreen, f
                      "--max-glyphs", "10"]) == 0
     printed = capsys.readouterr()
     assert "shown: 10)" in printed.out and "ellipsoids for 10 of 50" in printed.err
+    assert "raise --max-glyphs" in printed.err and " max_glyphs" not in printed.err  # the option's name
     write_cameras(tmp_path / "cams.json", [Camera.look_at(np.array([0.0, -3.0, 0.0]), np.zeros(3),
                                                           np.array([0.0, 0.0, 1.0]), 50, 40, 30)])
     assert cli.main(["view", "s.ply", "--camera", str(tmp_path / "cams.json"), "--up", "1,0,0",

@@ -47,12 +47,17 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
+def _rounded(values) -> str:
+    """``[a, b, c]`` with three decimals (a float32 printed in full shows its binary noise)."""
+    return "[" + ", ".join(f"{float(v):.3f}" for v in values) + "]"
+
+
 def _summary(syn) -> list[str]:
     """Lines describing the procedural scene: size, bounds and every object's Gaussian count."""
     scene, labels = syn.scene, np.asarray(syn.labels)
     lo, hi = scene.bounds()
     lines = [f"procedural scene (seed {syn.seed}): N = {len(scene)} Gaussians, SH degree {scene.sh_degree}",
-             f"bounds: min {np.round(lo, 3).tolist()}  max {np.round(hi, 3).tolist()}",
+             f"bounds: min {_rounded(lo)}  max {_rounded(hi)}",
              "objects:"]
     for lab in np.unique(labels):
         name = dict(syn.names).get(int(lab), "background" if lab == 0 else f"object {lab}")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import sys
 
 from tqdm import tqdm
@@ -14,6 +15,17 @@ from ..operators import OperatorStack, scene_fingerprint
 from ._common import check_output, progress_enabled, scaled_size
 
 __all__ = ["register", "build", "info"]
+
+
+class _DeprecatedOverwrite(argparse.Action):
+    """``--overwrite``: the former spelling of ``--force``; sets it and says so on stderr."""
+
+    def __init__(self, option_strings, dest, **kwargs):
+        super().__init__(option_strings, dest=argparse.SUPPRESS, nargs=0, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print("seed2gs operators build: note: '--overwrite' is deprecated; write --force", file=sys.stderr)
+        namespace.force = True
 
 
 def register(subparsers) -> None:
@@ -38,8 +50,8 @@ def register(subparsers) -> None:
                    help="resolution factor relative to the cameras, in (0, 4] (default 1.0)")
     b.add_argument("--min-weight", type=float, default=0.0,
                    help="drop weights below this, in [0, 1] (default 0: keep all)")
-    b.add_argument("--force", "--overwrite", dest="overwrite", action="store_true",
-                   help="replace an existing operator directory")
+    b.add_argument("--force", action="store_true", help="replace an existing operator directory")
+    b.add_argument("--overwrite", action=_DeprecatedOverwrite, help=argparse.SUPPRESS)
     b.add_argument("--no-progress", action="store_true",
                    help="no progress bar (shown only when stderr is a terminal)")
     b.set_defaults(func=build)
@@ -51,7 +63,7 @@ def register(subparsers) -> None:
     i.set_defaults(func=info)
 
 
-@locks_outputs(("output", "-o"), force="overwrite")
+@locks_outputs(("output", "-o"))
 def build(args) -> int:
     """``seed2gs operators build``: render every camera once and save the operator stack."""
     # Deferred: the rasterizer loads Numba and its compiled kernels, which `seed2gs --help`
@@ -63,8 +75,8 @@ def build(args) -> int:
         raise ValidationError(f"--scale must be in (0, 4], got {args.scale}")
     if not 0 <= args.min_weight <= 1:  # NaN fails too; checked before anything is read
         raise ValidationError(f"--min-weight must be in [0, 1], got {args.min_weight}")
-    check_output(args.output, "-o", directory=True, force=args.overwrite, kind="operators")  # fail before rendering anything
-    OperatorStack.check_target(args.output, args.overwrite)
+    check_output(args.output, "-o", directory=True, force=args.force, kind="operators")  # fail before rendering anything
+    OperatorStack.check_target(args.output, args.force)
     cameras = read_cameras(args.cameras)
     if not cameras:
         raise ValidationError(f"{args.cameras}: no cameras")
@@ -78,7 +90,7 @@ def build(args) -> int:
     for cam in items:
         views.append(build_operator(scene, cam, scale=args.scale, min_weight=args.min_weight))
     stack = OperatorStack(views, fingerprint=scene_fingerprint(scene))
-    stack.save(args.output, overwrite=args.overwrite)
+    stack.save(args.output, overwrite=args.force)
     print(f"{args.output}: {len(stack)} views, {stack.n_gaussians:,} Gaussians, {stack.nnz:,} weights, "
           f"{int(stack.observed().sum()):,} Gaussians observed")
     return 0

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -98,6 +99,16 @@ def _pick_camera(cams, which):
                           f"{len(cams)} cameras: {names}{', ...' if len(cams) > 10 else ''}")
 
 
+def _plot(scene, q, **kw):
+    """``viz.membership_plot``, its warnings naming the command's options instead of its arguments."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = viz.membership_plot(scene, q, **kw)
+    for w in caught:
+        warnings.warn(str(w.message).replace("max_glyphs", "--max-glyphs"), w.category, stacklevel=3)
+    return result
+
+
 def run(args) -> int:
     """``seed2gs view``: open a window, or write ``--screenshot`` off-screen."""
     if args.threshold is not None and args.membership is None:
@@ -121,10 +132,10 @@ def run(args) -> int:
     kw = dict(mode=args.mode, threshold=args.threshold, camera=camera, max_glyphs=args.max_glyphs,
               point_size=args.point_size, min_opacity=args.min_opacity, window_size=size, up=up)
     if out is None:
-        viz.membership_plot(scene, q, off_screen=False, **kw).show()
+        _plot(scene, q, off_screen=False, **kw).show()
         return 0
     with atomic_path(out, replace=args.force) as tmp:  # a failure leaves nothing behind
-        img = viz.membership_plot(scene, q, screenshot=str(tmp), off_screen=True, **kw)
+        img = _plot(scene, q, screenshot=str(tmp), off_screen=True, **kw)
     # the Gaussians membership_plot draws: above --min-opacity, with --threshold q above it, and as
     # ellipsoids at most --max-glyphs of those (a random subset, which it warns about)
     keep = scene.opacities >= args.min_opacity if args.min_opacity > 0 else np.ones(len(scene), bool)
