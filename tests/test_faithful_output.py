@@ -5,18 +5,21 @@ from __future__ import annotations
 import dataclasses
 import pickle
 
+import cv2
 import numpy as np
 import plyfile
 import pytest
 
 import seed2gs_inverse.cli as cli
-from _io_encoders import encode_compressed_ply, encode_splat, encode_spz, random_scene, standard_columns
-from _io_encoders import write_ply_plyfile
+from _io_encoders import (encode_compressed_ply, encode_splat, encode_spz, random_scene, standard_columns,
+                          write_ply_plyfile)
 from seed2gs_inverse import edit
 from seed2gs_inverse.errors import ValidationError
-from seed2gs_inverse.io import read_scene, write_scene
+from seed2gs_inverse.io import read_scene, write_cameras, write_scene
 from seed2gs_inverse.io.ply import standard_property_names
+from seed2gs_inverse.raster import build_operator
 from seed2gs_inverse.scene import GaussianScene
+from seed2gs_inverse.synthetic import make_scene
 
 
 def properties(path) -> list:
@@ -183,3 +186,24 @@ def test_real_scene_without_normals_round_trips_and_its_remainder_does_not_grow(
     head = src.read_bytes()[:4096].split(b"end_header\n")[0]
     body = (src.stat().st_size - len(head) - len(b"end_header\n")) // len(scene)
     assert (tmp_path / "half.ply").stat().st_size < len(head) + 16 + body * len(half)
+
+
+def test_extract_outputs_keep_the_input_header(tmp_path, capsys, monkeypatch):
+    """object.ply and remainder.ply of a file without normals have its header and its rows."""
+    monkeypatch.setattr(cli, "_COMMAND_MODULES", ("_extract",))
+    syn = make_scene(seed=0)
+    cam = syn.reference_camera(96, 72)
+    src = _write(tmp_path / "scene.ply", syn.scene, normals=False)
+    write_cameras(tmp_path / "cameras.json", [cam])
+    seed = (build_operator(syn.scene, cam).W @ (syn.labels == 1).astype(np.float32)).reshape(cam.image_shape)
+    cv2.imwrite(str(tmp_path / "mask.png"), (seed > 0.5).astype(np.uint8) * 255)
+    out = tmp_path / "out"
+    rc = cli.main([str(a) for a in ["extract", src, "--camera", f"{tmp_path / 'cameras.json'}:0", "--mask",
+                                    tmp_path / "mask.png", "-o", out, "--views", 4, "--no-progress"]])
+    assert rc == 0, capsys.readouterr().err
+    selected = np.load(out / "q.npy", allow_pickle=False) > 0.5
+    assert 0 < selected.sum() < selected.size
+    for part, rows in (("object", selected), ("remainder", ~selected)):
+        assert properties(out / f"{part}.ply") == properties(src), part
+        np.testing.assert_array_equal(records(out / f"{part}.ply"), records(src)[rows])
+    assert (out / "object.ply").stat().st_size + (out / "remainder.ply").stat().st_size < src.stat().st_size + 4096

@@ -135,8 +135,10 @@ def read_scene(path, drop_nonfinite: bool = False) -> GaussianScene:
 def write_scene(path, scene: GaussianScene) -> None:
     """Write a scene; the format follows the extension (``.ply`` or ``.splat``).
 
-    ``.ply`` is lossless (the trainer's layout, binary little-endian float32,
-    extras appended); ``.splat`` keeps only SH degree 0, 8-bit colours,
+    ``.ply`` is lossless and binary little-endian: a scene read from a
+    standard PLY keeps that file's properties, order and types while they
+    still fit it (:attr:`GaussianScene.layout`), any other scene gets the
+    trainer's layout (float32, extras appended); ``.splat`` keeps only SH degree 0, 8-bit colours,
     opacities and rotations and warns about what it drops. The file is
     written to a temporary name in the same directory and renamed at the end,
     so a failure leaves no partial file.
