@@ -207,3 +207,14 @@ def test_extract_outputs_keep_the_input_header(tmp_path, capsys, monkeypatch):
         assert properties(out / f"{part}.ply") == properties(src), part
         np.testing.assert_array_equal(records(out / f"{part}.ply"), records(src)[rows])
     assert (out / "object.ply").stat().st_size + (out / "remainder.ply").stat().st_size < src.stat().st_size + 4096
+
+
+def test_the_trainer_layout_writes_normals_as_float32_unless_they_need_more(tmp_path, rng):
+    exact = rng.normal(size=6).astype(np.float32).astype(np.float64)
+    scene = random_scene(rng, n=6, extra={"nx": exact, "ny": exact + 2.0 ** -40, "nz": np.zeros(6)})
+    write_scene(tmp_path / "n.ply", scene)
+    types = dict(properties(tmp_path / "n.ply"))
+    assert (types["nx"], types["ny"], types["nz"]) == ("f4", "f8", "f4")
+    back = read_scene(tmp_path / "n.ply")
+    for name in ("nx", "ny"):
+        np.testing.assert_array_equal(back.extra[name], scene.extra[name])

@@ -543,8 +543,9 @@ def write_standard_ply(path, scene: GaussianScene) -> None:
     values' own type instead (float32 for the standard properties).
 
     Otherwise properties follow the trainer's order (see
-    :func:`standard_property_names`) as float32, then the remaining
-    ``scene.extra`` entries with their own dtypes.
+    :func:`standard_property_names`) as float32 (normals too, unless their
+    values need a wider type), then the remaining ``scene.extra`` entries
+    with their own dtypes.
 
     In both cases bool is stored as uchar; int64 and uint64 extras are
     rejected because PLY cannot hold them losslessly: cast them first.
@@ -556,7 +557,7 @@ def write_standard_ply(path, scene: GaussianScene) -> None:
                                   f"is a standard 3DGS property or contains whitespace")
     names = _layout_names(scene)
     if names is None:
-        recorded = {}
+        recorded = dict.fromkeys(_NORMALS, "f4")  # the trainer's normals are float32
         names = standard_property_names(scene.sh_degree)
         names += [name for name in scene.extra if name not in _NORMALS]
     else:
