@@ -139,8 +139,7 @@ def _take_lock(path: Path, target, label) -> int:
                 raise _busy(target, label, path) from None
             except OSError as exc:  # a read-only or full directory: said as the write itself would
                 raise _naming(exc, target) from exc
-            os.write(fd, me)
-            return fd
+            return _sign_lock(path, fd, me, target)
         try:
             fd = os.open(path, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0),
                          0o644)
@@ -164,10 +163,23 @@ def _take_lock(path: Path, target, label) -> int:
         if now is None or (now.st_ino, now.st_dev) != (mine.st_ino, mine.st_dev):
             os.close(fd)
             continue
+        return _sign_lock(path, fd, me, target)
+    raise _busy(target, label, path)
+
+
+def _sign_lock(path: Path, fd: int, me: bytes, target) -> int:
+    """Write ``me`` (``"PID HOST"``) into the lock file ``path`` just taken as ``fd``; ``fd``.
+
+    If it cannot be written (a full disk), the lock is dropped (file removed,
+    ``fd`` closed) and the OSError names ``target``.
+    """
+    try:
         os.ftruncate(fd, 0)
         os.write(fd, me)
-        return fd
-    raise _busy(target, label, path)
+    except OSError as exc:
+        _drop_lock(path, fd)
+        raise _naming(exc, target) from exc
+    return fd
 
 
 def _drop_lock(path: Path, fd: int) -> None:

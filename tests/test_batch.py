@@ -603,3 +603,11 @@ def test_the_dashboard_of_an_existing_scheduler_is_named_only_when_it_serves_its
     finally:
         server.shutdown()
         server.server_close()
+
+
+def test_job_may_not_take_the_journal_name():
+    # the runner appends finished jobs to summary.journal in the results directory: a job folder of
+    # that name would collide with it, as one named summary.json would with the summary
+    for name in ("summary.journal", "Summary.Journal"):
+        with pytest.raises(ValidationError, match="taken by the batch"):
+            Job(name, "s.ply", "c.json", sgi.BoxPrompt([0, 0, 4, 4]))

@@ -263,3 +263,26 @@ def test_seed2gs_convert_without_force_keeps_an_output_that_appears_while_it_run
     assert "exists; use --force" in capsys.readouterr().err
     assert out.read_bytes() == b"theirs"
     assert _leftovers(tmp_path, out.name) == []
+
+
+def test_a_lock_whose_owner_line_cannot_be_written_is_released(tmp_path, monkeypatch):
+    # a full disk can refuse the few bytes of "PID HOST" in the new lock file: the error names the
+    # output, and neither the descriptor (holding the lock) nor the lock file may outlive it
+    target = tmp_path / "out"
+    real_write = os.write
+    me = f"{os.getpid()} ".encode()
+
+    def full_disk(fd, data):
+        if bytes(data).startswith(me):
+            raise OSError(28, "No space left on device")
+        return real_write(fd, data)
+
+    monkeypatch.setattr(os, "write", full_disk)
+    with pytest.raises(OSError, match=f"No space left on device while writing {target}"):
+        with output_lock(target):
+            pass
+    monkeypatch.setattr(os, "write", real_write)
+    assert not lock_file(target).exists()
+    with output_lock(target):  # not "being written by another seed2gs process" (this one)
+        assert lock_file(target).exists()
+    assert not lock_file(target).exists()

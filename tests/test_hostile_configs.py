@@ -27,6 +27,7 @@ import seed2gs_inverse.pipeline as pipeline
 from seed2gs_inverse import _atomic
 from seed2gs_inverse._atomic import atomic_path
 from seed2gs_inverse.batch.jobs import Job, read_jobs
+from seed2gs_inverse.batch.summary import fold_journal, read_summary
 from seed2gs_inverse.camera import Camera
 from seed2gs_inverse.errors import FormatError, ValidationError
 from seed2gs_inverse.frontend.config import load_models
@@ -379,3 +380,20 @@ def test_an_external_boxes_file_that_is_a_pipe_or_too_large_is_refused(tmp_path)
         f.truncate(MAX_TABLE_BYTES + 1)
     with pytest.raises(FormatError, match="big.json"):
         ExternalBoxes(big).detect(np.zeros((8, 8, 3), np.uint8), "x")
+
+
+@pytest.mark.parametrize("name", ["summary.journal", "summary.json"])
+def test_a_pipe_in_a_batch_folder_is_refused_without_reading(tmp_path, name):
+    # the runner reads its journal and summary back from the results folder at the start of each run
+    fifo = tmp_path / name
+    os.mkfifo(fifo)
+    timer = _unblock_later(fifo)
+    try:
+        with pytest.raises(ValidationError, match="not a regular file") as info:
+            read_summary(tmp_path)
+        if name == "summary.journal":  # the journal a killed run left is folded in first
+            with pytest.raises(ValidationError, match="not a regular file"):
+                fold_journal(tmp_path)
+    finally:
+        timer.cancel()
+    assert str(fifo) in str(info.value)

@@ -65,6 +65,7 @@ from ..frontend.prompts import BoxPrompt, MaskPrompt, PointPrompt, TextPrompt
 from ..io import read_camera
 from ..io.cameras import split_camera_spec
 from ..io.tables import read_small_file, read_table
+from .summary import JOURNAL
 
 __all__ = ["Job", "read_jobs", "jobs_from_table", "extract_option_names", "PROMPT_KEYS"]
 
@@ -77,7 +78,7 @@ _FORMATS = ("ply", "splat")
 # extract() keywords a job may not set: the runner owns them.
 _RESERVED = {"progress", "grounder", "tracker", "settings"}
 # Names of the runner's own files in the results directory, which no job folder may take.
-_RESERVED_NAMES = {"summary.json", "summary.csv"}
+_RESERVED_NAMES = {"summary.json", "summary.csv", JOURNAL}
 
 
 def extract_option_names() -> tuple:

@@ -65,7 +65,8 @@ def read_summary(output: Path) -> dict:
     Raises
     ------
     ValidationError
-        ``summary.json`` (or, without it, ``summary.csv``) is not a batch summary.
+        ``summary.json`` (or, without it, ``summary.csv``) is not a batch summary,
+        or it or ``summary.journal`` is not a regular file (a pipe would block the read).
     """
     entries = _read_doc(output)[1]
     entries.update(_read_journal(output / JOURNAL))
@@ -84,6 +85,7 @@ def _read_doc(output: Path) -> tuple:
     if not p.exists():
         _check_summary_csv(output / "summary.csv")
         return {}, {}
+    _check_regular(p, "summary")
     try:
         doc = json.loads(p.read_text("utf-8"))
         meta = doc.get("meta")
@@ -96,6 +98,7 @@ def _read_doc(output: Path) -> tuple:
 def _read_journal(path: Path) -> dict:
     """The job records of the journal ``path`` by name, later lines winning; a line that does not
     parse (the last one of a killed writer) is skipped."""
+    _check_regular(path, "journal")
     try:
         with open(path, encoding="utf-8", errors="replace") as fh:
             lines = fh.readlines()
@@ -111,6 +114,14 @@ def _read_journal(path: Path) -> dict:
         except (ValueError, RecursionError):
             continue
     return _usable(records)
+
+
+def _check_regular(path: Path, what: str) -> None:
+    """ValidationError unless ``path`` is a regular file or missing: opening a pipe blocks for ever, and a
+    device such as ``/dev/zero`` never ends."""
+    if os.path.exists(path) and not os.path.isfile(path):
+        raise ValidationError(f"{path} is not a regular file (a directory, pipe or device), so it cannot be "
+                              f"the batch's {what}; move it away, or choose another output directory")
 
 
 class JobJournal:
