@@ -308,3 +308,9 @@ def test_extraction_report_holds_the_remainder_share():
     assert rep["remainder_share"]["share"] == pytest.approx(want["share"])
     assert rep["remainder_share"]["worst_view"] == pytest.approx(want["worst_view"])
     assert rep["remainder_share"]["n_nearby"] == want["n_nearby"]
+    # the kept figure follows the selection: an edited selection is not reported with the old one
+    ex.selected = ex.selected.copy()
+    ex.selected[np.flatnonzero(ex.selected)[::2]] = False
+    edited = remainder_share(ex.operators, ex.selected, scene.means)
+    assert edited["share"] != pytest.approx(want["share"])
+    assert ex.remainder_summary()["share"] == pytest.approx(edited["share"])

@@ -190,3 +190,12 @@ def test_components_are_kept_by_their_mask_contribution_and_the_box_is_robust():
     # keep_fraction above the half-transparent cluster's share keeps the best component alone
     only = seed_lift(scene, cam, seed, op.rendering.depth, op.W, keep_fraction=0.95).support
     np.testing.assert_array_equal(only, group == "opaque")
+
+
+def test_support_is_a_deprecated_alias_of_g0(setup):
+    scene, labels, info, cam, op, truth2d = setup
+    lift = seed_lift(scene, cam, truth2d, op.rendering.depth, op.W)
+    with pytest.warns(DeprecationWarning, match="SeedLift.g0"):
+        assert lift.support is lift.g0
+    with pytest.warns(DeprecationWarning, match="SeedLift.n_g0"):
+        assert lift.n_support == lift.n_g0

@@ -28,6 +28,8 @@ the same job description (:meth:`Job.fingerprint`) is skipped.
 
 from __future__ import annotations
 
+from collections import Counter
+
 import os
 import sys
 import time
@@ -59,8 +61,9 @@ def _as_jobs(jobs) -> list[Job]:
     for i, j in enumerate(out):
         if not isinstance(j, Job):
             raise ValidationError(f"extract_many: jobs[{i}] is a {type(j).__name__}, not a Job")
-    names = [j.name.casefold() for j in out]  # folder names: one folder on a case-insensitive file system
-    dup = sorted({j.name for j in out if names.count(j.name.casefold()) > 1})
+    # folder names: one folder on a case-insensitive file system
+    counts = Counter(j.name.casefold() for j in out)
+    dup = sorted({j.name for j in out if counts[j.name.casefold()] > 1})
     if dup:
         raise ValidationError(f"extract_many: job names must be unique, also ignoring case (they name folders); "
                               f"repeated: {dup}")

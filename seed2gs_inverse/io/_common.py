@@ -126,7 +126,7 @@ def logit_from_unorm(p: np.ndarray) -> np.ndarray:
 
 
 # Largest decompressed/compressed size ratio accepted for a scene file. Real
-# SPZ files compress their quantised arrays about 1.4x (biker_152k.spz: 1.36);
+# SPZ files compress their quantised arrays by a small factor (about 1.4);
 # a degree-3 file whose SH bands are all zero stays below 5x. Zero-filled
 # streams reach 1000x (gzip) to 30000x (zstd): a 6 KB file could claim 10
 # million Gaussians. Together with the slack this bounds what a reader

@@ -9,6 +9,7 @@ an extraction's files.
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -123,7 +124,7 @@ class Extraction:
     settings: ExtractSettings | None = None
     resolved: dict = field(default_factory=dict)
     up: dict = field(default_factory=dict)
-    _remainder: dict | None = field(default=None, init=False, repr=False, compare=False)
+    _remainder: tuple | None = field(default=None, init=False, repr=False, compare=False)
 
     @property
     def total_seconds(self) -> float:
@@ -141,8 +142,8 @@ class Extraction:
     def remainder_summary(self) -> dict:
         """What the remainder keeps of the object: :func:`~seed2gs_inverse.metrics.remainder_share` on the run's views.
 
-        Computed once from :attr:`operators` (one sparse pass per view and
-        the footprint's rows) and kept.
+        Computed from :attr:`operators` (one sparse pass per view and the
+        footprint's rows) and kept until :attr:`selected` changes.
 
         Returns
         -------
@@ -154,12 +155,14 @@ class Extraction:
             are None when the selection covers no footprint pixel (an empty
             selection).
         """
-        if self._remainder is None:
-            r = remainder_share(self.operators, np.asarray(self.selected, bool), self.scene.means)
-            self._remainder = {"share": None if np.isnan(r["share"]) else float(r["share"]),
+        selected = np.asarray(self.selected, bool)
+        key = hashlib.sha1(np.packbits(selected).tobytes()).hexdigest()  # a changed selection is recomputed
+        if self._remainder is None or self._remainder[0] != key:
+            r = remainder_share(self.operators, selected, self.scene.means)
+            self._remainder = key, {"share": None if np.isnan(r["share"]) else float(r["share"]),
                                "worst_view": None if np.isnan(r["worst_view"]) else float(r["worst_view"]),
                                "n_nearby": r["n_nearby"], "footprint_pixels": r["footprint_pixels"]}
-        return dict(self._remainder)
+        return dict(self._remainder[1])
 
     def report(self) -> dict:
         """JSON-ready summary: counts, timings, settings (and what they resolved to), VAAS and lift facts.

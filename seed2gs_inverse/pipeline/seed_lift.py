@@ -18,6 +18,7 @@ given), :func:`_candidates`, :func:`_keep_components` (over
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, NamedTuple
 
@@ -86,11 +87,13 @@ class SeedLift:
     @property
     def support(self) -> np.ndarray:
         """Deprecated alias of :attr:`g0` (read-only): "support" names the ground surface elsewhere."""
+        warnings.warn("SeedLift.support is deprecated; use SeedLift.g0", DeprecationWarning, stacklevel=2)
         return self.g0
 
     @property
     def n_support(self) -> int:
         """Deprecated alias of :attr:`n_g0` (read-only)."""
+        warnings.warn("SeedLift.n_support is deprecated; use SeedLift.n_g0", DeprecationWarning, stacklevel=2)
         return self.n_g0
 
     def summary(self) -> dict:
