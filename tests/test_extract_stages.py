@@ -160,7 +160,7 @@ def test_lift_seed_is_seed_lift(syn, setup, staged):
     cam, _ = setup
     op = staged.ref.operator
     want = seed_lift(syn.scene, cam, staged.ref.seed, op.rendering.depth, op.W)
-    np.testing.assert_array_equal(staged.lift.g0, want.support)
+    np.testing.assert_array_equal(staged.lift.g0, want.g0)
     np.testing.assert_array_equal(staged.lift.center, want.center)
     assert staged.lift.radius == want.radius
 

@@ -188,7 +188,7 @@ def test_components_are_kept_by_their_mask_contribution_and_the_box_is_robust():
     np.testing.assert_allclose(lift.center, 0.5 * (lo + hi), atol=1e-6)
     assert lift.radius == pytest.approx(max(0.5 * np.linalg.norm(hi - lo), 3 * 0.05), rel=1e-6)
     # keep_fraction above the half-transparent cluster's share keeps the best component alone
-    only = seed_lift(scene, cam, seed, op.rendering.depth, op.W, keep_fraction=0.95).support
+    only = seed_lift(scene, cam, seed, op.rendering.depth, op.W, keep_fraction=0.95).g0
     np.testing.assert_array_equal(only, group == "opaque")
 
 
