@@ -23,8 +23,7 @@ and ``seed2gs --help`` no Numba, until something needs them.
 
 from __future__ import annotations
 
-import importlib
-
+from . import _lazy
 from .camera import Camera
 from .errors import FormatError, Seed2GSError, ValidationError
 from .scene import GaussianScene
@@ -53,14 +52,4 @@ __all__ = ["Camera", "GaussianScene", "Seed2GSError", "FormatError", "Validation
            "__version__", *_LAZY]
 
 
-def __getattr__(name: str):
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module 'seed2gs_inverse' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{module}", __name__), name)
-    globals()[name] = value  # cache: later lookups skip __getattr__
-    return value
-
-
-def __dir__():
-    return sorted(set(globals()) | set(_LAZY))
+_lazy.install(__name__, _LAZY)

@@ -15,9 +15,7 @@ the settings' defaults) must not.
 
 from __future__ import annotations
 
-import importlib
-import sys
-import types
+from .. import _lazy
 
 # public name -> module of this package that defines it
 _LAZY = {
@@ -34,32 +32,4 @@ __all__ = ["extract", "Extraction", "save_extraction", "ExtractSettings", "seed_
            "report_figure", "estimate_up_axis", "UpEstimate", "point_object_mask", "PointObject"]
 
 
-def __getattr__(name: str):
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module 'seed2gs_inverse.pipeline' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{module}", __name__), name)
-    globals()[name] = value  # cache: later lookups skip __getattr__
-    return value
-
-
-def __dir__():
-    return sorted(set(globals()) | set(_LAZY))
-
-
-class _Package(types.ModuleType):
-    """This package, whose public functions win over their namesake submodules.
-
-    Importing ``pipeline.extract`` (or ``pipeline.seed_lift``) binds the
-    submodule on the package, which would replace the function of the same
-    name for everyone after it; an eager ``from .extract import extract``
-    prevented that, and would load Numba here.
-    """
-
-    def __setattr__(self, name, value):
-        if isinstance(value, types.ModuleType) and _LAZY.get(name) == name:
-            value = getattr(value, name)
-        super().__setattr__(name, value)
-
-
-sys.modules[__name__].__class__ = _Package
+_lazy.install(__name__, _LAZY)
