@@ -17,6 +17,7 @@ import os
 import subprocess
 import sys
 import threading
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -41,9 +42,12 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 # -- special and oversized files -----------------------------------------------------------------
-def _unblock_later(fifo: Path, seconds: float = 3.0) -> threading.Timer:
-    """Open ``fifo`` for writing after ``seconds`` and close it: a reader blocked on it gets end-of-file
-    (so a reader that hangs on pipes fails this test instead of hanging it)."""
+@contextmanager
+def _pipe(fifo: Path, seconds: float = 3.0):
+    """Make the FIFO ``fifo``; while the block runs, open it for writing after ``seconds`` and close it:
+    a reader blocked on it gets end-of-file (so a reader that hangs on pipes fails the test instead of
+    hanging it)."""
+    os.mkfifo(fifo)
 
     def poke():
         try:
@@ -54,27 +58,24 @@ def _unblock_later(fifo: Path, seconds: float = 3.0) -> threading.Timer:
 
     timer = threading.Timer(seconds, poke)
     timer.start()
-    return timer
+    try:
+        yield fifo
+    finally:
+        timer.cancel()
 
 
 @pytest.mark.parametrize("name", ["jobs.toml", "models.json"])
 def test_a_pipe_is_refused_without_reading(tmp_path, name):
     fifo = tmp_path / name
-    os.mkfifo(fifo)
-    timer = _unblock_later(fifo)
-    try:
+    with _pipe(fifo):
         with pytest.raises(FormatError, match="not a regular file") as info:
             read_table(fifo, "jobs file")
-    finally:
-        timer.cancel()
     assert str(fifo) in str(info.value)
 
 
 def test_directories_pipes_and_oversized_files_as_jobs_models_and_reports(tmp_path, capsys):
     fifo = tmp_path / "pipe.toml"
-    os.mkfifo(fifo)
-    timer = _unblock_later(fifo)
-    try:
+    with _pipe(fifo):
         with pytest.raises(FormatError, match="not a regular file"):
             read_jobs(fifo)
         with pytest.raises(FormatError, match="not a regular file"):
@@ -84,8 +85,6 @@ def test_directories_pipes_and_oversized_files_as_jobs_models_and_reports(tmp_pa
         assert cli.main(["extract", "--from-report", str(fifo), "-o", str(tmp_path / "o")]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and "not a regular file" in err and str(fifo) in err
-    finally:
-        timer.cancel()
     big = tmp_path / "big.toml"
     with open(big, "wb") as fh:  # sparse: no disk used
         fh.truncate(MAX_TABLE_BYTES + 1)
@@ -219,13 +218,9 @@ def test_a_crafted_report_is_refused_up_front_naming_the_key(recorded, tmp_path,
 
 def test_the_models_file_of_a_report_is_read_bounded(recorded, tmp_path, capsys, no_work):
     fifo = tmp_path / "models.toml"
-    os.mkfifo(fifo)
     rep = _edited(recorded, tmp_path, _set("run.models", str(fifo)))
-    timer = _unblock_later(fifo)
-    try:
+    with _pipe(fifo):
         assert cli.main(["extract", "--from-report", str(rep), "-o", str(tmp_path / "o")]) == 2
-    finally:
-        timer.cancel()
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and f"{fifo}: not a regular file" in err and not no_work
 
@@ -371,9 +366,7 @@ def test_an_external_boxes_file_that_is_a_pipe_or_too_large_is_refused(tmp_path)
     from seed2gs_inverse.frontend.external import ExternalBoxes
     from seed2gs_inverse.io.tables import MAX_TABLE_BYTES
 
-    fifo = tmp_path / "boxes.json"
-    os.mkfifo(fifo)
-    with pytest.raises(FormatError, match="not a regular file"):
+    with _pipe(tmp_path / "boxes.json") as fifo, pytest.raises(FormatError, match="not a regular file"):
         ExternalBoxes(fifo).detect(np.zeros((8, 8, 3), np.uint8), "x")
     big = tmp_path / "big.json"
     with open(big, "wb") as f:  # sparse: its size is refused before a byte is read
@@ -386,14 +379,10 @@ def test_an_external_boxes_file_that_is_a_pipe_or_too_large_is_refused(tmp_path)
 def test_a_pipe_in_a_batch_folder_is_refused_without_reading(tmp_path, name):
     # the runner reads its journal and summary back from the results folder at the start of each run
     fifo = tmp_path / name
-    os.mkfifo(fifo)
-    timer = _unblock_later(fifo)
-    try:
+    with _pipe(fifo):
         with pytest.raises(ValidationError, match="not a regular file") as info:
             read_summary(tmp_path)
         if name == "summary.journal":  # the journal a killed run left is folded in first
             with pytest.raises(ValidationError, match="not a regular file"):
                 fold_journal(tmp_path)
-    finally:
-        timer.cancel()
     assert str(fifo) in str(info.value)
