@@ -276,7 +276,7 @@ def run_job(job: Job, output=None, attempt: int = 1) -> JobResult:
     JobResult
         ``failed`` with the error for any exception the job raises.
     """
-    from ..pipeline import extract  # deferred: see the module docstring
+    from ..pipeline import extract, save_extraction  # deferred: see the module docstring
 
     t_start = time.perf_counter()
     res = JobResult(name=job.name, status="failed", scene=job.scene, fingerprint=job.fingerprint(),
@@ -297,15 +297,10 @@ def run_job(job: Job, output=None, attempt: int = 1) -> JobResult:
         res.n_views = int(len(ex.views))
         t0 = time.perf_counter()
         if output is not None:
-            from ..pipeline import save_extraction
-
             outdir = Path(output) / job.name
+            # the report figure is a matplotlib Figure outside pyplot: nothing for a long-lived worker to close
             save_extraction(ex, outdir, job.format, force=True, figure=job.figure,
                             sections={"batch": {"job": job.name, "fingerprint": res.fingerprint}})
-            if job.figure:
-                import matplotlib.pyplot as plt
-
-                plt.close("all")  # a long-lived worker must not keep every figure
             res.outdir = os.fspath(outdir)
         else:
             res.q = np.asarray(ex.q, dtype=np.float32)
