@@ -43,6 +43,20 @@ stays unknown otherwise. It only uses the reference's labels, so it is
 weaker than the regulariser, which also uses every orbit view's evidence;
 both are options of :func:`~seed2gs_inverse.pipeline.extract.extract`.
 
+**Faint Gaussians follow their opaque neighbours** (:func:`follow_opaque`).
+A Gaussian below the graph's ``min_opacity`` never dominates a pixel: its
+evidence is a trace, and the graph leaves it out. Translucent shells, halos
+and inner layers of a scanned object are made of such Gaussians; left to
+the prior they stay in the remainder, where, rendered without the object in
+front of them, they are a see-through copy of it. Each faint Gaussian of the
+region takes the membership of its ``k`` nearest opaque ones,
+
+.. math::
+
+    q_i = \frac{\sum_{j \in N_k(i)} q_j / (d_{ij} + \epsilon)}{\sum_{j \in N_k(i)} 1 / (d_{ij} + \epsilon)},
+
+with :math:`\epsilon` a hundredth of the median neighbour distance.
+
 With user-supplied 2D trackers (SAM2) the masks have no unknown pixels where
 the object is visible: the fill is a no-op and the regulariser only decides
 Gaussians no view's pixels reach (Algorithm 1 is unchanged otherwise).
@@ -52,12 +66,15 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.spatial import cKDTree
 
+from .._threads import n_threads
 from ..errors import ValidationError
 from ..graph import gaussian_graph, region_subset
 from ..solvers.smoothing import harmonic_extension
 
-__all__ = ["object_graph", "complete_membership", "tracked_membership", "fill_unknown", "GRAPH_DEFAULTS"]
+__all__ = ["object_graph", "complete_membership", "tracked_membership", "fill_unknown", "follow_opaque",
+           "GRAPH_DEFAULTS"]
 
 #: Graph settings used by extract(): k neighbours, colour and normal sigmas,
 #: and the region (multiples of the lift's radius about its centre).
@@ -89,6 +106,57 @@ def object_graph(scene, center, radius: float, *, k: int = GRAPH_DEFAULTS["k"],
     idx = region_subset(scene, center, float(region) * float(radius))
     return gaussian_graph(scene, k, subset=idx, sigma_color=sigma_color, sigma_normal=sigma_normal,
                           min_opacity=min_opacity)
+
+
+def follow_opaque(scene, q, center, radius: float, *, region: float = GRAPH_DEFAULTS["region"],
+                  min_opacity: float = GRAPH_DEFAULTS["min_opacity"], k: int = 4) -> np.ndarray:
+    """``q`` with each faint Gaussian near the object set to its opaque neighbours' membership.
+
+    Parameters
+    ----------
+    scene : GaussianScene
+    q : (N,) array
+        Membership to complete.
+    center : (3,) array
+    radius : float
+        The region is the ball of ``region * radius`` about ``center``, as
+        in :func:`object_graph`.
+    min_opacity : float
+        A Gaussian of the region with activated opacity below this is faint.
+    k : int
+        Opaque neighbours per faint Gaussian, >= 1.
+
+    Returns
+    -------
+    (N,) float32
+        ``q`` with the faint Gaussians of the region replaced by the
+        inverse-distance weighted mean of their ``k`` nearest opaque
+        Gaussians of the region (module docstring); unchanged when the region
+        has no faint or no opaque Gaussian.
+
+    Raises
+    ------
+    ValidationError
+        ``q`` not of length N, or ``k`` not a positive integer.
+    """
+    q = np.asarray(q, np.float32).ravel()
+    if q.shape != (len(scene),):
+        raise ValidationError(f"q has {q.size} values for a scene of {len(scene)} Gaussians")
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
+        raise ValidationError(f"k must be a positive integer, got {k!r}")
+    idx = region_subset(scene, center, float(region) * float(radius))
+    faint = scene.opacities[idx] < min_opacity
+    opaque, faint = idx[~faint], idx[faint]
+    if faint.size == 0 or opaque.size == 0:
+        return q
+    kk = min(int(k), opaque.size)
+    d, nb = cKDTree(scene.means[opaque].astype(np.float64)).query(
+        scene.means[faint].astype(np.float64), k=kk, workers=n_threads())
+    d, nb = d.reshape(faint.size, kk), nb.reshape(faint.size, kk)
+    w = 1.0 / (d + 1e-2 * float(np.median(d)) + 1e-30)
+    out = q.copy()
+    out[faint] = (np.sum(w * q[opaque][nb], axis=1) / np.sum(w, axis=1)).astype(np.float32)
+    return out
 
 
 #: CG tolerance of the completions' random walker on graphs beyond

@@ -20,8 +20,9 @@ each can be run, tested and timed on its own::
                        (completion="reference" / "tracked")        -> list of masks
     stack_operators    the supervision views' operators            -> OperatorStack
     solve_selection    solver (initialised from G0, graph-Laplacian
-                       regulariser when smoothness > 0) + threshold,
-                       kept where connected to G0 in 3D             -> Selection
+                       regulariser when smoothness > 0), faint
+                       Gaussians follow their opaque neighbours,
+                       threshold, kept where connected to G0 in 3D  -> Selection
 
 The trackers are reached only through the protocols of
 :mod:`seed2gs_inverse.frontend.base` (``Tracker``, and the optional
@@ -43,7 +44,8 @@ from ..frontend.prompts import PointPrompt, seed_mask_from_prompt
 from ..operators import OperatorStack, as_stack, scene_fingerprint
 from ..solvers import solve
 from ..solvers._common import normalize_mask
-from .completion import GRAPH_DEFAULTS, complete_membership, fill_unknown, object_graph, tracked_membership
+from .completion import (GRAPH_DEFAULTS, complete_membership, fill_unknown, follow_opaque, object_graph,
+                         tracked_membership)
 from .point_object import point_object_mask
 from .islands import seed_connected
 from .seed_lift import seed_lift
@@ -134,8 +136,10 @@ class Selection:
         The solver's result; its ``q`` already carries the ``min_evidence``
         reset or the regulariser.
     q : (N,) float32
-        ``result.q``, set to 0 on the ``n_disconnected`` Gaussians of islands
-        apart from G0 (with ``settings.seed_connected``).
+        ``result.q``, its faint Gaussians near the object set to their
+        opaque neighbours' membership (with ``settings.follow_faint``), and
+        set to 0 on the ``n_disconnected`` Gaussians of islands apart from
+        G0 (with ``settings.seed_connected``).
     threshold : float
         tau.
     selected : (N,) bool
@@ -540,8 +544,8 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     smoothness : float
         The resolved regulariser weight lambda (0: off).
     scene : GaussianScene, optional
-        The scene of the operators; needed (its means) with
-        ``settings.seed_connected``.
+        The scene of the operators; needed with ``settings.seed_connected``
+        or ``settings.follow_faint``.
 
     Returns
     -------
@@ -550,7 +554,7 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     Raises
     ------
     ValidationError
-        ``settings.seed_connected`` without ``scene``.
+        ``settings.seed_connected`` or ``settings.follow_faint`` without ``scene``.
 
     Notes
     -----
@@ -560,7 +564,11 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     unregularised fit could drive their logits anywhere on a trace of
     weight), so the solver gives them the prior (G0 membership), or, with
     ``smoothness > 0``, the harmonic extension of their neighbours on the
-    graph. ``tau`` is ``settings.threshold`` or the solver's own. With
+    graph. With ``settings.follow_faint`` (default) the Gaussians of the
+    graph's region below its ``min_opacity`` then take the membership of
+    their nearest opaque neighbours
+    (:func:`~.completion.follow_opaque`): their own evidence is a trace.
+    ``tau`` is ``settings.threshold`` or the solver's own. With
     ``settings.seed_connected`` (default) the Gaussians above ``tau`` in
     islands apart from G0 that the masks do not call object
     (:func:`~.islands.seed_connected` with the masks' votes) get ``q = 0``,
@@ -573,11 +581,15 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
                    progress=progress, smoothness=smoothness, graph=graph, **settings.solver_kwargs())
     q = np.asarray(result.q, dtype=np.float32)
     tau = result.threshold if settings.threshold is None else float(settings.threshold)
+    if (settings.seed_connected or settings.follow_faint) and scene is None:
+        raise ValidationError("solve_selection: settings.seed_connected and settings.follow_faint need the scene "
+                              "(scene=); pass it or set both to False")
+    if settings.follow_faint:
+        opts = {**GRAPH_DEFAULTS, **settings.graph_options}
+        q = follow_opaque(scene, q, lift.center, lift.radius, region=opts["region"],
+                          min_opacity=opts["min_opacity"])
     n_removed = 0
     if settings.seed_connected:
-        if scene is None:
-            raise ValidationError("solve_selection: settings.seed_connected needs the scene (scene=, for its "
-                                  "Gaussian means); pass it or set seed_connected=False")
         graph_kw = {k: settings.lift_options[k] for k in ("k_neighbors", "link_factor") if k in settings.lift_options}
         island = (q > tau) & ~seed_connected(scene.means, q > tau, lift.g0, votes=_votes(stack, masks),
                                              **graph_kw)  # the lift's graph
