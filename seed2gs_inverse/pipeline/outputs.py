@@ -5,8 +5,12 @@ Gaussians and the rest), ``q.npy`` (float32 q), ``report.json``
 (:meth:`~seed2gs_inverse.pipeline.extraction.Extraction.report`, whose
 ``remainder_share`` says how much of the object's alpha the remainder
 keeps at its place, with the seed's size and the writer's own sections)
-and ``report.png``
-(:func:`~seed2gs_inverse.pipeline.report.report_figure`), all or nothing.
+and two pictures: ``report.png``
+(:func:`~seed2gs_inverse.pipeline.report.report_figure`: the object alone
+from several directions, the remainder around the hole, the seed) and
+``report_masks.png``
+(:func:`~seed2gs_inverse.pipeline.report.masks_figure`: the supervision
+views with their masks), all or nothing.
 """
 
 from __future__ import annotations
@@ -22,7 +26,7 @@ import numpy as np
 from .._atomic import atomic_path
 from .._output_paths import check_output
 from ..io import write_scene
-from .report import report_figure, seed_summary
+from .report import masks_figure, report_figure, seed_summary
 
 if TYPE_CHECKING:
     from .extraction import Extraction
@@ -32,7 +36,7 @@ __all__ = ["save_extraction"]
 
 def save_extraction(extraction: Extraction, outdir: str | os.PathLike, fmt: str = "ply", *, force: bool = False,
                     figure: bool = True, run_info: dict | None = None, sections: dict | None = None) -> Path:
-    """Write ``object.<fmt>``, ``remainder.<fmt>``, ``q.npy``, ``report.json`` (and ``report.png``) into ``outdir``.
+    """Write ``object.<fmt>``, ``remainder.<fmt>``, ``q.npy``, ``report.json`` (and the pictures) into ``outdir``.
 
     Parameters
     ----------
@@ -51,8 +55,10 @@ def save_extraction(extraction: Extraction, outdir: str | os.PathLike, fmt: str 
     force : bool
         Replace an existing ``outdir``.
     figure : bool
-        Also write ``report.png``
-        (:func:`~seed2gs_inverse.pipeline.report.report_figure`).
+        Also write ``report.png`` (the result:
+        :func:`~seed2gs_inverse.pipeline.report.report_figure`) and
+        ``report_masks.png`` (the supervision masks:
+        :func:`~seed2gs_inverse.pipeline.report.masks_figure`).
     run_info : dict, optional
         The report's ``run`` section (what ``seed2gs extract
         --from-report`` reads).
@@ -103,5 +109,8 @@ def save_extraction(extraction: Extraction, outdir: str | os.PathLike, fmt: str 
         with open(tmp / "report.json", "w") as fh:
             json.dump(report, fh, indent=2)
         if figure:
-            report_figure(extraction).savefig(tmp / "report.png", dpi=100)
+            # zlib level 3: half the encoding time of the default 6 for 7-10 % larger files
+            png = {"dpi": 100, "pil_kwargs": {"compress_level": 3}}
+            report_figure(extraction).savefig(tmp / "report.png", **png)
+            masks_figure(extraction).savefig(tmp / "report_masks.png", **png)
     return out
