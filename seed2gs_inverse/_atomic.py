@@ -594,7 +594,9 @@ def check_output_parent(path, option: str) -> Path:
 #: holds, a test that the marker is the toolkit's own (its JSON content), and the names written there.
 OUTPUT_KINDS = {
     "extract": ("report.json", lambda d: isinstance(d, dict) and isinstance(d.get("outputs"), dict),
-                ("report.json", "report.png", "q.npy", "object.*", "remainder.*")),
+                ("report.json", "report.png", "q.npy", "object.*", "remainder.*",
+                 # with --save-operators: the solve's inputs (solvers.inputs.FILES)
+                 "solve.json", "operators", "masks", "init.npy", "graph.npz", "islands.npy")),
     "operators": ("manifest.json", lambda d: isinstance(d, dict) and d.get("format") == "seed2gs-operators",
                   ("manifest.json", "view_*.npy")),
     "compare": ("comparison.json", lambda d: isinstance(d, dict) and isinstance(d.get("rows"), list),
