@@ -40,7 +40,7 @@ _LAZY = {
                     "operators"),
     **dict.fromkeys(["solve", "available_methods", "SolveResult"], "solvers"),
     **dict.fromkeys(["load_solve_inputs", "SolveInputs"], "solvers.inputs"),
-    **dict.fromkeys(["iou", "boundary_iou", "membership_scores"], "metrics"),
+    **dict.fromkeys(["iou", "boundary_iou", "known_iou", "known_boundary_iou", "membership_scores"], "metrics"),
     **dict.fromkeys(["compare", "Comparison"], "comparison"),  # not "compare": the module would shadow the function
     **dict.fromkeys(["MaskPrompt", "BoxPrompt", "PointPrompt", "TextPrompt"], "frontend.prompts"),
     **dict.fromkeys(["extract", "Extraction", "ExtractSettings", "seed_lift"], "pipeline"),

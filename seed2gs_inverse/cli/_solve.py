@@ -59,13 +59,17 @@ def register(subparsers) -> None:
     p.set_defaults(func=solve_command)
 
     c = subparsers.add_parser(
-        "compare", help="compare solvers against ground-truth labels",
-        description="Fit every solver on the same views (every k-th view held out), score held-out "
-                    "2D mIoU/mBIoU and 3D precision/recall/IoU against --truth, print a table and "
-                    "optionally write comparison.csv, comparison.json and comparison.png to -o DIR.")
-    c.add_argument("operators", metavar="OPS_DIR", help="operator directory (seed2gs operators build)")
+        "compare", help="compare solvers on held-out views (against labels, or the views' own masks)",
+        description="Fit every solver on the same views (every k-th view held out) and score held-out "
+                    "2D mIoU/mBIoU: against --truth labels rendered into those views (with 3D "
+                    "precision/recall/IoU), or without --truth against the held-out views' own masks on "
+                    "their known pixels (NaN pixels ignored). Print a table and optionally write "
+                    "comparison.csv, comparison.json and comparison.png to -o DIR.")
+    c.add_argument("operators", metavar="OPS_DIR",
+                   help="operator directory (seed2gs operators build, or OUT/operators of extract --save-operators)")
     c.add_argument("masks", metavar="MASKS_DIR", help="view_000.png|npy ... one mask per view")
-    c.add_argument("--truth", required=True, metavar="LABELS.npy", help="(N,) bool ground-truth membership")
+    c.add_argument("--truth", metavar="LABELS.npy",
+                   help="(N,) bool ground-truth membership (default: score against the held-out masks)")
     c.add_argument("--methods", metavar="M1,M2,...",
                    help=f"comma-separated methods out of {', '.join(available_methods())} (default: all)")
     c.add_argument("--holdout-every", type=int, default=4, help="hold out every k-th view (0: none; default 4)")
@@ -162,14 +166,9 @@ def compare_command(args) -> int:
         raise ValidationError(f"--methods: each method once, got {args.methods}")
     if args.output:
         check_output(args.output, "-o", directory=True, force=args.force, kind="compare")  # DIR is written at the end
-    truth = load_npy(args.truth, f"--truth {args.truth}")
-    if truth.dtype != bool:
-        if truth.dtype.kind in "ui" and truth.size and set(np.unique(truth).tolist()) <= {0, 1}:
-            truth = truth.astype(bool)
-        else:
-            raise ValidationError(f"--truth {args.truth}: labels must be bool (or 0/1 integers), got {truth.dtype}")
+    truth = None if args.truth is None else _read_truth(args.truth)
     stack = OperatorStack.load(args.operators, mmap=True)
-    if truth.shape != (stack.n_gaussians,):
+    if truth is not None and truth.shape != (stack.n_gaussians,):
         raise ValidationError(f"--truth {args.truth}: {truth.size:,} labels in shape {truth.shape}, the operators' "
                               f"scene has {stack.n_gaussians:,} Gaussians; give one label per Gaussian")
     try:  # before any solve
@@ -177,8 +176,9 @@ def compare_command(args) -> int:
     except ValidationError:
         raise ValidationError(f"--holdout-every {args.holdout_every}: must be 0 (none) or a whole number >= 2") from None
     masks = read_masks(args.masks, len(stack), stack.image_shapes)
-    print(f"comparing {', '.join(methods) if methods else 'every method'} on {len(stack)} views ...",
-          file=sys.stderr, flush=True)
+    against = "the truth labels" if truth is not None else "the views' own masks (no --truth)"
+    print(f"comparing {', '.join(methods) if methods else 'every method'} on {len(stack)} views, scored against "
+          f"{against} ...", file=sys.stderr, flush=True)
     with _CompareBar(progress_enabled(args.no_progress), len(methods or available_methods())) as bar:
         result = compare(stack, masks, truth, methods=methods, holdout_every=args.holdout_every,
                          progress=bar.callback)
@@ -193,6 +193,17 @@ def compare_command(args) -> int:
             (tmp / "comparison.png").write_bytes(png.getvalue())
         print(f"wrote {d / 'comparison.csv'}, {d / 'comparison.json'}, {d / 'comparison.png'}")
     return 0
+
+
+def _read_truth(path) -> np.ndarray:
+    """``--truth LABELS.npy`` as bool labels (0/1 integers accepted), or a ValidationError naming the file."""
+    truth = load_npy(path, f"--truth {path}")
+    if truth.dtype != bool:
+        if truth.dtype.kind in "ui" and truth.size and set(np.unique(truth).tolist()) <= {0, 1}:
+            truth = truth.astype(bool)
+        else:
+            raise ValidationError(f"--truth {path}: labels must be bool (or 0/1 integers), got {truth.dtype}")
+    return truth
 
 
 class _CompareBar:
