@@ -120,6 +120,11 @@ def register(subparsers) -> None:
                    help="do not label the surface the object rests on as background in the orbit views (by "
                         "default the model-free tracker does, where the orbit axis is trusted)")
     p.add_argument("--format", choices=("ply", "splat"), default=None, help="object/remainder format (default ply)")
+    p.add_argument("--save-operators", action="store_true",
+                   help="also write what the solve took into OUTDIR: operators/, masks/ (one view_NNN.npy per "
+                        "view, NaN = unknown), init.npy, graph.npz and solve.json, from which 'seed2gs solve "
+                        "OUTDIR/operators OUTDIR/masks --from-extraction OUTDIR' reproduces q.npy and 'seed2gs "
+                        "compare OUTDIR/operators OUTDIR/masks' compares the solvers")
     p.add_argument("--no-progress", action="store_true",
                    help="no progress bars (they are shown only when stderr is a terminal)")
     p.set_defaults(func=run)
@@ -527,7 +532,7 @@ def run(args) -> int:
         "numba_threads": _numba_threads(),
         "peak_rss_mb": peak_rss_mb(),  # of this process: reading the scene and the extraction
     }
-    save_extraction(ex, out, fmt, force=args.force, run_info=run_info)
+    save_extraction(ex, out, fmt, force=args.force, run_info=run_info, save_operators=args.save_operators)
     s = ex.seconds
     print(f"extracted {int(ex.selected.sum())} of {len(scene)} Gaussians -> {out}/object.{fmt} "
           f"({len(ex.views)} views, {ex.total_seconds:.1f} s: "
