@@ -39,7 +39,8 @@ _LAZY = {
     **dict.fromkeys(["Rendering", "ViewOperator", "OperatorStack", "as_stack", "dottest", "scene_fingerprint"],
                     "operators"),
     **dict.fromkeys(["solve", "available_methods", "SolveResult"], "solvers"),
-    **dict.fromkeys(["iou", "boundary_iou", "membership_scores"], "metrics"),
+    **dict.fromkeys(["load_solve_inputs", "SolveInputs"], "solvers.inputs"),
+    **dict.fromkeys(["iou", "boundary_iou", "known_iou", "known_boundary_iou", "membership_scores"], "metrics"),
     **dict.fromkeys(["compare", "Comparison"], "comparison"),  # not "compare": the module would shadow the function
     **dict.fromkeys(["MaskPrompt", "BoxPrompt", "PointPrompt", "TextPrompt"], "frontend.prompts"),
     **dict.fromkeys(["extract", "Extraction", "ExtractSettings", "seed_lift"], "pipeline"),

@@ -594,11 +594,15 @@ def check_output_parent(path, option: str) -> Path:
 #: holds, a test that the marker is the toolkit's own (its JSON content), and the names written there.
 OUTPUT_KINDS = {
     "extract": ("report.json", lambda d: isinstance(d, dict) and isinstance(d.get("outputs"), dict),
-                ("report.json", "report.png", "q.npy", "object.*", "remainder.*")),
+                ("report.json", "report.png", "report_masks.png", "q.npy", "object.*", "remainder.*",
+                 # with --save-operators: the solve's inputs (solvers.inputs.FILES)
+                 "solve.json", "operators", "masks", "init.npy", "graph.npz", "islands.npy")),
     "operators": ("manifest.json", lambda d: isinstance(d, dict) and d.get("format") == "seed2gs-operators",
                   ("manifest.json", "view_*.npy")),
     "compare": ("comparison.json", lambda d: isinstance(d, dict) and isinstance(d.get("rows"), list),
                 ("comparison.json", "comparison.csv", "comparison.png")),
+    "split": ("split.json", lambda d: isinstance(d, dict) and d.get("command") == "split",
+              ("split.json", "object.*", "remainder.*")),
 }
 
 
@@ -607,7 +611,8 @@ def not_an_earlier_output(directory, kind: str) -> str | None:
 
     It may when it is empty, or when its marker file (:data:`OUTPUT_KINDS`:
     ``report.json`` of ``extract``, ``manifest.json`` of an operator
-    directory, ``comparison.json`` of ``compare``) is the
+    directory, ``comparison.json`` of ``compare``, ``split.json`` of
+    ``split``) is the
     toolkit's own and it holds nothing but the files of that output:
     replacing a directory must never take a user's other files with it (an
     empty ``{}`` named report.json, or notes added next to an earlier output).

@@ -35,7 +35,8 @@ def check_output(path, option: str, *, directory: bool = False, force: bool = Fa
       every command), and only by the same kind (file or directory);
     * a directory is never replaced when it is the current directory or
       holds it, nor, when the command names the ``kind`` of its output
-      (``"extract"``, ``"operators"``, ``"compare"``), when it is neither
+      (``"extract"``, ``"operators"``, ``"compare"``,
+      ``"split"``), when it is neither
       empty nor an earlier output of that kind holding only what the command
       writes (:func:`~seed2gs_inverse._atomic.not_an_earlier_output`):
       ``--force`` replaces the command's own output, never a user's files.

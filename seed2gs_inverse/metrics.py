@@ -34,8 +34,9 @@ from scipy.spatial import cKDTree
 from .errors import ValidationError
 from .operators import as_stack
 
-__all__ = ["iou", "boundary_iou", "mask_boundary", "boundary_width", "protocol_mean", "membership_scores",
-           "alpha_scores", "remainder_share", "object_region", "nearby_remainder"]
+__all__ = ["iou", "boundary_iou", "known_iou", "known_boundary_iou", "mask_boundary", "boundary_width",
+           "protocol_mean", "membership_scores", "alpha_scores", "remainder_share", "object_region",
+           "nearby_remainder"]
 
 
 def _pair(pred, truth, name: str = "masks") -> tuple:
@@ -93,6 +94,75 @@ def boundary_iou(pred, truth, dilation_ratio: float = 0.02) -> float:
     if p.ndim != 2:
         raise ValidationError(f"boundary_iou: masks must be 2-D, got shape {p.shape}")
     return iou(mask_boundary(p, dilation_ratio), mask_boundary(t, dilation_ratio))
+
+
+def _known(pred, mask, name: str) -> tuple:
+    """``(pred, object, known)`` bool arrays of a prediction and a mask with unknown (NaN) pixels."""
+    m = np.asarray(mask)
+    if m.dtype.kind != "f":
+        p, t = _pair(pred, m, name)
+        return p, t, np.ones(t.shape, bool)
+    known = ~np.isnan(m)
+    vals = m[known]
+    if vals.size and not (np.all(np.isfinite(vals)) and vals.min() >= 0 and vals.max() <= 1):
+        raise ValidationError(f"{name}: mask values must lie in [0, 1] with NaN for unknown pixels")
+    p, _ = _pair(pred, known, name)
+    return p, known & (np.where(known, m, 0) > 0.5), known
+
+
+def known_iou(pred, mask) -> float:
+    """IoU of ``pred`` against a mask with unknown pixels, over the pixels the mask knows.
+
+    Parameters
+    ----------
+    pred : bool array (or 0/1, 0/255)
+    mask : array of ``pred``'s shape
+        Floats in [0, 1] with NaN for unknown pixels, object where above
+        0.5 (a supervision mask ``Y(c)``); a bool or integer mask knows
+        every pixel (then this is :func:`iou`).
+
+    Returns
+    -------
+    float
+        ``|pred & obj| / |pred | obj|`` over the known pixels; 1.0 when both
+        are empty there, NaN when the mask knows no pixel.
+
+    Raises
+    ------
+    ValidationError
+        Shapes differ, or values out of range.
+    """
+    p, t, known = _known(pred, mask, "known_iou")
+    if not known.any():
+        return float("nan")
+    return iou(p[known], t[known])
+
+
+def known_boundary_iou(pred, mask, dilation_ratio: float = 0.02) -> float:
+    """Boundary IoU of 2-D ``pred`` against a mask with unknown pixels, over the pixels the mask knows.
+
+    The mask's unknown pixels take ``pred``'s values before its boundary
+    band is taken (:func:`mask_boundary`), so an unknown region draws no
+    band of its own; the two bands are then compared on the known pixels
+    only. A ``pred`` that agrees with every known pixel scores 1.0.
+
+    Returns
+    -------
+    float
+        NaN when the mask knows no pixel.
+
+    Raises
+    ------
+    ValidationError
+        Shapes differ, masks are not 2-D, or values out of range.
+    """
+    p, t, known = _known(pred, mask, "known_boundary_iou")
+    if p.ndim != 2:
+        raise ValidationError(f"known_boundary_iou: masks must be 2-D, got shape {p.shape}")
+    if not known.any():
+        return float("nan")
+    filled = np.where(known, t, p)
+    return iou(mask_boundary(p, dilation_ratio)[known], mask_boundary(filled, dilation_ratio)[known])
 
 
 def protocol_mean(scores) -> tuple:

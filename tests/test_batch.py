@@ -72,7 +72,7 @@ def test_extract_many_matches_sequential_extract_bit_for_bit(tiny, dask_client, 
         assert np.array_equal(q, r.load_q())
         ref = _sequential_q(job)
         assert q.dtype == ref.dtype and np.array_equal(q, ref), job.name
-        for f in ("object.ply", "remainder.ply", "report.json", "report.png"):
+        for f in ("object.ply", "remainder.ply", "report.json", "report.png", "report_masks.png"):
             assert (tmp_path / "res" / job.name / f).is_file()
         assert r.n_selected == int((q > json.loads((tmp_path / "res" / job.name / "report.json")
                                                    .read_text())["threshold"]).sum())

@@ -48,7 +48,7 @@ def test_extract_mask_writes_all_outputs(files, capsys):
                "-o", out, "--views", 8, "--no-progress"])
     assert rc == 0, capsys.readouterr().err
     assert sorted(p.name for p in out.iterdir()) == ["object.ply", "q.npy", "remainder.ply",
-                                                    "report.json", "report.png"]
+                                                    "report.json", "report.png", "report_masks.png"]
     q = np.load(out / "q.npy", allow_pickle=False)
     obj = read_scene(out / "object.ply")
     rem = read_scene(out / "remainder.ply")
@@ -272,7 +272,8 @@ def test_an_empty_selection_is_said_and_splat_outputs_skip_empty_parts(files, ca
     assert rc == 0, err
     assert "warning: nothing was selected" in err and "lower the threshold" in err
     assert "object is empty (0 Gaussians): object.splat is not written" in err
-    assert sorted(p.name for p in out.iterdir()) == ["q.npy", "remainder.splat", "report.json", "report.png"]
+    assert sorted(p.name for p in out.iterdir()) == ["q.npy", "remainder.splat", "report.json", "report.png",
+                                                    "report_masks.png"]
     rep = json.loads((out / "report.json").read_text())
     assert rep["outputs"] == {"object": None, "remainder": "remainder.splat", "q": "q.npy"}
     assert rep["n_selected"] == 0 and len(read_scene(out / "remainder.splat")) == len(files["syn"].scene)

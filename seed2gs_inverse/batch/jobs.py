@@ -11,7 +11,7 @@ its ``[defaults]`` table applies to every job and a job overrides any of it
     # camera = { eye = [0, -2, -6], target = [0, 0, 0], up = [0, -1, 0],
     #            fov = 50, width = 960, height = 540 }   # ... or a look-at
     format = "ply"                             # object/remainder files: ply or splat
-    figure = true                              # report.png in each job folder
+    figure = true                              # report.png, report_masks.png in each job folder
     # models = "models.toml"                   # ONNX models (text prompts, SAM2 tracking)
 
     [defaults.options]                         # extract() keywords
@@ -166,7 +166,7 @@ class Job:
     format : {"ply", "splat"}
         Format of ``object`` / ``remainder`` in the job folder.
     figure : bool
-        Write ``report.png`` too.
+        Write ``report.png`` and ``report_masks.png`` too.
     """
 
     name: str

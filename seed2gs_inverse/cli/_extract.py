@@ -52,7 +52,9 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "extract", help="extract one object from a 3DGS scene (Algorithm 1)",
         description="Extract the object a prompt points at in the view of one camera. Writes "
-                    "object.ply, remainder.ply, q.npy, report.json and report.png into OUTDIR. "
+                    "object.ply, remainder.ply, q.npy, report.json, report.png (the object alone from six "
+                    "directions, the remainder around the hole, the seed) and report_masks.png (the "
+                    "supervision views with their masks) into OUTDIR. "
                     "report.json records the whole run; --from-report repeats it.")
     p.add_argument("scene", nargs="?", metavar="SCENE",
                    help="scene file (.ply, .splat, .spz, .compressed.ply); with --from-report, "
@@ -122,6 +124,11 @@ def register(subparsers) -> None:
                         "of its nearest opaque neighbours, so translucent shells and inner layers leave with the "
                         "object instead of staying in the remainder)")
     p.add_argument("--format", choices=("ply", "splat"), default=None, help="object/remainder format (default ply)")
+    p.add_argument("--save-operators", action="store_true",
+                   help="also write what the solve took into OUTDIR: operators/, masks/ (one view_NNN.npy per "
+                        "view, NaN = unknown), init.npy, graph.npz and solve.json, from which 'seed2gs solve "
+                        "OUTDIR/operators OUTDIR/masks --from-extraction OUTDIR' reproduces q.npy and 'seed2gs "
+                        "compare OUTDIR/operators OUTDIR/masks' compares the solvers")
     p.add_argument("--no-progress", action="store_true",
                    help="no progress bars (they are shown only when stderr is a terminal)")
     p.set_defaults(func=run)
@@ -283,9 +290,16 @@ class _FieldReader:
 
 # -- outputs ---------------------------------------------------------------------------------
 def seed_summary_line(summary: dict, remainder: dict | None = None) -> str:
-    """``seed: 412 px = 38% of the object's box (28x39 px); covers 45% of the object's silhouette``.
+    """The printed line about the seed: its size, and how the object it led to covers it in the reference view.
 
-    With ``remainder`` (:meth:`~seed2gs_inverse.pipeline.extraction.Extraction.remainder_summary`)
+    ``seed: 412 px = 38% of the object's box (28x39 px); the selection
+    rendered alone in the reference: 900 px, 45% of them under the seed,
+    120% of the seed's area beyond it``. The figures are
+    :func:`~seed2gs_inverse.pipeline.report.seed_summary`'s
+    (``object_pixels``, ``share_of_object``, ``growth_beyond_seed``); a
+    seed grown from a click (``grown_from_pixels``) adds ``; the seed
+    itself grew in 3D from the click's 120 px region``. With ``remainder``
+    (:meth:`~seed2gs_inverse.pipeline.extraction.Extraction.remainder_summary`)
     the line goes on with ``; the remainder keeps 3.1% of the object's alpha (worst view 7.4%)``.
     """
     s = summary
@@ -294,7 +308,12 @@ def seed_summary_line(summary: dict, remainder: dict | None = None) -> str:
     else:
         w, h = s["object_box_size"]
         line = (f"seed: {s['seed_pixels']:,} px = {s['share_of_object_box']:.0%} of the object's box "
-                f"({w}x{h} px); covers {s['share_of_object']:.0%} of the object's silhouette")
+                f"({w}x{h} px); the selection rendered alone in the reference: {s['object_pixels']:,} px, "
+                f"{s['share_of_object']:.0%} of them under the seed")
+        if s.get("growth_beyond_seed") is not None:
+            line += f", {s['growth_beyond_seed']:.0%} of the seed's area beyond it"
+    if s.get("grown_from_pixels") is not None:
+        line += f"; the seed itself grew in 3D from the click's {s['grown_from_pixels']:,} px region"
     if remainder is not None and remainder.get("share") is not None:
         line += (f"; the remainder keeps {remainder['share']:.1%} of the object's alpha "
                  f"(worst view {remainder['worst_view']:.1%})")
@@ -518,7 +537,7 @@ def run(args) -> int:
         "numba_threads": _numba_threads(),
         "peak_rss_mb": peak_rss_mb(),  # of this process: reading the scene and the extraction
     }
-    save_extraction(ex, out, fmt, force=args.force, run_info=run_info)
+    save_extraction(ex, out, fmt, force=args.force, run_info=run_info, save_operators=args.save_operators)
     s = ex.seconds
     print(f"extracted {int(ex.selected.sum())} of {len(scene)} Gaussians -> {out}/object.{fmt} "
           f"({len(ex.views)} views, {ex.total_seconds:.1f} s: "

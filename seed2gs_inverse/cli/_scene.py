@@ -1,7 +1,8 @@
-"""``seed2gs info`` and ``seed2gs convert``: look at and convert scene files."""
+"""``seed2gs info``, ``seed2gs convert`` and ``seed2gs split``: look at, convert and split scene files."""
 
 from __future__ import annotations
 
+import json
 import os
 import sys
 import warnings
@@ -9,13 +10,18 @@ from pathlib import Path
 
 import numpy as np
 
+from .._atomic import atomic_path
 from .._output_paths import locks_outputs
+from .._validation import check_real
 from ..errors import ValidationError
 from ..io import detect_format, read_cameras, read_scene, write_scene
+from ..io._common import load_npy
 from ..io.formats import output_format
-from ._common import check_output
+from ..io.parts import PART_FORMATS, write_parts
+from ..viz import check_membership
+from ._common import check_input_file, check_output
 
-__all__ = ["register", "info", "convert"]
+__all__ = ["register", "info", "convert", "split"]
 
 _CAMERA_FILES = ("cameras.txt", "images.txt", "cameras.bin", "images.bin")
 
@@ -46,6 +52,24 @@ def register(subparsers) -> None:
                    help="drop Gaussians with non-finite values instead of failing")
     p.add_argument("--force", action="store_true", help="replace OUT if it exists")
     p.set_defaults(func=convert)
+
+    p = subparsers.add_parser(
+        "split", help="write object and remainder scenes from a membership q",
+        description="Split SCENE by a per-Gaussian membership q (a .npy of N values in [0, 1], e.g. "
+                    "q.npy of seed2gs extract or solve): OUTDIR receives object.ply (the Gaussians "
+                    "with q > --threshold) and remainder.ply (the others), each in the scene's order "
+                    "(a PLY input's property list, order and types kept), and split.json (what was "
+                    "split, by which rule). The directory appears only once everything is written.")
+    p.add_argument("scene", metavar="SCENE", help="scene file (.ply, .splat, .spz, .compressed.ply)")
+    p.add_argument("q", metavar="Q.npy", help="per-Gaussian membership, shape (N,), in [0, 1]")
+    p.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="output directory (created)")
+    p.add_argument("--threshold", type=float, default=0.5, metavar="T",
+                   help="the object is q > T, T in [0, 1) (default 0.5, the solvers' default; an "
+                        "extraction's own is report.json's threshold)")
+    p.add_argument("--format", choices=PART_FORMATS, default="ply", help="object/remainder format (default ply)")
+    p.add_argument("--force", action="store_true",
+                   help="replace OUTDIR when it is an earlier output of split (a folder of other files is refused)")
+    p.set_defaults(func=split)
 
 
 def _is_camera_path(path: str) -> bool:
@@ -123,4 +147,32 @@ def convert(args) -> int:
     _print_warnings("convert", caught)
     degree = scene.sh_degree if fmt == "ply" else 0
     print(f"wrote {args.output} ({fmt}): {len(scene):,} Gaussians, SH degree {degree}")
+    return 0
+
+
+@locks_outputs(("output", "-o"))
+def split(args) -> int:
+    """``seed2gs split``: write the object (q > T) and the remainder of a scene, and split.json."""
+    threshold = check_real("--threshold", args.threshold, lo=0.0, hi=1.0, hi_open=True)
+    out = check_output(args.output, "-o", directory=True, force=args.force, kind="split")
+    check_input_file(args.scene, "SCENE")
+    check_input_file(args.q, "Q")
+    q = load_npy(args.q, f"Q {args.q}")  # a file that is no .npy fails before the scene is read
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        scene = read_scene(args.scene)
+    _print_warnings("split", caught)
+    check_membership(q, len(scene), f"Q {args.q}")
+    selected = q > threshold  # compared in q's own type, as extract selects (float32 q.npy)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with atomic_path(out, directory=True, replace=args.force) as tmp:  # all or nothing
+            outputs = write_parts(tmp, scene, selected, args.format, shown=out)
+            record = {"command": "split", "scene": os.path.abspath(args.scene), "q": os.path.abspath(args.q),
+                      "threshold": threshold, "n_gaussians": len(scene), "n_object": int(selected.sum()),
+                      "n_remainder": int(len(scene) - selected.sum()), "outputs": outputs}
+            (tmp / "split.json").write_text(json.dumps(record, indent=2), encoding="utf-8")
+    _print_warnings("split", caught)
+    parts = [f"{out / name} ({record['n_' + part]:,} Gaussians)" for part, name in outputs.items() if name]
+    print(f"wrote {' and '.join(parts)}: q > {threshold:g} from {args.q}")
     return 0

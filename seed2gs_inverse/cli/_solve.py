@@ -26,6 +26,7 @@ from ..operators import OperatorStack
 from ..progress import Progress as _Progress
 from ..solvers import available_methods, solve
 from ..solvers._common import prior_from_init
+from ..solvers.inputs import load_solve_inputs
 from ._common import SolveBar, add_method_arguments, check_output, parse_options, progress_enabled
 
 __all__ = ["register", "solve_command", "compare_command"]
@@ -36,25 +37,39 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "solve", help="recover per-Gaussian membership q from masks",
         description="Fit per-Gaussian foreground probabilities q to one mask per view with a solver "
-                    "and save q (N,) float32 as .npy.")
-    p.add_argument("operators", metavar="OPS_DIR", help="operator directory (seed2gs operators build)")
+                    "and save q (N,) float32 as .npy. With --from-extraction OUT (an output of seed2gs "
+                    "extract --save-operators) the solve takes the run's prior, regulariser graph and "
+                    "settings, and reproduces OUT/q.npy exactly.")
+    p.add_argument("operators", metavar="OPS_DIR",
+                   help="operator directory (seed2gs operators build, or OUT/operators of extract --save-operators)")
     p.add_argument("masks", metavar="MASKS_DIR", help="view_000.png|npy ... one mask per view")
     add_method_arguments(p)
+    p.set_defaults(method=None)  # None: not given (weighted_bce, or the extraction's method)
     p.add_argument("-o", "--output", required=True, metavar="Q.npy", help="where to write q")
     p.add_argument("--force", action="store_true", help="replace Q.npy if it exists")
     p.add_argument("--init", metavar="FILE.npy", help="prior: bool support set, indices or float q")
+    p.add_argument("--from-extraction", metavar="OUT",
+                   help="solve as the extraction in OUT did (extract --save-operators): its prior (init.npy), "
+                        "min_evidence, smoothness and graph (graph.npz), its method and options unless "
+                        "--method/--option say otherwise (solve.json), and its islands set to 0 (islands.npy)")
+    p.add_argument("--keep-islands", action="store_true",
+                   help="with --from-extraction: keep the solver's q on the islands the extraction set to 0")
     p.add_argument("--no-progress", action="store_true",
                    help="no progress bar (shown only when stderr is a terminal)")
     p.set_defaults(func=solve_command)
 
     c = subparsers.add_parser(
-        "compare", help="compare solvers against ground-truth labels",
-        description="Fit every solver on the same views (every k-th view held out), score held-out "
-                    "2D mIoU/mBIoU and 3D precision/recall/IoU against --truth, print a table and "
-                    "optionally write comparison.csv, comparison.json and comparison.png to -o DIR.")
-    c.add_argument("operators", metavar="OPS_DIR", help="operator directory (seed2gs operators build)")
+        "compare", help="compare solvers on held-out views (against labels, or the views' own masks)",
+        description="Fit every solver on the same views (every k-th view held out) and score held-out "
+                    "2D mIoU/mBIoU: against --truth labels rendered into those views (with 3D "
+                    "precision/recall/IoU), or without --truth against the held-out views' own masks on "
+                    "their known pixels (NaN pixels ignored). Print a table and optionally write "
+                    "comparison.csv, comparison.json and comparison.png to -o DIR.")
+    c.add_argument("operators", metavar="OPS_DIR",
+                   help="operator directory (seed2gs operators build, or OUT/operators of extract --save-operators)")
     c.add_argument("masks", metavar="MASKS_DIR", help="view_000.png|npy ... one mask per view")
-    c.add_argument("--truth", required=True, metavar="LABELS.npy", help="(N,) bool ground-truth membership")
+    c.add_argument("--truth", metavar="LABELS.npy",
+                   help="(N,) bool ground-truth membership (default: score against the held-out masks)")
     c.add_argument("--methods", metavar="M1,M2,...",
                    help=f"comma-separated methods out of {', '.join(available_methods())} (default: all)")
     c.add_argument("--holdout-every", type=int, default=4, help="hold out every k-th view (0: none; default 4)")
@@ -76,29 +91,66 @@ def _npy_bytes(arr) -> bytes:
 @locks_outputs(("output", "-o"))
 def solve_command(args) -> int:
     """``seed2gs solve``: fit q to the masks with one method and write it as ``.npy``."""
-    options = parse_options(args.option, args.method)  # fail fast on a typo, before loading anything
+    if args.method is not None or not args.from_extraction:  # fail fast on a typo, before loading anything
+        parse_options(args.option, args.method or "weighted_bce")
+    if args.from_extraction and args.init:
+        raise ValidationError(f"--init {args.init}: --from-extraction {args.from_extraction} gives the prior "
+                              f"(its init.npy); give one of them")
+    if args.keep_islands and not args.from_extraction:
+        raise ValidationError("--keep-islands goes with --from-extraction (the islands an extraction set to 0)")
     if Path(args.output).suffix.lower() != ".npy":
         raise ValidationError(f"-o {args.output}: the output must be a .npy file")
     out = check_output(args.output, "-o", force=args.force)
-    stack = OperatorStack.load(args.operators, mmap=True)
-    init = None
-    if args.init:
-        init = load_npy(args.init, f"--init {args.init}")
-        try:  # checked here so that the message names the option and file
-            prior_from_init(init, stack.n_gaussians)
-        except ValidationError as exc:
-            raise ValidationError(f"--init {args.init}: {str(exc).removeprefix('init: ')}") from None
-    masks = read_masks(args.masks, len(stack), stack.image_shapes)
-    print(f"solving {len(stack)} views, {stack.n_gaussians:,} Gaussians with {args.method} ...",
-          file=sys.stderr, flush=True)
-    with SolveBar(args.method, progress_enabled(args.no_progress)) as bar:
-        result = solve(stack, masks, method=args.method, init=init, progress=bar.solve_callback, **options)
+    if args.from_extraction:
+        result, note = _solve_as_extracted(args)
+    else:
+        method = args.method or "weighted_bce"
+        stack = OperatorStack.load(args.operators, mmap=True)
+        init = None
+        if args.init:
+            init = load_npy(args.init, f"--init {args.init}")
+            try:  # checked here so that the message names the option and file
+                prior_from_init(init, stack.n_gaussians)
+            except ValidationError as exc:
+                raise ValidationError(f"--init {args.init}: {str(exc).removeprefix('init: ')}") from None
+        masks = read_masks(args.masks, len(stack), stack.image_shapes)
+        _say_solving(stack, method)
+        with SolveBar(method, progress_enabled(args.no_progress)) as bar:
+            result = solve(stack, masks, method=method, init=init, progress=bar.solve_callback,
+                           **parse_options(args.option, method))
+        note = ""
     write_files([(out, _npy_bytes(result.q))], replace=args.force)
     sel = result.selected()
     print(f"{out}: method {result.method}, {int(sel.sum()):,} of {sel.size:,} Gaussians selected "
           f"(q > {result.threshold:.3g}), {int(result.unobserved.sum()):,} unobserved, "
-          f"{result.iterations} iterations, {result.seconds:.2f} s")
+          f"{result.iterations} iterations, {result.seconds:.2f} s{note}")
     return 0
+
+
+def _say_solving(stack, method: str, extra: str = "") -> None:
+    print(f"solving {len(stack)} views, {stack.n_gaussians:,} Gaussians with {method}{extra} ...",
+          file=sys.stderr, flush=True)
+
+
+def _solve_as_extracted(args):
+    """``(result, note)`` of ``solve --from-extraction OUT``: the run's inputs and settings, and what the
+    islands rule did (the end of the summary line)."""
+    inputs = load_solve_inputs(args.from_extraction, operators=args.operators, masks=args.masks)
+    method = args.method or inputs.method
+    options = parse_options(args.option, method)
+    where = f"--from-extraction {args.from_extraction}"
+    said = (f" (as {where}: prior, min_evidence {inputs.min_evidence:g}, smoothness {inputs.smoothness:g}"
+            + (", graph" if inputs.graph is not None else "") + ")")
+    _say_solving(inputs.operators, method, said)
+    with SolveBar(method, progress_enabled(args.no_progress)) as bar:
+        result = inputs.solve(method if args.method else None, keep_islands=args.keep_islands,
+                              progress=bar.solve_callback, **options)
+    n = int(inputs.islands.size)
+    note = ""
+    if n:
+        note = (f"; the extraction's {n:,} island Gaussian(s) kept as the solver gave them" if args.keep_islands
+                else f"; {n:,} island Gaussian(s) set to 0 as the extraction did (--keep-islands keeps them)")
+    return result, note
 
 
 @locks_outputs(("output", "-o"))
@@ -114,14 +166,9 @@ def compare_command(args) -> int:
         raise ValidationError(f"--methods: each method once, got {args.methods}")
     if args.output:
         check_output(args.output, "-o", directory=True, force=args.force, kind="compare")  # DIR is written at the end
-    truth = load_npy(args.truth, f"--truth {args.truth}")
-    if truth.dtype != bool:
-        if truth.dtype.kind in "ui" and truth.size and set(np.unique(truth).tolist()) <= {0, 1}:
-            truth = truth.astype(bool)
-        else:
-            raise ValidationError(f"--truth {args.truth}: labels must be bool (or 0/1 integers), got {truth.dtype}")
+    truth = None if args.truth is None else _read_truth(args.truth)
     stack = OperatorStack.load(args.operators, mmap=True)
-    if truth.shape != (stack.n_gaussians,):
+    if truth is not None and truth.shape != (stack.n_gaussians,):
         raise ValidationError(f"--truth {args.truth}: {truth.size:,} labels in shape {truth.shape}, the operators' "
                               f"scene has {stack.n_gaussians:,} Gaussians; give one label per Gaussian")
     try:  # before any solve
@@ -129,8 +176,9 @@ def compare_command(args) -> int:
     except ValidationError:
         raise ValidationError(f"--holdout-every {args.holdout_every}: must be 0 (none) or a whole number >= 2") from None
     masks = read_masks(args.masks, len(stack), stack.image_shapes)
-    print(f"comparing {', '.join(methods) if methods else 'every method'} on {len(stack)} views ...",
-          file=sys.stderr, flush=True)
+    against = "the truth labels" if truth is not None else "the views' own masks (no --truth)"
+    print(f"comparing {', '.join(methods) if methods else 'every method'} on {len(stack)} views, scored against "
+          f"{against} ...", file=sys.stderr, flush=True)
     with _CompareBar(progress_enabled(args.no_progress), len(methods or available_methods())) as bar:
         result = compare(stack, masks, truth, methods=methods, holdout_every=args.holdout_every,
                          progress=bar.callback)
@@ -145,6 +193,17 @@ def compare_command(args) -> int:
             (tmp / "comparison.png").write_bytes(png.getvalue())
         print(f"wrote {d / 'comparison.csv'}, {d / 'comparison.json'}, {d / 'comparison.png'}")
     return 0
+
+
+def _read_truth(path) -> np.ndarray:
+    """``--truth LABELS.npy`` as bool labels (0/1 integers accepted), or a ValidationError naming the file."""
+    truth = load_npy(path, f"--truth {path}")
+    if truth.dtype != bool:
+        if truth.dtype.kind in "ui" and truth.size and set(np.unique(truth).tolist()) <= {0, 1}:
+            truth = truth.astype(bool)
+        else:
+            raise ValidationError(f"--truth {path}: labels must be bool (or 0/1 integers), got {truth.dtype}")
+    return truth
 
 
 class _CompareBar:

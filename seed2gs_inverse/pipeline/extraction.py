@@ -18,6 +18,8 @@ import numpy as np
 from ..metrics import remainder_share
 
 if TYPE_CHECKING:
+    import scipy.sparse as sp
+
     from ..camera import Camera
     from ..operators import OperatorStack, Rendering
     from ..scene import GaussianScene
@@ -97,6 +99,11 @@ class Extraction:
         The orbit axis (:func:`~seed2gs_inverse.pipeline.stages.orbit_axis`):
         ``axis``, ``method`` (how it was chosen), ``confidence`` in [0, 1]
         (None when the user chose it) and ``details``.
+    graph : scipy.sparse (N, N) or None
+        The Gaussian affinity graph of the run
+        (:func:`~seed2gs_inverse.pipeline.stages.evidence_graph`; None when
+        nothing needed it), which the solve's regulariser used when
+        ``resolved["smoothness"] > 0``.
 
     Notes
     -----
@@ -124,6 +131,7 @@ class Extraction:
     settings: ExtractSettings | None = None
     resolved: dict = field(default_factory=dict)
     up: dict = field(default_factory=dict)
+    graph: sp.spmatrix | None = field(default=None, repr=False)
     _remainder: tuple | None = field(default=None, init=False, repr=False, compare=False)
 
     @property

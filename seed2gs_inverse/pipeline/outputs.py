@@ -5,15 +5,23 @@ Gaussians and the rest), ``q.npy`` (float32 q), ``report.json``
 (:meth:`~seed2gs_inverse.pipeline.extraction.Extraction.report`, whose
 ``remainder_share`` says how much of the object's alpha the remainder
 keeps at its place, with the seed's size and the writer's own sections)
-and ``report.png``
-(:func:`~seed2gs_inverse.pipeline.report.report_figure`), all or nothing.
+and two pictures: ``report.png``
+(:func:`~seed2gs_inverse.pipeline.report.report_figure`: the object alone
+from several directions, the remainder around the hole, the seed) and
+``report_masks.png``
+(:func:`~seed2gs_inverse.pipeline.report.masks_figure`: the supervision
+views with their masks), all or nothing. With ``save_operators`` it also receives the run's solve inputs
+(:func:`~seed2gs_inverse.solvers.inputs.write_solve_inputs`: ``operators/``,
+``masks/``, ``init.npy``, ``graph.npz``, ``islands.npy`` and
+``solve.json``), which
+:func:`~seed2gs_inverse.solvers.inputs.load_solve_inputs` and ``seed2gs
+solve --from-extraction`` read to reproduce ``q``.
 """
 
 from __future__ import annotations
 
 import json
 import os
-import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -21,18 +29,21 @@ import numpy as np
 
 from .._atomic import atomic_path
 from .._output_paths import check_output
-from ..io import write_scene
-from .report import report_figure, seed_summary
+from ..errors import ValidationError
+from ..io.parts import write_parts
+from ..solvers.inputs import write_solve_inputs
+from .report import masks_figure, report_figure, seed_summary
 
 if TYPE_CHECKING:
     from .extraction import Extraction
 
-__all__ = ["save_extraction"]
+__all__ = ["save_extraction", "solve_inputs_of"]
 
 
 def save_extraction(extraction: Extraction, outdir: str | os.PathLike, fmt: str = "ply", *, force: bool = False,
-                    figure: bool = True, run_info: dict | None = None, sections: dict | None = None) -> Path:
-    """Write ``object.<fmt>``, ``remainder.<fmt>``, ``q.npy``, ``report.json`` (and ``report.png``) into ``outdir``.
+                    figure: bool = True, run_info: dict | None = None, sections: dict | None = None,
+                    save_operators: bool = False) -> Path:
+    """Write ``object.<fmt>``, ``remainder.<fmt>``, ``q.npy``, ``report.json`` (and the pictures) into ``outdir``.
 
     Parameters
     ----------
@@ -51,19 +62,34 @@ def save_extraction(extraction: Extraction, outdir: str | os.PathLike, fmt: str 
     force : bool
         Replace an existing ``outdir``.
     figure : bool
-        Also write ``report.png``
-        (:func:`~seed2gs_inverse.pipeline.report.report_figure`).
+        Also write ``report.png`` (the result:
+        :func:`~seed2gs_inverse.pipeline.report.report_figure`) and
+        ``report_masks.png`` (the supervision masks:
+        :func:`~seed2gs_inverse.pipeline.report.masks_figure`).
     run_info : dict, optional
         The report's ``run`` section (what ``seed2gs extract
         --from-report`` reads).
     sections : dict, optional
         More top-level sections of the writer's own (``batch``: the
         batch job; ``demo``: the demo's arguments).
+    save_operators : bool
+        Also write what the solve took (:func:`solve_inputs_of`): the
+        operators, the masks, the prior, the graph and the settings, from
+        which ``seed2gs solve OUT/operators OUT/masks --from-extraction OUT``
+        reproduces ``q.npy`` exactly; ``report.json``'s ``outputs`` name
+        them.
 
     Returns
     -------
     Path
         ``outdir``.
+
+    Raises
+    ------
+    ValidationError
+        ``outdir`` may not be written (see ``outdir``), or
+        ``save_operators`` for an extraction whose regulariser's graph is
+        not kept (``extraction.graph`` is None).
 
     Notes
     -----
@@ -78,22 +104,12 @@ def save_extraction(extraction: Extraction, outdir: str | os.PathLike, fmt: str 
     and the given sections.
     """
     out = check_output(outdir, "-o", directory=True, force=force, kind="extract")
+    solve_inputs = solve_inputs_of(extraction) if save_operators else None
     with atomic_path(out, directory=True, replace=force) as tmp:
-        outputs = {}
-        for part, subset in (("object", extraction.object_scene()), ("remainder", extraction.remainder_scene())):
-            if len(subset) == 0 and fmt == "splat":
-                # .splat has no header: an empty file could not be read back as a scene
-                warnings.warn(f"the {part} is empty (0 Gaussians): {part}.splat is not written "
-                              f"(report.json's outputs say so); q.npy and report.json are", stacklevel=2)
-                outputs[part] = None
-                continue
-            with warnings.catch_warnings(record=True) as caught:  # they name the temporary directory
-                warnings.simplefilter("always")
-                write_scene(tmp / f"{part}.{fmt}", subset)
-            for w in caught:  # ... so say them again with the user's path
-                warnings.warn(str(w.message).replace(os.fspath(tmp), os.fspath(out)), w.category, stacklevel=2)
-            outputs[part] = f"{part}.{fmt}"
+        outputs = write_parts(tmp, extraction.scene, extraction.selected, fmt, shown=out)
         np.save(tmp / "q.npy", np.asarray(extraction.q, np.float32), allow_pickle=False)
+        if solve_inputs is not None:
+            outputs.update(write_solve_inputs(tmp, **solve_inputs))
         report = extraction.report()
         report["seed"] = seed_summary(extraction)
         report["outputs"] = {**outputs, "q": "q.npy"}
@@ -103,5 +119,40 @@ def save_extraction(extraction: Extraction, outdir: str | os.PathLike, fmt: str 
         with open(tmp / "report.json", "w") as fh:
             json.dump(report, fh, indent=2)
         if figure:
-            report_figure(extraction).savefig(tmp / "report.png", dpi=100)
+            # zlib level 3: half the encoding time of the default 6 for 7-10 % larger files
+            png = {"dpi": 100, "pil_kwargs": {"compress_level": 3}}
+            report_figure(extraction).savefig(tmp / "report.png", **png)
+            masks_figure(extraction).savefig(tmp / "report_masks.png", **png)
     return out
+
+
+def solve_inputs_of(extraction: Extraction) -> dict:
+    """The keywords of :func:`~seed2gs_inverse.solvers.inputs.write_solve_inputs` for an extraction's solve.
+
+    The run's operators and masks, its method with the options it solved
+    with (:meth:`~seed2gs_inverse.pipeline.settings.ExtractSettings.solver_kwargs`),
+    the prior G0, ``min_evidence``, the smoothness used and its graph, the
+    threshold, and as ``islands`` the Gaussians whose ``q`` the run set to 0
+    after the solve (those where ``extraction.q`` differs from the solver's
+    ``q``; an empty list with ``seed_connected``, None without).
+
+    Raises
+    ------
+    ValidationError
+        The extraction has no settings, or used the regulariser
+        (``resolved["smoothness"] > 0``) without keeping its graph.
+    """
+    s = extraction.settings
+    if s is None:
+        raise ValidationError("save_operators: the extraction holds no settings (ExtractSettings); it did not "
+                              "come from extract()")
+    smoothness = float(extraction.resolved.get("smoothness", s.smoothness or 0.0))
+    if smoothness > 0 and extraction.graph is None:
+        raise ValidationError("save_operators: the extraction used the regulariser (smoothness "
+                              f"{smoothness:g}) but holds no graph (Extraction.graph); run extract() again")
+    solver_q = np.asarray(extraction.result.q, np.float32)
+    islands = np.flatnonzero(solver_q != np.asarray(extraction.q, np.float32)) if s.seed_connected else None
+    return {"operators": extraction.operators, "masks": extraction.masks, "method": s.method,
+            "options": s.solver_kwargs(), "init": extraction.lift.g0, "min_evidence": s.min_evidence,
+            "smoothness": smoothness, "graph": extraction.graph if smoothness > 0 else None,
+            "islands": islands, "threshold": float(extraction.threshold)}
