@@ -31,7 +31,8 @@ from seed2gs_inverse.frontend.sam2 import SAM2VideoTracker
 from seed2gs_inverse.operators import scene_fingerprint
 from seed2gs_inverse.raster import build_operator, render
 from seed2gs_inverse.pipeline import ExtractSettings, extract, seed_lift
-from seed2gs_inverse.pipeline.completion import follow_opaque
+from seed2gs_inverse.graph import apply_follow
+from seed2gs_inverse.pipeline.completion import faint_follow_matrix
 from seed2gs_inverse.progress import Progress, StageTimer
 from seed2gs_inverse.solvers import solve
 from seed2gs_inverse.synthetic import make_scene
@@ -314,9 +315,10 @@ def test_solve_selection_with_the_graph_regulariser(syn, staged):
     # CG to a relative residual of 1e-5 (laplacian_smooth's default): within a few 1e-3 of the exact solve
     np.testing.assert_allclose(staged.sel.result.q, want, atol=4e-3)
     # follow_faint, then seed_connected: q is the regularised q, its faint Gaussians near the object set by
-    # follow_opaque (checked on its own in test_object_layers.py), and 0 on islands apart from G0
-    followed = follow_opaque(syn.scene, staged.sel.result.q, staged.lift.center, staged.lift.radius)
-    island = followed != staged.sel.q
+    # the follow matrix (checked on its own in test_object_layers.py), and 0 on islands apart from G0
+    want_follow = faint_follow_matrix(syn.scene, staged.lift.center, staged.lift.radius)
+    assert (staged.sel.follow != want_follow).nnz == 0
+    island = apply_follow(staged.sel.result.q, want_follow) != staged.sel.q
     assert island.sum() == staged.sel.n_disconnected and np.all(staged.sel.q[island] == 0)
     # unseen Gaussians on the graph are decided by their neighbours, not reset to G0
     free = nodes[e[nodes] == 0]

@@ -12,12 +12,16 @@ scene cannot see them.
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 from _pipeline_scenes import reference_camera, sphere_scene, surface
 
-from seed2gs_inverse import GaussianScene, build_operator, extract, render
+from seed2gs_inverse import GaussianScene, ValidationError, build_operator, extract, render
 from seed2gs_inverse.frontend.model_free import GeometricTracker
-from seed2gs_inverse.pipeline.completion import follow_opaque
+from seed2gs_inverse.graph import apply_follow, check_follow
+from seed2gs_inverse.pipeline.completion import faint_follow_matrix
+from seed2gs_inverse.pipeline.outputs import save_extraction
+from seed2gs_inverse.solvers.inputs import load_solve_inputs
 
 
 def _fibonacci(n):
@@ -133,24 +137,55 @@ def test_empty_space_is_no_evidence_for_the_fill():
     assert np.all(masks[1][frames[1].alpha < 0.5] == 0), "empty space is still labelled 0"
 
 
-def test_follow_opaque_against_brute_force():
+def test_faint_follow_against_brute_force():
     rng = np.random.default_rng(0)
     n = 200
     means = rng.normal(size=(n, 3))
     scene = GaussianScene(means, np.tile([1.0, 0, 0, 0], (n, 1)), np.full((n, 3), -3.0),
                           np.where(rng.random(n) < 0.3, -5.0, 2.0), np.zeros((n, 1, 3)))
     q = rng.random(n).astype(np.float32)
-    out = follow_opaque(scene, q, np.zeros(3), 1.0, region=1.5, min_opacity=0.05, k=3)
+    follow = faint_follow_matrix(scene, np.zeros(3), 1.0, region=1.5, min_opacity=0.05, k=3)
+    out = apply_follow(q, follow)
     inside = np.linalg.norm(means, axis=1) <= 1.5
     faint = scene.opacities < 0.05
     opaque_idx = np.flatnonzero(inside & ~faint)
+    dists = {i: np.linalg.norm(means[opaque_idx] - means[i], axis=1) for i in np.flatnonzero(inside & faint)}
+    eps = 1e-2 * np.median([np.sort(d)[:3] for d in dists.values()])
     for i in range(n):
-        if not (inside[i] and faint[i]):
-            assert out[i] == q[i]
+        if i not in dists:
+            assert out[i] == q[i] and follow[i].nnz == 0
             continue
-        d = np.linalg.norm(means[opaque_idx] - means[i], axis=1)
-        nb = np.argsort(d)[:3]
-        eps = 1e-2 * np.median([np.sort(np.linalg.norm(means[opaque_idx] - means[j], axis=1))[:3]
-                                for j in np.flatnonzero(inside & faint)])
-        wgt = 1.0 / (d[nb] + eps)
+        nb = np.argsort(dists[i])[:3]
+        wgt = 1.0 / (dists[i][nb] + eps)
         assert out[i] == pytest.approx(np.sum(wgt * q[opaque_idx[nb]]) / wgt.sum(), rel=1e-5)
+
+
+def test_follow_matrix_validation():
+    n = 4
+    good = faint_follow_matrix(GaussianScene(np.eye(4, 3), np.tile([1.0, 0, 0, 0], (n, 1)), np.full((n, 3), -2.0),
+                                             np.array([-5.0, 2.0, 2.0, 2.0]), np.zeros((n, 1, 3))),
+                               np.zeros(3), 1.0, region=5.0)
+    assert good[0].nnz == 3 and good[1:].nnz == 0
+    assert check_follow(good, 4).shape == (4, 4)
+    bad = sp.csr_matrix(([0.5], ([0], [1])), shape=(4, 4))
+    with pytest.raises(ValidationError, match="sum to 1"):
+        apply_follow(np.zeros(4), bad)
+    with pytest.raises(ValidationError, match="must be"):
+        apply_follow(np.zeros(3), good)
+    with pytest.raises(ValidationError, match="scipy.sparse"):
+        check_follow(np.eye(4))
+
+
+def test_saved_solve_inputs_reproduce_q_with_the_faint_rule(alone, tmp_path):
+    """extract --save-operators keeps the follow matrix: solving the saved inputs again gives the run's q."""
+    scene, truth, info = alone
+    ref = reference_camera(info, 160, 120, dist=3.0, elev_deg=20.0)
+    ex = extract(scene, ref, _seed(scene, truth, ref), progress=False, up=info["up"])
+    assert ex.follow is not None and ex.follow.nnz > 0  # the faint shell
+    out = save_extraction(ex, tmp_path / "out", figure=False, save_operators=True)
+    assert (out / "follow.npz").is_file()
+    inputs = load_solve_inputs(out)
+    np.testing.assert_array_equal(inputs.solve().q, ex.q)
+    raw = inputs.solve(keep_islands=True).q
+    shell = np.flatnonzero(np.diff(inputs.follow.indptr) > 0)
+    np.testing.assert_array_equal(raw[shell], ex.q[shell])  # the rule holds without the islands too

@@ -126,7 +126,7 @@ def register(subparsers) -> None:
     p.add_argument("--format", choices=("ply", "splat"), default=None, help="object/remainder format (default ply)")
     p.add_argument("--save-operators", action="store_true",
                    help="also write what the solve took into OUTDIR: operators/, masks/ (one view_NNN.npy per "
-                        "view, NaN = unknown), init.npy, graph.npz and solve.json, from which 'seed2gs solve "
+                        "view, NaN = unknown), init.npy, graph.npz, follow.npz, islands.npy and solve.json, from which 'seed2gs solve "
                         "OUTDIR/operators OUTDIR/masks --from-extraction OUTDIR' reproduces q.npy and 'seed2gs "
                         "compare OUTDIR/operators OUTDIR/masks' compares the solvers")
     p.add_argument("--no-progress", action="store_true",

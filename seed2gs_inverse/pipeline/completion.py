@@ -43,7 +43,7 @@ stays unknown otherwise. It only uses the reference's labels, so it is
 weaker than the regulariser, which also uses every orbit view's evidence;
 both are options of :func:`~seed2gs_inverse.pipeline.extract.extract`.
 
-**Faint Gaussians follow their opaque neighbours** (:func:`follow_opaque`).
+**Faint Gaussians follow their opaque neighbours** (:func:`faint_follow_matrix`).
 A Gaussian below the graph's ``min_opacity`` never dominates a pixel: its
 evidence is a trace, and the graph leaves it out. Translucent shells, halos
 and inner layers of a scanned object are made of such Gaussians; left to
@@ -66,14 +66,12 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.spatial import cKDTree
 
-from .._threads import n_threads
 from ..errors import ValidationError
-from ..graph import gaussian_graph, region_subset
+from ..graph import follow_matrix, gaussian_graph, region_subset
 from ..solvers.smoothing import harmonic_extension
 
-__all__ = ["object_graph", "complete_membership", "tracked_membership", "fill_unknown", "follow_opaque",
+__all__ = ["object_graph", "complete_membership", "tracked_membership", "fill_unknown", "faint_follow_matrix",
            "GRAPH_DEFAULTS"]
 
 #: Graph settings used by extract(): k neighbours, colour and normal sigmas,
@@ -108,55 +106,28 @@ def object_graph(scene, center, radius: float, *, k: int = GRAPH_DEFAULTS["k"],
                           min_opacity=min_opacity)
 
 
-def follow_opaque(scene, q, center, radius: float, *, region: float = GRAPH_DEFAULTS["region"],
-                  min_opacity: float = GRAPH_DEFAULTS["min_opacity"], k: int = 4) -> np.ndarray:
-    """``q`` with each faint Gaussian near the object set to its opaque neighbours' membership.
+def faint_follow_matrix(scene, center, radius: float, *, region: float = GRAPH_DEFAULTS["region"],
+                        min_opacity: float = GRAPH_DEFAULTS["min_opacity"], k: int = 4) -> sp.csr_matrix:
+    """:func:`~seed2gs_inverse.graph.follow_matrix` among the Gaussians within ``region * radius`` of ``center``.
 
-    Parameters
-    ----------
-    scene : GaussianScene
-    q : (N,) array
-        Membership to complete.
-    center : (3,) array
-    radius : float
-        The region is the ball of ``region * radius`` about ``center``, as
-        in :func:`object_graph`.
-    min_opacity : float
-        A Gaussian of the region with activated opacity below this is faint.
-    k : int
-        Opaque neighbours per faint Gaussian, >= 1.
+    Applied to a membership by :func:`~seed2gs_inverse.graph.apply_follow`:
+    each faint Gaussian near the object takes the inverse-distance weighted
+    mean of its ``k`` nearest opaque neighbours (module docstring).
 
     Returns
     -------
-    (N,) float32
-        ``q`` with the faint Gaussians of the region replaced by the
-        inverse-distance weighted mean of their ``k`` nearest opaque
-        Gaussians of the region (module docstring); unchanged when the region
-        has no faint or no opaque Gaussian.
+    (N, N) scipy.sparse.csr_matrix
+        Rows of the region's faint Gaussians (each summing to 1); the others empty.
 
     Raises
     ------
     ValidationError
-        ``q`` not of length N, or ``k`` not a positive integer.
+        ``region`` is not a positive number, or a bad ``min_opacity`` / ``k``.
     """
-    q = np.asarray(q, np.float32).ravel()
-    if q.shape != (len(scene),):
-        raise ValidationError(f"q has {q.size} values for a scene of {len(scene)} Gaussians")
-    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
-        raise ValidationError(f"k must be a positive integer, got {k!r}")
+    if not (np.isfinite(region) and region > 0):
+        raise ValidationError(f"region must be positive, got {region!r}")
     idx = region_subset(scene, center, float(region) * float(radius))
-    faint = scene.opacities[idx] < min_opacity
-    opaque, faint = idx[~faint], idx[faint]
-    if faint.size == 0 or opaque.size == 0:
-        return q
-    kk = min(int(k), opaque.size)
-    d, nb = cKDTree(scene.means[opaque].astype(np.float64)).query(
-        scene.means[faint].astype(np.float64), k=kk, workers=n_threads())
-    d, nb = d.reshape(faint.size, kk), nb.reshape(faint.size, kk)
-    w = 1.0 / (d + 1e-2 * float(np.median(d)) + 1e-30)
-    out = q.copy()
-    out[faint] = (np.sum(w * q[opaque][nb], axis=1) / np.sum(w, axis=1)).astype(np.float32)
-    return out
+    return follow_matrix(scene, k, subset=idx, min_opacity=min_opacity)
 
 
 #: CG tolerance of the completions' random walker on graphs beyond

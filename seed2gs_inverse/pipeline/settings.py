@@ -250,7 +250,7 @@ class ExtractSettings:
         Faint Gaussians near the object (activated opacity below the graph's
         ``min_opacity``, within its ``region``) take the membership of their
         nearest opaque neighbours after the solve
-        (:func:`~seed2gs_inverse.pipeline.completion.follow_opaque`).
+        (:func:`~seed2gs_inverse.pipeline.completion.faint_follow_matrix`).
         Default True: their evidence is a trace, and left to the prior the
         translucent shells and inner layers of an object stay in the
         remainder as a see-through copy of it. False: the solver's

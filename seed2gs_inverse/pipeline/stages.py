@@ -41,10 +41,11 @@ import numpy as np
 from ..errors import ValidationError
 from ..frontend.base import SupportPlaneTracker
 from ..frontend.prompts import PointPrompt, seed_mask_from_prompt
+from ..graph import apply_follow
 from ..operators import OperatorStack, as_stack, scene_fingerprint
 from ..solvers import solve
 from ..solvers._common import normalize_mask
-from .completion import (GRAPH_DEFAULTS, complete_membership, fill_unknown, follow_opaque, object_graph,
+from .completion import (GRAPH_DEFAULTS, complete_membership, faint_follow_matrix, fill_unknown, object_graph,
                          tracked_membership)
 from .point_object import point_object_mask
 from .islands import seed_connected
@@ -146,6 +147,9 @@ class Selection:
         ``q > tau``.
     n_disconnected : int
         Gaussians above tau in islands apart from G0, set to 0.
+    follow : (N, N) sparse or None
+        The faint Gaussians' rows (:func:`~.completion.faint_follow_matrix`)
+        applied to ``result.q`` (with ``settings.follow_faint``).
     """
 
     result: SolveResult
@@ -153,6 +157,7 @@ class Selection:
     threshold: float
     selected: np.ndarray
     n_disconnected: int = 0
+    follow: sp.csr_matrix | None = None
 
     @property
     def n_weak_evidence(self) -> int:
@@ -567,7 +572,7 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     graph. With ``settings.follow_faint`` (default) the Gaussians of the
     graph's region below its ``min_opacity`` then take the membership of
     their nearest opaque neighbours
-    (:func:`~.completion.follow_opaque`): their own evidence is a trace.
+    (:func:`~.completion.faint_follow_matrix`): their own evidence is a trace.
     ``tau`` is ``settings.threshold`` or the solver's own. With
     ``settings.seed_connected`` (default) the Gaussians above ``tau`` in
     islands apart from G0 that the masks do not call object
@@ -584,10 +589,12 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     if (settings.seed_connected or settings.follow_faint) and scene is None:
         raise ValidationError("solve_selection: settings.seed_connected and settings.follow_faint need the scene "
                               "(scene=); pass it or set both to False")
+    follow = None
     if settings.follow_faint:
         opts = {**GRAPH_DEFAULTS, **settings.graph_options}
-        q = follow_opaque(scene, q, lift.center, lift.radius, region=opts["region"],
-                          min_opacity=opts["min_opacity"])
+        follow = faint_follow_matrix(scene, lift.center, lift.radius, region=opts["region"],
+                                     min_opacity=opts["min_opacity"])
+        q = apply_follow(q, follow)
     n_removed = 0
     if settings.seed_connected:
         graph_kw = {k: settings.lift_options[k] for k in ("k_neighbors", "link_factor") if k in settings.lift_options}
@@ -597,7 +604,7 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
         q = np.where(island, np.float32(0), q)
         n_removed = int(island.sum())
     selected = q > tau
-    return Selection(result, q, tau, selected, n_removed)
+    return Selection(result, q, tau, selected, n_removed, follow)
 
 
 def _votes(stack: OperatorStack, masks: list) -> tuple[np.ndarray, np.ndarray]:
