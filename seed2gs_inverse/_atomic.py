@@ -596,7 +596,7 @@ OUTPUT_KINDS = {
     "extract": ("report.json", lambda d: isinstance(d, dict) and isinstance(d.get("outputs"), dict),
                 ("report.json", "report.png", "report_masks.png", "q.npy", "object.*", "remainder.*",
                  # with --save-operators: the solve's inputs (solvers.inputs.FILES)
-                 "solve.json", "operators", "masks", "init.npy", "graph.npz", "islands.npy")),
+                 "solve.json", "operators", "masks", "init.npy", "graph.npz", "follow.npz", "islands.npy")),
     "operators": ("manifest.json", lambda d: isinstance(d, dict) and d.get("format") == "seed2gs-operators",
                   ("manifest.json", "view_*.npy")),
     "compare": ("comparison.json", lambda d: isinstance(d, dict) and isinstance(d.get("rows"), list),

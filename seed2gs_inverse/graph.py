@@ -50,7 +50,8 @@ from .errors import ValidationError
 from .scene import GaussianScene, quat_to_rotmat
 from .sh import SH_C0
 
-__all__ = ["gaussian_graph", "graph_laplacian", "check_graph", "region_subset"]
+__all__ = ["gaussian_graph", "graph_laplacian", "check_graph", "region_subset", "follow_matrix", "check_follow",
+           "apply_follow"]
 
 
 def region_subset(scene: GaussianScene, center, radius: float) -> np.ndarray:
@@ -196,6 +197,99 @@ def check_graph(graph, n: int | None = None, name: str = "graph") -> sp.csr_matr
         g = g.copy()  # (csr_matrix may share the caller's arrays)
         g.eliminate_zeros()
     return g
+
+
+def follow_matrix(scene: GaussianScene, k: int = 4, *, subset=None, min_opacity: float = 0.05) -> sp.csr_matrix:
+    r"""Rows that average each faint Gaussian's ``k`` nearest opaque neighbours (applied by :func:`apply_follow`).
+
+    Parameters
+    ----------
+    scene : GaussianScene
+    k : int
+        Opaque neighbours per faint Gaussian, >= 1.
+    subset : (N,) bool or int indices, optional
+        The Gaussians considered (faint ones and their neighbours); default all.
+    min_opacity : float in (0, 1)
+        A Gaussian of ``subset`` with activated opacity below this is faint.
+
+    Returns
+    -------
+    scipy.sparse.csr_matrix (N, N) float64
+        Row ``i`` of a faint Gaussian holds the weights
+
+        .. math::
+
+            F_{ij} = \frac{1 / (d_{ij} + \epsilon)}{\sum_{l \in N_k(i)} 1 / (d_{il} + \epsilon)},
+            \quad j \in N_k(i),
+
+        over its ``k`` nearest opaque Gaussians :math:`N_k(i)` of
+        ``subset`` (:math:`d` between means, :math:`\epsilon` a hundredth of
+        the median of those distances), so it sums to 1; every other row is
+        empty. Empty when ``subset`` has no faint or no opaque Gaussian.
+
+    Raises
+    ------
+    ValidationError
+        A bad argument (named).
+    """
+    if not isinstance(scene, GaussianScene):
+        raise ValidationError(f"scene must be a GaussianScene, got {type(scene).__name__}")
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or int(k) < 1:
+        raise ValidationError(f"k must be a positive integer, got {k!r}")
+    if not (np.isfinite(min_opacity) and 0 < min_opacity < 1):
+        raise ValidationError(f"min_opacity must be in (0, 1), got {min_opacity!r}")
+    n = len(scene)
+    idx = support_indices(subset, n, "subset")
+    faint = scene.opacities[idx] < min_opacity
+    opaque, faint = idx[~faint], idx[faint]
+    if faint.size == 0 or opaque.size == 0:
+        return sp.csr_matrix((n, n), dtype=np.float64)
+    kk = min(int(k), opaque.size)
+    d, nb = cKDTree(scene.means[opaque].astype(np.float64)).query(
+        scene.means[faint].astype(np.float64), k=kk, workers=n_threads())
+    d, nb = d.reshape(faint.size, kk), nb.reshape(faint.size, kk)
+    w = 1.0 / (d + 1e-2 * float(np.median(d)) + 1e-30)
+    w /= w.sum(axis=1, keepdims=True)
+    rows = np.repeat(faint, kk)
+    return sp.csr_matrix((w.ravel(), (rows, opaque[nb].ravel())), shape=(n, n))
+
+
+def check_follow(follow, n: int | None = None, name: str = "follow") -> sp.csr_matrix:
+    """Validate a follow matrix (:func:`follow_matrix`): (N, N), finite, >= 0, each row summing to 0 or 1.
+
+    Returns it as CSR float64.
+    """
+    if not sp.issparse(follow):
+        raise ValidationError(f"{name} must be a scipy.sparse matrix (see follow_matrix), got "
+                              f"{type(follow).__name__}")
+    f = sp.csr_matrix(follow, dtype=np.float64)
+    if f.shape[0] != f.shape[1] or (n is not None and f.shape[0] != n):
+        raise ValidationError(f"{name} must be ({n or 'N'}, {n or 'N'}) for the scene's Gaussians, got shape "
+                              f"{f.shape}")
+    if f.nnz and (not np.all(np.isfinite(f.data)) or f.data.min() < 0):
+        raise ValidationError(f"{name} weights must be finite and non-negative")
+    sums = np.asarray(f.sum(axis=1)).ravel()
+    rows = np.diff(f.indptr) > 0
+    if np.any(np.abs(sums[rows] - 1.0) > 1e-6):
+        raise ValidationError(f"{name}: every row that holds weights must sum to 1 (an average of neighbours)")
+    return f
+
+
+def apply_follow(q, follow) -> np.ndarray:
+    """``q`` (N,) as float32 with each row ``i`` of ``follow`` that holds weights replaced by ``(follow @ q)[i]``.
+
+    Raises
+    ------
+    ValidationError
+        ``follow`` is not a follow matrix for ``q``'s length (:func:`check_follow`).
+    """
+    q = np.asarray(q, np.float32).ravel()
+    f = check_follow(follow, q.size)
+    rows = np.flatnonzero(np.diff(f.indptr) > 0)
+    out = q.copy()
+    if rows.size:
+        out[rows] = (f[rows] @ q.astype(np.float64)).astype(np.float32)
+    return out
 
 
 def graph_laplacian(graph) -> sp.csr_matrix:

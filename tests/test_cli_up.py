@@ -1,4 +1,4 @@
-"""`seed2gs extract --up / --cameras / --point-mode / --smoothness / --completion / --keep-islands` (issue 10)."""
+"""`seed2gs extract --up / --cameras / --point-mode / --smoothness / --completion / --keep-islands` / `--no-follow-faint` (issue 10)."""
 
 import json
 
@@ -132,3 +132,22 @@ def test_no_support_background_reaches_the_settings(files, capsys):
     assert cli.main(["extract", "--from-report", str(rep_path), "--no-support-background", "-o",
                      str(d / "nsb_rep")]) == 2
     assert "cannot be combined with --no-support-background" in capsys.readouterr().err
+
+
+def test_no_follow_faint_reaches_the_settings(files, capsys):
+    d, _ = files
+    assert _extract(d, d / "nff", "--no-follow-faint", "--up", "level") == 0, capsys.readouterr().err
+    rep = json.loads((d / "nff" / "report.json").read_text())
+    assert rep["settings"]["follow_faint"] is False
+    assert _extract(d, d / "ff_default", "--up", "level") == 0, capsys.readouterr().err
+    assert json.loads((d / "ff_default" / "report.json").read_text())["settings"]["follow_faint"] is True
+    # a report written before the option replays with it off, as it ran
+    old = dict(rep, settings={k: v for k, v in rep["settings"].items() if k != "follow_faint"})
+    old_path = d / "old_report.json"
+    old_path.write_text(json.dumps(old))
+    assert cli.main(["extract", "--from-report", str(old_path), "-o", str(d / "old_rep")]) == 0, \
+        capsys.readouterr().err
+    assert json.loads((d / "old_rep" / "report.json").read_text())["settings"]["follow_faint"] is False
+    assert cli.main(["extract", "--from-report", str(d / "nff" / "report.json"), "--no-follow-faint", "-o",
+                     str(d / "nff_rep")]) == 2
+    assert "cannot be combined with --no-follow-faint" in capsys.readouterr().err

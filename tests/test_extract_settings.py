@@ -27,9 +27,11 @@ DEFAULTS_BEFORE = {
 # smoothness=None turns the graph regulariser on for the model-free tracker
 # (resolved["smoothness"]); the orbit operators drop weights below 0.01 and
 # the model-free tracker labels the support surface background. New options
-# come after the old ones.
+# come after the old ones. Faint Gaussians near the object follow their opaque neighbours
+# (benchmarks/bench_scanned.py).
 DEFAULTS = {**DEFAULTS_BEFORE, "up": "auto", "min_weight": 0.01, "point_mode": "object", "smoothness": None,
-            "completion": None, "graph_options": None, "seed_connected": True, "support_background": True}
+            "completion": None, "graph_options": None, "seed_connected": True, "support_background": True,
+            "follow_faint": True}
 
 
 def test_defaults_are_those_of_the_old_extract_but_issue_10s():

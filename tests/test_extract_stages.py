@@ -31,6 +31,8 @@ from seed2gs_inverse.frontend.sam2 import SAM2VideoTracker
 from seed2gs_inverse.operators import scene_fingerprint
 from seed2gs_inverse.raster import build_operator, render
 from seed2gs_inverse.pipeline import ExtractSettings, extract, seed_lift
+from seed2gs_inverse.graph import apply_follow
+from seed2gs_inverse.pipeline.completion import faint_follow_matrix
 from seed2gs_inverse.progress import Progress, StageTimer
 from seed2gs_inverse.solvers import solve
 from seed2gs_inverse.synthetic import make_scene
@@ -273,7 +275,7 @@ def _evidence(syn, labelled):
 def test_solve_selection_equals_the_old_evidence_reset(syn, staged):
     """q: the solver's q with Gaussians of evidence e = sum_c W(c)^T k(c) < 0.05 reset to G0 (the old loop)."""
     masks = [m for _, m in staged.labelled]
-    off = staged.settings.replace(seed_connected=False)  # the solver's selection as it is
+    off = staged.settings.replace(seed_connected=False, follow_faint=False)  # the solver's q as it is
     sel = ex_mod.solve_selection(staged.stack, masks, staged.lift, off)  # smoothness 0: off
     raw = solve(staged.stack, masks, method="weighted_bce", init=staged.lift.g0,
                 **SOLVER_DEFAULTS["weighted_bce"])
@@ -312,15 +314,18 @@ def test_solve_selection_with_the_graph_regulariser(syn, staged):
     want = np.clip(want, 0.0, 1.0)
     # CG to a relative residual of 1e-5 (laplacian_smooth's default): within a few 1e-3 of the exact solve
     np.testing.assert_allclose(staged.sel.result.q, want, atol=4e-3)
-    # seed_connected: q is the regularised q but 0 on islands apart from G0
-    island = staged.sel.result.q != staged.sel.q
+    # follow_faint, then seed_connected: q is the regularised q, its faint Gaussians near the object set by
+    # the follow matrix (checked on its own in test_object_layers.py), and 0 on islands apart from G0
+    want_follow = faint_follow_matrix(syn.scene, staged.lift.center, staged.lift.radius)
+    assert (staged.sel.follow != want_follow).nnz == 0
+    island = apply_follow(staged.sel.result.q, want_follow) != staged.sel.q
     assert island.sum() == staged.sel.n_disconnected and np.all(staged.sel.q[island] == 0)
     # unseen Gaussians on the graph are decided by their neighbours, not reset to G0
     free = nodes[e[nodes] == 0]
     assert free.size and np.abs(staged.sel.q[free] - p[free]).max() > 0.1
     with pytest.raises(ValidationError, match="smoothness > 0 needs graph"):
         ex_mod.solve_selection(staged.stack, staged.masks, staged.lift, staged.settings, smoothness=1.0)
-    with pytest.raises(ValidationError, match="seed_connected needs the scene"):
+    with pytest.raises(ValidationError, match="seed_connected and settings.follow_faint need the scene"):
         ex_mod.solve_selection(staged.stack, staged.masks, staged.lift, staged.settings)
 
 
@@ -360,10 +365,12 @@ def test_extract_runs_the_stages(syn, setup, staged):
 #: The extraction the pinned q came from, run in a child process (see :func:`_avx2_arithmetic`). Pinned
 #: to the options of the code that produced the file (up="level", no graph regulariser, exact
 #: operators with min_weight=0, 30 L-BFGS-B iterations), so that it still proves the stage
-#: refactor left q unchanged.
+#: refactor left q unchanged. Later rules are switched off: the tracker's empty pixels vote in its fill
+#: and faint Gaussians keep the solver's q.
 _PINNED_RUN = """
 import sys
 import numpy as np
+from seed2gs_inverse.frontend.model_free import GeometricTracker
 from seed2gs_inverse.pipeline import extract
 from seed2gs_inverse.raster import build_operator
 from seed2gs_inverse.synthetic import make_scene
@@ -373,7 +380,8 @@ cam = syn.reference_camera(96, 72)
 truth = syn.labels == label
 seed = (build_operator(syn.scene, cam).W @ truth.astype(np.float32)).reshape(cam.image_shape) > 0.5
 kw = {"solver_options": {"max_iter": 30}} if name == "weighted_bce" else {"method": "voting"}
-ex = extract(syn.scene, cam, seed, n_views=6, progress=False, up="level", smoothness=0.0, min_weight=0.0, **kw)
+ex = extract(syn.scene, cam, seed, tracker=GeometricTracker(fill_from_empty=True), n_views=6, progress=False,
+             up="level", smoothness=0.0, min_weight=0.0, follow_faint=False, **kw)
 np.savez(out, q=ex.q, n_weak=ex.resolved["n_weak_evidence"])
 """
 

@@ -50,13 +50,13 @@ def run(tmp_path_factory):
 
 def test_save_operators_writes_the_solves_inputs(run, capsys):
     out = run["out"]
-    assert sorted(p.name for p in out.iterdir()) == ["graph.npz", "init.npy", "islands.npy", "masks", "object.ply",
-                                                    "operators", "q.npy", "remainder.ply", "report.json",
-                                                    "report.png", "solve.json"]
+    assert sorted(p.name for p in out.iterdir()) == ["follow.npz", "graph.npz", "init.npy", "islands.npy", "masks",
+                                                    "object.ply", "operators", "q.npy", "remainder.ply",
+                                                    "report.json", "report.png", "report_masks.png", "solve.json"]
     rep = json.loads((out / "report.json").read_text())
     assert rep["outputs"] == {"object": "object.ply", "remainder": "remainder.ply", "q": "q.npy",
                               "solve": "solve.json", "operators": "operators", "masks": "masks", "init": "init.npy",
-                              "graph": "graph.npz", "islands": "islands.npy"}
+                              "graph": "graph.npz", "follow": "follow.npz", "islands": "islands.npy"}
     stack = OperatorStack.load(out / "operators")
     assert len(stack) == rep["n_views"] and stack.n_gaussians == len(run["syn"].scene)
     code, text, _ = _run(["operators", "info", out / "operators"], capsys)

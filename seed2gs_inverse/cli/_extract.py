@@ -41,7 +41,7 @@ __all__ = ["register", "settings_from_args", "seed_summary_line"]
 _SETTING_FLAGS = {"method": "--method", "views": "--views", "orbit_scale": "--orbit-scale",
                   "threshold": "--threshold", "up": "--up", "option": "--option", "point_mode": "--point-mode",
                   "smoothness": "--smoothness", "completion": "--completion", "keep_islands": "--keep-islands",
-                  "no_support_background": "--no-support-background"}
+                  "no_support_background": "--no-support-background", "no_follow_faint": "--no-follow-faint"}
 _PROMPT_FLAGS = {"mask": "--mask", "box": "--box", "point": "--point", "prompt": "--prompt",
                  "negative": "--negative", "camera": "--camera", "cameras": "--cameras", "look_at": "--look-at",
                  "look_up": "--look-up", "fov": "--fov", "size": "--size"}
@@ -119,10 +119,14 @@ def register(subparsers) -> None:
     p.add_argument("--no-support-background", action="store_true",
                    help="do not label the surface the object rests on as background in the orbit views (by "
                         "default the model-free tracker does, where the orbit axis is trusted)")
+    p.add_argument("--no-follow-faint", action="store_true",
+                   help="leave faint Gaussians near the object to the solver (by default each takes the membership "
+                        "of its nearest opaque neighbours, so translucent shells and inner layers leave with the "
+                        "object instead of staying in the remainder)")
     p.add_argument("--format", choices=("ply", "splat"), default=None, help="object/remainder format (default ply)")
     p.add_argument("--save-operators", action="store_true",
                    help="also write what the solve took into OUTDIR: operators/, masks/ (one view_NNN.npy per "
-                        "view, NaN = unknown), init.npy, graph.npz and solve.json, from which 'seed2gs solve "
+                        "view, NaN = unknown), init.npy, graph.npz, follow.npz, islands.npy and solve.json, from which 'seed2gs solve "
                         "OUTDIR/operators OUTDIR/masks --from-extraction OUTDIR' reproduces q.npy and 'seed2gs "
                         "compare OUTDIR/operators OUTDIR/masks' compares the solvers")
     p.add_argument("--no-progress", action="store_true",
@@ -337,6 +341,7 @@ def settings_from_args(args):
              "smoothness": args.smoothness, "completion": args.completion,
              "seed_connected": False if getattr(args, "keep_islands", False) else None,
              "support_background": False if getattr(args, "no_support_background", False) else None,
+             "follow_faint": False if getattr(args, "no_follow_faint", False) else None,
              "solver_options": parse_options(args.option, method) if args.option else None}
     flags = {"n_views": "--views", "orbit_scale": "--orbit-scale", "threshold": "--threshold", "up": "--up",
              "method": "--method", "solver_options": "--option", "point_mode": "--point-mode",
@@ -400,7 +405,7 @@ def _up_cameras(path, where: str):
 
 #: Options a recorded report may lack, with the value that replays such a
 #: report as it ran (the option off).
-_ADDED_OPTIONS = {"seed_connected": False, "support_background": False}
+_ADDED_OPTIONS = {"seed_connected": False, "support_background": False, "follow_faint": False}
 
 
 def _recorded_settings(rep: dict, progress: bool, where: str):

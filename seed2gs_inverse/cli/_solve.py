@@ -51,7 +51,8 @@ def register(subparsers) -> None:
     p.add_argument("--from-extraction", metavar="OUT",
                    help="solve as the extraction in OUT did (extract --save-operators): its prior (init.npy), "
                         "min_evidence, smoothness and graph (graph.npz), its method and options unless "
-                        "--method/--option say otherwise (solve.json), and its islands set to 0 (islands.npy)")
+                        "--method/--option say otherwise (solve.json), its faint Gaussians' rule (follow.npz) and its islands "
+                        "set to 0 (islands.npy)")
     p.add_argument("--keep-islands", action="store_true",
                    help="with --from-extraction: keep the solver's q on the islands the extraction set to 0")
     p.add_argument("--no-progress", action="store_true",

@@ -55,7 +55,11 @@ the frame nearest to one already labelled, so a closed orbit is walked from
 both sides of the reference.
 
 Pixels with alpha below ``alpha_min`` are empty space and get 0 (nothing
-there can be the object). Pixels no source sees (newly revealed surfaces,
+there can be the object), but they are no evidence for the fill below
+(unless ``fill_from_empty``): an object's translucent fringe, at the depth
+of the surface next to it and often of its colour, would otherwise spread 0
+over the object's own revealed surfaces (the far side of a scanned object
+seen against empty space). Pixels no source sees (newly revealed surfaces,
 blended depths at silhouettes) are decided by image evidence: a normalised
 edge-aware filter (the recursive domain-transform filter of
 ``cv2.ximgproc.createDTFilter`` guided by the frame's RGB and log-depth:
@@ -312,6 +316,10 @@ class GeometricTracker:
         decisions count as observed; the support rule (``support_plane``)
         stops the errors at contact lines that refill addresses, and the
         default was chosen on benchmarks/bench_extract.py.
+    fill_from_empty : bool
+        Let the empty pixels (alpha below ``alpha_min``, label 0) vote in the
+        fill, as observed background. False (default): they are no evidence
+        for the surfaces beside them (module docstring).
     support_plane : (normal, point) or None
         The support band :math:`n \cdot (x - x_s) \le 0` under the object
         (module docstring): its pixels that face along ``normal`` are
@@ -340,7 +348,8 @@ class GeometricTracker:
                  fill_radius: float = 0.1, fill_sigma_color: float = 0.15, decisive: float = 0.2,
                  min_support: float = 0.02, max_sources: int = 4, boundary_band: int = 0,
                  color_tol: float | None = 0.15, fill_depth_jump: float = 0.03, refill: bool = False,
-                 fill_passes: int = 1, support_plane=None, support_alignment: float = 0.8):
+                 fill_passes: int = 1, support_plane=None, support_alignment: float = 0.8,
+                 fill_from_empty: bool = False):
         # NaN fails every range check: it is refused like any other value out of range.
         self.alpha_min = check_real("alpha_min", alpha_min, lo=0, hi=1, lo_open=True, hi_open=True)
         self.depth_tol = check_real("depth_tol", depth_tol, lo=0, lo_open=True)
@@ -362,6 +371,7 @@ class GeometricTracker:
         self.support_alignment = check_real("support_alignment", support_alignment, lo=0, hi=1, lo_open=True)
         self.fill = bool(fill)
         self.refill = bool(refill)
+        self.fill_from_empty = bool(fill_from_empty)
         self.support_plane = self._plane(support_plane)
         # id(frame) -> (weak reference to the frame, (H, W) bool: label filled,
         # not observed) for the masks this tracker returned (module docstring).
@@ -427,7 +437,8 @@ class GeometricTracker:
                     seen_as_object = w == 1
             copied_fill = (lab > 0) & (lab < 1)
             lab = np.where(np.isnan(lab), lab, (lab > 0.5).astype(np.float64))
-            empty = np.asarray(f.alpha) < self.alpha_min
+            void = np.asarray(f.alpha) < self.alpha_min
+            empty = void.copy()
             if self.support_plane is not None:
                 on = _on_support(f, *self.support_plane, self.support_alignment)
                 empty |= on if seen_as_object is None else on & ~seen_as_object
@@ -436,6 +447,8 @@ class GeometricTracker:
             observed = ~np.isnan(lab) & ~copied_fill
             if self.fill and (np.isnan(lab).any() or copied_fill.any()):
                 filt = self._filter(np.asarray(f.rgb, np.float32), np.asarray(f.depth))
+                if not self.fill_from_empty:
+                    lab[void] = np.nan  # empty space is no evidence for the surfaces beside it
                 for i in range(self.fill_passes):
                     if i == 0 and self.refill and copied_fill.any():
                         # pass 1: this view's observations re-decide the copied fill decisions
@@ -445,6 +458,7 @@ class GeometricTracker:
                         lab = out
                     elif np.isnan(lab).any():
                         lab = self._decide(filt, lab)
+                lab[void] = 0.0
             masks[k] = lab.astype(np.float32)
             filled = ~observed & ~np.isnan(lab)
             coded[k] = self._encode(lab, filled if self.refill else None)

@@ -43,6 +43,20 @@ stays unknown otherwise. It only uses the reference's labels, so it is
 weaker than the regulariser, which also uses every orbit view's evidence;
 both are options of :func:`~seed2gs_inverse.pipeline.extract.extract`.
 
+**Faint Gaussians follow their opaque neighbours** (:func:`faint_follow_matrix`).
+A Gaussian below the graph's ``min_opacity`` never dominates a pixel: its
+evidence is a trace, and the graph leaves it out. Translucent shells, halos
+and inner layers of a scanned object are made of such Gaussians; left to
+the prior they stay in the remainder, where, rendered without the object in
+front of them, they are a see-through copy of it. Each faint Gaussian of the
+region takes the membership of its ``k`` nearest opaque ones,
+
+.. math::
+
+    q_i = \frac{\sum_{j \in N_k(i)} q_j / (d_{ij} + \epsilon)}{\sum_{j \in N_k(i)} 1 / (d_{ij} + \epsilon)},
+
+with :math:`\epsilon` a hundredth of the median neighbour distance.
+
 With user-supplied 2D trackers (SAM2) the masks have no unknown pixels where
 the object is visible: the fill is a no-op and the regulariser only decides
 Gaussians no view's pixels reach (Algorithm 1 is unchanged otherwise).
@@ -54,10 +68,11 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import ValidationError
-from ..graph import gaussian_graph, region_subset
+from ..graph import follow_matrix, gaussian_graph, region_subset
 from ..solvers.smoothing import harmonic_extension
 
-__all__ = ["object_graph", "complete_membership", "tracked_membership", "fill_unknown", "GRAPH_DEFAULTS"]
+__all__ = ["object_graph", "complete_membership", "tracked_membership", "fill_unknown", "faint_follow_matrix",
+           "GRAPH_DEFAULTS"]
 
 #: Graph settings used by extract(): k neighbours, colour and normal sigmas,
 #: and the region (multiples of the lift's radius about its centre).
@@ -89,6 +104,30 @@ def object_graph(scene, center, radius: float, *, k: int = GRAPH_DEFAULTS["k"],
     idx = region_subset(scene, center, float(region) * float(radius))
     return gaussian_graph(scene, k, subset=idx, sigma_color=sigma_color, sigma_normal=sigma_normal,
                           min_opacity=min_opacity)
+
+
+def faint_follow_matrix(scene, center, radius: float, *, region: float = GRAPH_DEFAULTS["region"],
+                        min_opacity: float = GRAPH_DEFAULTS["min_opacity"], k: int = 4) -> sp.csr_matrix:
+    """:func:`~seed2gs_inverse.graph.follow_matrix` among the Gaussians within ``region * radius`` of ``center``.
+
+    Applied to a membership by :func:`~seed2gs_inverse.graph.apply_follow`:
+    each faint Gaussian near the object takes the inverse-distance weighted
+    mean of its ``k`` nearest opaque neighbours (module docstring).
+
+    Returns
+    -------
+    (N, N) scipy.sparse.csr_matrix
+        Rows of the region's faint Gaussians (each summing to 1); the others empty.
+
+    Raises
+    ------
+    ValidationError
+        ``region`` is not a positive number, or a bad ``min_opacity`` / ``k``.
+    """
+    if not (np.isfinite(region) and region > 0):
+        raise ValidationError(f"region must be positive, got {region!r}")
+    idx = region_subset(scene, center, float(region) * float(radius))
+    return follow_matrix(scene, k, subset=idx, min_opacity=min_opacity)
 
 
 #: CG tolerance of the completions' random walker on graphs beyond

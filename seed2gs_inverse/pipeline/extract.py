@@ -228,4 +228,4 @@ def extract(scene: GaussianScene, camera: Camera, prompt: Any, grounder: Grounde
     resolved = _resolved(s, ref, orbits, sel, support_info, smoothness, tracker, grounder, notes)
     return Extraction(scene, sel.q, sel.selected, sel.threshold, seed, prompt_info, camera, reference, lift,
                       orbits.plan, [f.camera for f, _ in labelled], [f.clip for f, _ in labelled], masks, stack,
-                      sel.result, timer.seconds, s, resolved, orbits.up_info, graph)
+                      sel.result, timer.seconds, s, resolved, orbits.up_info, graph, sel.follow)

@@ -104,6 +104,10 @@ class Extraction:
         (:func:`~seed2gs_inverse.pipeline.stages.evidence_graph`; None when
         nothing needed it), which the solve's regulariser used when
         ``resolved["smoothness"] > 0``.
+    follow : scipy.sparse (N, N) or None
+        The faint Gaussians' rows applied to the solver's ``q``
+        (:attr:`~seed2gs_inverse.pipeline.stages.Selection.follow`; None
+        without ``settings.follow_faint``).
 
     Notes
     -----
@@ -132,6 +136,7 @@ class Extraction:
     resolved: dict = field(default_factory=dict)
     up: dict = field(default_factory=dict)
     graph: sp.spmatrix | None = field(default=None, repr=False)
+    follow: sp.spmatrix | None = field(default=None, repr=False)
     _remainder: tuple | None = field(default=None, init=False, repr=False, compare=False)
 
     @property

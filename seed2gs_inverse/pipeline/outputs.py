@@ -12,7 +12,7 @@ from several directions, the remainder around the hole, the seed) and
 (:func:`~seed2gs_inverse.pipeline.report.masks_figure`: the supervision
 views with their masks), all or nothing. With ``save_operators`` it also receives the run's solve inputs
 (:func:`~seed2gs_inverse.solvers.inputs.write_solve_inputs`: ``operators/``,
-``masks/``, ``init.npy``, ``graph.npz``, ``islands.npy`` and
+``masks/``, ``init.npy``, ``graph.npz``, ``follow.npz``, ``islands.npy`` and
 ``solve.json``), which
 :func:`~seed2gs_inverse.solvers.inputs.load_solve_inputs` and ``seed2gs
 solve --from-extraction`` read to reproduce ``q``.
@@ -30,6 +30,7 @@ import numpy as np
 from .._atomic import atomic_path
 from .._output_paths import check_output
 from ..errors import ValidationError
+from ..graph import apply_follow
 from ..io.parts import write_parts
 from ..solvers.inputs import write_solve_inputs
 from .report import masks_figure, report_figure, seed_summary
@@ -132,15 +133,18 @@ def solve_inputs_of(extraction: Extraction) -> dict:
     The run's operators and masks, its method with the options it solved
     with (:meth:`~seed2gs_inverse.pipeline.settings.ExtractSettings.solver_kwargs`),
     the prior G0, ``min_evidence``, the smoothness used and its graph, the
-    threshold, and as ``islands`` the Gaussians whose ``q`` the run set to 0
-    after the solve (those where ``extraction.q`` differs from the solver's
-    ``q``; an empty list with ``seed_connected``, None without).
+    threshold, the faint Gaussians' ``follow`` matrix applied after the
+    solve (``follow_faint``), and as ``islands`` the Gaussians whose ``q``
+    the run then set to 0 (those where ``extraction.q`` differs from the
+    solver's ``q`` with ``follow`` applied; an empty list with
+    ``seed_connected``, None without).
 
     Raises
     ------
     ValidationError
         The extraction has no settings, or used the regulariser
-        (``resolved["smoothness"] > 0``) without keeping its graph.
+        (``resolved["smoothness"] > 0``) without keeping its graph, or
+        ``follow_faint`` without keeping its matrix.
     """
     s = extraction.settings
     if s is None:
@@ -150,9 +154,15 @@ def solve_inputs_of(extraction: Extraction) -> dict:
     if smoothness > 0 and extraction.graph is None:
         raise ValidationError("save_operators: the extraction used the regulariser (smoothness "
                               f"{smoothness:g}) but holds no graph (Extraction.graph); run extract() again")
+    if s.follow_faint and extraction.follow is None:
+        raise ValidationError("save_operators: the extraction ran with follow_faint but holds no follow matrix "
+                              "(Extraction.follow); run extract() again")
     solver_q = np.asarray(extraction.result.q, np.float32)
+    if s.follow_faint:
+        solver_q = apply_follow(solver_q, extraction.follow)
     islands = np.flatnonzero(solver_q != np.asarray(extraction.q, np.float32)) if s.seed_connected else None
     return {"operators": extraction.operators, "masks": extraction.masks, "method": s.method,
             "options": s.solver_kwargs(), "init": extraction.lift.g0, "min_evidence": s.min_evidence,
             "smoothness": smoothness, "graph": extraction.graph if smoothness > 0 else None,
-            "islands": islands, "threshold": float(extraction.threshold)}
+            "follow": extraction.follow if s.follow_faint else None, "islands": islands,
+            "threshold": float(extraction.threshold)}

@@ -246,6 +246,15 @@ class ExtractSettings:
         select a mostly hidden background surface under the object, apart
         from it. The count is ``resolved["n_disconnected"]``. False: the
         solver's selection as it is.
+    follow_faint : bool
+        Faint Gaussians near the object (activated opacity below the graph's
+        ``min_opacity``, within its ``region``) take the membership of their
+        nearest opaque neighbours after the solve
+        (:func:`~seed2gs_inverse.pipeline.completion.faint_follow_matrix`).
+        Default True: their evidence is a trace, and left to the prior the
+        translucent shells and inner layers of an object stay in the
+        remainder as a see-through copy of it. False: the solver's
+        membership for them.
     support_background : bool
         The model-free tracker labels the support surface (the ground under
         the object) background in every orbit view (default True): pixels
@@ -294,6 +303,7 @@ class ExtractSettings:
     graph_options: Mapping = field(default_factory=dict)
     seed_connected: bool = True
     support_background: bool = True
+    follow_faint: bool = True
 
     def __post_init__(self):
         set_ = object.__setattr__.__get__(self)
@@ -351,7 +361,7 @@ class ExtractSettings:
         if not (self.completion is None or isinstance(self.completion, str)) or self.completion not in COMPLETIONS:
             raise ValidationError(f"completion must be None, 'reference' or 'tracked', got {self.completion!r}")
         set_("graph_options", _graph_options(self.graph_options))
-        for name in ("seed_connected", "support_background"):
+        for name in ("seed_connected", "support_background", "follow_faint"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValidationError(f"{name} must be True or False, got {getattr(self, name)!r}")
             set_(name, bool(getattr(self, name)))

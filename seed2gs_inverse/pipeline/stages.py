@@ -20,8 +20,9 @@ each can be run, tested and timed on its own::
                        (completion="reference" / "tracked")        -> list of masks
     stack_operators    the supervision views' operators            -> OperatorStack
     solve_selection    solver (initialised from G0, graph-Laplacian
-                       regulariser when smoothness > 0) + threshold,
-                       kept where connected to G0 in 3D             -> Selection
+                       regulariser when smoothness > 0), faint
+                       Gaussians follow their opaque neighbours,
+                       threshold, kept where connected to G0 in 3D  -> Selection
 
 The trackers are reached only through the protocols of
 :mod:`seed2gs_inverse.frontend.base` (``Tracker``, and the optional
@@ -40,10 +41,12 @@ import numpy as np
 from ..errors import ValidationError
 from ..frontend.base import SupportPlaneTracker
 from ..frontend.prompts import PointPrompt, seed_mask_from_prompt
+from ..graph import apply_follow
 from ..operators import OperatorStack, as_stack, scene_fingerprint
 from ..solvers import solve
 from ..solvers._common import normalize_mask
-from .completion import GRAPH_DEFAULTS, complete_membership, fill_unknown, object_graph, tracked_membership
+from .completion import (GRAPH_DEFAULTS, complete_membership, faint_follow_matrix, fill_unknown, object_graph,
+                         tracked_membership)
 from .point_object import point_object_mask
 from .islands import seed_connected
 from .seed_lift import seed_lift
@@ -134,14 +137,19 @@ class Selection:
         The solver's result; its ``q`` already carries the ``min_evidence``
         reset or the regulariser.
     q : (N,) float32
-        ``result.q``, set to 0 on the ``n_disconnected`` Gaussians of islands
-        apart from G0 (with ``settings.seed_connected``).
+        ``result.q``, its faint Gaussians near the object set to their
+        opaque neighbours' membership (with ``settings.follow_faint``), and
+        set to 0 on the ``n_disconnected`` Gaussians of islands apart from
+        G0 (with ``settings.seed_connected``).
     threshold : float
         tau.
     selected : (N,) bool
         ``q > tau``.
     n_disconnected : int
         Gaussians above tau in islands apart from G0, set to 0.
+    follow : (N, N) sparse or None
+        The faint Gaussians' rows (:func:`~.completion.faint_follow_matrix`)
+        applied to ``result.q`` (with ``settings.follow_faint``).
     """
 
     result: SolveResult
@@ -149,6 +157,7 @@ class Selection:
     threshold: float
     selected: np.ndarray
     n_disconnected: int = 0
+    follow: sp.csr_matrix | None = None
 
     @property
     def n_weak_evidence(self) -> int:
@@ -540,8 +549,8 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     smoothness : float
         The resolved regulariser weight lambda (0: off).
     scene : GaussianScene, optional
-        The scene of the operators; needed (its means) with
-        ``settings.seed_connected``.
+        The scene of the operators; needed with ``settings.seed_connected``
+        or ``settings.follow_faint``.
 
     Returns
     -------
@@ -550,7 +559,7 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     Raises
     ------
     ValidationError
-        ``settings.seed_connected`` without ``scene``.
+        ``settings.seed_connected`` or ``settings.follow_faint`` without ``scene``.
 
     Notes
     -----
@@ -560,7 +569,11 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     unregularised fit could drive their logits anywhere on a trace of
     weight), so the solver gives them the prior (G0 membership), or, with
     ``smoothness > 0``, the harmonic extension of their neighbours on the
-    graph. ``tau`` is ``settings.threshold`` or the solver's own. With
+    graph. With ``settings.follow_faint`` (default) the Gaussians of the
+    graph's region below its ``min_opacity`` then take the membership of
+    their nearest opaque neighbours
+    (:func:`~.completion.faint_follow_matrix`): their own evidence is a trace.
+    ``tau`` is ``settings.threshold`` or the solver's own. With
     ``settings.seed_connected`` (default) the Gaussians above ``tau`` in
     islands apart from G0 that the masks do not call object
     (:func:`~.islands.seed_connected` with the masks' votes) get ``q = 0``,
@@ -573,11 +586,17 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
                    progress=progress, smoothness=smoothness, graph=graph, **settings.solver_kwargs())
     q = np.asarray(result.q, dtype=np.float32)
     tau = result.threshold if settings.threshold is None else float(settings.threshold)
+    if (settings.seed_connected or settings.follow_faint) and scene is None:
+        raise ValidationError("solve_selection: settings.seed_connected and settings.follow_faint need the scene "
+                              "(scene=); pass it or set both to False")
+    follow = None
+    if settings.follow_faint:
+        opts = {**GRAPH_DEFAULTS, **settings.graph_options}
+        follow = faint_follow_matrix(scene, lift.center, lift.radius, region=opts["region"],
+                                     min_opacity=opts["min_opacity"])
+        q = apply_follow(q, follow)
     n_removed = 0
     if settings.seed_connected:
-        if scene is None:
-            raise ValidationError("solve_selection: settings.seed_connected needs the scene (scene=, for its "
-                                  "Gaussian means); pass it or set seed_connected=False")
         graph_kw = {k: settings.lift_options[k] for k in ("k_neighbors", "link_factor") if k in settings.lift_options}
         island = (q > tau) & ~seed_connected(scene.means, q > tau, lift.g0, votes=_votes(stack, masks),
                                              **graph_kw)  # the lift's graph
@@ -585,7 +604,7 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
         q = np.where(island, np.float32(0), q)
         n_removed = int(island.sum())
     selected = q > tau
-    return Selection(result, q, tau, selected, n_removed)
+    return Selection(result, q, tau, selected, n_removed, follow)
 
 
 def _votes(stack: OperatorStack, masks: list) -> tuple[np.ndarray, np.ndarray]:

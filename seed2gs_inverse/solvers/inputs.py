@@ -11,13 +11,17 @@ the run's solve took, so that solving again reproduces its ``q``::
                          "method": "...", "options": {...},
                          "min_evidence": ..., "smoothness": ..., "threshold": ...,
                          "init": "init.npy", "graph": "graph.npz" | null,
-                         "islands": "islands.npy" | null}
+                         "follow": "follow.npz" | null, "islands": "islands.npy" | null}
     DIR/operators/      the OperatorStack (OperatorStack.save)
     DIR/masks/          view_000.npy ... float32 masks Y(c), NaN = unknown, in view order
     DIR/init.npy        the prior (bool support set, indices or float q)
     DIR/graph.npz       the regulariser's graph (scipy.sparse.save_npz, uncompressed), when smoothness > 0
+    DIR/follow.npz      the faint Gaussians' follow matrix applied after the solve (graph.follow_matrix), when used
     DIR/islands.npy     int64 indices set to 0 after the solve (the run's post-solve rule), when any rule ran
 
+After the solve, :meth:`SolveInputs.solve` applies the run's post-solve
+rules in the run's order: the follow matrix
+(:func:`~seed2gs_inverse.graph.apply_follow`), then the islands set to 0.
 Nothing is unpickled when loading; every file is validated against the
 operators (Gaussian count, view count, fingerprint) and errors name the file.
 """
@@ -38,7 +42,7 @@ import scipy.sparse as sp
 from .._selection import index_list
 from .._validation import check_real
 from ..errors import FormatError, ValidationError
-from ..graph import check_graph
+from ..graph import apply_follow, check_follow, check_graph
 from ..io import read_masks
 from ..io._common import check_compression_ratio, check_regular, load_npy
 from ..io.tables import read_small_file
@@ -55,7 +59,7 @@ FORMAT_VERSION = 1
 SETTINGS_FILE = "solve.json"
 #: The names :func:`write_solve_inputs` may write, by role.
 FILES = {"solve": SETTINGS_FILE, "operators": "operators", "masks": "masks", "init": "init.npy",
-         "graph": "graph.npz", "islands": "islands.npy"}
+         "graph": "graph.npz", "follow": "follow.npz", "islands": "islands.npy"}
 
 
 @dataclass
@@ -76,8 +80,11 @@ class SolveInputs:
         ``solve``'s options common to every method.
     graph : scipy.sparse (N, N) or None
         The regulariser's graph (needed when ``smoothness > 0``).
+    follow : scipy.sparse (N, N) or None
+        The faint Gaussians' rows the run applied to the solver's ``q``
+        (:func:`~seed2gs_inverse.graph.apply_follow`; None when it did not).
     islands : (K,) int64
-        Gaussians the run set to 0 after its solve (the extraction's
+        Gaussians the run set to 0 after its solve and ``follow`` (the extraction's
         islands apart from the seeded object,
         ``ExtractSettings.seed_connected``); empty when none.
     threshold : float or None
@@ -94,6 +101,7 @@ class SolveInputs:
     min_evidence: float = 0.0
     smoothness: float = 0.0
     graph: sp.spmatrix | None = None
+    follow: sp.spmatrix | None = None
     islands: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     threshold: float | None = None
     directory: Path | None = None
@@ -110,9 +118,11 @@ class SolveInputs:
             run's options belong to its method). Every method gets the
             run's ``init``, ``min_evidence``, ``smoothness`` and ``graph``.
         keep_islands : bool
-            False (default): set :attr:`islands` to 0, as the run did, so
-            the run's own method gives the run's ``q`` exactly. True: the
-            solver's ``q`` as it is.
+            False (default): apply :attr:`follow` and set :attr:`islands` to
+            0, as the run did, so the run's own method gives the run's ``q``
+            exactly. True: the solver's ``q`` with :attr:`follow` applied
+            (the faint Gaussians' rule is part of the membership, not a
+            clean-up).
         progress : callable, optional
             As for :func:`~seed2gs_inverse.solvers.solve`.
         **options
@@ -134,9 +144,12 @@ class SolveInputs:
         result = solve(self.operators, self.masks, method=m, init=self.init, min_evidence=self.min_evidence,
                        smoothness=self.smoothness, graph=self.graph, progress=progress, **opts)
         changes = {}
+        q = np.array(result.q, dtype=np.float32)
+        if self.follow is not None:
+            q = apply_follow(q, self.follow)
         if not keep_islands and self.islands.size:
-            q = np.array(result.q, dtype=np.float32)
             q[self.islands] = np.float32(0)
+        if self.follow is not None or (not keep_islands and self.islands.size):
             changes["q"] = q
         if m == self.method and self.threshold is not None:
             changes["threshold"] = float(self.threshold)
@@ -155,8 +168,8 @@ def _plain(value):
 
 
 def write_solve_inputs(directory, operators: OperatorStack, masks, *, method: str, options: dict | None = None,
-                       init=None, min_evidence: float = 0.0, smoothness: float = 0.0, graph=None, islands=None,
-                       threshold: float | None = None) -> dict:
+                       init=None, min_evidence: float = 0.0, smoothness: float = 0.0, graph=None, follow=None,
+                       islands=None, threshold: float | None = None) -> dict:
     """Write a solve's inputs into the existing folder ``directory`` (layout: the module docstring).
 
     Parameters
@@ -179,8 +192,11 @@ def write_solve_inputs(directory, operators: OperatorStack, masks, *, method: st
         ``solve``'s common options, each >= 0.
     graph : scipy.sparse (N, N), optional
         Required when ``smoothness > 0``; written only then.
+    follow : scipy.sparse (N, N), optional
+        The follow matrix applied after the solve
+        (:func:`~seed2gs_inverse.graph.follow_matrix`); None: none was.
     islands : int indices or bool (N,), optional
-        Gaussians set to 0 after the solve; None: no post-solve rule ran.
+        Gaussians set to 0 after the solve and ``follow``; None: no post-solve rule ran.
     threshold : float, optional
         The selection threshold of the run, in [0, 1).
 
@@ -218,6 +234,7 @@ def write_solve_inputs(directory, operators: OperatorStack, masks, *, method: st
     if init is not None:
         prior_from_init(init, n)  # checked before anything is written
     g = None if smoothness == 0 else check_graph(graph, n)
+    fol = None if follow is None else check_follow(follow, n)
     isl = None if islands is None else index_list(islands, n, "islands")
     written = {"solve": SETTINGS_FILE, "operators": FILES["operators"], "masks": FILES["masks"]}
     operators.save(d / FILES["operators"])
@@ -230,6 +247,9 @@ def write_solve_inputs(directory, operators: OperatorStack, masks, *, method: st
     if g is not None:
         sp.save_npz(d / FILES["graph"], sp.csr_matrix(graph), compressed=False)
         written["graph"] = FILES["graph"]
+    if fol is not None:
+        sp.save_npz(d / FILES["follow"], fol, compressed=False)
+        written["follow"] = FILES["follow"]
     if isl is not None:
         np.save(d / FILES["islands"], isl.astype(np.int64), allow_pickle=False)
         written["islands"] = FILES["islands"]
@@ -237,7 +257,8 @@ def write_solve_inputs(directory, operators: OperatorStack, masks, *, method: st
                 "n_views": len(operators), "fingerprint": operators.fingerprint,
                 "operators": FILES["operators"], "masks": FILES["masks"], "method": method, "options": options,
                 "min_evidence": min_evidence, "smoothness": smoothness, "threshold": threshold,
-                "init": written.get("init"), "graph": written.get("graph"), "islands": written.get("islands")}
+                "init": written.get("init"), "graph": written.get("graph"), "follow": written.get("follow"),
+                "islands": written.get("islands")}
     with open(d / SETTINGS_FILE, "w", encoding="utf-8") as fh:
         json.dump(settings, fh, indent=1)
     return written
@@ -282,19 +303,20 @@ def _is_real(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0
 
 
-def _load_graph(path: Path, n: int) -> sp.csr_matrix:
-    """The graph of ``graph.npz``: never unpickled, its declared size checked first, then :func:`check_graph`."""
+def _load_sparse(path: Path, n: int, what: str, check) -> sp.csr_matrix:
+    """The matrix of ``path`` (``graph.npz``, ``follow.npz``): never unpickled, its declared size checked first,
+    then ``check`` (:func:`check_graph`, :func:`check_follow`)."""
     check_regular(path, "graph file")
     try:
         with zipfile.ZipFile(path) as z:
             claimed = sum(info.file_size for info in z.infolist())
-        check_compression_ratio(path, claimed, os.path.getsize(path), "a graph")
+        check_compression_ratio(path, claimed, os.path.getsize(path), f"a {what}")
         g = sp.load_npz(path)
     except FileNotFoundError:
         raise ValidationError(f"{path}: no such file (solve.json names it)") from None
     except (zipfile.BadZipFile, ValueError, KeyError, OSError, EOFError) as exc:
-        raise FormatError(f"{path}: not a sparse graph written by scipy.sparse.save_npz ({exc})") from None
-    return check_graph(g, n, name=str(path))
+        raise FormatError(f"{path}: not a sparse {what} written by scipy.sparse.save_npz ({exc})") from None
+    return check(g, n, name=str(path))
 
 
 def _npy(path: Path, label: str) -> np.ndarray:
@@ -350,7 +372,8 @@ def load_solve_inputs(directory, operators=None, masks=None) -> SolveInputs:
     threshold = _field(path, rec, "threshold", lambda v: _is_real(v) and v < 1, "a number in [0, 1)",
                        required=False)
     names = {key: _field(path, rec, key, _is_name, "a file name inside the folder", required=key not in
-                         ("init", "graph", "islands")) for key in ("operators", "masks", "init", "graph", "islands")}
+                         ("init", "graph", "follow", "islands"))
+             for key in ("operators", "masks", "init", "graph", "follow", "islands")}
     if smoothness > 0 and names["graph"] is None:
         raise FormatError(f"{path}: smoothness {smoothness:g} needs a 'graph' file")
     ops_dir = d / names["operators"] if operators is None else Path(operators)
@@ -369,10 +392,12 @@ def load_solve_inputs(directory, operators=None, masks=None) -> SolveInputs:
             prior_from_init(init, n)
         except ValidationError as exc:
             raise ValidationError(f"{d / names['init']}: {str(exc).removeprefix('init: ')}") from None
-    graph = None if names["graph"] is None or smoothness == 0 else _load_graph(d / names["graph"], n)
+    graph = (None if names["graph"] is None or smoothness == 0 else
+             _load_sparse(d / names["graph"], n, "graph", check_graph))
+    follow = None if names["follow"] is None else _load_sparse(d / names["follow"], n, "follow matrix", check_follow)
     islands = np.zeros(0, np.int64)
     if names["islands"] is not None:
         arr = _npy(d / names["islands"], "the islands solve.json names")
         islands = index_list(arr, n, str(d / names["islands"]))
-    return SolveInputs(stack, ys, method, dict(options), init, min_evidence, smoothness, graph, islands,
+    return SolveInputs(stack, ys, method, dict(options), init, min_evidence, smoothness, graph, follow, islands,
                        None if threshold is None else float(threshold), d)
