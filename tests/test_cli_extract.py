@@ -59,7 +59,8 @@ def test_extract_mask_writes_all_outputs(files, capsys):
     # report.json's settings are the ExtractSettings of the command line, and load back as such
     from seed2gs_inverse.pipeline import ExtractSettings
 
-    assert ExtractSettings.from_dict(rep["settings"]) == ExtractSettings(n_views=8, progress=False)
+    # (--no-progress: stage lines instead of bars)
+    assert ExtractSettings.from_dict(rep["settings"]) == ExtractSettings(n_views=8, progress="lines")
     assert rep["resolved"]["threshold"] == 0.5 and rep["resolved"]["tracker"] == "GeometricTracker"
     assert rep["resolved"]["solver_options"] == {"max_iter": 20} and rep["resolved"]["view_scale"] == 0.5
     sel = q > 0.5
@@ -87,7 +88,7 @@ def test_extract_box_and_point_prompts(files, kind, capsys):
 
 
 def _fails(args, capsys, match, out):
-    rc = _run(args)
+    rc = _run(args + ["--quiet"])  # quiet: the error is all stderr holds
     err = capsys.readouterr().err
     assert rc == 2 and match in err and err.count("\n") == 1, err
     assert not out.exists()
@@ -219,7 +220,8 @@ def test_from_report_with_a_mask_prompt(files, capsys, tmp_path):
 
 
 def test_progress_bars_only_on_a_terminal(files, capsys, tmp_path, monkeypatch):
-    """A log file (stderr not a terminal) gets no progress bars; a terminal gets a solve bar with the loss."""
+    """A log file (stderr not a terminal) gets no progress bars; a terminal gets a bar per stage, the solve's
+    with the loss."""
     d = files["dir"]
     args = ["extract", d / "scene.ply", "--camera", d / "cameras.json", "--mask", d / "mask.png", "--views", 3]
     assert _run(args + ["-o", tmp_path / "log"]) == 0
@@ -232,9 +234,14 @@ def test_progress_bars_only_on_a_terminal(files, capsys, tmp_path, monkeypatch):
 
     monkeypatch.setattr(sys.stderr, "isatty", lambda: True, raising=False)
     monkeypatch.setattr(_Progress, "MININTERVAL", 0.0)  # redraw on every update: the loss shows however fast
+    monkeypatch.setattr(_Progress, "DELAY", 0.0)  # and at once, however short the stage
     assert _run(args + ["-o", tmp_path / "tty"]) == 0
     err = capsys.readouterr().err
     assert "solve (weighted_bce)" in err and "loss" in err and "VAAS views" in err
+    # every stage has its bar, the ones without steps to count with their time
+    assert all(f"\r{name}" in err for name in ("render:", "grounding:", "reference view:", "lift:", "tracking:",
+                                                "write:")), err
+    assert "seed2gs: render" not in err  # bars, not stage lines
     assert _run(args + ["-o", tmp_path / "quiet", "--no-progress"]) == 0
     assert "loss" not in capsys.readouterr().err
 

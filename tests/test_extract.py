@@ -64,7 +64,7 @@ def test_extract_procedural_ground_truth_seed(syn, label):
     assert ex.clips.count("spiral") in (0, 11)
     assert ex.views[0].world_to_camera is cam.world_to_camera or np.allclose(
         ex.views[0].world_to_camera, cam.world_to_camera)
-    assert set(ex.seconds) == {"render", "grounding", "lift", "vaas", "tracking", "operators", "solve"}
+    assert set(ex.seconds) == {"render", "grounding", "lift", "vaas", "tracking", "operators", "solve", "compile"}
     assert len(ex.object_scene()) + len(ex.remainder_scene()) == len(syn.scene)
     rep = ex.report()
     assert rep["n_selected"] == int(ex.selected.sum()) and rep["n_views"] == len(ex.views)

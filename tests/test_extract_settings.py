@@ -116,7 +116,9 @@ def test_defaults_are_those_of_the_old_extract_but_issue_10s():
     ("solver_options", {"max_iter": 10 ** 9}, r"max_iter must be in 1\.\.100,000"),
     ("solver_options", {"max_iter": 0}, r"max_iter must be in 1\.\.100,000"),
     ("mode", "fancy", "mode must be one of"),
-    ("progress", "yes", "progress must be True, False or None"),
+    ("progress", "yes", "progress must be None, True, False, 'bars' or 'lines'"),
+    ("progress", "quiet", "progress must be None, True, False"),
+    ("progress", 1, "progress must be None, True, False"),
 ])
 def test_validation_names_the_option(name, value, match):
     with pytest.raises(ValidationError, match=match):
@@ -207,7 +209,8 @@ def test_extract_settings_and_overrides(tiny):
     assert ExtractSettings.from_dict(rep["settings"]) == ex.settings
     assert set(rep["resolved"]) == {"view_scale", "reference_scale", "up", "up_method", "up_confidence",
                                     "threshold", "solver_options", "n_weak_evidence", "n_disconnected", "smoothness", "tracker",
-                                    "grounder", "support", "warnings"}
+                                    "grounder", "support", "warnings", "caps"}
+    assert rep["resolved"]["caps"] == {}  # 64x48 at scale 0.5: no cap reached
     assert rep["resolved"]["warnings"] == []  # a sound extraction: nothing to warn about
     assert rep["resolved"]["smoothness"] == 1.0  # None: on with the model-free tracker
     assert rep["up"]["axis"] == rep["resolved"]["up"] and rep["up"]["method"] == rep["resolved"]["up_method"]

@@ -42,6 +42,7 @@ from tqdm import tqdm
 from .._atomic import not_an_earlier_output, output_lock
 from .._validation import check_int
 from ..errors import ValidationError
+from ..progress import Feedback
 from .cluster import batch_client, dashboard_address
 from .jobs import Job, read_jobs
 from .summary import (SUMMARY_COLUMNS, JobJournal, check_output_dir, fold_journal, is_batch_folder, read_summary,
@@ -71,7 +72,7 @@ def _as_jobs(jobs) -> list[Job]:
 
 
 def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None,
-                 threads_per_worker: int | None = None, resume: bool = True, progress: bool | None = None,
+                 threads_per_worker: int | None = None, resume: bool = True, progress: bool | str | None = None,
                  retries: int = 1, log=None) -> list[JobResult]:
     """Run many extractions, on a Dask cluster or in this process.
 
@@ -102,14 +103,18 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
     resume : bool
         Skip jobs already done in ``output`` (same description); False runs
         every job again, replacing its folder.
-    progress : bool, optional
-        One overall progress bar on stderr; default: only when stderr is a
-        terminal.
+    progress : None, bool, "bars" or "lines"
+        What the batch says on stderr while it runs
+        (:meth:`~seed2gs_inverse.progress.Feedback.of`): ``"bars"`` (or
+        True) one overall progress bar; ``"lines"`` one line per finished
+        job with its status, seconds and counts (or its error); False
+        nothing. Default None: the bar when stderr is a terminal, else
+        nothing. The jobs themselves run quietly (``progress=False``).
     retries : int
         Extra attempts for a job whose worker process died (default 1).
     log : callable, optional
         ``log(str)`` for the dashboard address and similar notes (default:
-        print to stderr when ``progress``).
+        print to stderr with bars or lines).
 
     Returns
     -------
@@ -129,11 +134,10 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
     if n_workers is not None and client is not None:
         raise ValidationError("n_workers sizes the embedded cluster; it does not go with a client, "
                               "a scheduler address or 'sequential'")
-    if progress is None:
-        progress = bool(getattr(sys.stderr, "isatty", lambda: False)())
+    feedback = Feedback.of(progress)
     if log is None:
         def log(msg):
-            if progress:
+            if feedback.bars or feedback.lines:
                 print(msg, file=sys.stderr)
 
     created = False
@@ -141,7 +145,7 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
         with ExitStack() as held:
             out, owned, created = _open_output(output, jobs, held)
             return _extract_many(jobs, client, out, owned, resume=resume, n_workers=n_workers,
-                                 threads_per_worker=threads_per_worker, progress=progress, retries=retries, log=log)
+                                 threads_per_worker=threads_per_worker, feedback=feedback, retries=retries, log=log)
     except BaseException:
         # Nothing ran (no cluster, no scheduler): leave no empty results directory behind.
         if created and not any(out.iterdir()):
@@ -149,7 +153,7 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
         raise
 
 
-def _extract_many(jobs, client, out, owned, *, resume, n_workers, threads_per_worker, progress, retries,
+def _extract_many(jobs, client, out, owned, *, resume, n_workers, threads_per_worker, feedback, retries,
                   log) -> list:
     """:func:`extract_many` once the results directory (if any) is open and locked."""
     results, todo = _split_resumed(jobs, out, owned if resume else {})
@@ -173,6 +177,8 @@ def _extract_many(jobs, client, out, owned, *, resume, n_workers, threads_per_wo
 
     def record(res: JobResult):
         results[res.name] = res
+        if feedback.lines:
+            feedback.step(_job_line(res, len(results), len(jobs)))
         if bar is not None:
             bar.update(1)
             n_failed = sum(r.status == "failed" for r in results.values())
@@ -183,7 +189,8 @@ def _extract_many(jobs, client, out, owned, *, resume, n_workers, threads_per_wo
                 remove_folder(out / res.name)  # an earlier run's result for another description
             journal.append(res)  # the summary is written once, at the end (or by the next run after a kill)
 
-    bar = tqdm(total=len(jobs), initial=len(results), desc="jobs", unit="job", file=sys.stderr) if progress else None
+    bar = (tqdm(total=len(jobs), initial=len(results), desc="jobs", unit="job", file=sys.stderr) if feedback.bars
+           else None)
     journal = None if out is None else JobJournal(out)
     finished = False
     try:
@@ -200,6 +207,21 @@ def _extract_many(jobs, client, out, owned, *, resume, n_workers, threads_per_wo
             else:
                 journal.path.unlink(missing_ok=True)  # nothing recorded
     return [results[j.name] for j in jobs]
+
+
+def _job_line(res: JobResult, k: int, n: int) -> str:
+    """``[k/n] job NAME: done in 12.3 s (412 of 50,000 Gaussians, 25 views)``, or ``failed ...: ERROR``."""
+    head = f"[{k}/{n}] job {res.name}: "
+    if res.status != "done":
+        return head + f"failed after {res.total_seconds:.1f} s: {res.error}"
+    facts = []  # what the result holds (a result from elsewhere may lack them)
+    if res.n_selected is not None and res.n_gaussians is not None:
+        facts.append(f"{res.n_selected:,} of {res.n_gaussians:,} Gaussians")
+    if res.n_views is not None:
+        facts.append(f"{res.n_views} views")
+    compiled = float((res.seconds or {}).get("compile", 0.0))
+    tail = ", ".join(facts) + (f"; {compiled:.1f} s compiling the kernels" if compiled > 0 else "")
+    return head + f"done in {res.total_seconds:.1f} s" + (f" ({tail})" if tail else "")
 
 
 def _open_output(output, jobs: list, held: ExitStack) -> tuple:

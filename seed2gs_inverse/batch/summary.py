@@ -36,8 +36,9 @@ __all__ = ["SUMMARY_COLUMNS", "STAGES", "JOURNAL", "JobJournal", "read_summary",
 #: Columns of ``summary.csv`` (per-stage seconds follow as ``seconds_<stage>``).
 SUMMARY_COLUMNS = ("name", "status", "n_gaussians", "n_selected", "n_views", "total_seconds", "worker",
                    "attempts", "scene_cached", "peak_rss_mb", "scene", "prompt", "outdir", "error")
-#: The stages whose seconds ``summary.csv`` lists, in order.
-STAGES = ("read", "camera", "render", "grounding", "lift", "vaas", "tracking", "operators", "solve", "write")
+#: The seconds ``summary.csv`` lists, in order: the stages, then the kernels' compilation, which no stage counts.
+STAGES = ("read", "camera", "render", "grounding", "lift", "vaas", "tracking", "operators", "solve", "write",
+          "compile")
 #: The journal of finished jobs not yet folded into the summary (JSON lines, in the results directory).
 JOURNAL = "summary.journal"
 #: At most this many seconds pass between two fsyncs of the journal (each line is flushed at once).

@@ -76,7 +76,9 @@ class JobResult:
     seconds : dict
         Wall time per stage: ``read`` (scene file; 0 when it came from this
         worker's cache), ``camera``, extract's ``render, grounding, lift, vaas,
-        tracking, operators, solve``, and ``write`` (the job folder).
+        tracking, operators, solve`` and ``compile`` (the kernels'
+        compilation, which no stage counts: 0 unless the cache was cold),
+        and ``write`` (the job folder).
     total_seconds : float
         Wall time of the whole task on the worker.
     worker : str

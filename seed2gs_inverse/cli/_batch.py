@@ -8,6 +8,7 @@ from pathlib import Path
 from .._validation import check_int
 from ..batch import extract_many, read_jobs
 from ..errors import ValidationError
+from ._common import add_feedback_arguments, feedback_progress
 
 __all__ = ["register", "add_cluster_arguments", "client_from_args"]
 
@@ -51,7 +52,7 @@ def register(subparsers) -> None:
     p.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="results directory (created)")
     add_cluster_arguments(p)
     p.add_argument("--no-resume", action="store_true", help="run every job again, replacing its folder")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_feedback_arguments(p, "job")
     p.set_defaults(func=run)
 
 
@@ -59,10 +60,10 @@ def run(args) -> int:
     """Run ``seed2gs batch``: print the counts, and each failed job on stderr; 1 when a job failed."""
     client = client_from_args(args)
     jobs = read_jobs(args.jobs)  # every job checked before anything starts
-    progress = False if args.no_progress else None
+    progress = feedback_progress(args)
     results = extract_many(jobs, client, output=args.output, n_workers=args.workers,
                            resume=not args.no_resume, progress=progress,
-                           log=lambda msg: print(msg, file=sys.stderr))
+                           log=None if progress is False else (lambda msg: print(msg, file=sys.stderr)))
     failed = [r for r in results if r.status != "done"]
     resumed = sum(r.resumed for r in results)
     done = len(results) - len(failed)

@@ -9,7 +9,11 @@ One grammar for every command:
   (:func:`check_output`);
 * ``--method`` lists its choices and ``--option NAME=VALUE`` the options of
   each method;
-* progress bars go to stderr only when it is a terminal (never into logs).
+* progress bars go to stderr only when it is a terminal (never into logs);
+  the long commands (``extract``, ``demo``, ``batch``, ``eval``) print one
+  line per finished stage or job instead when it is not, or with
+  ``--no-progress``, and nothing with ``--quiet``
+  (:func:`add_feedback_arguments`, :func:`feedback_progress`).
 """
 
 from __future__ import annotations
@@ -27,8 +31,8 @@ from ..progress import Progress as _Progress
 from ..pipeline.vaas import DEFAULTS as VAAS_DEFAULTS
 from ..solvers import available_methods, check_method_options, method_options
 
-__all__ = ["check_output", "check_input_file", "parse_vector", "add_method_arguments", "parse_options",
-           "progress_enabled", "SolveBar", "DEFAULT_VIEWS"]
+__all__ = ["check_output", "check_input_file", "parse_vector", "format_vector", "add_method_arguments", "parse_options",
+           "progress_enabled", "add_feedback_arguments", "feedback_progress", "SolveBar", "DEFAULT_VIEWS"]
 
 
 #: Views per VAAS clip used by default by ``extract``, ``demo`` and the examples (the paper's 24).
@@ -59,6 +63,11 @@ def parse_vector(option: str, values) -> np.ndarray:
     if not np.any(v):
         raise ValidationError(f"{option} {text}: must be a non-zero direction")
     return v
+
+
+def format_vector(v) -> str:
+    """``x,y,z`` with three decimals: a direction as ``--up`` takes it."""
+    return ",".join(f"{float(x):.3f}" for x in v)
 
 
 def parse_size(option: str, text: str, limit: int = 16384) -> tuple[int, int]:
@@ -150,6 +159,27 @@ def parse_options(items, method: str) -> dict:
 def progress_enabled(no_progress: bool = False) -> bool:
     """Progress bars only on a terminal: a redirected stderr (a log file) gets none."""
     return not no_progress and bool(getattr(sys.stderr, "isatty", lambda: False)())
+
+
+def add_feedback_arguments(parser, steps: str = "stage") -> None:
+    """``--no-progress`` and ``--quiet`` of a long command whose ``steps`` (stages, jobs) end one by one."""
+    parser.add_argument("--no-progress", action="store_true",
+                        help=f"no progress bars: one line per finished {steps} on stderr instead (what stderr "
+                             f"gets anyway when it is not a terminal)")
+    parser.add_argument("--quiet", action="store_true",
+                        help=f"nothing on stderr while it runs: no bars, no {steps} lines, no compile notices "
+                             f"(errors and warnings are still printed)")
+
+
+def feedback_progress(args):
+    """The ``progress`` of :func:`add_feedback_arguments`' options: False, ``"bars"`` or ``"lines"``.
+
+    ``--quiet``: False (nothing); otherwise ``"bars"`` when stderr is a
+    terminal and ``--no-progress`` is not given, else ``"lines"``.
+    """
+    if getattr(args, "quiet", False):
+        return False
+    return "bars" if progress_enabled(getattr(args, "no_progress", False)) else "lines"
 
 
 def SolveBar(desc: str, enabled: bool):

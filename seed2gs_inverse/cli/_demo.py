@@ -17,7 +17,8 @@ from ..camera import Camera
 from ..errors import ValidationError
 from ..metrics import boundary_iou, iou, membership_scores
 from ..pipeline.settings import ExtractSettings
-from ._common import DEFAULT_VIEWS, add_method_arguments, check_output
+from ..progress import Feedback, StageTimer
+from ._common import DEFAULT_VIEWS, add_feedback_arguments, add_method_arguments, check_output, feedback_progress
 
 if TYPE_CHECKING:
     from ..pipeline.extraction import Extraction
@@ -44,6 +45,7 @@ def register(subparsers) -> None:
                    help="also write the extraction outputs (as seed2gs extract) here; report.json's demo "
                         "section holds these arguments (--from-report does not apply: the scene is generated)")
     p.add_argument("--force", action="store_true", help="replace OUTDIR if it exists")
+    add_feedback_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -76,32 +78,44 @@ def held_out_cameras(center, frame, dist, width, height) -> list[Camera]:
     return cams
 
 
-def run_demo(seed=0, obj="box", views=DEFAULT_VIEWS, size=(192, 144),
-             method="weighted_bce") -> tuple[Extraction, dict]:
-    """Extract ``obj`` from the procedural scene; returns (extraction, scores dict)."""
+def run_demo(seed=0, obj="box", views=DEFAULT_VIEWS, size=(192, 144), method="weighted_bce",
+             progress=False) -> tuple[Extraction, dict]:
+    """Extract ``obj`` from the procedural scene; returns (extraction, scores dict).
+
+    ``progress`` is :class:`~seed2gs_inverse.pipeline.ExtractSettings`'
+    (default False: nothing on stderr); its stages are the scene and its
+    seed (``scene``), extract's, and the held-out views (``scoring``).
+    """
     from ..pipeline import extract  # deferred: see the module docstring
-    from ..raster import build_operator
+    from ..raster import build_operator, compile_seconds
     from ..synthetic import make_scene
 
-    syn = make_scene(seed=seed)
-    label = syn._check_label(obj if not str(obj).isdigit() else int(obj))
-    if label == 0:
-        raise ValidationError("--object: label 0 is the ground; pick an object")
-    truth = syn.labels == label
-    cam = syn.reference_camera(int(size[0]), int(size[1]))
-    seed_mask = (build_operator(syn.scene, cam).W @ truth.astype(np.float32)).reshape(cam.image_shape) > 0.5
-    if not seed_mask.any():
-        raise ValidationError(f"--object: {syn.names[label]!r} is not visible in the reference view")
-    settings = ExtractSettings(method=method, n_views=views, progress=False)
-    ex = extract(syn.scene, cam, seed_mask, settings=settings)
-    ious, bious = [], []
-    for c in held_out_cameras(syn.centers[label], syn.frame, 4.0 * syn.radii[label], 96, 72):
-        op = build_operator(syn.scene, c)
-        t = (op.W @ truth.astype(np.float32)).reshape(op.image_shape) > 0.5
-        p = (op.W @ ex.selected.astype(np.float32)).reshape(op.image_shape) > 0.5
-        if t.sum() >= 10:
-            ious.append(iou(p, t))
-            bious.append(boundary_iou(p, t))
+    settings = ExtractSettings(method=method, n_views=views, progress=progress)  # checks progress too
+    feedback = Feedback.of(progress)
+    timer = StageTimer(("scene", "scoring"), compile_clock=compile_seconds, feedback=feedback)
+    with feedback.active():
+        with timer("scene"), feedback.bar("scene", steps=False):
+            syn = make_scene(seed=seed)
+            label = syn._check_label(obj if not str(obj).isdigit() else int(obj))
+            if label == 0:
+                raise ValidationError("--object: label 0 is the ground; pick an object")
+            truth = syn.labels == label
+            cam = syn.reference_camera(int(size[0]), int(size[1]))
+            seed_mask = (build_operator(syn.scene, cam).W @ truth.astype(np.float32)).reshape(cam.image_shape) > 0.5
+            if not seed_mask.any():
+                raise ValidationError(f"--object: {syn.names[label]!r} is not visible in the reference view")
+        ex = extract(syn.scene, cam, seed_mask, settings=settings)
+        ious, bious = [], []
+        held_out = held_out_cameras(syn.centers[label], syn.frame, 4.0 * syn.radii[label], 96, 72)
+        with timer("scoring"), feedback.bar("held-out views", total=len(held_out), unit="view") as bar:
+            for c in held_out:
+                op = build_operator(syn.scene, c)
+                t = (op.W @ truth.astype(np.float32)).reshape(op.image_shape) > 0.5
+                p = (op.W @ ex.selected.astype(np.float32)).reshape(op.image_shape) > 0.5
+                if t.sum() >= 10:
+                    ious.append(iou(p, t))
+                    bious.append(boundary_iou(p, t))
+                bar.update()
     scores = {"object": syn.names[label], "miou": float(np.mean(ious)), "mbiou": float(np.mean(bious)),
               "n_held_out": len(ious), "3d": membership_scores(ex.selected, truth), "syn": syn}
     return ex, scores
@@ -122,7 +136,7 @@ def run(args) -> int:
         print("\n".join(_summary(make_scene(seed=args.seed))))
         return 0
     t0 = time.perf_counter()
-    ex, sc = run_demo(args.seed, args.object, args.views, args.size, args.method)
+    ex, sc = run_demo(args.seed, args.object, args.views, args.size, args.method, progress=feedback_progress(args))
     print("\n".join(_summary(sc["syn"])))
     m3 = sc["3d"]
     print(f"extracted '{sc['object']}' from a ground-truth seed ({int(ex.seed_mask.sum())} px) with "
@@ -132,7 +146,7 @@ def run(args) -> int:
     print(f"held-out views ({sc['n_held_out']}, never rendered by the pipeline): "
           f"mIoU {sc['miou']:.3f}  mBIoU {sc['mbiou']:.3f}")
     print(f"3D membership: IoU {m3['iou']:.3f}  precision {m3['precision']:.3f}  recall {m3['recall']:.3f}")
-    print("seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in ex.seconds.items())
+    print("seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in ex.seconds.items() if k != "compile" or v > 0)
           + f"  (extract {ex.total_seconds:.2f}, demo {time.perf_counter() - t0:.2f})")
     if args.output:
         demo = {"seed": args.seed, "object": args.object, "views": args.views,

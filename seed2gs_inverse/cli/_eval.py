@@ -10,6 +10,7 @@ from ..evaluation import evaluate_3d_ovs, evaluate_lerf_mask
 from ..pipeline.settings import LIMITS
 from ..solvers import available_methods
 from ._batch import add_cluster_arguments, client_from_args
+from ._common import add_feedback_arguments, feedback_progress
 
 __all__ = ["register"]
 
@@ -38,7 +39,7 @@ def _add_arguments(q, name: str) -> None:
                    help=f"solver: {', '.join(methods)} (default: extract's, weighted_bce)")
     add_cluster_arguments(q)
     q.add_argument("--no-resume", action="store_true", help="extract every query again")
-    q.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_feedback_arguments(q, "job")
     q.set_defaults(func=run_eval, eval_layout=name)
 
 
@@ -76,8 +77,8 @@ def run_eval(args) -> int:
     report = evaluate(args.data, args.scenes, args.output, oracle_seed=args.oracle_seed or None,
                       models=args.models, options=options, scenes=args.only, client=client,
                       n_workers=args.workers, resume=not args.no_resume,
-                      progress=False if args.no_progress else None,
-                      log=lambda msg: print(msg, file=sys.stderr))
+                      progress=feedback_progress(args),
+                      log=None if args.quiet else (lambda msg: print(msg, file=sys.stderr)))
     print(f"{'scene':<20} {'mIoU':>7} {'mBIoU':>7}  queries")
     for s in report["scenes"]:
         print(f"{s['scene']:<20} {100 * s['miou']:7.1f} {100 * s['mbiou']:7.1f}  {s['n_queries']}"

@@ -15,6 +15,7 @@ import math
 import os
 import shlex
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -31,14 +32,16 @@ from ..io._common import check_regular
 from ..io.images import image_shape
 from ..io.tables import read_small_file
 from ..operators import scene_fingerprint
-from ..pipeline.settings import ExtractSettings
-from ._common import (DEFAULT_VIEWS, add_method_arguments, check_input_file, check_output, look_at_camera,
-                      parse_options, parse_vector, progress_enabled)
+from ..pipeline.settings import LIMITS, ExtractSettings
+from ..progress import Feedback
+from ._common import (DEFAULT_VIEWS, add_feedback_arguments, add_method_arguments, check_input_file, check_output,
+                      feedback_progress, format_vector, look_at_camera, parse_options, parse_vector)
 
-__all__ = ["register", "settings_from_args", "seed_summary_line"]
+__all__ = ["register", "settings_from_args", "seed_summary_line", "axis_line", "cap_lines"]
 
 #: Options that set ExtractSettings (None on the command line = not given).
 _SETTING_FLAGS = {"method": "--method", "views": "--views", "orbit_scale": "--orbit-scale",
+                  "max_view_pixels": "--max-view-pixels", "max_reference_pixels": "--max-reference-pixels",
                   "threshold": "--threshold", "up": "--up", "option": "--option", "point_mode": "--point-mode",
                   "smoothness": "--smoothness", "completion": "--completion", "keep_islands": "--keep-islands",
                   "no_support_background": "--no-support-background", "no_follow_faint": "--no-follow-faint"}
@@ -65,8 +68,9 @@ def register(subparsers) -> None:
                    help="reference camera without a camera file: its position and the point it looks at, "
                         "each 'x,y,z' (as seed2gs render --look-at; see --look-up, --fov, --size)")
     p.add_argument("--look-up", default=None, metavar="X,Y,Z",
-                   help="with --look-at: world direction shown upwards (default 0,-1,0, the usual up of "
-                        "COLMAP-trained scenes)")
+                   help="with --look-at: the reference camera's up, the world direction shown upwards in its "
+                        "image (default 0,-1,0, the usual up of COLMAP-trained scenes; seed2gs render calls it "
+                        "--up); not the orbit axis, which is --up")
     p.add_argument("--fov", type=float, default=None, metavar="DEG",
                    help="with --look-at: vertical field of view in degrees (default 60)")
     p.add_argument("--size", default=None, metavar="WxH", help="with --look-at: image size (default 960x540)")
@@ -91,11 +95,22 @@ def register(subparsers) -> None:
     p.add_argument("--views", type=int, default=None,
                    help=f"views per VAAS clip, 2..360 (default {DEFAULT_VIEWS})")
     p.add_argument("--orbit-scale", type=float, default=None,
-                   help="orbit view resolution relative to the camera, in (0, 4] (default 0.5)")
+                   help="orbit view resolution relative to the camera, in (0, 4] (default 0.5), up to "
+                        "--max-view-pixels")
+    p.add_argument("--max-view-pixels", type=int, default=None, metavar="N",
+                   help=f"cap on the pixels of each orbit view, {LIMITS['max_view_pixels'][0]}.."
+                        f"{LIMITS['max_view_pixels'][1]:,} (default 40,000): a larger --orbit-scale is lowered "
+                        f"to it, and the run says so (report.json's resolved.caps)")
+    p.add_argument("--max-reference-pixels", type=int, default=None, metavar="N",
+                   help=f"cap on the pixels of the reference view the seed is lifted from, "
+                        f"{LIMITS['max_reference_pixels'][0]}..{LIMITS['max_reference_pixels'][1]:,} (default "
+                        f"1,000,000): a larger camera is rendered smaller for the lift, and the run says so")
     p.add_argument("--threshold", type=float, default=None,
                    help="q threshold in [0, 1) (default: the solver's, 0.5)")
     p.add_argument("--up", default=None, metavar="auto|level|camera|X,Y,Z",
-                   help="orbit axis: 'auto' (default: the support plane under the object, the scene's "
+                   help="the orbit axis, the world direction the virtual cameras circle around (not the "
+                        "reference camera's image up, which --look-up sets with --look-at); printed with the "
+                        "result: 'auto' (default: the support plane under the object, the scene's "
                         "plane, the camera's roll and --cameras; report.json's 'up' says which and how "
                         "sure), 'level' (the camera's up, its pitch read from the dominant flat surface in view: "
                         "right when that is the ground), 'camera' (the image up: right for a level "
@@ -126,11 +141,10 @@ def register(subparsers) -> None:
     p.add_argument("--format", choices=("ply", "splat"), default=None, help="object/remainder format (default ply)")
     p.add_argument("--save-operators", action="store_true",
                    help="also write what the solve took into OUTDIR: operators/, masks/ (one view_NNN.npy per "
-                        "view, NaN = unknown), init.npy, graph.npz, follow.npz, islands.npy and solve.json, from which 'seed2gs solve "
-                        "OUTDIR/operators OUTDIR/masks --from-extraction OUTDIR' reproduces q.npy and 'seed2gs "
-                        "compare OUTDIR/operators OUTDIR/masks' compares the solvers")
-    p.add_argument("--no-progress", action="store_true",
-                   help="no progress bars (they are shown only when stderr is a terminal)")
+                        "view, NaN = unknown), init.npy, graph.npz, follow.npz, islands.npy and solve.json, from "
+                        "which 'seed2gs solve OUTDIR/operators OUTDIR/masks --from-extraction OUTDIR' reproduces "
+                        "q.npy and 'seed2gs compare OUTDIR/operators OUTDIR/masks' compares the solvers")
+    add_feedback_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -320,6 +334,38 @@ def seed_summary_line(summary: dict, remainder: dict | None = None) -> str:
     return line
 
 
+def axis_line(resolved: dict, up_setting) -> str:
+    """``orbit axis 0.000,-1.000,0.000 (--up auto: support-plane, confidence 0.93)``: the axis used and how.
+
+    ``up_setting`` is the ``up`` setting of the run (a name or a vector).
+    """
+    given = up_setting if isinstance(up_setting, str) else format_vector(up_setting)
+    how = resolved.get("up_method")
+    conf = resolved.get("up_confidence")
+    how = "as given" if how == "user" else how
+    return (f"orbit axis {format_vector(resolved['up'])} (--up {given}: {how}"
+            + ("" if conf is None else f", confidence {float(conf):.2f}") + ")")
+
+
+def cap_lines(caps: dict) -> list[str]:
+    """One line per view size a pixel cap lowered (``resolved["caps"]``, see ``pipeline.stages.view_caps``).
+
+    ``orbit views 150x267: --orbit-scale 2 capped by --max-view-pixels 40000 (scale 0.28)``.
+    """
+    lines = []
+    orbit = caps.get("orbit_views")
+    if orbit:
+        w, h = orbit["size"]
+        lines.append(f"orbit views {w}x{h}: --orbit-scale {orbit['asked']:g} capped by "
+                     f"{_SETTING_FLAGS[orbit['cap']]} {orbit['limit']} (scale {orbit['scale']:.3g})")
+    ref = caps.get("reference_view")
+    if ref:
+        (w, h), (cw, ch) = ref["size"], ref["camera_size"]
+        lines.append(f"reference view {w}x{h} for the seed lift: the camera's {cw}x{ch} capped by "
+                     f"{_SETTING_FLAGS[ref['cap']]} {ref['limit']} (scale {ref['scale']:.3g})")
+    return lines
+
+
 # -- settings --------------------------------------------------------------------------------
 def _up(text):
     if text is None or text in ("auto", "level", "camera"):
@@ -337,6 +383,8 @@ def settings_from_args(args):
     """The :class:`~seed2gs_inverse.pipeline.ExtractSettings` of the command line (validated)."""
     method = args.method or "weighted_bce"
     given = {"method": method, "n_views": args.views, "orbit_scale": args.orbit_scale,
+             "max_view_pixels": getattr(args, "max_view_pixels", None),
+             "max_reference_pixels": getattr(args, "max_reference_pixels", None),
              "threshold": args.threshold, "up": _up(args.up), "point_mode": args.point_mode,
              "smoothness": args.smoothness, "completion": args.completion,
              "seed_connected": False if getattr(args, "keep_islands", False) else None,
@@ -344,10 +392,11 @@ def settings_from_args(args):
              "follow_faint": False if getattr(args, "no_follow_faint", False) else None,
              "solver_options": parse_options(args.option, method) if args.option else None}
     flags = {"n_views": "--views", "orbit_scale": "--orbit-scale", "threshold": "--threshold", "up": "--up",
+             "max_view_pixels": "--max-view-pixels", "max_reference_pixels": "--max-reference-pixels",
              "method": "--method", "solver_options": "--option", "point_mode": "--point-mode",
              "smoothness": "--smoothness", "completion": "--completion"}
     kw = {k: v for k, v in given.items() if v is not None}
-    kw["progress"] = progress_enabled(args.no_progress)
+    kw["progress"] = feedback_progress(args)
     try:
         return ExtractSettings(**kw)
     except ValidationError as exc:
@@ -462,7 +511,7 @@ def _from_report(args):
     models = top.get("models", _is_path, _PATH, required=False)
     fmt = top.get("format", lambda v: v in _FORMATS, f"one of {', '.join(_FORMATS)}", default="ply")
     prompt = _prompt_from_record(run.get("prompt"), where)
-    settings = _recorded_settings(rep, progress_enabled(args.no_progress), where)
+    settings = _recorded_settings(rep, feedback_progress(args), where)
     scene_path = args.scene or recorded_path
     check_regular(scene_path, "scene")
     if not os.path.isfile(scene_path):
@@ -520,35 +569,44 @@ def run(args) -> int:
     fingerprint = scene_fingerprint(scene)
     if recorded is not None:
         _check_recorded_scene(recorded["scene"], scene_path, scene_sha, fingerprint)
-    ex = extract(scene, camera, prompt, grounder=grounder, tracker=tracker, settings=settings, up_cameras=up_cameras)
-    run_info = {
-        "toolkit": f"seed2gs-inverse {__version__}",
-        "command": "extract",
-        "scene": {"path": os.path.abspath(scene_path), "sha256": scene_sha, "fingerprint": fingerprint,
-                  "n_gaussians": len(scene)},
-        "camera": {"spec": spec, "camera": camera.to_dict()},
-        "prompt": _prompt_record(prompt),
-        "models": None if models_path is None else os.path.abspath(models_path),
-        "format": fmt,
-        "axis": ex.resolved.get("up"),
-        "up_cameras": None if cameras_path is None else {"path": os.path.abspath(cameras_path),
-                                                          "n_cameras": len(up_cameras)},
-        "seeds": {"grabcut_opencv_rng": GRABCUT_SEED},
-        "numba_threads": _numba_threads(),
-        "peak_rss_mb": peak_rss_mb(),  # of this process: reading the scene and the extraction
-    }
-    save_extraction(ex, out, fmt, force=args.force, run_info=run_info, save_operators=args.save_operators)
+    feedback = Feedback.of(settings.progress)
+    with feedback.active():  # what the outputs' renderings may compile says so too, or nothing when quiet
+        ex = extract(scene, camera, prompt, grounder=grounder, tracker=tracker, settings=settings,
+                     up_cameras=up_cameras)
+        run_info = {
+            "toolkit": f"seed2gs-inverse {__version__}",
+            "command": "extract",
+            "scene": {"path": os.path.abspath(scene_path), "sha256": scene_sha, "fingerprint": fingerprint,
+                      "n_gaussians": len(scene)},
+            "camera": {"spec": spec, "camera": camera.to_dict()},
+            "prompt": _prompt_record(prompt),
+            "models": None if models_path is None else os.path.abspath(models_path),
+            "format": fmt,
+            "axis": ex.resolved.get("up"),
+            "up_cameras": None if cameras_path is None else {"path": os.path.abspath(cameras_path),
+                                                              "n_cameras": len(up_cameras)},
+            "seeds": {"grabcut_opencv_rng": GRABCUT_SEED},
+            "numba_threads": _numba_threads(),
+            "peak_rss_mb": peak_rss_mb(),  # of this process: reading the scene and the extraction
+        }
+        t0 = time.perf_counter()
+        with feedback.bar("write", steps=False):
+            save_extraction(ex, out, fmt, force=args.force, run_info=run_info,
+                            save_operators=args.save_operators)
+        feedback.stage("write", time.perf_counter() - t0)
     s = ex.seconds
     print(f"extracted {int(ex.selected.sum())} of {len(scene)} Gaussians -> {out}/object.{fmt} "
           f"({len(ex.views)} views, {ex.total_seconds:.1f} s: "
-          + ", ".join(f"{k} {v:.2f}" for k, v in s.items())
+          + ", ".join(f"{k} {v:.2f}" for k, v in s.items() if k != "compile" or v > 0)
           + ("" if run_info["peak_rss_mb"] is None else f"; peak memory {run_info['peak_rss_mb'] / 1024:.2f} GB")
           + ")")
     if int(ex.selected.sum()):  # (an empty selection was warned about by extract)
         print(seed_summary_line(report.seed_summary(ex), ex.remainder_summary()))
+    print(axis_line(ex.resolved, ex.settings.up))
+    for line in cap_lines(ex.resolved.get("caps", {})):
+        print(line)
     if models is None:  # with models, SAM2 would have tracked even a mask/box/point seed
-        print("note: no models configured; the seed was tracked by the model-free tracker",
-              file=sys.stderr)
+        feedback.note("note: no models configured; the seed was tracked by the model-free tracker")
     return 0
 
 

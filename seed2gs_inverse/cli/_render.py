@@ -15,7 +15,7 @@ from .._validation import as_real
 from ..camera import Camera
 from ..errors import ValidationError
 from ..io import read_camera, read_scene
-from ._common import check_output, look_at_camera, parse_point, scaled_size
+from ._common import check_output, format_vector, look_at_camera, parse_point, scaled_size
 
 __all__ = ["register"]
 
@@ -39,8 +39,10 @@ def register(subparsers) -> None:
     src.add_argument("--look-at", nargs=2, metavar=("EYE", "TARGET"),
                      help="camera position and the point it looks at, each 'x,y,z'")
     p.add_argument("--up", default=None, metavar="X,Y,Z",
-                   help="with --look-at: world direction shown upwards (default 0,-1,0, the "
-                        "usual up of COLMAP-trained scenes)")
+                   help="with --look-at: the camera's up, the world direction shown upwards in the image "
+                        "(default 0,-1,0, the usual up of COLMAP-trained scenes; printed with the result). "
+                        "Not an orbit axis: seed2gs extract calls this --look-up, and its --up is the axis "
+                        "its virtual cameras circle around")
     p.add_argument("--fov", type=float, default=None, metavar="DEG",
                    help="with --look-at: vertical field of view in degrees (default 60)")
     p.add_argument("--size", default=None, metavar="WxH",
@@ -144,5 +146,6 @@ def run(args) -> int:
     write_files(items, replace=args.force)
     covered = float((r.alpha > 0).mean())
     print(f"rendered {len(scene)} Gaussians at {cam.width}x{cam.height} in {seconds:.2f} s "
-          f"({covered:.0%} of pixels covered); wrote {', '.join(str(p) for p, _ in items)}")
+          f"({covered:.0%} of pixels covered; camera's image up {format_vector(cam.up)}); "
+          f"wrote {', '.join(str(p) for p, _ in items)}")
     return 0

@@ -468,7 +468,7 @@ def check_output(output) -> Path:
 
 
 def evaluate_scenes(dataset, output, *, oracle_seed: bool | None = None, models=None, options=None,
-                    client=None, n_workers=None, resume: bool = True, progress: bool | None = None,
+                    client=None, n_workers=None, resume: bool = True, progress: bool | str | None = None,
                     log=None, protocol=None) -> dict:
     """Extract every query of scenes already read (any layout reader), score every test view, write the report.
 

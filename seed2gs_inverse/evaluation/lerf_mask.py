@@ -151,7 +151,7 @@ def read_lerf_mask(data_dir, scenes_dir, scenes=None) -> list:
 
 def evaluate_lerf_mask(data_dir, scenes_dir, output, *, oracle_seed: bool | None = None, models=None,
                        options=None, scenes=None, client=None, n_workers=None, resume: bool = True,
-                       progress: bool | None = None, log=None) -> dict:
+                       progress: bool | str | None = None, log=None) -> dict:
     """Extract every query of a LERF-Mask style dataset, score every test view, write the report.
 
     Parameters

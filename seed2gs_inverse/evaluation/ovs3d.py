@@ -150,7 +150,7 @@ def read_3d_ovs(data_dir, scenes_dir, scenes=None) -> list:
 
 def evaluate_3d_ovs(data_dir, scenes_dir, output, *, oracle_seed: bool | None = None, models=None,
                     options=None, scenes=None, client=None, n_workers=None, resume: bool = True,
-                    progress: bool | None = None, log=None) -> dict:
+                    progress: bool | str | None = None, log=None) -> dict:
     """:func:`~seed2gs_inverse.evaluation.evaluate_lerf_mask` on a 3D-OVS style dataset.
 
     Parameters and return value as ``evaluate_lerf_mask``; the dataset is

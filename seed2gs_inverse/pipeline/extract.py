@@ -6,16 +6,17 @@ views, support band, tracking, evidence graph, mask completion, operators,
 solve); the result is an :class:`~seed2gs_inverse.pipeline.extraction.Extraction`
 (:mod:`seed2gs_inverse.pipeline.extraction`). This module resolves the
 settings and the tracker, runs the stages in order, times them
-(:class:`~seed2gs_inverse.progress.StageTimer`) and shows progress bars
-(:class:`~seed2gs_inverse.progress.Progress`). Every rendering and operator
-comes from one :class:`~seed2gs_inverse.raster.Renderer` of the scene.
+(:class:`~seed2gs_inverse.progress.StageTimer`, leaving out the kernels'
+compilation) and says how far it is as ``settings.progress`` asks
+(:class:`~seed2gs_inverse.progress.Feedback`: bars, stage lines, or
+nothing). Every rendering and operator comes from one
+:class:`~seed2gs_inverse.raster.Renderer` of the scene.
 
 All options live in one frozen :class:`~seed2gs_inverse.pipeline.settings.ExtractSettings`.
 """
 
 from __future__ import annotations
 
-import sys
 import warnings
 from typing import TYPE_CHECKING, Any, Sequence
 
@@ -24,14 +25,14 @@ from ..camera import Camera
 from ..errors import ValidationError
 from ..frontend.base import wants_regularizer
 from ..frontend.model_free import GeometricTracker
-from ..progress import Progress, StageTimer
-from ..raster import Renderer
+from ..progress import Feedback, Progress, StageTimer
+from ..raster import Renderer, compile_seconds
 from ..scene import GaussianScene
 from .extraction import STAGES, Extraction, result_warnings
 from .settings import MODEL_FREE_SMOOTHNESS, SOLVER_DEFAULTS, ExtractSettings
 from .stages import (OrbitViews, ReferenceView, Selection, complete_masks, evidence_graph, lift_seed, orbit_axis,
                      orbit_views, reference_view, render_reference, seed_from_prompt, solve_selection,
-                     stack_operators, support_band, track_clips)
+                     stack_operators, support_band, track_clips, view_caps)
 
 if TYPE_CHECKING:
     import scipy.sparse as sp
@@ -180,7 +181,10 @@ def extract(scene: GaussianScene, camera: Camera, prompt: Any, grounder: Grounde
     Extraction
         ``seconds`` holds the wall time per stage (:data:`STAGES`; the orbit
         views are rendered in the same pass as their operators, so that time
-        counts under ``operators``, not ``vaas``).
+        counts under ``operators``, not ``vaas``), then ``compile``: the
+        time spent compiling the rasterizer's kernels (a first run only),
+        which no stage counts. ``resolved["caps"]`` names the view sizes
+        that a pixel cap lowered (:func:`~.stages.view_caps`).
 
     Raises
     ------
@@ -199,33 +203,38 @@ def extract(scene: GaussianScene, camera: Camera, prompt: Any, grounder: Grounde
     s = _settings(settings, overrides)
     _check_inputs(scene, camera)
     tracker, filler, smoothness = _trackers(tracker, s)
-    progress = bool(getattr(sys.stderr, "isatty", lambda: False)()) if s.progress is None else s.progress
-    timer = StageTimer(STAGES)
+    feedback = Feedback.of(s.progress)
+    timer = StageTimer(STAGES, compile_clock=compile_seconds, feedback=feedback)
     renderer = Renderer(scene, s.mode)
-    with timer("render"):
-        reference = render_reference(renderer, camera)
-    with timer("grounding"):
-        seed, prompt_info = seed_from_prompt(prompt, reference, grounder, point_mode=s.point_mode, scene=scene,
-                                             camera=camera, mode=s.mode)
-    with timer("operators"):
-        ref = reference_view(renderer, camera, seed, s.max_reference_pixels)
-    with timer("lift"):
-        lift = lift_seed(scene, ref, s.lift_options)
-    before = renderer.operator_seconds
-    with timer("vaas"), Progress("VAAS views", progress, unit="view") as bar:
-        orbits = orbit_views(renderer, camera, ref, lift, s, bar, up_cameras=up_cameras)
-    timer.move("vaas", "operators", renderer.operator_seconds - before)
-    with timer("tracking"), Progress("tracking", progress, total=len(orbits.clips())) as bar:
-        labelled, masks, graph, support_info, tracker = _supervision(scene, lift, ref, orbits, s, tracker, filler,
-                                                                     smoothness, bar)
-    with timer("solve"), Progress(f"solve ({s.method})", progress) as bar:
-        stack = stack_operators(labelled, scene)
-        sel = solve_selection(stack, masks, lift, s, progress=bar.solve_callback, graph=graph,
-                              smoothness=smoothness, scene=scene)
+    with feedback.active():
+        with timer("render"), feedback.bar("render", steps=False):
+            reference = render_reference(renderer, camera)
+        with timer("grounding"), feedback.bar("grounding", steps=False):
+            seed, prompt_info = seed_from_prompt(prompt, reference, grounder, point_mode=s.point_mode, scene=scene,
+                                                 camera=camera, mode=s.mode)
+        with timer("operators", last=False), feedback.bar("reference view", steps=False):
+            ref = reference_view(renderer, camera, seed, s.max_reference_pixels)
+        with timer("lift"), feedback.bar("lift", steps=False):
+            lift = lift_seed(scene, ref, s.lift_options)
+        before = renderer.operator_seconds
+        with timer("vaas", last=False), feedback.bar("VAAS views", unit="view") as bar:
+            orbits = orbit_views(renderer, camera, ref, lift, s, bar, up_cameras=up_cameras)
+        # the orbit views are rendered in the pass that builds their operators: that time is the operators'
+        timer.move("vaas", "operators", renderer.operator_seconds - before)
+        timer.finish("vaas")
+        timer.finish("operators")
+        with timer("tracking"), feedback.bar("tracking", total=len(orbits.clips()), unit="clip") as bar:
+            labelled, masks, graph, support_info, tracker = _supervision(scene, lift, ref, orbits, s, tracker,
+                                                                         filler, smoothness, bar)
+        with timer("solve"), feedback.bar(f"solve ({s.method})") as bar:
+            stack = stack_operators(labelled, scene)
+            sel = solve_selection(stack, masks, lift, s, progress=bar.solve_callback, graph=graph,
+                                  smoothness=smoothness, scene=scene)
     notes = result_warnings(ref, lift, masks, stack, sel)
     for note in notes:
         warnings.warn(note, stacklevel=2)
     resolved = _resolved(s, ref, orbits, sel, support_info, smoothness, tracker, grounder, notes)
+    resolved["caps"] = view_caps(s, camera, ref, orbits)
     return Extraction(scene, sel.q, sel.selected, sel.threshold, seed, prompt_info, camera, reference, lift,
                       orbits.plan, [f.camera for f, _ in labelled], [f.clip for f, _ in labelled], masks, stack,
                       sel.result, timer.seconds, s, resolved, orbits.up_info, graph, sel.follow)

@@ -78,7 +78,9 @@ class Extraction:
     seconds : dict
         Wall time per stage (:data:`STAGES`; the orbit views are rendered in
         the same pass as their operators, so that time counts under
-        ``operators``).
+        ``operators``), then ``compile``: the time spent compiling the
+        rasterizer's kernels (0 unless the on-disk cache was cold), which
+        no stage counts.
     settings : ExtractSettings
         The options of the run (``report.json`` holds ``settings.to_dict()``).
     resolved : dict
@@ -92,9 +94,11 @@ class Extraction:
         (above the threshold in islands apart from G0, set to 0), ``support``
         (the support surface the tracker labelled background,
         :func:`~seed2gs_inverse.pipeline.stages.support_band`), ``smoothness``
-        (the regulariser's lambda used, after ``None`` was resolved) and
+        (the regulariser's lambda used, after ``None`` was resolved),
         ``warnings`` (why a finished run should not be trusted, if it should
-        not: :func:`result_warnings`).
+        not: :func:`result_warnings`) and ``caps`` (each view whose size a
+        pixel cap lowered below the one asked for:
+        :func:`~seed2gs_inverse.pipeline.stages.view_caps`).
     up : dict
         The orbit axis (:func:`~seed2gs_inverse.pipeline.stages.orbit_axis`):
         ``axis``, ``method`` (how it was chosen), ``confidence`` in [0, 1]
@@ -141,7 +145,7 @@ class Extraction:
 
     @property
     def total_seconds(self) -> float:
-        """The wall time of every stage together."""
+        """The wall time of every stage together, compilation included."""
         return float(sum(self.seconds.values()))
 
     def object_scene(self) -> GaussianScene:

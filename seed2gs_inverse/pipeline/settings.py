@@ -18,6 +18,7 @@ import numpy as np
 
 from .._validation import check_choice, check_int, check_real
 from ..errors import ValidationError
+from ..progress import check_progress
 from ..solvers import available_methods, check_method_options
 from .completion import GRAPH_DEFAULTS
 from .seed_lift import seed_lift
@@ -134,13 +135,15 @@ class ExtractSettings:
         benchmarks/bench_speed.py: the orbit views are object-centric
         (zoomed), so this puts thousands of pixels on the object, while the
         operators' non-zeros, which grow with the pixels, dominate time and
-        memory.
+        memory. When the cap lowers ``orbit_scale``,
+        ``Extraction.resolved["caps"]`` says so.
     max_reference_pixels : int or None
         The reference view (seed lift, frame 0 of both clips, first
         supervision view) keeps the camera's resolution up to about this
         many pixels (rounded as above), composited only in a box around the
         seed; clip frames therefore differ in size between frame 0 and the
-        rest. In 64..2**26, default 1,000,000; None: no cap.
+        rest. In 64..2**26, default 1,000,000; None: no cap. When it lowers
+        the camera's resolution, ``Extraction.resolved["caps"]`` says so.
     roi_margin : float or None
         Orbit views composite only the pixel box around the projected sphere
         of radius ``roi_margin * extent`` about ``o`` (> 0, default 2: the
@@ -205,10 +208,19 @@ class ExtractSettings:
         :data:`seed2gs_inverse.solvers.COUNT_LIMITS`.
     mode : {"classic", "antialiased"}
         Rasterization mode of every rendering, default ``"classic"``.
-    progress : bool or None
-        Progress bars on stderr (orbit views, tracking, and the solve's
-        iterations with its current loss); default None: only when stderr is
-        a terminal, so logs never fill with bars.
+    progress : None, bool, "bars" or "lines"
+        What the run says on stderr while it runs
+        (:meth:`seed2gs_inverse.progress.Feedback.of`). ``"bars"`` (or True):
+        a progress bar for every stage that lasts over a second (counting
+        the orbit views, the tracked clips and the solve's iterations with
+        its current loss; the others show their elapsed time); ``"lines"``:
+        one line per stage as it ends, with its seconds, for a log or a
+        pipe; False: nothing. All but False also say when the rasterizer's
+        kernels compile on a first run, and for how long (those seconds are
+        counted under ``seconds["compile"]``, not under the stage that
+        compiled). Default None: bars when stderr is a terminal, otherwise
+        only the compile notices, so that a script's log gets no bars and no
+        stage lines it did not ask for. Never affects the result.
     point_mode : {"object", "region"}
         Point prompts: ``"object"`` (default) grows the clicked region to
         the whole object in 3D, stopping at the support plane
@@ -296,7 +308,7 @@ class ExtractSettings:
     lift_options: Mapping = field(default_factory=dict)
     solver_options: Mapping = field(default_factory=dict)
     mode: str = "classic"
-    progress: bool | None = None
+    progress: bool | str | None = None
     point_mode: str = "object"
     smoothness: float | None = None
     completion: str | None = None
@@ -353,9 +365,7 @@ class ExtractSettings:
         check_method_options(self.method, dict(solver))
         set_("solver_options", solver)
         set_("mode", check_choice("mode", self.mode, MODES))
-        if self.progress is not None and not isinstance(self.progress, (bool, np.bool_)):
-            raise ValidationError(f"progress must be True, False or None, got {self.progress!r}")
-        set_("progress", None if self.progress is None else bool(self.progress))
+        set_("progress", check_progress(self.progress))
         set_("point_mode", check_choice("point_mode", self.point_mode, POINT_MODES))
         set_("smoothness", check_real("smoothness", self.smoothness, lo=0.0, optional=True))
         if not (self.completion is None or isinstance(self.completion, str)) or self.completion not in COMPLETIONS:

@@ -71,7 +71,7 @@ if TYPE_CHECKING:
 
 __all__ = ["ReferenceView", "OrbitViews", "Selection", "render_reference", "seed_from_prompt", "reference_view",
            "lift_seed", "orbit_axis", "orbit_views", "support_band", "track_clips", "evidence_graph",
-           "complete_masks", "stack_operators", "solve_selection"]
+           "complete_masks", "stack_operators", "solve_selection", "view_caps"]
 
 
 # -- stage records ------------------------------------------------------------------------------
@@ -113,6 +113,9 @@ class OrbitViews:
         The orbit axis used.
     up_info : dict
         :func:`orbit_axis`'s report: ``axis``, ``method``, ``confidence``, ``details``.
+    size : (int, int) or None
+        ``(width, height)`` of the orbit views (frame 0 of each clip, the
+        reference view, has its own).
     """
 
     plan: VAASPlan
@@ -121,6 +124,7 @@ class OrbitViews:
     view_scale: float
     up: np.ndarray
     up_info: dict = field(default_factory=dict)
+    size: tuple | None = None
 
     def clips(self) -> list:
         """``[("flat", frames), ("spiral", frames)]`` (no spiral entry when it was skipped)."""
@@ -186,6 +190,30 @@ def _view_scale(camera: Camera, scale: float, max_pixels: int | None) -> float:
     if max_pixels is not None:
         s = min(s, np.sqrt(int(max_pixels) / (camera.width * camera.height)))
     return s
+
+
+def view_caps(settings: ExtractSettings, camera: Camera, ref: ReferenceView, orbits: OrbitViews) -> dict:
+    """``resolved["caps"]``: each view size that a pixel cap set below what was asked (JSON-ready).
+
+    ``"orbit_views"`` when ``max_view_pixels`` lowered ``orbit_scale``,
+    ``"reference_view"`` when ``max_reference_pixels`` lowered the camera's
+    resolution; each ``{"size": [w, h], "scale", "asked", "cap", "limit"}``:
+    the size and scale used, the scale asked for (``orbit_scale``; 1, the
+    camera's resolution, for the reference view, which also gives the
+    camera's ``camera_size``), the setting that capped it and its value.
+    Empty when nothing was capped.
+    """
+    caps = {}
+    if orbits.view_scale < settings.orbit_scale:
+        caps["orbit_views"] = {"size": None if orbits.size is None else [int(v) for v in orbits.size],
+                               "scale": float(orbits.view_scale),
+                               "asked": float(settings.orbit_scale), "cap": "max_view_pixels",
+                               "limit": settings.max_view_pixels}
+    if ref.scale < 1.0:
+        caps["reference_view"] = {"size": [ref.camera.width, ref.camera.height], "scale": float(ref.scale),
+                                  "asked": 1.0, "camera_size": [camera.width, camera.height],
+                                  "cap": "max_reference_pixels", "limit": settings.max_reference_pixels}
+    return caps
 
 
 def _mask_roi(mask: np.ndarray, margin: float = 0.25, pad: int = 8) -> tuple:
@@ -391,7 +419,7 @@ def orbit_views(renderer: Renderer, camera: Camera, ref: ReferenceView, lift: Se
         scene.means[lift.g0], sigma, base, lift.center, view, n_views=s.n_views, a_max_deg=s.a_max_deg,
         gamma=s.gamma, skip_deg=s.skip_deg, profile=s.profile, max_elevation_deg=s.max_elevation_deg,
         fit_radius=None if s.zoom_margin is None else s.zoom_margin * lift.radius, up=up)
-    return OrbitViews(plan, flat, spiral, view_scale, up, up_info)
+    return OrbitViews(plan, flat, spiral, view_scale, up, up_info, (base.width, base.height))
 
 
 def support_band(scene: GaussianScene, lift: SeedLift, orbits: OrbitViews, settings: ExtractSettings,

@@ -15,5 +15,6 @@ from .frozen import FrozenScene
 from .project import MODES, Projection, project_gaussians
 from .rasterize import build_operator, render
 from .renderer import Renderer  # many views of one frozen scene (the pipeline's); not in __all__
+from ._kernels import compile_seconds  # the compile clock of the pipeline's stage timer; not in __all__
 
 __all__ = ["render", "build_operator", "project_gaussians", "Projection", "cone_cull", "FrozenScene", "MODES"]

@@ -69,7 +69,8 @@ from __future__ import annotations
 
 import math
 import os
-import sys
+import threading
+import time
 from typing import NamedTuple
 
 # OpenMP threads (Numba's "omp" threading layer) that finish a parallel loop
@@ -84,8 +85,10 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import numpy as np  # noqa: E402
 from numba import get_num_threads, njit, prange, types  # noqa: E402
 from numba.core import cgutils  # noqa: E402
+from numba.core import event as _numba_event  # noqa: E402
 from numba.extending import intrinsic  # noqa: E402
 
+from ..progress import notice
 from ..sh import SH_C0, SH_C1, SH_C2, SH_C3
 
 TILE = 16
@@ -818,14 +821,16 @@ def _cold_kernels():
         return None
 
 
-def announce_compilation(kernels=ENTRY_KERNELS, stream=None) -> bool:
+def announce_compilation(kernels=ENTRY_KERNELS) -> bool:
     """Before a call of ``kernels`` (entry kernels): say on stderr which of them compile, when any is cold.
 
     Prints ``seed2gs: compiling the rasterizer kernels (k of 6), once
-    (cached for later runs), up to about N s``, at most once per kernel and
-    process, counting only the cold ``kernels`` about to run: a render does
-    not announce the culling kernel that only ``extract`` compiles. Returns
-    whether it printed.
+    (cached for later runs), up to about N s`` through the run's feedback
+    (:func:`~seed2gs_inverse.progress.notice`: nothing in a quiet run), at
+    most once per kernel and process, counting only the cold ``kernels``
+    about to run: a render does not announce the culling kernel that only
+    ``extract`` compiles. Returns whether it was due (also when a quiet run
+    kept it silent).
     """
     names = {k.py_func.__name__ for k in kernels}
     todo = names - _announced
@@ -838,6 +843,48 @@ def announce_compilation(kernels=ENTRY_KERNELS, stream=None) -> bool:
     n_cold = len(set(cold) & todo)
     if not n_cold:
         return False
-    print(f"seed2gs: compiling the rasterizer kernels ({n_cold} of {len(ENTRY_KERNELS)}), once (cached for "
-          f"later runs), up to about {COMPILE_SECONDS} s", file=stream or sys.stderr, flush=True)
+    notice(f"compiling the rasterizer kernels ({n_cold} of {len(ENTRY_KERNELS)}), once (cached for later runs), "
+           f"up to about {COMPILE_SECONDS} s")
     return True
+
+
+class _CompileClock(_numba_event.Listener):
+    """Seconds each thread spent in Numba compilations (outermost ``numba:compile`` events).
+
+    Numba raises the event only for a real compilation, not for a load from
+    its on-disk cache; a compilation nested in another (a callee typed while
+    its caller compiles) is counted once, within the outer one.
+    """
+
+    def __init__(self):
+        self._local = threading.local()
+
+    def on_start(self, event) -> None:
+        loc = self._local
+        depth = getattr(loc, "depth", 0)
+        if depth == 0:
+            loc.t0 = time.perf_counter()
+        loc.depth = depth + 1
+
+    def on_end(self, event) -> None:
+        loc = self._local
+        loc.depth -= 1
+        if loc.depth == 0:
+            loc.total = getattr(loc, "total", 0.0) + time.perf_counter() - loc.t0
+
+    def seconds(self) -> float:
+        return getattr(self._local, "total", 0.0)
+
+
+_COMPILE_CLOCK = _CompileClock()
+_numba_event.register("numba:compile", _COMPILE_CLOCK)
+
+
+def compile_seconds() -> float:
+    """Seconds the calling thread has spent compiling Numba functions so far in this process.
+
+    A clock for :class:`~seed2gs_inverse.progress.StageTimer`: the
+    difference over a stage is the compilation it contained (0 when every
+    kernel came from the on-disk cache).
+    """
+    return _COMPILE_CLOCK.seconds()
