@@ -112,8 +112,12 @@ def choose_layout(n_jobs: int, cores: int) -> str:
     """
     n_jobs = check_int("n_jobs", n_jobs, lo=0)
     cores = check_int("cores", cores, lo=1)
-    need = SMALL_MACHINE_MIN_JOBS if cores <= SMALL_MACHINE_CORES else MIN_JOBS_FOR_WORKERS
-    return "workers" if cores >= 2 and n_jobs >= need else "sequential"
+    return "workers" if cores >= 2 and n_jobs >= _min_jobs_for_workers(cores) else "sequential"
+
+
+def _min_jobs_for_workers(cores: int) -> int:
+    """The fewest jobs for which :func:`choose_layout` starts workers on ``cores`` (>= 2) cores."""
+    return SMALL_MACHINE_MIN_JOBS if cores <= SMALL_MACHINE_CORES else MIN_JOBS_FOR_WORKERS
 
 
 @dataclass(frozen=True)
@@ -138,6 +142,8 @@ class Layout:
         The existing cluster's scheduler address (once open for a ``Client``).
     client : distributed.Client or None
         Set by :func:`open_layout` for ``"workers"`` and ``"cluster"``.
+    target : str or distributed.Client or None
+        The scheduler address or ``Client`` asked for (``"cluster"`` only).
     """
 
     kind: str
@@ -216,9 +222,9 @@ def resolve_layout(client=None, n_workers: int | None = None, n_jobs: int | None
     chosen, why = False, ""
     if not asked_workers:
         chosen = True
-        need = SMALL_MACHINE_MIN_JOBS if cores <= SMALL_MACHINE_CORES else MIN_JOBS_FOR_WORKERS
+        need = _min_jobs_for_workers(cores)
         if choose_layout(n_jobs, cores) == "sequential":
-            why = ("one core" if cores < 2 else
+            why = ("chosen: one core" if cores < 2 else
                    f"chosen: worker processes pay off from {need} jobs on {cores} cores")
             return Layout("sequential", cores, 1, _numba_threads(cores), chosen=True, why=why)
         why = f"chosen: {n_jobs} jobs, at least {need} on {cores} cores"
