@@ -55,9 +55,9 @@ MIN_JOBS_FOR_WORKERS = 4
 #: ... and, on a machine of at most this many cores, where one process already keeps every core
 #: busy (Numba kernels on every core, the numpy/scipy passes on two threads) ...
 SMALL_MACHINE_CORES = 2
-#: ... of at least this many: there, two one-thread workers finish a long batch at most about 1.3-1.5
-#: times sooner, and the cluster's start (worker processes, their imports, each worker's own scene
-#: reads) costs seconds that a short batch does not win back (README, "Many objects, many scenes").
+#: ... of at least this many: there, two one-thread workers gain little over one process even on a
+#: long batch, and the cluster's start (worker processes, their imports, each worker's own scene
+#: reads) costs more than a short batch wins back (the timings: README, "Many objects, many scenes").
 SMALL_MACHINE_MIN_JOBS = 16
 
 #: Run in every embedded worker process at its (re)start. Given to Dask by file path, so that it is
