@@ -14,6 +14,14 @@ temporary folder, run three ways in the same process:
 5. (``--modes ...,2x2``) on 2 workers of two threads each: oversubscribed,
    so that one worker's single-threaded phases leave its core to the other.
 
+``--jobs N`` keeps the first N of the 8 jobs (the firepit's first).
+``--end-to-end seq,2,auto`` instead times ``seed2gs batch`` itself, in a
+fresh process per layout, as a user runs it: ``--sequential``,
+``--workers 2``, and no option (the layout the command chooses, whose
+printed line is shown); these times include the cluster's start, every
+worker's imports and the scene reads, which decide the default layout
+(:func:`seed2gs_inverse.batch.choose_layout`).
+
 The sequential run already uses both cores (the rasterizer's parallel
 loops, the two-thread sparse passes), so 2 one-thread workers can beat it
 at most by ``2 x (sequential wall) / (one-thread worker's wall)``; the
@@ -30,7 +38,8 @@ worker and peak memory per worker, and whether every job's q equals the
 sequential one bit for bit. The machine load (1-minute load average) is
 printed before and after each run: on a shared machine the ratios move with it.
 
-Usage: ``python benchmarks/bench_batch.py [--views 12] [--n-per-object 3000]``
+Usage: ``python benchmarks/bench_batch.py [--views 12] [--n-per-object 3000] [--jobs N]
+[--end-to-end seq,2,auto]``
 (needs ``../shared/data`` or ``$SEED2GS_DATA``; exits 0 with a message when
 absent). ``NUMBA_NUM_THREADS`` should be unset (or the core count) so that the
 sequential run may use every core too.
@@ -39,8 +48,10 @@ sequential run may use every core too.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
+import subprocess
 import sys
 import tempfile
 import time
@@ -52,7 +63,7 @@ import numba
 import numpy as np
 
 import seed2gs_inverse as sgi
-from seed2gs_inverse.batch import Job, batch_client, extract_many
+from seed2gs_inverse.batch import Job, batch_client, extract_many, resolve_layout
 from seed2gs_inverse.io import write_cameras, write_scene
 from seed2gs_inverse.synthetic import make_scene, render_label_masks
 
@@ -149,6 +160,49 @@ def run_mode(label, jobs, warm, out: Path, n_workers, threads=None):
     return {"wall": wall, "busy": busy, "results": res, "n_workers": n_w}
 
 
+def write_jobs_file(jobs, path: Path) -> None:
+    """``jobs`` as a JSON jobs file for ``seed2gs batch`` (the layout of a jobs.toml)."""
+    rows = []
+    for j in jobs:
+        d = j.to_dict()
+        row = {"name": j.name, "scene": os.fspath(j.scene), "camera": d["camera"], "options": d["options"],
+               "figure": j.figure}
+        prompt = d["prompt"]
+        row.update({"mask": prompt["mask"]} if prompt["kind"] == "mask" else {"box": prompt["box"]}
+                   if prompt["kind"] == "box" else {"point": prompt["points"]})
+        rows.append(row)
+    path.write_text(json.dumps({"jobs": rows}, indent=1))
+
+
+def run_end_to_end(jobs, tmp: Path, layouts) -> None:
+    """Time ``seed2gs batch`` in a fresh process per layout; check that every layout gives the same q."""
+    flags = {"seq": ["--sequential"], "2": ["--workers", "2"], "auto": []}
+    jobs_file = tmp / "jobs.json"
+    write_jobs_file(jobs, jobs_file)
+    walls = {}
+    for m in layouts:
+        out = tmp / f"e2e_{m}"
+        print(f"\n== seed2gs batch {' '.join(flags[m]) or '(default layout)'}  [{_load()}]", flush=True)
+        t0 = time.perf_counter()
+        run = subprocess.run([sys.executable, "-m", "seed2gs_inverse", "batch", str(jobs_file), "-o", str(out),
+                              "--no-progress", *flags[m]], capture_output=True, text=True)
+        walls[m] = time.perf_counter() - t0
+        said = [ln for ln in run.stderr.splitlines() if ln.startswith("batch: ")]
+        print(f"wall {walls[m]:.1f} s, exit {run.returncode}; {said[0] if said else 'no layout line'}  [{_load()}]")
+        if run.returncode != 0:
+            print(run.stdout + run.stderr)
+    print("\n== summary (end to end)")
+    ref = layouts[0]
+    for m in layouts:
+        differ = [j.name for j in jobs if (tmp / f"e2e_{m}" / j.name / "q.npy").is_file()
+                  and not np.array_equal(np.load(tmp / f"e2e_{m}" / j.name / "q.npy"),
+                                         np.load(tmp / f"e2e_{ref}" / j.name / "q.npy"))]
+        print(f"{m:>4}: {walls[m]:.1f} s" + (f", x{walls[ref] / walls[m]:.2f} over {ref}; q identical: "
+                                             f"{'NO (' + ', '.join(differ) + ')' if differ else 'yes'}"
+                                             if m != ref else ""))
+    print(f"[{_load()}]")
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--views", type=int, default=12, help="views per VAAS clip (default 12)")
@@ -156,8 +210,17 @@ def main(argv=None) -> int:
     p.add_argument("--modes", default="seq,1,1t,2",
                    help="which runs: seq, 1, 1t, 2, and 2x2 (2 workers of two threads each, not run by default); "
                         "default seq,1,1t,2")
+    p.add_argument("--jobs", type=int, default=8, help="run the first N of the 8 jobs (default 8)")
+    p.add_argument("--end-to-end", default=None, metavar="seq,2,auto",
+                   help="time the seed2gs batch command per layout instead (fresh processes, cluster start "
+                        "included): seq, 2 (workers) and auto (no option: the command's choice)")
     args = p.parse_args(argv)
     modes = [m.strip() for m in args.modes.split(",")]
+    if not 1 <= args.jobs <= 8:
+        p.error("--jobs must be between 1 and 8")
+    e2e = None if args.end_to_end is None else [m.strip() for m in args.end_to_end.split(",")]
+    if e2e is not None and (not e2e or any(m not in ("seq", "2", "auto") for m in e2e)):
+        p.error("--end-to-end takes a comma-separated list of seq, 2 and auto")
     known = {"seq": ("sequential (this process, no Dask)", None, None),
              "1": ("LocalCluster, 1 worker", 1, None),
              "1t": ("LocalCluster, 1 worker of one thread", 1, 1),
@@ -174,8 +237,14 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory(prefix="bench_batch_") as tmpdir:
         tmp = Path(tmpdir)
         jobs, warm, n_proc = make_jobs(tmp, args.views, args.n_per_object)
-        print(f"8 jobs: 4 on firepit (561,997 Gaussians, 960x540 overview), 4 on a procedural scene "
-              f"({n_proc} Gaussians, 640x480); {args.views} views per clip")
+        jobs = jobs[:args.jobs]
+        n_fire = sum(j.name.startswith("firepit") for j in jobs)
+        print(f"{len(jobs)} jobs: {n_fire} on firepit (561,997 Gaussians, 960x540 overview), {len(jobs) - n_fire} "
+              f"on a procedural scene ({n_proc} Gaussians, 640x480); {args.views} views per clip")
+        print(resolve_layout(None, n_jobs=len(jobs)).describe(len(jobs)).replace("batch:", "default layout:"))
+        if e2e is not None:
+            run_end_to_end(jobs, tmp, e2e)
+            return 0
         runs = {}
         for m in modes:
             label, n_workers, threads = known[m]

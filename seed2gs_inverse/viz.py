@@ -18,12 +18,13 @@ from pathlib import Path
 
 import numpy as np
 
+from ._extras import missing_extra
 from .errors import ValidationError
 from .geometry import unit_vector
 from .scene import GaussianScene, quat_to_rotmat
 from .sh import SH_C0
 
-__all__ = ["membership_plot", "view_grid", "has_display", "check_membership"]
+__all__ = ["membership_plot", "view_grid", "has_display", "check_membership", "require_pyvista"]
 
 
 def has_display() -> bool:
@@ -66,14 +67,28 @@ def check_membership(q, n: int, name: str = "membership q") -> np.ndarray:
     return arr
 
 
+def require_pyvista():
+    """The ``pyvista`` module (imported on first use: VTK is large and only the 3D views need it).
+
+    Raises
+    ------
+    MissingExtraError
+        pyvista cannot be imported; the message names ``pip install "seed2gs-inverse[view]"``.
+    """
+    try:
+        import pyvista
+    except ImportError as exc:
+        raise missing_extra("view", "drawing Gaussians in 3D (seed2gs view, membership_plot)", exc) from None
+    return pyvista
+
+
 def _ellipsoid_mesh(means, rotmats, scales, n_theta=10, n_phi=6):
     """One merged triangle mesh of ellipsoids ``mean + R diag(scales) u``, |u| = 1.
 
     Returns ``(points (G*V, 3), faces (G*F, 4) in VTK layout, V)``; building
     the arrays in numpy is far faster than one glyph filter call per Gaussian.
     """
-    import pyvista as pv
-
+    pv = require_pyvista()
     sphere = pv.Sphere(radius=1.0, theta_resolution=n_theta, phi_resolution=n_phi)
     unit = np.asarray(sphere.points, dtype=np.float64)
     tri = np.asarray(sphere.faces).reshape(-1, 4)[:, 1:]
@@ -169,7 +184,7 @@ def membership_plot(scene: GaussianScene, q=None, mode: str = "points", threshol
     if off_screen and not has_display():
         # Without X, VTK would try X first and warn; EGL renders headless on GPUs and Mesa.
         os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
-    import pyvista as pv
+    pv = require_pyvista()
 
     keep = np.ones(n, bool)
     if min_opacity > 0:

@@ -1,9 +1,9 @@
 """``extract_many``: run a batch of extraction jobs on Dask (``dask.distributed``) or in this process.
 
-Where the jobs run is the ``client`` argument (:mod:`.cluster`): an embedded
-``LocalCluster`` sized to the machine, an existing cluster, or
-``"sequential"`` (one job after the other in this process, without Dask: for
-debugging, and the baseline of ``benchmarks/bench_batch.py``).
+Where the jobs run is the ``client`` argument (:mod:`.cluster`): by default
+the faster layout for the machine and the batch (one job after the other in
+this process, with every core's threads, or an embedded ``LocalCluster``
+sized to the machine), an existing cluster, or either layout asked for.
 
 Jobs are submitted grouped by scene, all at once as one task group that
 the scheduler hands out from its own queue as threads come free (so no
@@ -43,7 +43,7 @@ from .._atomic import not_an_earlier_output, output_lock
 from .._validation import check_int
 from ..errors import ValidationError
 from ..progress import Feedback
-from .cluster import batch_client, dashboard_address
+from .cluster import Layout, batch_client, dashboard_address, open_layout, resolve_layout
 from .jobs import Job, read_jobs
 from .summary import (SUMMARY_COLUMNS, JobJournal, check_output_dir, fold_journal, is_batch_folder, read_summary,
                       remove_folder, write_summary)
@@ -80,9 +80,15 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
     ----------
     jobs : sequence of Job, or path of a jobs file
         See :mod:`seed2gs_inverse.batch.jobs` (``read_jobs``).
-    client : None, "sequential", str or distributed.Client
-        Where to run (:mod:`.cluster`): None starts an embedded
-        ``LocalCluster`` sized to the machine.
+    client : None, "sequential", str, distributed.Client or Layout
+        Where to run (:mod:`.cluster`): None runs the faster layout for
+        this machine and batch (:func:`~.cluster.choose_layout`: one
+        process with every core's threads, or an embedded ``LocalCluster``
+        of one worker per core), or the embedded cluster when
+        ``n_workers`` or ``threads_per_worker`` is given; a
+        :class:`~.cluster.Layout` yielded by :func:`~.cluster.open_layout`
+        runs there. The layout is printed with ``log`` and recorded in
+        ``summary.json``'s ``meta.layout``.
     output : path, optional
         Results directory (created if its parent exists): one folder per
         job plus ``summary.csv`` / ``summary.json``. None writes nothing and
@@ -113,8 +119,8 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
     retries : int
         Extra attempts for a job whose worker process died (default 1).
     log : callable, optional
-        ``log(str)`` for the dashboard address and similar notes (default:
-        print to stderr with bars or lines).
+        ``log(str)`` for the layout, the dashboard address and similar
+        notes (default: print to stderr with bars or lines).
 
     Returns
     -------
@@ -131,9 +137,12 @@ def extract_many(jobs, client=None, *, output=None, n_workers: int | None = None
     jobs = _as_jobs(jobs)
     check_int("retries", retries, lo=0)
     check_int("n_workers", n_workers, lo=1, optional=True)
-    if n_workers is not None and client is not None:
-        raise ValidationError("n_workers sizes the embedded cluster; it does not go with a client, "
-                              "a scheduler address or 'sequential'")
+    if (n_workers is not None or threads_per_worker is not None) and client is not None:
+        raise ValidationError(f"{'n_workers' if n_workers is not None else 'threads_per_worker'} sizes the "
+                              f"embedded cluster; it does not go with a client, a scheduler address, a layout "
+                              f"or 'sequential'")
+    if isinstance(client, Layout) and client.kind != "sequential" and client.client is None:
+        raise ValidationError("client: a Layout of Dask workers must be opened first (with open_layout)")
     feedback = Feedback.of(progress)
     if log is None:
         def log(msg):
@@ -293,16 +302,24 @@ def _check_rewrites(out: Path, todo: list) -> None:
 
 def _run_jobs(todo: list, client, out: Path | None, record, meta: dict, *, n_workers, threads_per_worker, retries,
               log) -> None:
-    """Run ``todo`` where ``client`` says, passing each JobResult to ``record``.
+    """Run ``todo`` where ``client`` says (:func:`~.cluster.resolve_layout`), passing each JobResult to ``record``.
 
-    ``meta["where"]`` says where, before the first job runs (so every summary written records it).
+    The layout is printed with ``log``; ``meta["where"]`` and ``meta["layout"]`` record it before the
+    first job runs (so every summary written records it).
     """
-    # every job resumed: nothing to run, so no cluster is started for it
-    with batch_client(client if todo else "sequential", n_workers=n_workers, n_jobs=len(todo),
-                      threads_per_worker=threads_per_worker) as c:
-        if not todo:
-            meta["where"] = "nothing to run (every job resumed)"
-        elif c is None:
+    if not todo:  # every job resumed: nothing to run, so no cluster is started for it
+        meta["where"] = "nothing to run (every job resumed)"
+        return
+    with ExitStack() as held:
+        if isinstance(client, Layout):  # chosen and opened by the caller
+            layout = client
+        else:
+            layout = held.enter_context(open_layout(resolve_layout(
+                client, n_workers=n_workers, n_jobs=len(todo), threads_per_worker=threads_per_worker)))
+        meta["layout"] = layout.record()
+        log(layout.describe(len(todo)))
+        c = layout.client
+        if c is None:
             meta["where"] = "sequential"
             try:
                 for job in todo:

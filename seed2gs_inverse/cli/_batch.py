@@ -7,6 +7,7 @@ from pathlib import Path
 
 from .._validation import check_int
 from ..batch import extract_many, read_jobs
+from ..batch.cluster import MIN_JOBS_FOR_WORKERS, SMALL_MACHINE_CORES, SMALL_MACHINE_MIN_JOBS
 from ..errors import ValidationError
 from ._common import add_feedback_arguments, feedback_progress
 
@@ -20,9 +21,14 @@ def add_cluster_arguments(p) -> None:
                        help="run on this Dask cluster ('dask scheduler' + 'dask worker'; the workers must "
                             "see the same paths) instead of an embedded one")
     where.add_argument("--sequential", action="store_true",
-                       help="run the jobs one after the other in this process, without Dask")
+                       help="run the jobs one after the other in this process, with every core's threads, "
+                            "without Dask")
     p.add_argument("--workers", type=int, default=None, metavar="N",
-                   help="worker processes of the embedded cluster (default: one per core)")
+                   help="run on an embedded Dask cluster of N worker processes. Default: the faster layout "
+                        "for this machine, printed when the batch starts: one process with every core's "
+                        "threads, or one worker per core once the batch has at least %d jobs (%d on "
+                        "%d cores or fewer; workers need the 'batch' extra)"
+                        % (MIN_JOBS_FOR_WORKERS, SMALL_MACHINE_MIN_JOBS, SMALL_MACHINE_CORES))
 
 
 def client_from_args(args):
@@ -43,7 +49,7 @@ def client_from_args(args):
 def register(subparsers) -> None:
     """Add ``seed2gs batch`` to the command's subparsers."""
     p = subparsers.add_parser(
-        "batch", help="run many extractions from a jobs file (Dask)",
+        "batch", help="run many extractions from a jobs file (in this process or on Dask)",
         description="Run every job of JOBS (TOML: [defaults] and [[jobs]] with scene, camera, one "
                     "prompt and extract options) and write one folder per job plus summary.csv and "
                     "summary.json into OUTDIR. Failed jobs are recorded and the others go on; "

@@ -126,6 +126,7 @@ def run(args) -> int:
     # without a camera, the same default up as render --look-at (VTK's own, +z, shows these scenes upside down)
     up = None if args.camera is not None else [0.0, -1.0, 0.0] if args.up is None else \
         parse_vector("--up", args.up[0] if len(args.up) == 1 else args.up).tolist()
+    viz.require_pyvista()  # the 'view' extra: said before the scene is read
     camera = None if args.camera is None else _camera(args.camera, args.view)
     scene = _read_scene(args.scene)
     q = None if args.membership is None else _load_membership(args.membership, len(scene))

@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from .._atomic import atomic_path, write_files
-from ..batch import Job, batch_client, extract_many
+from ..batch import Job, extract_many, open_layout, resolve_layout
 from ..batch.summary import check_output_dir, read_summary
 from ..batch.worker import cached_scene, clear_scene_cache, job_models
 from ..camera import Camera
@@ -559,9 +559,10 @@ def _extract_and_score(dataset, jobs, job_of, out: Path, *, client, n_workers, r
     with at least one done query), and each task's records.
     """
     n_tasks = sum(len(sc.frames) for sc in dataset)
-    with batch_client(client, n_workers=n_workers, n_jobs=max(len(jobs), n_tasks)) as c:
-        results = extract_many(jobs, "sequential" if c is None else c, output=out / "jobs",
-                               resume=resume, progress=progress, log=log)
+    layout = resolve_layout(client, n_workers=n_workers, n_jobs=max(len(jobs), n_tasks))
+    with open_layout(layout) as layout:
+        c = layout.client
+        results = extract_many(jobs, layout, output=out / "jobs", resume=resume, progress=progress, log=log)
         by_name = {r.name: r for r in results}
         tasks = []  # (scene, frame, queries) per test view
         for sc in dataset:

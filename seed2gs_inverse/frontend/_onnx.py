@@ -16,9 +16,10 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from .._extras import missing_extra
 from ..errors import FormatError
 
-__all__ = ["Port", "Layout", "OnnxModel", "format_ports", "MAX_FIXED_DIM"]
+__all__ = ["Port", "Layout", "OnnxModel", "format_ports", "onnxruntime_module", "MAX_FIXED_DIM"]
 
 #: Largest fixed input size accepted on any axis of a model's input. The
 #: toolkit feeds inputs of the sizes a file fixes (an image resized to its
@@ -93,6 +94,26 @@ class Layout:
         """``name: inputs (...) -> outputs (...)`` as in the error messages."""
         return (f"{self.name}: inputs ({', '.join(p.describe() for p in self.inputs)}) "
                 f"-> outputs ({', '.join(p.describe() for p in self.outputs)})")
+
+
+def onnxruntime_module(purpose: str):
+    """The ``onnxruntime`` module, imported on first use (large to load; only model files need it).
+
+    Parameters
+    ----------
+    purpose : str
+        What needs it, for the error message.
+
+    Raises
+    ------
+    MissingExtraError
+        onnxruntime cannot be imported; the message names ``pip install "seed2gs-inverse[models]"``.
+    """
+    try:
+        import onnxruntime
+    except ImportError as exc:
+        raise missing_extra("models", purpose, exc) from None
+    return onnxruntime
 
 
 def _arg_describe(arg) -> str:
@@ -183,8 +204,7 @@ class OnnxModel:
         if not self.path.is_file():
             raise FormatError(f"{self.path}: ONNX file for {role} not found "
                               "(check the path in the models configuration)")
-        import onnxruntime as ort  # deferred: large to load, needed only once a model is opened
-
+        ort = onnxruntime_module(f"opening the ONNX model for {role}")
         opts = ort.SessionOptions()
         opts.log_severity_level = 3  # our own messages replace onnxruntime's warnings
         try:

@@ -60,6 +60,7 @@ import numpy as np
 from .._validation import as_real
 from ..errors import FormatError, ValidationError
 from ..io.tables import read_table
+from ._onnx import onnxruntime_module
 from .external import ExternalBoxes
 from .grounding_dino import GroundingDINO
 from .owlvit import OWLViT
@@ -236,9 +237,7 @@ def load_models(path) -> ModelSet:
     cfg = _sections(path, _read(path))
     prov = cfg.get("onnxruntime", {}).get("providers")
     if prov is not None:
-        import onnxruntime  # deferred: large to load, and only a [onnxruntime] section needs it here
-
-        have = onnxruntime.get_available_providers()
+        have = onnxruntime_module(f"{path}'s [onnxruntime] section").get_available_providers()
         missing = [p for p in prov if p not in have]
         if missing or not prov:
             raise FormatError(f"{path}: [onnxruntime] providers {missing or prov} not available in this "

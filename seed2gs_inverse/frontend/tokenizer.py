@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._extras import missing_extra
 from ..errors import FormatError, ValidationError
 from ..io._common import check_regular
 
@@ -69,9 +70,8 @@ def _library():
     """The ``tokenizers`` module, imported on first use (large to load; only text prompts need it)."""
     try:
         import tokenizers
-    except ModuleNotFoundError:  # pragma: no cover - a declared dependency
-        raise FormatError("reading a tokenizer.json needs the 'tokenizers' package "
-                          "(pip install tokenizers)") from None
+    except ImportError as exc:
+        raise missing_extra("models", "reading a tokenizer.json (text prompts)", exc) from None
     return tokenizers
 
 
