@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 import seed2gs_inverse.cli as cli
+from _cli_files import write_cli_files
 from seed2gs_inverse.io import read_scene, write_cameras, write_scene
 from seed2gs_inverse.raster import build_operator
-from seed2gs_inverse.synthetic import make_scene
 
 
 @pytest.fixture(autouse=True)
@@ -23,18 +23,7 @@ def _commands(monkeypatch):
 
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
-    d = tmp_path_factory.mktemp("cli")
-    syn = make_scene(seed=0)
-    cam = syn.reference_camera(128, 96)
-    write_scene(d / "scene.ply", syn.scene)
-    write_cameras(d / "cameras.json", [cam])
-    truth = syn.labels == 1
-    seed = (build_operator(syn.scene, cam).W @ truth.astype(np.float32)).reshape(cam.image_shape) > 0.5
-    cv2.imwrite(str(d / "mask.png"), seed.astype(np.uint8) * 255)
-    ys, xs = np.nonzero(seed)
-    return {"dir": d, "syn": syn, "cam": cam, "truth": truth, "seed": seed,
-            "box": [xs.min() - 3, ys.min() - 3, xs.max() + 4, ys.max() + 4],
-            "point": [int(np.median(xs)), int(np.median(ys))]}
+    return write_cli_files(tmp_path_factory.mktemp("cli"))
 
 
 def _run(args):

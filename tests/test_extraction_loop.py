@@ -6,22 +6,20 @@ import dataclasses
 import json
 from pathlib import Path
 
-import cv2
 import numpy as np
 import plyfile
 import pytest
 
 import seed2gs_inverse.cli as cli
+from _cli_files import write_cli_files
 from _io_encoders import random_scene, write_ply_plyfile
 from seed2gs_inverse import OperatorStack
 from seed2gs_inverse._output_paths import check_output
 from seed2gs_inverse.comparison import compare
 from seed2gs_inverse.errors import FormatError, ValidationError
-from seed2gs_inverse.io import read_scene, write_cameras, write_scene
+from seed2gs_inverse.io import read_scene
 from seed2gs_inverse.metrics import known_boundary_iou, known_iou, mask_boundary
-from seed2gs_inverse.raster import build_operator
 from seed2gs_inverse.solvers.inputs import load_solve_inputs
-from seed2gs_inverse.synthetic import make_scene
 
 
 def _run(args, capsys):
@@ -33,14 +31,8 @@ def _run(args, capsys):
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     """One ``extract --save-operators`` of a procedural object, and its inputs."""
-    d = tmp_path_factory.mktemp("loop")
-    syn = make_scene(seed=0)
-    cam = syn.reference_camera(128, 96)
-    write_scene(d / "scene.ply", syn.scene)
-    write_cameras(d / "cameras.json", [cam])
-    truth = syn.labels == 1
-    seed = (build_operator(syn.scene, cam).W @ truth.astype(np.float32)).reshape(cam.image_shape) > 0.5
-    cv2.imwrite(str(d / "mask.png"), seed.astype(np.uint8) * 255)
+    f = write_cli_files(tmp_path_factory.mktemp("loop"))
+    d, syn, seed, truth = f["dir"], f["syn"], f["seed"], f["truth"]
     code = cli.main([str(a) for a in ["extract", d / "scene.ply", "--camera", f"{d / 'cameras.json'}:0",
                                       "--mask", d / "mask.png", "-o", d / "out", "--views", 4, "--no-progress",
                                       "--save-operators"]])

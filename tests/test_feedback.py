@@ -16,19 +16,17 @@ import threading
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 from numba import njit
 
 import seed2gs_inverse.cli as cli
+from _cli_files import write_cli_files
 from seed2gs_inverse.errors import ValidationError
-from seed2gs_inverse.io import write_cameras, write_scene
 from seed2gs_inverse.pipeline import extract
 from seed2gs_inverse.pipeline.extraction import STAGES
 from seed2gs_inverse.progress import Feedback, Progress, StageTimer, notice
-from seed2gs_inverse.raster import build_operator, compile_seconds
-from seed2gs_inverse.synthetic import make_scene
+from seed2gs_inverse.raster import compile_seconds
 
 REPO = Path(__file__).resolve().parents[1]
 #: A stage line: ``seed2gs: render 0.12 s``.
@@ -37,17 +35,7 @@ STAGE_LINE = re.compile(r"^seed2gs: (\w+) (\d+\.\d\d) s$")
 
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
-    d = tmp_path_factory.mktemp("feedback")
-    syn = make_scene(seed=0)
-    cam = syn.reference_camera(128, 96)
-    write_scene(d / "scene.ply", syn.scene)
-    write_cameras(d / "cameras.json", [cam])
-    truth = syn.labels == 1
-    seed = (build_operator(syn.scene, cam).W @ truth.astype(np.float32)).reshape(cam.image_shape) > 0.5
-    cv2.imwrite(str(d / "mask.png"), seed.astype(np.uint8) * 255)
-    ys, xs = np.nonzero(seed)
-    return {"dir": d, "syn": syn, "cam": cam, "seed": seed,
-            "box": [int(xs.min()) - 3, int(ys.min()) - 3, int(xs.max()) + 4, int(ys.max()) + 4]}
+    return write_cli_files(tmp_path_factory.mktemp("feedback"))
 
 
 def _run(args) -> int:
