@@ -44,7 +44,7 @@ def test_grabcut_seed_takes_in_the_neighbour_and_the_cleaning_drops_it(table_and
     grabcut = BoxPrompt(box).to_mask(ref.rgb, alpha=ref.alpha)
     # the premise: GrabCut alone keeps the neighbour's pixels inside the box
     assert (grabcut & b_px).sum() >= 40
-    bo = box_object_mask(g.scene, cam, grabcut, ref.depth)
+    bo = box_object_mask(g.scene, cam, grabcut, ref.depth, box)
     assert bo.info["cleaned"] is True and bo.info["n_dropped_pixels"] == int((grabcut & ~bo.mask).sum())
     assert (bo.mask & b_px).sum() <= 0.3 * (grabcut & b_px).sum()  # what is left: pixels mixed at its edge
     assert (bo.mask & a_px).sum() >= 0.98 * (grabcut & a_px).sum()  # the table stays whole (legs too)
@@ -73,7 +73,7 @@ def test_box_around_a_single_object_is_unchanged():
     box = [int(xs.min()) - 4, int(ys.min()) - 4, int(xs.max()) + 5, int(ys.max()) + 5]
     ref = op.rendering
     grabcut = BoxPrompt(box).to_mask(ref.rgb, alpha=ref.alpha)
-    bo = box_object_mask(scene, cam, grabcut, ref.depth)
+    bo = box_object_mask(scene, cam, grabcut, ref.depth, box)
     assert bo.info["cleaned"] is True and bo.info["n_dropped_pixels"] <= 0.01 * grabcut.sum()
     # the whole extraction as with the GrabCut seed given as a mask (what a box did before)
     a = extract(scene, cam, BoxPrompt(box), progress=False)
@@ -93,6 +93,8 @@ def test_validation(table_and_box):
         box_object_mask(g.scene, cam, m, ref.depth, k_neighbors=0)
     with pytest.raises(ValidationError, match="shape"):
         box_object_mask(g.scene, cam, m[:-1], ref.depth)
+    with pytest.raises(ValidationError, match="box"):
+        box_object_mask(g.scene, cam, m, ref.depth, (5, 5, np.nan, 9))
     with pytest.raises(ValidationError, match="empty"):
         box_object_mask(g.scene, cam, np.zeros_like(m), ref.depth)
     # a seed on nothing is left as it is, saying why

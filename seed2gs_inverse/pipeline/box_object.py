@@ -12,31 +12,46 @@ apart from those. The seed is cleaned in four steps:
    without ``W``): projected centre in the mask at a consistent depth. These
    are the Gaussians the seed shows.
 2. **Ground.** The support plane under them (the ground the object stands
-   on; the plane of
-   :func:`~seed2gs_inverse.pipeline.point_object.support_plane`) takes its
-   band out: Gaussians with :math:`n \cdot (x - p) <` the band are ground,
-   which links everything standing on it in 3D.
+   on, as a point prompt finds it), when the up-axis estimate behind it is
+   trusted (confidence at least
+   :data:`~seed2gs_inverse.pipeline.up_axis.WEAK_CONFIDENCE`; an object
+   scanned alone has no ground, and a plane fitted to it would cut its own
+   base off), takes its band out: Gaussians with
+   :math:`n \cdot (x - p) <` the band are ground, which links everything
+   standing on it in 3D.
 3. **Components.** The remaining lifted Gaussians are split into the
-   connected components of the seed lift's neighbour graph
-   (:func:`~seed2gs_inverse.pipeline.seed_lift.neighbour_components`, the
-   same ``k_neighbors`` and ``link_factor``). Each seed pixel belongs to the
+   connected components of a point prompt's growth graph
+   (:func:`~seed2gs_inverse.pipeline.point_object.linked_components`: kNN
+   links within ``link_factor`` times the sampling distance, or where the
+   1-sigma ellipsoids touch). Each seed pixel belongs to the
    component (or the ground) that holds most of its compositing weight,
    from the reference operator ``W`` over the box of the mask. The *main*
    component is the one that owns the most seed pixels: the box is drawn
    around the object it is about, which fills most of it; things seen
-   through gaps or past its edge fill the rest. Other components stay with
-   it when they come within ``gap`` times the main component's radius of it
-   in 3D (parts of the object the graph leaves apart: a piece split off by
-   a thin occluder in front, sparse splats at a thin part); ground
+   through gaps or past its edge fill the rest. The box holds its object,
+   so another component is dropped only when the box's edge cuts it (it
+   owns seed pixels within two pixels of the edge: it goes on beyond the
+   box) and it stays farther than ``gap`` times the main component's
+   radius from it. The distance is taken along the ground (across the
+   support plane's normal) when there is one: what stands under or over
+   the main part (a table's legs, hidden where they meet the top) is the
+   same object; without a plane it is taken in 3D. A 1-sigma ellipsoid's
+   reach counts (a big splat on a grazing face is far by its centre
+   only). Parts of one object the graph leaves apart (a piece split off
+   by a thin occluder in front, sparse splats at a thin part, a floater)
+   stay within the box or near the main part. Ground
    Gaussians stay when they come within the link distance of a kept one
    (the object's own base in the ground's band).
-4. **Drop.** The seed pixels owned by the other components and by the
-   rest of the ground leave the seed. Pixels no lifted Gaussian explains
-   stay as GrabCut gave them.
+4. **Drop.** Gaussians that render in the seed without being lifted (a
+   neighbour's big or half-hidden splats) follow their nearest lifted one.
+   The seed pixels whose weight lies more on the dropped Gaussians than on
+   the kept ones leave the seed; pixels neither renders to stay as GrabCut
+   gave them.
 
 A thin object keeps its parts: its slats, legs and arms are linked in 3D
 through the frame that holds them, and a part split off by an occluder lies
-within ``gap``. When nothing can be lifted, or the cleaning would leave
+within ``gap`` or inside the box. What the box holds whole and apart from
+the object (a stone lying beside it) stays in the seed. When nothing can be lifted, or the cleaning would leave
 nothing, the GrabCut seed is kept as it is (``info["cleaned"]`` says why).
 """
 
@@ -49,12 +64,14 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from ..camera import Camera
+from .._validation import check_vector
 from ..errors import ValidationError
 from ..raster import build_operator, cone_cull
 from ..scene import GaussianScene
 from .point_object import _support_plane as support_plane
 from .point_object import linked_components
 from .seed_lift import seed_lift
+from .up_axis import WEAK_CONFIDENCE
 
 __all__ = ["BoxObject", "box_object_mask", "BOX_OBJECT_DEFAULTS"]
 
@@ -146,7 +163,7 @@ def _check_box_inputs(scene, camera, mask, depth, options: dict) -> tuple[dict, 
     return opt, m, np.nan_to_num(d.astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0)
 
 
-def box_object_mask(scene: GaussianScene, camera: Camera, mask, depth, *, mode: str = "classic",
+def box_object_mask(scene: GaussianScene, camera: Camera, mask, depth, box=None, *, mode: str = "classic",
                     **options) -> BoxObject:
     """The box prompt's GrabCut seed cleaned to the box's main object (see the module docstring).
 
@@ -159,6 +176,9 @@ def box_object_mask(scene: GaussianScene, camera: Camera, mask, depth, *, mode: 
         The GrabCut seed of the box.
     depth : (H, W) array
         The reference view's rendered expected depth (0 where empty).
+    box : (x0, y0, x1, y1) or None
+        The prompt's box in pixels (exclusive max); None: the mask's own
+        bounding box. Only components that reach its edge can be dropped.
     mode : str
         Rasterization mode of the reference operator.
     **options
@@ -189,6 +209,9 @@ def box_object_mask(scene: GaussianScene, camera: Camera, mask, depth, *, mode: 
     means = scene.means.astype(np.float64)
     plane, plane_info = support_plane(scene, camera, cand, lift.center, lift.radius, opt["min_band"])
     ground = np.zeros(n, bool)
+    if plane is not None and plane_info["confidence"] < WEAK_CONFIDENCE:
+        # a weak estimate is no ground: on an object scanned alone the "plane" cuts through its own base
+        plane, plane_info = None, {**plane_info, "rejected": f"confidence below {WEAK_CONFIDENCE}"}
     if plane is not None:
         pn, pp, band = plane
         ground = cand & ((means - pp) @ pn < band)
@@ -217,6 +240,9 @@ def box_object_mask(scene: GaussianScene, camera: Camera, mask, depth, *, mode: 
         # across the ground only: what stands under or over the main part is the same object
         pts = pts - np.outer(pts @ plane[0], plane[0])
     keep_comp, radius = _near_components(pts, sigma, labels, ncomp, main, float(opt["gap"]))
+    # The box holds its object: only what the box's edge cuts continues beyond it and is something else.
+    ring = _box_ring(_pixel_box(box, m), m.shape, _BORDER)
+    keep_comp |= np.bincount(owner[ring & (owner >= 0) & (owner < ncomp)], minlength=ncomp + 1)[:ncomp] == 0
     kept = np.zeros(n, bool)
     kept[idx[keep_comp[labels]]] = True
     if ground.any():
@@ -238,6 +264,35 @@ def box_object_mask(scene: GaussianScene, camera: Camera, mask, depth, *, mode: 
         return BoxObject(m, kept, dropped, {**info, "cleaned": "not cleaned: it would leave nothing"})
     info.update(n_dropped_pixels=int(drop_px.sum()), cleaned=True)
     return BoxObject(cleaned, kept, dropped, info)
+
+
+#: Pixels from the box's edge (inside it) that count as its edge.
+_BORDER = 2
+
+
+def _pixel_box(box, mask: np.ndarray) -> tuple[int, int, int, int]:
+    """``box`` (x0, y0, x1, y1, exclusive max) as whole pixels clipped to the image; the mask's box when None."""
+    if box is None:
+        return _mask_box(mask, 0)
+    try:
+        b = check_vector("box", box, 4)
+    except ValidationError:
+        raise ValidationError(f"box_object_mask: box must be 4 finite numbers x0 y0 x1 y1, got {box!r}") from None
+    h, w = mask.shape
+    x0, y0 = int(np.clip(np.floor(b[0]), 0, w)), int(np.clip(np.floor(b[1]), 0, h))
+    x1, y1 = int(np.clip(np.ceil(b[2]), 0, w)), int(np.clip(np.ceil(b[3]), 0, h))
+    if x1 <= x0 or y1 <= y0:
+        raise ValidationError(f"box_object_mask: box {b.tolist()} covers no pixel of the {w}x{h} image")
+    return x0, y0, x1, y1
+
+
+def _box_ring(box: tuple[int, int, int, int], shape: tuple[int, int], width: int) -> np.ndarray:
+    """(H, W) bool: the pixels of ``box`` within ``width`` of its edge."""
+    x0, y0, x1, y1 = box
+    ring = np.zeros(shape, bool)
+    ring[y0:y1, x0:x1] = True
+    ring[y0 + width:y1 - width, x0 + width:x1 - width] = False
+    return ring
 
 
 def _attach_unlifted(scene: GaussianScene, W: sp.csr_matrix, mask: np.ndarray, lifted: np.ndarray, kept: np.ndarray,

@@ -273,7 +273,7 @@ def seed_from_prompt(prompt: Any, reference: Rendering, grounder=None, *, point_
         seed, info = seed_mask_from_prompt(prompt, reference.rgb, depth=reference.depth, alpha=reference.alpha,
                                            grounder=grounder)
         if isinstance(prompt, BoxPrompt) and scene is not None and camera is not None:
-            box = box_object_mask(scene, camera, seed, reference.depth, mode=mode)
+            box = box_object_mask(scene, camera, seed, reference.depth, prompt.box, mode=mode)
             seed, info = box.mask, {**info, **box.info}
     if not (seed & (reference.alpha > 0.05)).any():
         raise ValidationError("the seed mask covers only empty space in the reference view: "
