@@ -8,16 +8,17 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from seed2gs_inverse import Camera, GaussianScene
 from seed2gs_inverse.cli._extract import seed_summary_line
 from seed2gs_inverse.errors import ValidationError
 from seed2gs_inverse.frontend.prompts import BoxPrompt, MaskPrompt
 from seed2gs_inverse.pipeline import extract
 from seed2gs_inverse.pipeline.box_object import box_object_mask
 from seed2gs_inverse.pipeline.report import seed_summary
-from seed2gs_inverse.raster import build_operator
+from seed2gs_inverse.raster import build_operator, render
 from seed2gs_inverse.synthetic.ground import make_ground_scene
 
-from _pipeline_scenes import reference_camera, sphere_scene
+from _pipeline_scenes import reference_camera, sphere_scene, surface
 
 
 def _truth_pixels(op, selected, shape):
@@ -116,3 +117,25 @@ def test_report_and_printed_line_say_what_the_box_seed_left_out():
     assert seed_summary(ex)["dropped_pixels"] is None
     ex.prompt_info = {"kind": "mask"}
     assert "left out" not in seed_summary_line(seed_summary(ex))
+
+
+def test_an_object_scanned_alone_keeps_its_detached_parts():
+    """No ground, and a part apart from the body in 3D (a ball held above it): the box holds both, nothing leaves."""
+    rng = np.random.default_rng(3)
+
+    def ball(center, radius, n, color):
+        d = rng.normal(size=(n, 3))
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        return surface(np.asarray(center) + radius * d, d, radius * 2.2 / np.sqrt(n), np.tile(color, (n, 1)))
+
+    body = ball((0.0, 0.0, 0.0), 0.5, 900, (0.8, 0.3, 0.2))
+    part = ball((0.0, -0.45, 0.75), 0.18, 200, (0.8, 0.3, 0.2))  # beside the body, 0.2 from it
+    scene = GaussianScene.concat([body, part])
+    cam = Camera.look_at((2.6, -1.0, 0.4), (0.0, -0.2, 0.0), (0.0, -1.0, 0.0), 45, 128, 96)
+    ref = render(scene, cam)
+    ys, xs = np.nonzero(ref.alpha > 0.5)
+    box = [int(xs.min()) - 4, int(ys.min()) - 4, int(xs.max()) + 5, int(ys.max()) + 5]
+    grabcut = BoxPrompt(box).to_mask(ref.rgb, alpha=ref.alpha)
+    bo = box_object_mask(scene, cam, grabcut, ref.depth, box)
+    assert bo.info["n_components"] >= 2  # the part is apart in 3D
+    assert bo.info["n_dropped_pixels"] == 0 and np.array_equal(bo.mask, grabcut)
