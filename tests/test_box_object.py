@@ -14,6 +14,7 @@ from seed2gs_inverse.errors import ValidationError
 from seed2gs_inverse.frontend.prompts import BoxPrompt, MaskPrompt
 from seed2gs_inverse.pipeline import extract
 from seed2gs_inverse.pipeline.box_object import box_object_mask
+from seed2gs_inverse.pipeline.point_object import linked_components
 from seed2gs_inverse.pipeline.report import seed_summary
 from seed2gs_inverse.raster import build_operator, render
 from seed2gs_inverse.synthetic.ground import make_ground_scene
@@ -139,3 +140,15 @@ def test_an_object_scanned_alone_keeps_its_detached_parts():
     bo = box_object_mask(scene, cam, grabcut, ref.depth, box)
     assert bo.info["n_components"] >= 2  # the part is apart in 3D
     assert bo.info["n_dropped_pixels"] == 0 and np.array_equal(bo.mask, grabcut)
+
+
+def test_linked_components_checks_its_input():
+    scene, _, _ = sphere_scene(seed=0, n_sphere=50, n_ground=100)
+    with pytest.raises(ValidationError, match="idx"):
+        linked_components(scene, np.array([3]), np.array([True]))
+    with pytest.raises(ValidationError, match="idx"):
+        linked_components(scene, np.array([0, len(scene)]), np.array([True, True]))
+    with pytest.raises(ValidationError, match="ref_nodes"):
+        linked_components(scene, np.array([0, 1, 2]), np.array([False, False, False]))
+    labels, n, link = linked_components(scene, np.arange(len(scene)), np.ones(len(scene), bool))
+    assert labels.shape == (len(scene),) and n >= 1 and link > 0

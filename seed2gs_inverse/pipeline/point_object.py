@@ -291,7 +291,21 @@ def linked_components(scene: GaussianScene, idx: np.ndarray, ref_nodes: np.ndarr
         Number of components.
     link_distance : float
         :math:`\lambda \rho_0`.
+
+    Raises
+    ------
+    ValidationError
+        ``idx`` not at least two indices of the scene, or ``ref_nodes`` not
+        a boolean (M,) mask with at least one True.
     """
+    idx = np.asarray(idx)
+    ref_nodes = np.asarray(ref_nodes)
+    if idx.ndim != 1 or idx.dtype.kind not in "iu" or len(idx) < 2 or idx.min() < 0 or idx.max() >= len(scene):
+        raise ValidationError(f"linked_components: idx must be at least two indices into the scene's {len(scene)} "
+                              f"Gaussians, got {idx.dtype} {idx.shape}")
+    if ref_nodes.dtype != bool or ref_nodes.shape != idx.shape or not ref_nodes.any():
+        raise ValidationError(f"linked_components: ref_nodes must be a boolean {idx.shape} mask with a True, got "
+                              f"{ref_nodes.dtype} {ref_nodes.shape}")
     means = scene.means[idx].astype(np.float64)
     tree = cKDTree(means)
     k = int(min(k_neighbors, len(idx) - 1))
