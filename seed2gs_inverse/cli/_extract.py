@@ -312,7 +312,9 @@ def seed_summary_line(summary: dict, remainder: dict | None = None) -> str:
     :func:`~seed2gs_inverse.pipeline.report.seed_summary`'s
     (``object_pixels``, ``share_of_object``, ``growth_beyond_seed``); a
     seed grown from a click (``grown_from_pixels``) adds ``; the seed
-    itself grew in 3D from the click's 120 px region``. With ``remainder``
+    itself grew in 3D from the click's 120 px region``; a box seed cleaned
+    to the box's main object (``dropped_pixels``) adds ``; 85 px of other
+    objects and ground left out of the box's seed``. With ``remainder``
     (:meth:`~seed2gs_inverse.pipeline.extraction.Extraction.remainder_summary`)
     the line goes on with ``; the remainder keeps 3.1% of the object's alpha (worst view 7.4%)``.
     """
@@ -328,6 +330,8 @@ def seed_summary_line(summary: dict, remainder: dict | None = None) -> str:
             line += f", {s['growth_beyond_seed']:.0%} of the seed's area beyond it"
     if s.get("grown_from_pixels") is not None:
         line += f"; the seed itself grew in 3D from the click's {s['grown_from_pixels']:,} px region"
+    if s.get("dropped_pixels"):
+        line += f"; {s['dropped_pixels']:,} px of other objects and ground left out of the box's seed"
     if remainder is not None and remainder.get("share") is not None:
         line += (f"; the remainder keeps {remainder['share']:.1%} of the object's alpha "
                  f"(worst view {remainder['worst_view']:.1%})")

@@ -88,7 +88,7 @@ from .up_axis import estimate_up_axis
 if TYPE_CHECKING:
     from ..operators import Rendering
 
-__all__ = ["PointObject", "point_object_mask", "surface_patch", "depth_normals", "grow_object",
+__all__ = ["PointObject", "point_object_mask", "surface_patch", "depth_normals", "grow_object", "linked_components",
            "POINT_OBJECT_DEFAULTS"]
 
 #: Defaults of :func:`point_object_mask`.
@@ -254,12 +254,64 @@ def grow_object(scene, seeds, *, center, radius: float, plane=None, blocked=None
     if len(idx) < 2:
         sel[idx] = True
         return sel, info
-    pts = means[idx]
-    tree = cKDTree(pts)
+    lab, ncomp, cutoff = linked_components(scene, idx, seed_nodes, k_neighbors=k_neighbors,
+                                           link_factor=link_factor, overlap=overlap)
+    score = np.bincount(lab[seed_nodes], minlength=ncomp).astype(float)
+    good = score >= keep_fraction * score.max()
+    good &= score > 0
+    sel[idx[good[lab]]] = True
+    sel |= seeds & node  # the lifted click region is the object by definition
+    info.update(n_nodes=int(len(idx)), link_distance=cutoff, n_components=int(ncomp),
+                kept_components=int(good.sum()), n_selected=int(sel.sum()))
+    return sel, info
+
+
+def linked_components(scene: GaussianScene, idx: np.ndarray, ref_nodes: np.ndarray, *, k_neighbors: int = 10,
+                      link_factor: float = 2.0, overlap: float = 1.0) -> tuple[np.ndarray, int, float]:
+    r"""Connected components of the Gaussians ``idx`` under the growth's link rule (step 3 of the module docstring).
+
+    Each Gaussian is linked to those of its ``k_neighbors`` nearest (among
+    ``idx``) within :math:`\max(\lambda \rho_0, \kappa (s_i + s_j))`, with
+    :math:`\rho_0` the median distance of the ``ref_nodes`` to their 4th
+    nearest neighbour.
+
+    Parameters
+    ----------
+    scene : GaussianScene
+    idx : (M,) int
+        The Gaussians taking part, M >= 2.
+    ref_nodes : (M,) bool
+        Which of them set the sampling density :math:`\rho_0` (at least one).
+
+    Returns
+    -------
+    labels : (M,) int
+        Component of each, in 0..n-1.
+    n : int
+        Number of components.
+    link_distance : float
+        :math:`\lambda \rho_0`.
+
+    Raises
+    ------
+    ValidationError
+        ``idx`` not at least two indices of the scene, or ``ref_nodes`` not
+        a boolean (M,) mask with at least one True.
+    """
+    idx = np.asarray(idx)
+    ref_nodes = np.asarray(ref_nodes)
+    if idx.ndim != 1 or idx.dtype.kind not in "iu" or len(idx) < 2 or idx.min() < 0 or idx.max() >= len(scene):
+        raise ValidationError(f"linked_components: idx must be at least two indices into the scene's {len(scene)} "
+                              f"Gaussians, got {idx.dtype} {idx.shape}")
+    if ref_nodes.dtype != bool or ref_nodes.shape != idx.shape or not ref_nodes.any():
+        raise ValidationError(f"linked_components: ref_nodes must be a boolean {idx.shape} mask with a True, got "
+                              f"{ref_nodes.dtype} {ref_nodes.shape}")
+    means = scene.means[idx].astype(np.float64)
+    tree = cKDTree(means)
     k = int(min(k_neighbors, len(idx) - 1))
-    dist, nbr = tree.query(pts, k=k + 1)
+    dist, nbr = tree.query(means, k=k + 1)
     dist, nbr = dist[:, 1:], nbr[:, 1:]
-    ref = dist[seed_nodes, min(3, k - 1)]
+    ref = dist[np.asarray(ref_nodes, bool), min(3, k - 1)]
     cutoff = float(link_factor) * float(np.median(ref))
     # Two Gaussians are linked when they are as close as the seed's own
     # sampling (link_factor x its 4th-neighbour distance) or when their
@@ -273,14 +325,7 @@ def grow_object(scene, seeds, *, center, radius: float, plane=None, blocked=None
     cols = nbr.ravel()[keep.ravel()]
     graph = coo_matrix((np.ones(rows.size), (rows, cols)), shape=(len(idx), len(idx)))
     ncomp, lab = connected_components(graph, directed=False)
-    score = np.bincount(lab[seed_nodes], minlength=ncomp).astype(float)
-    good = score >= keep_fraction * score.max()
-    good &= score > 0
-    sel[idx[good[lab]]] = True
-    sel |= seeds & node  # the lifted click region is the object by definition
-    info.update(n_nodes=int(len(idx)), link_distance=cutoff, n_components=int(ncomp),
-                kept_components=int(good.sum()), n_selected=int(sel.sum()))
-    return sel, info
+    return lab, int(ncomp), cutoff
 
 
 def _support_plane(scene: GaussianScene, camera: Camera, seeds: np.ndarray, center: np.ndarray, radius: float,

@@ -103,6 +103,9 @@ def seed_summary(extraction: Extraction) -> dict:
         ``grown_from_pixels``: when the seed itself was grown from a click
         to a whole object in 3D (a point prompt in ``"object"`` mode), the
         pixels of the click's region it grew from; else None.
+        ``dropped_pixels``: when a box prompt's GrabCut seed was cleaned to
+        the box's main object, the pixels of other objects and of the ground
+        it left out; else None.
 
     Notes
     -----
@@ -117,10 +120,13 @@ def seed_summary(extraction: Extraction) -> dict:
     box = _box(sil)
     out = {"seed_pixels": n_seed, "seed_box": _box(seed), "object_pixels": n_obj, "object_box": box,
            "object_box_size": None, "share_of_object_box": None, "share_of_object": None,
-           "growth_beyond_seed": None, "share_outside_object": None, "grown_from_pixels": None}
+           "growth_beyond_seed": None, "share_outside_object": None, "grown_from_pixels": None,
+           "dropped_pixels": None}
     info = getattr(extraction, "prompt_info", None) or {}
     if info.get("kind") == "point" and info.get("mode") == "object":
         out["grown_from_pixels"] = int(info["patch_pixels"])
+    if info.get("kind") == "box" and info.get("cleaned") is True:
+        out["dropped_pixels"] = int(info["n_dropped_pixels"])
     if box is not None:
         w, h = box[2] - box[0], box[3] - box[1]
         out.update(object_box_size=[w, h], share_of_object_box=n_seed / float(w * h),

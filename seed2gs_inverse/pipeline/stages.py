@@ -5,7 +5,8 @@ each can be run, tested and timed on its own::
 
     render_reference   reference canvas I_r                       -> Rendering
     seed_from_prompt   seed mask m* (prompt / grounder; a point
-                       prompt grows to the whole object in 3D)     -> (seed, prompt_info)
+                       prompt grows to the whole object in 3D, a
+                       box prompt is cleaned to its main object)   -> (seed, prompt_info)
     reference_view     W(c_r) around the seed, at the lift size    -> ReferenceView
     lift_seed          seed lift (G0, o, extent)                   -> SeedLift
     orbit_views        orbit axis (orbit_axis: support plane, ...)
@@ -40,11 +41,12 @@ import numpy as np
 
 from ..errors import ValidationError
 from ..frontend.base import SupportPlaneTracker
-from ..frontend.prompts import PointPrompt, seed_mask_from_prompt
+from ..frontend.prompts import BoxPrompt, PointPrompt, seed_mask_from_prompt
 from ..graph import apply_follow
 from ..operators import OperatorStack, as_stack, scene_fingerprint
 from ..solvers import solve
 from ..solvers._common import normalize_mask
+from .box_object import box_object_mask
 from .completion import (GRAPH_DEFAULTS, complete_membership, faint_follow_matrix, fill_unknown, object_graph,
                          tracked_membership)
 from .point_object import point_object_mask
@@ -282,7 +284,13 @@ def seed_from_prompt(prompt: Any, reference: Rendering, grounder=None, *, point_
     grown in 3D down to the support plane and projected back
     (:func:`~seed2gs_inverse.pipeline.point_object.point_object_mask`, which
     needs the ``scene``, the reference ``camera`` and the rasterization
-    ``mode``); ``prompt_info`` then carries its growth facts.
+    ``mode``); ``prompt_info`` then carries its growth facts. Given the
+    ``scene`` and ``camera``, a
+    :class:`~seed2gs_inverse.frontend.prompts.BoxPrompt`'s GrabCut seed is
+    cleaned to the box's main object: the pixels of other objects and of the
+    ground away from it leave the seed
+    (:func:`~seed2gs_inverse.pipeline.box_object.box_object_mask`;
+    ``prompt_info`` gains ``n_dropped_pixels`` and the cleaning's facts).
 
     Raises
     ------
@@ -301,6 +309,9 @@ def seed_from_prompt(prompt: Any, reference: Rendering, grounder=None, *, point_
     else:
         seed, info = seed_mask_from_prompt(prompt, reference.rgb, depth=reference.depth, alpha=reference.alpha,
                                            grounder=grounder)
+        if isinstance(prompt, BoxPrompt) and scene is not None and camera is not None:
+            box = box_object_mask(scene, camera, seed, reference.depth, prompt.box, mode=mode)
+            seed, info = box.mask, {**info, **box.info}
     if not (seed & (reference.alpha > 0.05)).any():
         raise ValidationError("the seed mask covers only empty space in the reference view: "
                               "it does not touch the scene")

@@ -1,0 +1,154 @@
+"""Box prompts that return one object: the GrabCut seed cleaned to the box's main object in 3D."""
+
+from __future__ import annotations
+
+import json
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from seed2gs_inverse import Camera, GaussianScene
+from seed2gs_inverse.cli._extract import seed_summary_line
+from seed2gs_inverse.errors import ValidationError
+from seed2gs_inverse.frontend.prompts import BoxPrompt, MaskPrompt
+from seed2gs_inverse.pipeline import extract
+from seed2gs_inverse.pipeline.box_object import box_object_mask
+from seed2gs_inverse.pipeline.point_object import linked_components
+from seed2gs_inverse.pipeline.report import seed_summary
+from seed2gs_inverse.raster import build_operator, render
+from seed2gs_inverse.synthetic.ground import make_ground_scene
+
+from _pipeline_scenes import reference_camera, sphere_scene, surface
+
+
+def _truth_pixels(op, selected, shape):
+    return (op.W @ selected.astype(np.float32)).reshape(shape) > 0.5
+
+
+@pytest.fixture(scope="module")
+def table_and_box():
+    """A table with a box behind it and to one side: the box around the table takes in part of the box."""
+    g = make_ground_scene(0, objects=("table", "box"), clutter=())
+    d = g.to_local(g.anchors["box"][None])[0] - g.to_local(g.anchors["table"][None])[0]
+    cam = g.camera("table", np.degrees(np.arctan2(d[1], d[0])) + 190, 25, 2.5, 160, 120)
+    op = build_operator(g.scene, cam)
+    table, other = g.object_mask("table"), g.object_mask("box")
+    a_px = _truth_pixels(op, table, cam.image_shape)
+    b_px = _truth_pixels(op, other, cam.image_shape)
+    ys, xs = np.nonzero(a_px)
+    box = [int(xs.min()) - 3, int(ys.min()) - 3, int(xs.max()) + 4, int(ys.max()) + 4]
+    return g, cam, op.rendering, box, table, other, a_px, b_px
+
+
+def test_grabcut_seed_takes_in_the_neighbour_and_the_cleaning_drops_it(table_and_box):
+    g, cam, ref, box, table, other, a_px, b_px = table_and_box
+    grabcut = BoxPrompt(box).to_mask(ref.rgb, alpha=ref.alpha)
+    # the premise: GrabCut alone keeps the neighbour's pixels inside the box
+    assert (grabcut & b_px).sum() >= 40
+    bo = box_object_mask(g.scene, cam, grabcut, ref.depth, box)
+    assert bo.info["cleaned"] is True and bo.info["n_dropped_pixels"] == int((grabcut & ~bo.mask).sum())
+    assert (bo.mask & b_px).sum() <= 0.3 * (grabcut & b_px).sum()  # what is left: pixels mixed at its edge
+    assert (bo.mask & a_px).sum() >= 0.98 * (grabcut & a_px).sum()  # the table stays whole (legs too)
+    assert not (bo.kept & other).any() and (bo.dropped & other).any()
+
+
+def test_box_with_part_of_a_neighbour_returns_the_main_object_only(table_and_box):
+    g, cam, ref, box, table, other, a_px, b_px = table_and_box
+    ex = extract(g.scene, cam, BoxPrompt(box), progress=False)
+    sel = ex.selected
+    print("box prompt: selected", int(sel.sum()), "table", int((sel & table).sum()), "of", int(table.sum()),
+          "neighbour", int((sel & other).sum()), "of", int(other.sum()))
+    assert (sel & other).sum() <= 0.01 * other.sum()  # the neighbour is not selected
+    assert (sel & table).sum() / sel.sum() >= 0.95  # precision against the truth
+    assert (sel & table).sum() >= 0.8 * table.sum()
+    assert ex.prompt_info["kind"] == "box" and ex.prompt_info["n_dropped_pixels"] > 0
+    json.dumps(ex.prompt_info)  # report.json records it as it is
+
+
+def test_box_around_a_single_object_is_unchanged():
+    scene, labels, info = sphere_scene(seed=2)
+    cam = reference_camera(info, width=128, height=96)
+    op = build_operator(scene, cam)
+    px = _truth_pixels(op, labels, cam.image_shape)
+    ys, xs = np.nonzero(px)
+    box = [int(xs.min()) - 4, int(ys.min()) - 4, int(xs.max()) + 5, int(ys.max()) + 5]
+    ref = op.rendering
+    grabcut = BoxPrompt(box).to_mask(ref.rgb, alpha=ref.alpha)
+    bo = box_object_mask(scene, cam, grabcut, ref.depth, box)
+    assert bo.info["cleaned"] is True and bo.info["n_dropped_pixels"] <= 0.01 * grabcut.sum()
+    # the whole extraction as with the GrabCut seed given as a mask (what a box did before)
+    a = extract(scene, cam, BoxPrompt(box), progress=False)
+    b = extract(scene, cam, MaskPrompt(grabcut), progress=False)
+    assert (a.selected != b.selected).sum() <= 0.01 * b.selected.sum()
+
+
+def test_validation(table_and_box):
+    g, cam, ref, box, *_ = table_and_box
+    m = np.zeros(cam.image_shape, bool)
+    m[50:60, 50:60] = True
+    with pytest.raises(ValidationError, match="unknown options"):
+        box_object_mask(g.scene, cam, m, ref.depth, spread=2)
+    with pytest.raises(ValidationError, match="gap"):
+        box_object_mask(g.scene, cam, m, ref.depth, gap=-1)
+    with pytest.raises(ValidationError, match="k_neighbors"):
+        box_object_mask(g.scene, cam, m, ref.depth, k_neighbors=0)
+    with pytest.raises(ValidationError, match="shape"):
+        box_object_mask(g.scene, cam, m[:-1], ref.depth)
+    with pytest.raises(ValidationError, match="box"):
+        box_object_mask(g.scene, cam, m, ref.depth, (5, 5, np.nan, 9))
+    with pytest.raises(ValidationError, match="empty"):
+        box_object_mask(g.scene, cam, np.zeros_like(m), ref.depth)
+    # a seed on nothing is left as it is, saying why
+    sky = np.zeros_like(m)
+    sky[0, 0] = True
+    bo = box_object_mask(g.scene, cam, sky, np.zeros(cam.image_shape))
+    assert bo.mask is not None and bo.mask.sum() == 1 and bo.info["cleaned"].startswith("not cleaned")
+
+
+def test_report_and_printed_line_say_what_the_box_seed_left_out():
+    seed = np.zeros((40, 60), bool)
+    seed[10:20, 20:40] = True
+    ex = SimpleNamespace(seed_mask=seed, prompt_info={"kind": "box", "cleaned": True, "n_dropped_pixels": 85})
+    ex._object_rendering = (np.zeros((40, 60, 3), np.float32), seed.astype(np.float32))
+    s = seed_summary(ex)
+    assert s["dropped_pixels"] == 85
+    assert seed_summary_line(s).endswith("; 85 px of other objects and ground left out of the box's seed")
+    ex.prompt_info = {"kind": "box", "cleaned": "not cleaned: it would leave nothing", "n_dropped_pixels": 0}
+    assert seed_summary(ex)["dropped_pixels"] is None
+    ex.prompt_info = {"kind": "mask"}
+    assert "left out" not in seed_summary_line(seed_summary(ex))
+
+
+def test_an_object_scanned_alone_keeps_its_detached_parts():
+    """No ground, and a part apart from the body in 3D (a ball held above it): the box holds both, nothing leaves."""
+    rng = np.random.default_rng(3)
+
+    def ball(center, radius, n, color):
+        d = rng.normal(size=(n, 3))
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        return surface(np.asarray(center) + radius * d, d, radius * 2.2 / np.sqrt(n), np.tile(color, (n, 1)))
+
+    body = ball((0.0, 0.0, 0.0), 0.5, 900, (0.8, 0.3, 0.2))
+    part = ball((0.0, -0.45, 0.75), 0.18, 200, (0.8, 0.3, 0.2))  # beside the body, 0.2 from it
+    scene = GaussianScene.concat([body, part])
+    cam = Camera.look_at((2.6, -1.0, 0.4), (0.0, -0.2, 0.0), (0.0, -1.0, 0.0), 45, 128, 96)
+    ref = render(scene, cam)
+    ys, xs = np.nonzero(ref.alpha > 0.5)
+    box = [int(xs.min()) - 4, int(ys.min()) - 4, int(xs.max()) + 5, int(ys.max()) + 5]
+    grabcut = BoxPrompt(box).to_mask(ref.rgb, alpha=ref.alpha)
+    bo = box_object_mask(scene, cam, grabcut, ref.depth, box)
+    assert bo.info["n_components"] >= 2  # the part is apart in 3D
+    assert bo.info["n_dropped_pixels"] == 0 and np.array_equal(bo.mask, grabcut)
+
+
+def test_linked_components_checks_its_input():
+    scene, _, _ = sphere_scene(seed=0, n_sphere=50, n_ground=100)
+    with pytest.raises(ValidationError, match="idx"):
+        linked_components(scene, np.array([3]), np.array([True]))
+    with pytest.raises(ValidationError, match="idx"):
+        linked_components(scene, np.array([0, len(scene)]), np.array([True, True]))
+    with pytest.raises(ValidationError, match="ref_nodes"):
+        linked_components(scene, np.array([0, 1, 2]), np.array([False, False, False]))
+    labels, n, link = linked_components(scene, np.arange(len(scene)), np.ones(len(scene), bool))
+    assert labels.shape == (len(scene),) and n >= 1 and link > 0
