@@ -189,10 +189,10 @@ class ExtractSettings:
         With ``cull``, orbit views also leave out the Gaussians whose
         centres lie in front of the plane ``near_margin * extent`` before
         ``o`` (depth along the roi's axis below ``|c - o| - near_margin *
-        extent``; > 0), except the flat, level ones below ``o`` (the ground
-        or table top the object stands on, as the support surface takes
-        them, whose cut edge would otherwise show next to the object's
-        base). The orbit cameras are virtual: a chair, a post or a plant
+        extent``; > 0), except the flat, level ones about the orbit axis
+        (the ground or table top the object stands on, as the support
+        surface takes them, whose cut edge would otherwise show next to the
+        object's base). The orbit cameras are virtual: a chair, a post or a plant
         standing between one and the object need not hide the object. Such
         a view is a view of the scene without those Gaussians: their columns
         of its operator are empty, so the view neither labels nor weighs

@@ -344,18 +344,15 @@ def _clip_frame(op: ViewOperator, clip: str, index: int) -> ClipFrame:
     return ClipFrame(r.rgb, r.depth, r.alpha, op.camera, clip, index, operator=op)
 
 
-def _level_below(scene: GaussianScene, center: np.ndarray, up: np.ndarray) -> np.ndarray:
-    """(N,) bool: the flat, level Gaussians below ``center`` along ``up`` (the ground, a table top).
+def _level(scene: GaussianScene, up: np.ndarray) -> np.ndarray:
+    """(N,) bool: the flat, level Gaussians of ``scene`` about ``up`` (ground, table tops, seats).
 
     Flat and level as :func:`~.support.support_surface` takes them
     (:func:`~.up_axis.flat_normals`, ``|n . up|`` at least its default
     ``min_alignment``).
     """
-    below = np.flatnonzero((scene.means.astype(np.float64) - center) @ up < 0)
-    normals, flat = flat_normals(scene, below)
-    out = np.zeros(len(scene), bool)
-    out[below[flat & (np.abs(normals @ up) >= SUPPORT_DEFAULTS["min_alignment"])]] = True
-    return out
+    normals, flat = flat_normals(scene, np.arange(len(scene)))
+    return flat & (np.abs(normals @ up) >= SUPPORT_DEFAULTS["min_alignment"])
 
 
 def orbit_views(renderer: Renderer, camera: Camera, ref: ReferenceView, lift: SeedLift,
@@ -380,9 +377,10 @@ def orbit_views(renderer: Renderer, camera: Camera, ref: ReferenceView, lift: Se
     up_info = orbit_axis(s.up, scene, base, ref, lift, up_cameras)
     up = np.asarray(up_info["axis"], dtype=np.float64)
 
-    # The near cut leaves the ground in place: cut in front of the object, its edge would show
-    # at the object's depth next to the object's base, where the tracker takes it for the object.
-    spare = _level_below(scene, lift.center, up) if s.cull and s.near_margin is not None else None
+    # The near cut leaves level surfaces in place: the ground cut in front of the object shows its
+    # edge at the object's depth next to the object's base, where the tracker takes it for the object.
+    # Not only those below the object's centre: an axis given upside down would cut the ground.
+    spare = _level(scene, up) if s.cull and s.near_margin is not None else None
 
     def view(cam: Camera, clip: str, k: int) -> ClipFrame:
         if cam is base:
