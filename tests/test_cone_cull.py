@@ -8,11 +8,11 @@ import pytest
 from seed2gs_inverse.camera import Camera
 from seed2gs_inverse.errors import ValidationError
 from seed2gs_inverse.operators import dottest
-from seed2gs_inverse.raster import FrozenScene, build_operator, cone_cull
+from seed2gs_inverse.raster import FrozenScene, Renderer, build_operator, cone_cull
 from seed2gs_inverse.scene import GaussianScene
 
 
-def _numpy_cull(scene, camera, roi, smax, far):
+def _numpy_cull(scene, camera, roi, smax, far, near=None):
     """The footprint bound written out with numpy (the kernel must agree)."""
     h, w = camera.image_shape
     x0, y0, x1, y1 = (0, 0, w, h) if roi is None else roi
@@ -36,20 +36,49 @@ def _numpy_cull(scene, camera, roi, smax, far):
         keep = (z >= camera.near) & (mx + r >= x0) & (mx - r <= x1) & (my + r >= y0) & (my - r <= y1)
     if far is not None:
         keep &= v @ axis - 3 * smax <= far
+    if near is not None:
+        keep &= v @ axis >= near
     return np.flatnonzero(keep)
 
 
-@pytest.mark.parametrize("roi,far", [(None, None), ((10, 5, 40, 30), None), ((0, 0, 20, 48), 4.5)])
-def test_cone_cull_matches_formula(rng, roi, far):
+@pytest.mark.parametrize("roi,far,near", [(None, None, None), ((10, 5, 40, 30), None, None),
+                                          ((0, 0, 20, 48), 4.5, None), ((10, 5, 40, 30), None, 4.0),
+                                          ((0, 0, 20, 48), 6.0, 3.5)])
+def test_cone_cull_matches_formula(rng, roi, far, near):
     n = 4000
     scene = GaussianScene(rng.normal(0, 2.0, (n, 3)), rng.normal(size=(n, 4)), rng.normal(-2.5, 1.0, (n, 3)),
                           np.zeros(n), rng.normal(size=(n, 1, 3)))
     cam = Camera.look_at([0.5, -1.0, -5.0], [0, 0, 0], [0, -1, 0], 50, 64, 48)
-    got = cone_cull(scene, cam, roi, far)
-    want = _numpy_cull(scene, cam, roi, scene.scales.max(axis=1).astype(np.float64), far)
+    got = cone_cull(scene, cam, roi, far, near)
+    want = _numpy_cull(scene, cam, roi, scene.scales.max(axis=1).astype(np.float64), far, near)
     np.testing.assert_array_equal(got, want)
     assert got.dtype == np.int64 and 0 < got.size < n
-    np.testing.assert_array_equal(cone_cull(FrozenScene(scene), cam, roi, far), got)
+    if near is not None:  # the cut is real: some Gaussians of the cone lie in front of it
+        assert got.size < cone_cull(scene, cam, roi, far).size
+    np.testing.assert_array_equal(cone_cull(FrozenScene(scene), cam, roi, far, near), got)
+
+
+def test_near_cut_operator_is_that_of_the_scene_without_what_was_cut(rng):
+    """Renderer.operator(near=, spare=): W of the scene restricted to what stays; the cut columns are empty."""
+    n = 1500
+    scene = GaussianScene(rng.normal(0, 1.5, (n, 3)), rng.normal(size=(n, 4)), rng.normal(-3.0, 0.7, (n, 3)),
+                          rng.normal(1.0, 1.0, n), rng.normal(size=(n, 1, 3)))
+    cam = Camera.look_at([0.5, -1.0, -5.0], [0, 0, 0], [0, -1, 0], 50, 64, 48)
+    roi = (12, 8, 44, 36)
+    spare = np.zeros(n, bool)
+    spare[::7] = True
+    axis = np.array([(28 - cam.cx) / cam.fx, (22 - cam.cy) / cam.fy, 1.0])
+    depth = (scene.means.astype(np.float64) @ cam.rotation.T + cam.translation) @ (axis / np.linalg.norm(axis))
+    stay = (depth >= 4.5) | spare
+    assert (~stay).sum() > 100
+    got = Renderer(scene).operator(cam, roi=roi, cull=True, near=4.5, spare=spare)
+    want = build_operator(scene.subset(stay), cam, roi=roi)
+    W = got.W.toarray()
+    np.testing.assert_allclose(W[:, stay], want.W.toarray(), rtol=1e-6, atol=1e-7)
+    assert not W[:, ~stay].any()
+    np.testing.assert_allclose(got.rendering.rgb, want.rendering.rgb, rtol=1e-6, atol=1e-6)
+    with pytest.raises(ValidationError, match="spare"):
+        cone_cull(scene, cam, roi, near=4.5, spare=spare[:10])
 
 
 def test_culled_subset_gives_the_same_roi_pixels(rng):
@@ -131,8 +160,9 @@ def test_cone_cull_rejects_bad_input(rng):
     cam = Camera.look_at([0, 0, -4], [0, 0, 0], [0, -1, 0], 50, 16, 12)
     for bad, match in ((dict(scene="x.ply"), "GaussianScene"), (dict(camera="cam"), "Camera"),
                        (dict(roi=(5, 5, 5, 9)), "empty"), (dict(roi=(1, 2, 3)), "roi"),
-                       (dict(far="far"), "far"), (dict(far=float("nan")), "far")):
-        kw = dict(scene=scene, camera=cam, roi=None, far=None)
+                       (dict(far="far"), "far"), (dict(far=float("nan")), "far"),
+                       (dict(near=True), "near"), (dict(near=float("nan")), "near")):
+        kw = dict(scene=scene, camera=cam, roi=None, far=None, near=None)
         kw.update(bad)
         with pytest.raises(ValidationError, match=match):
-            cone_cull(kw["scene"], kw["camera"], kw["roi"], kw["far"])
+            cone_cull(kw["scene"], kw["camera"], kw["roi"], kw["far"], kw["near"])

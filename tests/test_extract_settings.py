@@ -28,10 +28,11 @@ DEFAULTS_BEFORE = {
 # (resolved["smoothness"]); the orbit operators drop weights below 0.01 and
 # the model-free tracker labels the support surface background. New options
 # come after the old ones. Faint Gaussians near the object follow their opaque neighbours
-# (benchmarks/bench_scanned.py).
+# (benchmarks/bench_scanned.py); the orbit views cut what stands in front of the object
+# (near_margin, measured on bench_extract.py and tests/test_occluded_views.py).
 DEFAULTS = {**DEFAULTS_BEFORE, "up": "auto", "min_weight": 0.01, "point_mode": "object", "smoothness": None,
             "completion": None, "graph_options": None, "seed_connected": True, "support_background": True,
-            "follow_faint": True}
+            "follow_faint": True, "near_margin": 1.0}
 
 
 def test_defaults_are_those_of_the_old_extract_but_issue_10s():
@@ -93,6 +94,8 @@ def test_defaults_are_those_of_the_old_extract_but_issue_10s():
     ("min_weight", -1e-3, "min_weight must be >= 0"),
     ("cull", 1, "cull must be True or False"),
     ("cull_far", -1.0, "cull_far must be > 0"),
+    ("near_margin", 0.0, "near_margin must be > 0"),
+    ("near_margin", float("nan"), "near_margin must be finite"),
     ("min_evidence", float("nan"), "min_evidence must be finite"),
     ("min_evidence", -0.1, "min_evidence must be >= 0"),
     ("threshold", float("inf"), "threshold must be finite"),

@@ -381,7 +381,7 @@ truth = syn.labels == label
 seed = (build_operator(syn.scene, cam).W @ truth.astype(np.float32)).reshape(cam.image_shape) > 0.5
 kw = {"solver_options": {"max_iter": 30}} if name == "weighted_bce" else {"method": "voting"}
 ex = extract(syn.scene, cam, seed, tracker=GeometricTracker(fill_from_empty=True), n_views=6, progress=False,
-             up="level", smoothness=0.0, min_weight=0.0, follow_faint=False, **kw)
+             up="level", smoothness=0.0, min_weight=0.0, follow_faint=False, near_margin=None, **kw)
 np.savez(out, q=ex.q, n_weak=ex.resolved["n_weak_evidence"])
 """
 

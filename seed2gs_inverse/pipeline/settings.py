@@ -188,6 +188,23 @@ class ExtractSettings:
         0, empty operator rows), and those Gaussians stay unobserved (prior
         0) unless a nearer view sees them. None keeps everything (exact
         operators).
+    near_margin : float or None
+        With ``cull``, orbit views also leave out the Gaussians whose
+        centres lie in front of the plane ``near_margin * extent`` before
+        ``o`` (depth along the roi's axis below ``|c - o| - near_margin *
+        extent``; > 0), except the flat, level ones about the orbit axis
+        (the ground or table top the object stands on, as the support
+        surface takes them, whose cut edge would otherwise show next to the
+        object's base). The orbit cameras are virtual: a chair, a post or a plant
+        standing between one and the object need not hide the object. Such
+        a view is a view of the scene without those Gaussians: their columns
+        of its operator are empty, so the view neither labels nor weighs
+        them, and the tracker's masks are of the view as rendered. Where
+        the object reaches farther than the plane towards the camera, its
+        own nearest parts are cut in that view and it shows its inside
+        there; other views see those parts. The reference view is never
+        cut. Default 1, chosen on benchmarks/bench_extract.py and on posts
+        around an object (tests/test_occluded_views.py). None: no near cut.
     min_evidence : float
         A Gaussian whose summed compositing weight over the *decided*
         (non-NaN) pixels of all views is below this (>= 0, default 0.05, a
@@ -316,6 +333,7 @@ class ExtractSettings:
     seed_connected: bool = True
     support_background: bool = True
     follow_faint: bool = True
+    near_margin: float | None = 1.0
 
     def __post_init__(self):
         set_ = object.__setattr__.__get__(self)
@@ -375,6 +393,7 @@ class ExtractSettings:
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValidationError(f"{name} must be True or False, got {getattr(self, name)!r}")
             set_(name, bool(getattr(self, name)))
+        set_("near_margin", check_real("near_margin", self.near_margin, lo=0.0, lo_open=True, optional=True))
 
     # -- derived -------------------------------------------------------------
     def solver_kwargs(self) -> dict:

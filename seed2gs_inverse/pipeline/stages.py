@@ -53,7 +53,7 @@ from .point_object import point_object_mask
 from .islands import seed_connected
 from .seed_lift import seed_lift
 from .support import SUPPORT_DEFAULTS, support_surface
-from .up_axis import WEAK_CONFIDENCE, camera_list, estimate_up, estimate_up_axis
+from .up_axis import WEAK_CONFIDENCE, camera_list, estimate_up, estimate_up_axis, flat_normals
 from .vaas import ClipFrame, run_vaas
 
 if TYPE_CHECKING:
@@ -392,6 +392,17 @@ def _clip_frame(op: ViewOperator, clip: str, index: int) -> ClipFrame:
     return ClipFrame(r.rgb, r.depth, r.alpha, op.camera, clip, index, operator=op)
 
 
+def _level(scene: GaussianScene, up: np.ndarray) -> np.ndarray:
+    """(N,) bool: the flat, level Gaussians of ``scene`` about ``up`` (ground, table tops, seats).
+
+    Flat and level as :func:`~.support.support_surface` takes them
+    (:func:`~.up_axis.flat_normals`, ``|n . up|`` at least its default
+    ``min_alignment``).
+    """
+    normals, flat = flat_normals(scene, np.arange(len(scene)))
+    return flat & (np.abs(normals @ up) >= SUPPORT_DEFAULTS["min_alignment"])
+
+
 def orbit_views(renderer: Renderer, camera: Camera, ref: ReferenceView, lift: SeedLift,
                 settings: ExtractSettings, progress: Progress | None = None,
                 up_cameras: Sequence[Camera] | None = None) -> OrbitViews:
@@ -402,7 +413,8 @@ def orbit_views(renderer: Renderer, camera: Camera, ref: ReferenceView, lift: Se
     ``max_view_pixels``), zoomed to ``zoom_margin * extent`` about ``o``,
     composited only inside the projected sphere of ``roi_margin * extent``
     and, with ``cull``, rasterized from the Gaussians of that cone (cut at
-    ``cull_far * extent`` behind ``o``). Frame 0 of each clip is the
+    ``cull_far * extent`` behind ``o``, and with ``near_margin`` at
+    ``near_margin * extent`` before it). Frame 0 of each clip is the
     reference view itself (``ref``, at its own resolution). ``progress``
     counts one step per view rendered.
     """
@@ -413,14 +425,21 @@ def orbit_views(renderer: Renderer, camera: Camera, ref: ReferenceView, lift: Se
     up_info = orbit_axis(s.up, scene, base, ref, lift, up_cameras)
     up = np.asarray(up_info["axis"], dtype=np.float64)
 
+    # The near cut leaves level surfaces in place: the ground cut in front of the object shows its
+    # edge at the object's depth next to the object's base, where the tracker takes it for the object.
+    # Not only those below the object's centre: an axis given upside down would cut the ground.
+    spare = _level(scene, up) if s.cull and s.near_margin is not None else None
+
     def view(cam: Camera, clip: str, k: int) -> ClipFrame:
         if cam is base:
             op = ref.operator  # frame 0 is the reference view itself, at the lift resolution
         else:
             roi = _roi_box(cam, lift.center, lift.radius, s.roi_margin)
-            far = None if not s.cull or s.cull_far is None else float(
-                np.linalg.norm(cam.center - lift.center) + s.cull_far * lift.radius)
-            op = renderer.operator(cam, roi=roi, min_weight=s.min_weight, cull=s.cull, far=far)
+            dist = float(np.linalg.norm(cam.center - lift.center))
+            far = None if not s.cull or s.cull_far is None else dist + s.cull_far * lift.radius
+            near = None if not s.cull or s.near_margin is None else dist - s.near_margin * lift.radius
+            op = renderer.operator(cam, roi=roi, min_weight=s.min_weight, cull=s.cull, far=far, near=near,
+                                   spare=spare)
         if progress is not None:
             progress.update()
         return _clip_frame(op, clip, k)

@@ -26,7 +26,8 @@ def _roi_box(roi, camera: Camera) -> tuple:
     return tuple(roi)
 
 
-def cone_cull(scene, camera: Camera, roi=None, far: float | None = None) -> np.ndarray:
+def cone_cull(scene, camera: Camera, roi=None, far: float | None = None, near: float | None = None,
+              spare: np.ndarray | None = None) -> np.ndarray:
     """Indices of the Gaussians that can reach the pixels of ``roi`` in ``camera``.
 
     A conservative bound on the footprint the rasterizer gives each Gaussian,
@@ -59,6 +60,15 @@ def cone_cull(scene, camera: Camera, roi=None, far: float | None = None) -> np.n
         Also drop Gaussians whose depth ``t_a`` along the axis of the cone
         through the roi's centre exceeds ``far`` plus their 3-sigma size,
         ``t_a - 3 s_i > far``; default no far cut.
+    near : float, optional
+        Also drop Gaussians whose centre lies in front of depth ``near``
+        along the same axis, ``t_a < near``; default no near cut. Unlike
+        ``far`` this is not conservative: the subset renders the scene
+        without the Gaussians cut (a virtual view through what stands in
+        front), not the same pixels.
+    spare : (N,) bool, optional
+        Gaussians the near cut leaves in place (the ground the object
+        stands on, so that no cut edge of it shows next to the object).
 
     Returns
     -------
@@ -69,9 +79,15 @@ def cone_cull(scene, camera: Camera, roi=None, far: float | None = None) -> np.n
         raise ValidationError(f"scene must be a GaussianScene or FrozenScene, got {type(scene).__name__}")
     if not isinstance(camera, Camera):
         raise ValidationError(f"camera must be a Camera, got {type(camera).__name__}")
-    if far is not None and (isinstance(far, bool) or not isinstance(far, (int, float, np.integer, np.floating))
-                            or np.isnan(far)):
-        raise ValidationError(f"far must be a number or None, got {far!r}")
+    for name, v in (("far", far), ("near", near)):
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating))
+                              or np.isnan(v)):
+            raise ValidationError(f"{name} must be a number or None, got {v!r}")
+    if spare is not None:
+        spare = np.asarray(spare)
+        if spare.dtype != bool or spare.shape != (len(scene),):
+            raise ValidationError(f"spare must be None or a ({len(scene)},) bool mask of the scene's Gaussians, "
+                                  f"got {spare.dtype} of shape {spare.shape}")
     x0, y0, x1, y1 = (float(v) for v in _roi_box(roi, camera))
     scene, frozen = unfreeze(scene)
     smax = (frozen.sigma3 if frozen is not None else sigma3(scene)) / 3.0
@@ -82,4 +98,12 @@ def cone_cull(scene, camera: Camera, roi=None, far: float | None = None) -> np.n
     _kernels.announce_compilation((_kernels._cone_cull,))
     _kernels.cone_cull(scene.means, camera_params(camera), np.array([x0, y0, x1, y1]), np.ascontiguousarray(smax),
                        EPS2D, axis, np.inf if far is None else float(far), keep)
-    return np.flatnonzero(keep).astype(np.int64, copy=False)
+    idx = np.flatnonzero(keep).astype(np.int64, copy=False)
+    if near is not None and idx.size:
+        # On the kept subset only, usually a small part of the scene: t_a = (R x + t) . axis.
+        t_a = (scene.means[idx].astype(np.float64) @ camera.rotation.T + camera.translation) @ axis
+        cut = t_a < float(near)
+        if spare is not None:
+            cut &= ~spare[idx]
+        idx = idx[~cut]
+    return idx

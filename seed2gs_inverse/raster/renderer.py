@@ -55,7 +55,8 @@ class Renderer:
         return render(self.frozen, camera, mode=self.mode)
 
     def operator(self, camera: Camera, roi: tuple | None = None, min_weight: float = 0.0, cull: bool = False,
-                 far: float | None = None) -> ViewOperator:
+                 far: float | None = None, near: float | None = None,
+                 spare: np.ndarray | None = None) -> ViewOperator:
         """``W(camera)`` with its rendering, composited only in ``roi``.
 
         Parameters
@@ -69,12 +70,19 @@ class Renderer:
             Rasterize only the Gaussians that can reach the ``roi`` pixels
             (:func:`~seed2gs_inverse.raster.cone_cull`, cut at depth ``far``
             when given). W's columns stay scene indices, and the operator is
-            the same when ``far`` is None.
+            the same when ``far`` and ``near`` are None.
         far : float, optional
             Depth beyond which the cull drops Gaussians.
+        near : float, optional
+            Depth before which the cull drops Gaussians (by their centres):
+            the operator is then that of the scene without them, whose
+            columns of W are empty.
+        spare : (N,) bool, optional
+            Gaussians the ``near`` cut leaves in place. ``far``, ``near``
+            and ``spare`` act only with ``cull``.
         """
         t0, c0 = time.perf_counter(), compile_seconds()
-        subset: np.ndarray | None = cone_cull(self.frozen, camera, roi, far) if cull else None
+        subset: np.ndarray | None = cone_cull(self.frozen, camera, roi, far, near, spare) if cull else None
         op = build_operator(self.frozen, camera, roi=roi, min_weight=min_weight, mode=self.mode, subset=subset)
         self.operator_seconds += time.perf_counter() - t0 - (compile_seconds() - c0)
         return op
