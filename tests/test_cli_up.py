@@ -151,3 +151,19 @@ def test_no_follow_faint_reaches_the_settings(files, capsys):
     assert cli.main(["extract", "--from-report", str(d / "nff" / "report.json"), "--no-follow-faint", "-o",
                      str(d / "nff_rep")]) == 2
     assert "cannot be combined with --no-follow-faint" in capsys.readouterr().err
+
+
+def test_near_margin_reaches_the_settings(files, capsys):
+    d, _ = files
+    assert _extract(d, d / "nm", "--near-margin", "off", "--up", "level") == 0, capsys.readouterr().err
+    assert json.loads((d / "nm" / "report.json").read_text())["settings"]["near_margin"] is None
+    assert _extract(d, d / "nm2", "--near-margin", "0.5", "--up", "level") == 0, capsys.readouterr().err
+    assert json.loads((d / "nm2" / "report.json").read_text())["settings"]["near_margin"] == 0.5
+    for bad, says in (("-1", "--near-margin must be > 0"), ("far", "--near-margin 'far': expected a number > 0")):
+        assert _extract(d, d / "nm_bad", "--near-margin", bad) == 2
+        err = capsys.readouterr().err
+        assert says in err, err
+        assert not (d / "nm_bad").exists()
+    assert cli.main(["extract", "--from-report", str(d / "nm" / "report.json"), "--near-margin", "1", "-o",
+                     str(d / "nm_rep")]) == 2
+    assert "cannot be combined with --near-margin" in capsys.readouterr().err

@@ -42,7 +42,7 @@ __all__ = ["register", "settings_from_args", "seed_summary_line", "axis_line", "
 #: Options that set ExtractSettings (None on the command line = not given).
 _SETTING_FLAGS = {"method": "--method", "views": "--views", "orbit_scale": "--orbit-scale",
                   "max_view_pixels": "--max-view-pixels", "max_reference_pixels": "--max-reference-pixels",
-                  "threshold": "--threshold", "up": "--up", "option": "--option", "point_mode": "--point-mode",
+                  "near_margin": "--near-margin", "threshold": "--threshold", "up": "--up", "option": "--option", "point_mode": "--point-mode",
                   "smoothness": "--smoothness", "completion": "--completion", "keep_islands": "--keep-islands",
                   "no_support_background": "--no-support-background", "no_follow_faint": "--no-follow-faint"}
 _PROMPT_FLAGS = {"mask": "--mask", "box": "--box", "point": "--point", "prompt": "--prompt",
@@ -105,6 +105,10 @@ def register(subparsers) -> None:
                    help=f"cap on the pixels of the reference view the seed is lifted from, "
                         f"{LIMITS['max_reference_pixels'][0]}..{LIMITS['max_reference_pixels'][1]:,} (default "
                         f"1,000,000): a larger camera is rendered smaller for the lift, and the run says so")
+    p.add_argument("--near-margin", default=None, metavar="R|off",
+                   help="the orbit views leave out Gaussians more than R object radii in front of the object's "
+                        "centre (what stands between them and the object; level ground stays), R > 0 (default "
+                        "1); 'off' renders everything in front")
     p.add_argument("--threshold", type=float, default=None,
                    help="q threshold in [0, 1) (default: the solver's, 0.5)")
     p.add_argument("--up", default=None, metavar="auto|level|camera|X,Y,Z",
@@ -383,6 +387,14 @@ def _up(text):
                               f"(e.g. 0,-1,0)") from None
 
 
+def _number(flag: str, text: str, what: str) -> float:
+    """``text`` as a float, or a ValidationError naming ``flag`` and ``what`` it takes."""
+    try:
+        return float(text)
+    except ValueError:
+        raise ValidationError(f"{flag} {text!r}: expected {what}") from None
+
+
 def settings_from_args(args):
     """The :class:`~seed2gs_inverse.pipeline.ExtractSettings` of the command line (validated)."""
     method = args.method or "weighted_bce"
@@ -398,8 +410,11 @@ def settings_from_args(args):
     flags = {"n_views": "--views", "orbit_scale": "--orbit-scale", "threshold": "--threshold", "up": "--up",
              "max_view_pixels": "--max-view-pixels", "max_reference_pixels": "--max-reference-pixels",
              "method": "--method", "solver_options": "--option", "point_mode": "--point-mode",
-             "smoothness": "--smoothness", "completion": "--completion"}
+             "smoothness": "--smoothness", "completion": "--completion", "near_margin": "--near-margin"}
     kw = {k: v for k, v in given.items() if v is not None}
+    near = getattr(args, "near_margin", None)
+    if near is not None:
+        kw["near_margin"] = None if near == "off" else _number("--near-margin", near, "a number > 0 or 'off'")
     kw["progress"] = feedback_progress(args)
     try:
         return ExtractSettings(**kw)
