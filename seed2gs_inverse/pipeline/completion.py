@@ -79,6 +79,13 @@ __all__ = ["object_graph", "complete_membership", "tracked_membership", "fill_un
 GRAPH_DEFAULTS = {"k": 10, "sigma_color": 0.1, "sigma_normal": 0.2, "region": 3.0, "min_opacity": 0.05}
 
 
+def _region(scene, center, radius: float, region: float) -> np.ndarray:
+    """Indices of the Gaussians within ``region * radius`` of ``center`` (``region`` validated)."""
+    if not (np.isfinite(region) and region > 0):
+        raise ValidationError(f"region must be positive, got {region!r}")
+    return region_subset(scene, center, float(region) * float(radius))
+
+
 def object_graph(scene, center, radius: float, *, k: int = GRAPH_DEFAULTS["k"],
                  sigma_color: float | None = GRAPH_DEFAULTS["sigma_color"],
                  sigma_normal: float | None = GRAPH_DEFAULTS["sigma_normal"],
@@ -99,9 +106,7 @@ def object_graph(scene, center, radius: float, *, k: int = GRAPH_DEFAULTS["k"],
     ValidationError
         ``region`` is not a positive number.
     """
-    if not (np.isfinite(region) and region > 0):
-        raise ValidationError(f"region must be positive, got {region!r}")
-    idx = region_subset(scene, center, float(region) * float(radius))
+    idx = _region(scene, center, radius, region)
     return gaussian_graph(scene, k, subset=idx, sigma_color=sigma_color, sigma_normal=sigma_normal,
                           min_opacity=min_opacity)
 
@@ -124,9 +129,7 @@ def faint_follow_matrix(scene, center, radius: float, *, region: float = GRAPH_D
     ValidationError
         ``region`` is not a positive number, or a bad ``min_opacity`` / ``k``.
     """
-    if not (np.isfinite(region) and region > 0):
-        raise ValidationError(f"region must be positive, got {region!r}")
-    idx = region_subset(scene, center, float(region) * float(radius))
+    idx = _region(scene, center, radius, region)
     return follow_matrix(scene, k, subset=idx, min_opacity=min_opacity)
 
 
