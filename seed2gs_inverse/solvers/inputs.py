@@ -143,17 +143,16 @@ class SolveInputs:
         opts = {**self.options, **options} if m == self.method else dict(options)
         result = solve(self.operators, self.masks, method=m, init=self.init, min_evidence=self.min_evidence,
                        smoothness=self.smoothness, graph=self.graph, progress=progress, **opts)
-        changes = {}
+        # the run's post-solve rules, in its order
         q = np.array(result.q, dtype=np.float32)
         if self.follow is not None:
             q = apply_follow(q, self.follow)
-        if not keep_islands and self.islands.size:
+        if not keep_islands:
             q[self.islands] = np.float32(0)
-        if self.follow is not None or (not keep_islands and self.islands.size):
-            changes["q"] = q
+        changes = {"q": q}
         if m == self.method and self.threshold is not None:
             changes["threshold"] = float(self.threshold)
-        return dataclasses.replace(result, **changes) if changes else result
+        return dataclasses.replace(result, **changes)
 
 
 def _plain(value):
