@@ -89,8 +89,9 @@ def save_extraction(extraction: Extraction, outdir: str | os.PathLike, fmt: str 
     ------
     ValidationError
         ``outdir`` may not be written (see ``outdir``), or
-        ``save_operators`` for an extraction whose regulariser's graph is
-        not kept (``extraction.graph`` is None).
+        ``save_operators`` for an extraction whose regulariser's graph or
+        faint Gaussians' matrix is not kept (``extraction.graph`` or
+        ``extraction.follow`` is None; :func:`solve_inputs_of`).
 
     Notes
     -----
