@@ -94,6 +94,8 @@ from ..sh import SH_C0, SH_C1, SH_C2, SH_C3
 TILE = 16
 ALPHA_MAX = 0.99
 ALPHA_MIN = 1.0 / 255.0
+#: The dilation added to every projected 2D covariance (px^2), as in the reference rasterizer.
+EPS2D = 0.3
 T_MIN = 1e-4
 
 # One source of the SH constants: seed2gs_inverse.sh (module-level floats are

@@ -10,20 +10,9 @@ from ..scene import GaussianScene
 from . import _kernels
 from .frozen import FrozenScene, sigma3, unfreeze
 from .project import EPS2D, camera_params
+from .spatial import check_depth_cut, roi_box
 
 __all__ = ["cone_cull"]
-
-
-def _roi_box(roi, camera: Camera) -> tuple:
-    if roi is None:
-        return (0, 0, camera.width, camera.height)
-    arr = np.asarray(roi)
-    if arr.shape != (4,) or arr.dtype.kind not in "iuf" or not np.all(np.isfinite(arr)):
-        raise ValidationError(f"roi must be None or a box (x0, y0, x1, y1), got {roi!r}")
-    x0, y0, x1, y1 = (float(v) for v in arr)
-    if x0 >= x1 or y0 >= y1:
-        raise ValidationError(f"roi box {(x0, y0, x1, y1)} is empty; need x0 < x1 and y0 < y1")
-    return tuple(roi)
 
 
 def cone_cull(scene, camera: Camera, roi=None, far: float | None = None, near: float | None = None,
@@ -74,35 +63,47 @@ def cone_cull(scene, camera: Camera, roi=None, far: float | None = None, near: f
     -------
     (M,) int64
         Ascending scene indices.
+
+    Notes
+    -----
+    On a :class:`~.frozen.FrozenScene` the bound is evaluated only on the
+    candidates of its spatial index
+    (:meth:`~.spatial.SpatialIndex.view_candidates`, a superset of the
+    Gaussians kept), so the cost follows the Gaussians near the view; the
+    result is the same as the pass over every Gaussian that a
+    :class:`~seed2gs_inverse.scene.GaussianScene` gets.
     """
     if not isinstance(scene, (GaussianScene, FrozenScene)):
         raise ValidationError(f"scene must be a GaussianScene or FrozenScene, got {type(scene).__name__}")
     if not isinstance(camera, Camera):
         raise ValidationError(f"camera must be a Camera, got {type(camera).__name__}")
-    for name, v in (("far", far), ("near", near)):
-        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating))
-                              or np.isnan(v)):
-            raise ValidationError(f"{name} must be a number or None, got {v!r}")
+    far, near = check_depth_cut("far", far), check_depth_cut("near", near)
     if spare is not None:
         spare = np.asarray(spare)
         if spare.dtype != bool or spare.shape != (len(scene),):
             raise ValidationError(f"spare must be None or a ({len(scene)},) bool mask of the scene's Gaussians, "
                                   f"got {spare.dtype} of shape {spare.shape}")
-    x0, y0, x1, y1 = (float(v) for v in _roi_box(roi, camera))
+    x0, y0, x1, y1 = roi_box(roi, camera)
     scene, frozen = unfreeze(scene)
-    smax = (frozen.sigma3 if frozen is not None else sigma3(scene)) / 3.0
     axis = np.array([(0.5 * (x0 + x1) - camera.cx) / camera.fx, (0.5 * (y0 + y1) - camera.cy) / camera.fy, 1.0])
     axis /= np.linalg.norm(axis)
-    # One parallel pass over the scene (this runs for every orbit view of extract).
-    keep = np.empty(len(scene), bool)
+    if frozen is None:
+        means, smax = scene.means, sigma3(scene) / 3.0
+    else:
+        # The kernel on the index's candidates only (chunk order; sorted once kept).
+        cand = frozen.spatial.view_rows(camera, roi, far)
+        means, smax = scene.means[cand], frozen.sigma3[cand] / 3.0
+    keep = np.empty(len(means), bool)
     _kernels.announce_compilation((_kernels._cone_cull,))
-    _kernels.cone_cull(scene.means, camera_params(camera), np.array([x0, y0, x1, y1]), np.ascontiguousarray(smax),
-                       EPS2D, axis, np.inf if far is None else float(far), keep)
+    _kernels.cone_cull(means, camera_params(camera), np.array([x0, y0, x1, y1]), np.ascontiguousarray(smax),
+                       EPS2D, axis, np.inf if far is None else far, keep)
     idx = np.flatnonzero(keep).astype(np.int64, copy=False)
+    if frozen is not None:
+        idx = frozen.spatial.ascending(cand[idx])
     if near is not None and idx.size:
         # On the kept subset only, usually a small part of the scene: t_a = (R x + t) . axis.
         t_a = (scene.means[idx].astype(np.float64) @ camera.rotation.T + camera.translation) @ axis
-        cut = t_a < float(near)
+        cut = t_a < near
         if spare is not None:
             cut &= ~spare[idx]
         idx = idx[~cut]

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 
 from ..errors import ValidationError
 from ..scene import GaussianScene
 from . import _kernels
+from .spatial import SpatialIndex
 
 __all__ = ["FrozenScene", "unfreeze", "activations", "sigma3"]
 
@@ -41,6 +44,13 @@ class FrozenScene:
     scene and give bit-identical results. The caller holds it (no global
     cache) and promises not to change the scene's arrays while using it.
 
+    Culling (:func:`~seed2gs_inverse.raster.cone_cull`), and through it
+    :func:`~seed2gs_inverse.raster.render` and
+    :func:`~seed2gs_inverse.raster.build_operator` without ``subset``,
+    visit only the Gaussians of the chunks of :attr:`spatial` that can
+    reach the view, so that Gaussians far from every view cost nothing per
+    view.
+
     Parameters
     ----------
     scene : GaussianScene
@@ -62,6 +72,20 @@ class FrozenScene:
         self.scene = scene
         self.activations = _activate(scene, np.arange(len(scene), dtype=np.int64))
         self.sigma3 = sigma3(scene)
+        self._spatial: SpatialIndex | None = None
+        self._spatial_lock = threading.Lock()
+
+    @property
+    def spatial(self) -> SpatialIndex:
+        """The scene's :class:`~.spatial.SpatialIndex` of centres and 1-sigma sizes, built on first use.
+
+        Kept for every later query; a frozen scene that never culls never
+        builds it.
+        """
+        with self._spatial_lock:
+            if self._spatial is None:
+                self._spatial = SpatialIndex(self.scene.means, self.sigma3 / 3.0)
+            return self._spatial
 
     def __len__(self) -> int:
         return len(self.scene)

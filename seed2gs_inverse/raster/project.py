@@ -15,8 +15,7 @@ from .frozen import FrozenScene, activations, unfreeze
 __all__ = ["Projection", "project_gaussians", "MODES"]
 
 MODES = ("classic", "antialiased")
-#: The dilation added to every projected 2D covariance (px^2), as in the reference rasterizer.
-EPS2D = 0.3
+EPS2D = _kernels.EPS2D  # the 2D dilation (px^2); defined with the kernels so that the spatial index shares it
 
 
 class Projection(NamedTuple):

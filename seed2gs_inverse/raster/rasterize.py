@@ -68,6 +68,7 @@ from .._selection import support_indices
 from ..errors import ValidationError
 from ..operators.view import Rendering, ViewOperator
 from . import _kernels
+from .cull import cone_cull
 from .project import check_inputs, project
 
 __all__ = ["render", "build_operator"]
@@ -165,30 +166,43 @@ def _lazy_empty(n, dtype):
     return np.frombuffer(mmap.mmap(-1, n * dtype.itemsize), dtype=dtype, count=n)
 
 
-def _tile_box(roi_mask):
-    """Tiles ``[tx0, ty0, tx1, ty1)`` holding every pixel of the roi (int64)."""
+def _pixel_box(roi_mask):
+    """Pixels ``[x0, y0, x1, y1)`` holding every pixel of the roi (int64; all 0 for an empty roi)."""
     rows = np.flatnonzero(roi_mask.any(axis=1))
     cols = np.flatnonzero(roi_mask.any(axis=0))
     if rows.size == 0:
         return np.zeros(4, np.int64)
+    return np.array([cols[0], rows[0], cols[-1] + 1, rows[-1] + 1], np.int64)
+
+
+def _tile_box(pixel_box):
+    """Tiles ``[tx0, ty0, tx1, ty1)`` holding every pixel of ``pixel_box`` (int64)."""
+    if pixel_box[2] <= pixel_box[0]:
+        return np.zeros(4, np.int64)
     t = _kernels.TILE
-    return np.array([cols[0] // t, rows[0] // t, cols[-1] // t + 1, rows[-1] // t + 1], np.int64)
+    return np.array([pixel_box[0] // t, pixel_box[1] // t, (pixel_box[2] - 1) // t + 1,
+                     (pixel_box[3] - 1) // t + 1], np.int64)
 
 
 def _rasterize(scene, frozen, camera, background, mode, roi, min_weight, build_w, stats=None, subset=None):
     """One rasterizer pass; returns (Rendering, W or None).
 
     ``frozen``: the scene's :class:`~.frozen.FrozenScene` or None.
-    ``subset``: ascending int64 scene indices to rasterize (default all); W
-    keeps one column per scene Gaussian. ``stats``, a dict, receives stage
+    ``subset``: ascending int64 scene indices to rasterize (default all,
+    which on a frozen scene are the Gaussians that ``cone_cull`` keeps for
+    the roi's bounding box: the others reach none of its pixels); W keeps
+    one column per scene Gaussian. ``stats``, a dict, receives stage
     timings (s) and work counts for benchmarks.
     """
     clock = [time.perf_counter()]
     h, w = camera.height, camera.width
     roi_mask = _roi_mask(roi, (h, w))
     bg = _check_background(background)
+    box = _pixel_box(roi_mask)
+    if subset is None and frozen is not None:
+        subset = cone_cull(frozen, camera, box)
     gid = np.arange(len(scene), dtype=np.int64) if subset is None else subset
-    splats = project(scene, frozen, camera, mode, gid, _tile_box(roi_mask))
+    splats = project(scene, frozen, camera, mode, gid, _tile_box(box))
     rects = splats.rects
     clock.append(time.perf_counter())
 
