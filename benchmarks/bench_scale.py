@@ -20,8 +20,9 @@ the unicorn's mask in the overview camera, 960x540).
 Each row prints the extraction's wall time and per-stage seconds
 (``Extraction.seconds``), the extraction's own peak memory (the peak
 resident size ``VmHWM``, reset through ``/proc/self/clear_refs`` just before
-the extraction, minus the resident size at that moment: the scene's arrays
-do not count; ``-`` where Linux does not allow the reset), the number of
+the extraction, minus the resident size at that moment, after memory freed
+by earlier rows was handed back to the system: the scene's arrays do not
+count; ``-`` where Linux does not allow the reset), the number of
 Gaussians selected, whether the selection equals the 0.6 M one, a same-run
 baseline (one 960x540 render of the 0.6 M scene, median of 3) and the load
 average. One extraction of the 0.6 M scene runs first, untimed, so that
@@ -36,6 +37,8 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import ctypes
+import gc
 import sys
 import time
 
@@ -57,6 +60,16 @@ def _proc_kb(field: str) -> int:
             if line.startswith(field + ":"):
                 return int(line.split()[1])
     raise RuntimeError(f"{field} not in /proc/self/status")
+
+
+def _release_free_memory() -> None:
+    """Hand memory freed by earlier rows back to the system (glibc ``malloc_trim``; nothing elsewhere), so that
+    a row's peak above its starting resident size does not depend on the rows before it."""
+    gc.collect()
+    try:
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
 
 
 def _reset_peak() -> bool:
@@ -110,6 +123,7 @@ def _object_variant(scene: GaussianScene, truth: np.ndarray, name: str):
 def _run(label, scene, truth, cam, seed, views, base_sel, render_s):
     """One extraction: its row as a dict (printed by the caller)."""
     load0 = load_average()
+    _release_free_memory()
     rss0 = _proc_kb("VmRSS")
     reset_ok = _reset_peak()
     t0 = time.perf_counter()

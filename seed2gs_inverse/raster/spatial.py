@@ -168,13 +168,12 @@ class SpatialIndex:
             col = means[self.perm, d]
             lo.append(np.minimum.reduceat(col, self.starts[:-1]))
             hi.append(np.maximum.reduceat(col, self.starts[:-1]))
-        self.chunks = _Boxes(np.stack(lo, 1).astype(np.float64), np.stack(hi, 1).astype(np.float64),
-                             sz.astype(np.float64))
+        lo, hi = np.stack(lo, 1).astype(np.float64), np.stack(hi, 1).astype(np.float64)
+        self.chunks = _Boxes(lo, hi, sz.astype(np.float64))
         # Blocks of _BLOCK consecutive chunks.
         b_first = np.arange(0, len(self.starts) - 1, _BLOCK)
-        b_lo = np.minimum.reduceat(self.chunks.centre - self.chunks.half, b_first, axis=0)
-        b_hi = np.maximum.reduceat(self.chunks.centre + self.chunks.half, b_first, axis=0)
-        self.blocks = _Boxes(b_lo, b_hi, np.maximum.reduceat(self.chunks.smax, b_first))
+        self.blocks = _Boxes(np.minimum.reduceat(lo, b_first, axis=0), np.maximum.reduceat(hi, b_first, axis=0),
+                             np.maximum.reduceat(self.chunks.smax, b_first))
         self._block_first = np.append(b_first, len(self.starts) - 1)
 
     @staticmethod
