@@ -8,7 +8,7 @@ import pytest
 
 from seed2gs_inverse.camera import Camera
 from seed2gs_inverse.errors import ValidationError
-from seed2gs_inverse.raster import FrozenScene, build_operator, cone_cull, render, spatial
+from seed2gs_inverse.raster import FrozenScene, Renderer, build_operator, cone_cull, render, spatial
 from seed2gs_inverse.raster.spatial import SpatialIndex
 from seed2gs_inverse.scene import GaussianScene
 
@@ -217,6 +217,10 @@ def test_frozen_scene_builds_the_index_once_on_first_use(adversarial):
     assert isinstance(index, SpatialIndex) and frozen.spatial is index and len(index) == len(scene)
     render(frozen, cams["inside"])
     assert frozen.spatial is index
+    # A Renderer made from the frozen scene shares it (activations and index), not a copy.
+    renderer = Renderer(frozen)
+    assert renderer.frozen is frozen and renderer.scene is scene
+    _same_rendering(renderer.render(cams["outside"]), render(scene, cams["outside"]))
 
 
 def test_bad_input_is_refused():

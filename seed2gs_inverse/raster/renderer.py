@@ -30,8 +30,11 @@ class Renderer:
 
     Parameters
     ----------
-    scene : GaussianScene
-        The scene; ``renderer.scene`` keeps it.
+    scene : GaussianScene or FrozenScene
+        The scene; ``renderer.scene`` keeps it. A
+        :class:`~seed2gs_inverse.raster.FrozenScene` is used as it is, so
+        that its activations and spatial index serve every renderer (and
+        every extraction) made from it.
     mode : str
         Rasterization mode of every view (:data:`~seed2gs_inverse.raster.MODES`).
 
@@ -44,9 +47,9 @@ class Renderer:
         out, as :class:`~seed2gs_inverse.progress.StageTimer` leaves it out.
     """
 
-    def __init__(self, scene: GaussianScene, mode: str = "classic"):
-        self.scene = scene
-        self.frozen = FrozenScene(scene)
+    def __init__(self, scene: GaussianScene | FrozenScene, mode: str = "classic"):
+        self.frozen = scene if isinstance(scene, FrozenScene) else FrozenScene(scene)
+        self.scene = self.frozen.scene
         self.mode = mode
         self.operator_seconds = 0.0
 
