@@ -156,3 +156,22 @@ def test_a_far_copy_of_the_scene_changes_nothing_and_the_stages_do_not_see_it(mo
     assert not tiled.selected[n0:].any()
     np.testing.assert_array_equal(tiled.q[:n0], base.q)
     assert sizes[0] < n0 and solved[0] < n0  # neither the neighbourhood nor the solve holds the copies
+
+
+def test_the_stacks_fingerprint_is_the_scenes_computed_when_first_read(monkeypatch):
+    import seed2gs_inverse.operators.store as store
+    from seed2gs_inverse.operators import OperatorStack, scene_fingerprint
+
+    scene, _, _, cam, _ = _problem()
+    want = scene_fingerprint(scene)
+    calls = []
+    real = store.scene_fingerprint
+    monkeypatch.setattr(store, "scene_fingerprint", lambda s: calls.append(1) or real(s))
+    stack = OperatorStack([build_operator(scene, cam), build_operator(scene, cam)], scene=scene)
+    sub = stack.subset([1])
+    assert not calls  # neither made nor subset hashes the scene
+    assert stack.fingerprint == want and sub.fingerprint == want
+    assert stack.fingerprint == want and len(calls) == 2  # once per stack
+    assert OperatorStack([build_operator(scene, cam)], "given", scene=scene).fingerprint == "given"
+    with pytest.raises(ValidationError, match="scene must be the GaussianScene"):
+        OperatorStack([build_operator(scene, cam)], scene=scene.subset(np.arange(10)))

@@ -43,7 +43,7 @@ from ..errors import ValidationError
 from ..frontend.base import SupportPlaneTracker
 from ..frontend.prompts import BoxPrompt, PointPrompt, seed_mask_from_prompt
 from ..graph import apply_follow
-from ..operators import OperatorStack, as_stack, scene_fingerprint
+from ..operators import OperatorStack, as_stack
 from ..solvers import solve
 from ..solvers._common import normalize_mask
 from .box_object import box_object_mask
@@ -603,8 +603,12 @@ def complete_masks(graph: sp.csr_matrix | None, labelled: list, lift: SeedLift, 
 
 
 def stack_operators(labelled: list, scene: GaussianScene) -> OperatorStack:
-    """Stage 7: the ``OperatorStack`` of the supervision views (``frame.operator`` of each pair)."""
-    return OperatorStack([f.operator for f, _ in labelled], fingerprint=scene_fingerprint(scene))
+    """Stage 7: the ``OperatorStack`` of the supervision views (``frame.operator`` of each pair).
+
+    Its ``fingerprint`` (:func:`~seed2gs_inverse.operators.scene_fingerprint`
+    of ``scene``) is computed when first read (saving the operators reads it).
+    """
+    return OperatorStack([f.operator for f, _ in labelled], scene=scene)
 
 
 def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, progress=None, *,

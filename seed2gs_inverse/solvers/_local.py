@@ -52,7 +52,7 @@ def restrict_stack(stack: OperatorStack, cols: np.ndarray) -> OperatorStack:
         local = np.searchsorted(cols, W.indices).astype(W.indices.dtype, copy=False)
         Wl = sp.csr_matrix((W.data, local, W.indptr), shape=(W.shape[0], cols.size))
         views.append(ViewOperator(Wl, v.camera, v.image_shape))
-    return OperatorStack(views, stack.fingerprint)
+    return OperatorStack(views)  # the solve's own: no fingerprint (reading it would hash the scene)
 
 
 def restrict_graph(graph: sp.csr_matrix, cols: np.ndarray) -> sp.csr_matrix:
