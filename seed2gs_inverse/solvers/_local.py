@@ -46,10 +46,11 @@ def restrict_stack(stack: OperatorStack, cols: np.ndarray) -> OperatorStack:
     indices are renumbered (an order-preserving map), so the entries of a
     row keep their order.
     """
+    remap = _renumbering(stack.n_gaussians, cols)
     views = []
     for v in stack:
         W = v.W
-        local = np.searchsorted(cols, W.indices).astype(W.indices.dtype, copy=False)
+        local = remap[W.indices].astype(W.indices.dtype, copy=False)
         Wl = sp.csr_matrix((W.data, local, W.indptr), shape=(W.shape[0], cols.size))
         views.append(ViewOperator(Wl, v.camera, v.image_shape))
     return OperatorStack(views)  # the solve's own: no fingerprint (reading it would hash the scene)
@@ -61,5 +62,12 @@ def restrict_graph(graph: sp.csr_matrix, cols: np.ndarray) -> sp.csr_matrix:
     counts = stop - start
     indptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     take = np.repeat(start - indptr[:-1], counts) + np.arange(indptr[-1])
-    local = np.searchsorted(cols, graph.indices[take])
+    local = _renumbering(graph.shape[0], cols)[graph.indices[take]]
     return sp.csr_matrix((graph.data[take], local, indptr), shape=(cols.size, cols.size))
+
+
+def _renumbering(n: int, cols: np.ndarray) -> np.ndarray:
+    """(n,) int64 with ``out[cols[j]] = j``; undefined elsewhere (only the pages of ``cols`` are written)."""
+    out = np.empty(n, np.int64)
+    out[cols] = np.arange(cols.size)
+    return out
