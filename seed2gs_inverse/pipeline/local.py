@@ -45,6 +45,9 @@ if TYPE_CHECKING:
 
 __all__ = ["neighbourhood", "Neighbourhood", "object_neighbourhood", "support_reach"]
 
+#: Means per block of :func:`neighbourhood`'s brute-force scan.
+_BLOCK = 1 << 18
+
 
 def neighbourhood(scene: GaussianScene, center, radius: float) -> np.ndarray:
     """Ascending indices of the Gaussians whose means lie within ``radius`` of ``center`` (boundary included).
@@ -75,9 +78,12 @@ def neighbourhood(scene: GaussianScene, center, radius: float) -> np.ndarray:
     r = as_real(radius)
     if r is None or not r >= 0:
         raise ValidationError(f"neighbourhood: radius must be a finite number >= 0, got {radius!r}")
-    # (float64 squares as graph.region_subset takes them: the same Gaussians on the boundary)
-    d2 = np.sum((scene.means.astype(np.float64) - c) ** 2, axis=1)
-    return np.flatnonzero(d2 <= r ** 2).astype(np.int64, copy=False)
+    # float64 squares as graph.region_subset takes them (the same Gaussians on the boundary), a
+    # block of means at a time: the temporaries stay a few MB whatever the scene's size
+    means = scene.means
+    out = [np.flatnonzero(np.sum((means[i:i + _BLOCK].astype(np.float64) - c) ** 2, axis=1) <= r ** 2) + i
+           for i in range(0, len(means), _BLOCK)]
+    return np.concatenate(out).astype(np.int64, copy=False) if out else np.zeros(0, np.int64)
 
 
 def support_reach(inner: float, outer: float) -> float:
