@@ -175,3 +175,15 @@ def test_the_stacks_fingerprint_is_the_scenes_computed_when_first_read(monkeypat
     assert OperatorStack([build_operator(scene, cam)], "given", scene=scene).fingerprint == "given"
     with pytest.raises(ValidationError, match="scene must be the GaussianScene"):
         OperatorStack([build_operator(scene, cam)], scene=scene.subset(np.arange(10)))
+
+
+def test_a_stage_refuses_the_neighbourhood_of_another_scene():
+    from seed2gs_inverse.pipeline.settings import ExtractSettings
+    from seed2gs_inverse.pipeline.stages import evidence_graph
+
+    scene, _, _ = sphere_scene(n_sphere=100, n_ground=100)
+    other = Neighbourhood.of(scene.subset(np.arange(50)), np.arange(10))
+    with pytest.raises(ValidationError, match="Neighbourhood of the scene's"):
+        evidence_graph(scene, None, ExtractSettings(), 1.0, local=other)
+    with pytest.raises(ValidationError, match="Neighbourhood of the scene's"):
+        evidence_graph(scene, None, ExtractSettings(), 1.0, local=np.arange(10))

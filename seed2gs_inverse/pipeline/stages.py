@@ -464,7 +464,8 @@ def orbit_views(renderer: Renderer, camera: Camera, ref: ReferenceView, lift: Se
 
 
 def support_band(scene: GaussianScene, lift: SeedLift, orbits: OrbitViews, settings: ExtractSettings,
-                 tracker: Tracker | None = None, local: Neighbourhood | None = None) -> tuple[SupportSurface | None, dict]:
+                 tracker: Tracker | None = None,
+                 local: Neighbourhood | None = None) -> tuple[SupportSurface | None, dict]:
     """Stage 5b: the support surface under the object, for a tracker's ``support_plane``.
 
     :func:`~.support.support_surface` about the orbit axis, when
@@ -479,6 +480,11 @@ def support_band(scene: GaussianScene, lift: SeedLift, orbits: OrbitViews, setti
     ``local`` (:func:`~.local.object_neighbourhood`, holding the ball of
     :func:`~.local.support_reach`), the surface is found among its Gaussians
     alone: the same surface.
+
+    Raises
+    ------
+    ValidationError
+        ``local`` is not a neighbourhood of ``scene``.
     """
     info = orbits.up_info or {}
     if not settings.support_background:
@@ -490,6 +496,7 @@ def support_band(scene: GaussianScene, lift: SeedLift, orbits: OrbitViews, setti
     elif info.get("method") != "user" and (info.get("confidence") or 0.0) < WEAK_CONFIDENCE:
         reason = f"the orbit axis is not trusted (method {info.get('method')}, confidence {info.get('confidence')})"
     else:
+        _check_local(scene, local)
         where, g0 = (scene, lift.g0) if local is None else (local.scene, local.local(lift.g0))
         surface = support_surface(where, g0, lift.center, lift.radius, orbits.up, **SUPPORT_DEFAULTS)
         if surface is not None:
@@ -554,10 +561,16 @@ def evidence_graph(scene: GaussianScene, lift: SeedLift, settings: ExtractSettin
     (``smoothness > 0``, resolved) or ``settings.completion`` is set. Given
     the object's neighbourhood ``local`` (holding the graph's region), it is
     built among its Gaussians and renumbered to the scene's: the same graph.
+
+    Raises
+    ------
+    ValidationError
+        ``local`` is not a neighbourhood of ``scene``.
     """
     if not (smoothness > 0 or settings.completion):
         return None
     opts = {**GRAPH_DEFAULTS, **settings.graph_options}
+    _check_local(scene, local)
     if local is None:
         return object_graph(scene, lift.center, lift.radius, **opts)
     return local.expand(object_graph(local.scene, lift.center, lift.radius, **opts))
@@ -646,7 +659,8 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     Raises
     ------
     ValidationError
-        ``settings.seed_connected`` or ``settings.follow_faint`` without ``scene``.
+        ``settings.seed_connected`` or ``settings.follow_faint`` without ``scene``, or a
+        ``local`` that is not a neighbourhood of ``scene``.
 
     Notes
     -----
@@ -676,6 +690,8 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     if (settings.seed_connected or settings.follow_faint) and scene is None:
         raise ValidationError("solve_selection: settings.seed_connected and settings.follow_faint need the scene "
                               "(scene=); pass it or set both to False")
+    if scene is not None:
+        _check_local(scene, local)
     follow = None
     if settings.follow_faint:
         opts = {**GRAPH_DEFAULTS, **settings.graph_options}
@@ -689,6 +705,14 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
         n_removed = int(island.sum())
     selected = q > tau
     return Selection(result, q, tau, selected, n_removed, follow)
+
+
+def _check_local(scene: GaussianScene, local) -> None:
+    """Raise a ValidationError unless ``local`` is None or a :class:`~.local.Neighbourhood` of ``scene``'s size."""
+    if local is not None and (not isinstance(local, Neighbourhood) or local.n != len(scene)):
+        raise ValidationError(f"local must be None or a Neighbourhood of the scene's {len(scene)} Gaussians "
+                              f"(pipeline.local.object_neighbourhood), got {type(local).__name__}"
+                              + (f" of {local.n}" if isinstance(local, Neighbourhood) else ""))
 
 
 def _follow_faint(scene: GaussianScene, lift: SeedLift, q: np.ndarray, opts: dict,
