@@ -18,7 +18,6 @@ from _pipeline_scenes import reference_camera, sphere_scene
 from _solver_scenes import random_views
 from seed2gs_inverse import GaussianScene
 from seed2gs_inverse.errors import ValidationError
-from seed2gs_inverse.graph import gaussian_graph
 from seed2gs_inverse.pipeline import extract
 from seed2gs_inverse.pipeline.local import Neighbourhood, neighbourhood
 from seed2gs_inverse.raster import build_operator
