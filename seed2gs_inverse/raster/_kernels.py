@@ -132,9 +132,9 @@ def _fetch_add(typingctx, counter, value):
 
 
 # Per-Gaussian data is read in depth order, i.e. at random rows: each tile-Gaussian
-# pair of the compositing loop waited on a cache miss before its first
-# pixel. The loop asks for the rows of a pair PREFETCH pairs ahead; a
-# prefetch only moves memory into the cache, so results are unchanged.
+# pair of the compositing loop (and each Gaussian of the binning) waited on a
+# cache miss before its work. The loops ask for the rows PREFETCH items
+# ahead; a prefetch only moves memory into the cache, so results are unchanged.
 PREFETCH = 8
 
 
@@ -547,8 +547,11 @@ def bin_tiles(order, rects, tiles_x, n_tiles):
     n_chunks = max(1, min(32, n // 16384))
     counts = np.zeros((n_chunks, n_tiles), np.int64)
     for c in prange(n_chunks):
-        for k in range(c * n // n_chunks, (c + 1) * n // n_chunks):
+        end = (c + 1) * n // n_chunks
+        for k in range(c * n // n_chunks, end):
             g = order[k]
+            if k + PREFETCH < end:  # rows in depth order: random (see PREFETCH)
+                _prefetch(rects, order[k + PREFETCH])
             for ty in range(rects[g, 1], rects[g, 3]):
                 for tx in range(rects[g, 0], rects[g, 2]):
                     counts[c, ty * tiles_x + tx] += 1
@@ -563,8 +566,11 @@ def bin_tiles(order, rects, tiles_x, n_tiles):
     tile_gauss = np.empty(tile_start[n_tiles], np.int32)
     for c in prange(n_chunks):
         cursor = counts[c]
-        for k in range(c * n // n_chunks, (c + 1) * n // n_chunks):
+        end = (c + 1) * n // n_chunks
+        for k in range(c * n // n_chunks, end):
             g = order[k]
+            if k + PREFETCH < end:
+                _prefetch(rects, order[k + PREFETCH])
             for ty in range(rects[g, 1], rects[g, 3]):
                 for tx in range(rects[g, 0], rects[g, 2]):
                     t = ty * tiles_x + tx
