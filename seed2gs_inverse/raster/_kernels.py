@@ -357,6 +357,31 @@ def _activate(idx, quats, log_scales, opacity_logits, sh, mfac, opac, col0):
         mfac[i, 8] = (1.0 - 2.0 * (qx * qx + qy * qy)) * s2
 
 
+@njit(cache=True, inline="always")
+def _view_color(i, g, a_row, px, py, pz, center, k, sh, col0, colors):
+    """``colors[i]`` of Gaussian ``g`` at ``(px, py, pz)`` seen from ``center``: ``max(eval_sh + 0.5, 0)``
+    with the first ``k`` SH terms, or the view-independent ``col0[a_row]`` when given (SH degree 0)."""
+    if col0.shape[0] > 0:
+        for ch in range(3):
+            colors[i, ch] = col0[a_row, ch]
+        return
+    basis = np.empty(16)
+    dx = px - center[0]
+    dy = py - center[1]
+    dz = pz - center[2]
+    nrm = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if nrm > 0.0:
+        dx /= nrm
+        dy /= nrm
+        dz /= nrm
+    _sh_basis(dx, dy, dz, k, basis)
+    for ch in range(3):
+        acc = 0.0
+        for j in range(k):
+            acc += basis[j] * sh[g, j, ch]
+        colors[i, ch] = max(acc + 0.5, 0.0)
+
+
 def project(idx, act_rows, means, sh, act, cam, eps2d, antialiased, tile_box, out):
     """:func:`_project` with the activations ``act`` (:class:`Activations`), the camera
     ``cam`` (:class:`CameraParams`) and the outputs ``out`` (:class:`Splats`) bundled.
@@ -405,25 +430,7 @@ def _project(idx, act_rows, means, mfac, opac, col0, sh, rot, trans, center,
 
                 a_row = act_rows[i]
                 # View-dependent colour, for every Gaussian (callers use it for W @ colors).
-                if col0.shape[0] > 0:
-                    for ch in range(3):
-                        colors[i, ch] = col0[a_row, ch]
-                else:
-                    basis = np.empty(16)
-                    dx = px - center[0]
-                    dy = py - center[1]
-                    dz = pz - center[2]
-                    nrm = math.sqrt(dx * dx + dy * dy + dz * dz)
-                    if nrm > 0.0:
-                        dx /= nrm
-                        dy /= nrm
-                        dz /= nrm
-                    _sh_basis(dx, dy, dz, k, basis)
-                    for ch in range(3):
-                        acc = 0.0
-                        for j in range(k):
-                            acc += basis[j] * sh[g, j, ch]
-                        colors[i, ch] = max(acc + 0.5, 0.0)
+                _view_color(i, g, a_row, px, py, pz, center, k, sh, col0, colors)
 
                 opacities[i] = opac[a_row]
                 radii[i] = 0
@@ -808,18 +815,20 @@ def scatter(tiles, lo, hi, width, height, scr_pix, scr_gi, scr_w, gid, indptr, i
                 cursor[lp] = c + 1
 
 
-def cone_cull(means, cam, roi, smax, eps2d, axis, far, cut, spare, keep):
+def cone_cull(means, cam, roi, sigma3, eps2d, axis, far, cut, spare, keep):
     """:func:`_cone_cull` with the camera ``cam`` (:class:`CameraParams`) bundled."""
     _cone_cull(means, cam.rot, cam.trans, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, cam.near,
-               roi, smax, eps2d, axis, far, cut, spare, keep, chunk_workers(means.shape[0]))
+               roi, sigma3, eps2d, axis, far, cut, spare, keep, chunk_workers(means.shape[0]))
 
 
 @njit(cache=True, parallel=True)
-def _cone_cull(means, rot, trans, fx, fy, cx, cy, width, height, near, roi, smax, eps2d, axis, far, cut, spare,
+def _cone_cull(means, rot, trans, fx, fy, cx, cy, width, height, near, roi, sigma3, eps2d, axis, far, cut, spare,
                keep, n_workers):
     """Gaussians whose screen footprint in :func:`_project` can reach the pixel box ``roi`` (parallel).
 
-    With ``v = R x + t`` (view frame), ``keep[i]`` requires ``v_z >= near``
+    With ``smax[i] = sigma3[i] / 3`` (``sigma3``: the 3-sigma sizes of
+    :func:`~seed2gs_inverse.raster.frozen.sigma3`) and ``v = R x + t`` (view
+    frame), ``keep[i]`` requires ``v_z >= near``
     (the projection's own test), ``v . axis - 3 smax[i] <= far``, ``v . axis
     >= cut`` unless ``spare[i]`` (``spare``: (N,) bool, or (0,) for none;
     ``cut = -inf`` for no cut) and the
@@ -853,7 +862,8 @@ def _cone_cull(means, rot, trans, fx, fy, cx, cy, width, height, near, roi, smax
                 if not z >= near:  # also rejects NaN
                     continue
                 t_a = x * axis[0] + y * axis[1] + z * axis[2]
-                if not t_a - 3.0 * smax[i] <= far:
+                smax = sigma3[i] / 3.0
+                if not t_a - 3.0 * smax <= far:
                     continue
                 if t_a < cut and not (spare.shape[0] > 0 and spare[i]):
                     continue
@@ -865,7 +875,7 @@ def _cone_cull(means, rot, trans, fx, fy, cx, cy, width, height, near, roi, smax
                 b = (fx / z) * (fy / z) * tx * ty
                 mid = 0.5 * (a + c)
                 lmax = mid + math.sqrt(max(mid * mid - (a * c - b * b), 0.0))
-                r = k_support * math.sqrt(lmax * smax[i] * smax[i] + eps2d) + 2.0
+                r = k_support * math.sqrt(lmax * smax * smax + eps2d) + 2.0
                 mx = fx * x / z + cx
                 my = fy * y / z + cy
                 keep[i] = mx + r >= roi[0] and mx - r <= roi[2] and my + r >= roi[1] and my - r <= roi[3]
