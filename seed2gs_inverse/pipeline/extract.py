@@ -20,7 +20,7 @@ from __future__ import annotations
 import warnings
 from typing import TYPE_CHECKING, Any, Sequence
 
-from .._threads import run_both
+from .._threads import one_blas_thread, run_both
 from ..camera import Camera
 from ..errors import ValidationError
 from ..frontend.base import wants_regularizer
@@ -223,7 +223,8 @@ def extract(scene: GaussianScene, camera: Camera, prompt: Any, grounder: Grounde
     feedback = Feedback.of(s.progress)
     timer = StageTimer(STAGES, compile_clock=compile_seconds, feedback=feedback)
     renderer = Renderer(scene, s.mode)
-    with feedback.active():
+    # Every stage calls BLAS on small products, view after view: one thread (see one_blas_thread).
+    with feedback.active(), one_blas_thread():
         with timer("render"), feedback.bar("render", steps=False):
             reference = render_reference(renderer, camera)
         with timer("grounding"), feedback.bar("grounding", steps=False):

@@ -90,20 +90,13 @@ def cone_cull(scene, camera: Camera, roi=None, far: float | None = None, near: f
                                   f"got {spare.dtype} of shape {spare.shape}")
     x0, y0, x1, y1 = (float(v) for v in _roi_box(roi, camera))
     scene, frozen = unfreeze(scene)
-    smax = (frozen.sigma3 if frozen is not None else sigma3(scene)) / 3.0
+    s3 = frozen.sigma3 if frozen is not None else sigma3(scene)
     axis = np.array([(0.5 * (x0 + x1) - camera.cx) / camera.fx, (0.5 * (y0 + y1) - camera.cy) / camera.fy, 1.0])
     axis /= np.linalg.norm(axis)
-    # One parallel pass over the scene (this runs for every orbit view of extract).
+    # One parallel pass over the scene (this runs for every orbit view of extract), the near cut included.
     keep = np.empty(len(scene), bool)
     _kernels.announce_compilation((_kernels._cone_cull,))
-    _kernels.cone_cull(scene.means, camera_params(camera), np.array([x0, y0, x1, y1]), np.ascontiguousarray(smax),
-                       EPS2D, axis, np.inf if far is None else float(far), keep)
-    idx = np.flatnonzero(keep).astype(np.int64, copy=False)
-    if near is not None and idx.size:
-        # On the kept subset only, usually a small part of the scene: t_a = (R x + t) . axis.
-        t_a = (scene.means[idx].astype(np.float64) @ camera.rotation.T + camera.translation) @ axis
-        cut = t_a < float(near)
-        if spare is not None:
-            cut &= ~spare[idx]
-        idx = idx[~cut]
-    return idx
+    _kernels.cone_cull(scene.means, camera_params(camera), np.array([x0, y0, x1, y1]), np.ascontiguousarray(s3),
+                       EPS2D, axis, np.inf if far is None else float(far), -np.inf if near is None else float(near),
+                       np.zeros(0, bool) if spare is None or near is None else np.ascontiguousarray(spare), keep)
+    return np.flatnonzero(keep).astype(np.int64, copy=False)

@@ -26,13 +26,12 @@ This package needs only numpy and scipy (never the rasterizer or Numba).
 
 from __future__ import annotations
 
-import sys
 import time
 from typing import TYPE_CHECKING
 
 import numpy as np
-from threadpoolctl import ThreadpoolController
 
+from .._threads import one_blas_thread
 from .._validation import as_real
 from ..errors import ValidationError
 from ..graph import check_graph
@@ -57,24 +56,6 @@ __all__ = ["solve", "available_methods", "register_method", "get_method", "metho
 #: error up front instead of a run that never ends.
 COUNT_LIMITS = {"max_iter": 100_000, "inner_iters": 100_000, "maxcor": 1_000, "power_iters": 10_000,
                 "budget": 1_000_000}
-
-
-_controller, _modules_seen = None, -1
-
-
-def _one_blas_thread():
-    """A context with BLAS limited to one thread.
-
-    The loaded libraries are inspected again only when a module was imported
-    since the last look (a new BLAS comes with a new extension module):
-    ``threadpool_limits`` inspects them on every call, and a controller kept
-    for the whole process would leave a BLAS loaded after the first solve
-    unlimited.
-    """
-    global _controller, _modules_seen
-    if _controller is None or len(sys.modules) != _modules_seen:
-        _controller, _modules_seen = ThreadpoolController(), len(sys.modules)
-    return _controller.limit(limits=1, user_api="blas")
 
 
 def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidence: float = 0.0,
@@ -194,7 +175,7 @@ def _solve_prepared(fn, problem: Problem, method: str, min_evidence: float, prog
     # Solvers call BLAS on vectors of length N every iteration; a multi-threaded
     # OpenBLAS beside Numba's threads spends more on thread start-up than on
     # the work.
-    with _one_blas_thread(), reporting(progress):
+    with one_blas_thread(), reporting(progress):
         t_method = time.perf_counter()
         out = fn(problem, **options)
         t_method = time.perf_counter() - t_method
@@ -221,7 +202,7 @@ def _solve_prepared(fn, problem: Problem, method: str, min_evidence: float, prog
         # One BLAS thread here too: the factorisation's dense kernels round
         # differently with more threads, and q must not depend on the machine's
         # thread settings (a Dask worker runs with one BLAS thread).
-        with _one_blas_thread():
+        with one_blas_thread():
             # evidence only where the method fitted q (not where it left the prior: views beyond a
             # budget, weighted_bce's pixels below alpha_min), and only from the views it used
             q = smooth_checked(q.astype(np.float64), np.where(weak | unobserved, 0.0, used),
