@@ -6,7 +6,8 @@
 * :func:`firepit_unicorn_problem`, :func:`default_extraction`: the real scene
   of ``bench_speed.py`` (the firepit with the unicorn composited on the patio)
   and its extraction with default settings;
-* :func:`parse_set`, :func:`extract_kwargs`: the ``--set KEY=VALUE`` options.
+* :func:`parse_set`, :func:`extract_kwargs`: the ``--set KEY=VALUE`` options;
+* :func:`alone_alpha_share`: how opaque a part of an object is rendered by itself.
 
 A script imports this module as ``_common`` (its own folder is first on
 ``sys.path``); ``seed2gs_inverse`` comes from ``sys.path`` as that script set
@@ -95,6 +96,26 @@ def same_run_baselines(scene, camera, stack=None, repeat: int = 3) -> dict:
         out["two_passes_s"] = out["forward_s"] + out["adjoint_s"]
         out["nnz"] = int(stack.nnz)
     return out
+
+
+def alone_alpha_share(scene, cameras, part, whole) -> tuple:
+    """How opaque a part of an object is by itself: ``(share, worst_view)``.
+
+    ``part`` and ``whole`` are (N,) bool over ``scene`` (``part`` within
+    ``whole``). Each is rendered alone from every camera; ``share`` is the
+    part's alpha summed over the pixels and cameras over the whole's, and
+    ``worst_view`` the largest share of one camera. With ``part`` the
+    object's unselected Gaussians this is what an extraction leaves behind
+    of it, inner and back layers included (they carry no compositing weight
+    while the object stands in front of them). An empty ``part`` gives
+    ``(0.0, 0.0)``.
+    """
+    if not np.any(part):
+        return 0.0, 0.0
+    alone_part, alone_whole = scene.subset(part), scene.subset(whole)
+    kept = np.array([float(render(alone_part, c).alpha.sum()) for c in cameras])
+    full = np.array([float(render(alone_whole, c).alpha.sum()) for c in cameras])
+    return float(kept.sum() / max(full.sum(), 1e-12)), float(np.max(kept / np.maximum(full, 1e-12)))
 
 
 def firepit_unicorn_problem(views_arg):

@@ -44,7 +44,7 @@ import numpy as np
 _ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(_ROOT))  # this checkout's package, not whichever one is installed
 
-from _common import DATA, extract_kwargs, parse_set  # noqa: E402
+from _common import DATA, alone_alpha_share, extract_kwargs, parse_set  # noqa: E402
 
 from seed2gs_inverse import Camera, build_operator, extract, read_scene, render  # noqa: E402
 from seed2gs_inverse.frontend.prompts import BoxPrompt  # noqa: E402
@@ -87,18 +87,17 @@ def run_object(name: str, options: dict) -> dict:
     ex = extract(obj.scene, cam, BoxPrompt(box), progress=False, **extract_kwargs(options, obj.up))
     seconds = time.perf_counter() - t0
     rem = ~ex.selected
-    rem_w, all_w, kept, whole = [], [], 0.0, 0.0
-    for daz, el in VIEWS:
-        view = obj.look(30.0 + daz, el, 320, 240)
+    rem_w, all_w = [], []
+    views = [obj.look(30.0 + daz, el, 320, 240) for daz, el in VIEWS]
+    for view in views:
         w = np.asarray(build_operator(obj.scene, view).W.sum(axis=0)).ravel()
         rem_w.append(float(w[rem].sum()))
         all_w.append(float(w.sum()))
-        whole += float(render(obj.scene, view).alpha.sum())
-        kept += float(render(obj.scene.subset(rem), view).alpha.sum()) if rem.any() else 0.0
     weight = sum(rem_w) / sum(all_w)
     worst = max(r / a for r, a in zip(rem_w, all_w))
+    alone, _ = alone_alpha_share(obj.scene, views, rem, np.ones(len(obj.scene), bool))
     return {"n": len(obj.scene), "selected": int(ex.selected.sum()), "weight": weight, "worst": worst,
-            "alone": kept / whole,
+            "alone": alone,
             "est": ex.remainder_summary()["share"], "seconds": seconds}
 
 

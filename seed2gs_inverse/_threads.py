@@ -1,21 +1,26 @@
-"""Threads for the numpy / scipy parts (no Numba): how many, and two halves of work on two of them.
+"""Threads for the numpy / scipy parts (no Numba): how many, two halves of work on two of them, one BLAS thread.
 
 The Numba kernels size their own thread pools (``NUMBA_NUM_THREADS``); the
 sparse passes, the per-pixel loss, the vote and the neighbour queries use at most two
 threads through this module. Dask workers set ``NUMBA_NUM_THREADS=1``
 (:func:`~seed2gs_inverse.batch.batch_client`), and this module follows it,
-so batch workers never oversubscribe their core.
+so batch workers never oversubscribe their core. BLAS is held to one
+thread (:func:`one_blas_thread`) wherever the package calls it in a loop.
 """
 
 from __future__ import annotations
 
 import os
+import sys
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
-__all__ = ["n_threads", "run_both"]
+from threadpoolctl import ThreadpoolController
+
+__all__ = ["n_threads", "run_both", "one_blas_thread"]
 
 _pool = None
+_controller, _modules_seen = None, -1
 _inside = threading.local()  # .active: this thread is the pool's, running a second half
 
 
@@ -62,3 +67,25 @@ def run_both(fn, parallel: bool = True) -> None:
         fn(0)
     finally:
         other.result()
+
+
+def one_blas_thread():
+    """A context in which BLAS runs on one thread.
+
+    The package calls BLAS on small problems many times over (``(n, 3) @
+    (3, 3)`` products per view, vectors of length N per solver iteration):
+    a multi-threaded BLAS beside Numba's threads spends more on waking and
+    joining its threads than on the work, and much more when other work
+    shares the cores. One thread also makes BLAS's reductions independent of
+    the machine's thread settings.
+
+    The loaded libraries are inspected again only when a module was imported
+    since the last look (a new BLAS comes with a new extension module):
+    ``threadpool_limits`` inspects them on every call, and a controller kept
+    for the whole process would leave a BLAS loaded after the first call
+    unlimited.
+    """
+    global _controller, _modules_seen
+    if _controller is None or len(sys.modules) != _modules_seen:
+        _controller, _modules_seen = ThreadpoolController(), len(sys.modules)
+    return _controller.limit(limits=1, user_api="blas")

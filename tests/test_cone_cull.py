@@ -12,7 +12,7 @@ from seed2gs_inverse.raster import FrozenScene, Renderer, build_operator, cone_c
 from seed2gs_inverse.scene import GaussianScene
 
 
-def _numpy_cull(scene, camera, roi, smax, far, near=None):
+def _numpy_cull(scene, camera, roi, smax, far, near=None, spare=None):
     """The footprint bound written out with numpy (the kernel must agree)."""
     h, w = camera.image_shape
     x0, y0, x1, y1 = (0, 0, w, h) if roi is None else roi
@@ -37,7 +37,7 @@ def _numpy_cull(scene, camera, roi, smax, far, near=None):
     if far is not None:
         keep &= v @ axis - 3 * smax <= far
     if near is not None:
-        keep &= v @ axis >= near
+        keep &= (v @ axis >= near) | (spare if spare is not None else False)
     return np.flatnonzero(keep)
 
 
@@ -56,6 +56,23 @@ def test_cone_cull_matches_formula(rng, roi, far, near):
     if near is not None:  # the cut is real: some Gaussians of the cone lie in front of it
         assert got.size < cone_cull(scene, cam, roi, far).size
     np.testing.assert_array_equal(cone_cull(FrozenScene(scene), cam, roi, far, near), got)
+
+
+def test_near_cut_spares_what_it_is_told_to(rng):
+    """cone_cull(near=, spare=) against the bound in numpy: the spared Gaussians in front of the cut stay."""
+    n = 4000
+    scene = GaussianScene(rng.normal(0, 2.0, (n, 3)), rng.normal(size=(n, 4)), rng.normal(-2.5, 1.0, (n, 3)),
+                          np.zeros(n), rng.normal(size=(n, 1, 3)))
+    cam = Camera.look_at([0.5, -1.0, -5.0], [0, 0, 0], [0, -1, 0], 50, 64, 48)
+    spare = rng.random(n) < 0.3
+    roi = (10, 5, 40, 30)
+    got = cone_cull(scene, cam, roi, 6.0, 4.0, spare)
+    smax = scene.scales.max(axis=1).astype(np.float64)
+    np.testing.assert_array_equal(got, _numpy_cull(scene, cam, roi, smax, 6.0, 4.0, spare))
+    cut = cone_cull(scene, cam, roi, 6.0, 4.0)
+    assert cut.size < got.size and np.all(spare[np.setdiff1d(got, cut)])
+    # without a near cut, spare changes nothing
+    np.testing.assert_array_equal(cone_cull(scene, cam, roi, 6.0, None, spare), cone_cull(scene, cam, roi, 6.0))
 
 
 def test_near_cut_operator_is_that_of_the_scene_without_what_was_cut(rng):

@@ -1,13 +1,19 @@
 """extract() end to end on procedural scenes and a composite, scored on held-out views."""
 
+import importlib
+
 import numpy as np
 import pytest
+from threadpoolctl import threadpool_info, threadpool_limits
 
 from seed2gs_inverse import Camera, ValidationError
 from seed2gs_inverse.metrics import iou, membership_scores
 from seed2gs_inverse.raster import build_operator
 from seed2gs_inverse.pipeline import extract
 from seed2gs_inverse.synthetic import compose, make_scene, pose_on_point
+
+# the module (the package's name ``extract`` is the function)
+extract_module = importlib.import_module("seed2gs_inverse.pipeline.extract")
 
 
 def _truth_mask(op, labels):
@@ -124,6 +130,28 @@ def test_culled_orbit_operators_are_exact(syn):
     for x, y in zip(a.operators, b.operators):
         assert x.W.shape == y.W.shape and abs(x.W - y.W).max() == 0
         np.testing.assert_array_equal(x.rendering.rgb, y.rendering.rgb)
+
+
+
+def test_every_stage_runs_with_one_blas_thread_and_the_limit_is_lifted_after(syn, monkeypatch):
+    """The stages call BLAS on small products view after view: one BLAS thread from the first stage to
+    the last (none competes with the kernels' threads), the caller's setting afterwards."""
+    def blas_threads():
+        return [lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"]
+
+    seen = []
+    for name in ("render_reference", "lift_seed", "track_clips"):
+        stage = getattr(extract_module, name)
+        monkeypatch.setattr(extract_module, name,
+                            lambda *a, _stage=stage, **k: (seen.append(blas_threads()), _stage(*a, **k))[1])
+    cam = syn.reference_camera(96, 72)
+    seed = _truth_mask(build_operator(syn.scene, cam), syn.labels == 2)
+    with threadpool_limits(limits=2, user_api="blas"):
+        before = blas_threads()
+        extract(syn.scene, cam, seed, n_views=4)
+        after = blas_threads()
+    assert before and len(seen) == 3 and all(n == [1] * len(before) for n in seen)
+    assert after == before
 
 
 def test_report_gives_the_orbit_views_shape_and_the_references_apart():

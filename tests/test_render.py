@@ -9,7 +9,9 @@ from render_reference import random_scene, reference_projection, reference_rende
 from seed2gs_inverse.camera import Camera
 from seed2gs_inverse.errors import ValidationError
 from seed2gs_inverse.operators import Rendering
-from seed2gs_inverse.raster import project_gaussians, render
+from seed2gs_inverse.raster import _kernels, project_gaussians, render
+from seed2gs_inverse.raster.frozen import FrozenScene
+from seed2gs_inverse.raster.project import project
 from seed2gs_inverse.scene import GaussianScene
 from seed2gs_inverse.sh import rgb_to_sh
 
@@ -73,6 +75,32 @@ def test_projection_matches_reference(seed, camkind, mode):
     np.testing.assert_allclose(p.opacities[v], ref["opacity"][v], rtol=1e-6, atol=1e-7)
     assert p.means2d.dtype == p.conics.dtype == p.colors.dtype == np.float32
     assert p.radii.dtype == np.int32
+
+
+
+def test_projection_over_many_chunks_matches_reference():
+    """The projection claims Gaussians CHUNK at a time (dynamic scheduling): a scene of several chunks,
+    projected as a whole and as a shuffled subset, gives the reference's values row by row."""
+    cam = make_camera(CASES[0][1])
+    n = 3 * _kernels.CHUNK + 17
+    scene = random_scene(5, n=n, cam=cam)
+    ref = reference_projection(scene, cam)
+    p = project_gaussians(scene, cam)
+    v = ref["valid"]
+    assert v.sum() > _kernels.CHUNK
+    np.testing.assert_array_equal(p.radii > 0, v)
+    np.testing.assert_array_equal(p.radii[v], ref["radius"][v])
+    np.testing.assert_allclose(p.means2d[v], ref["mean2d"][v], rtol=1e-6, atol=1e-4)
+    np.testing.assert_allclose(p.depths, ref["z"], rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(p.colors, ref["color"], rtol=1e-6, atol=1e-6)
+    # a subset (rows in the subset's order) is the whole projection's rows, bit for bit
+    idx = np.sort(np.random.default_rng(1).choice(n, 2 * _kernels.CHUNK + 5, replace=False)).astype(np.int64)
+    whole = project(scene, None, cam, "classic")
+    part = project(scene, None, cam, "classic", idx)
+    part_frozen = project(scene, FrozenScene(scene), cam, "classic", idx)
+    for a, b, c in zip(whole, part, part_frozen):
+        np.testing.assert_array_equal(a[idx], b)
+        np.testing.assert_array_equal(b, c)
 
 
 def _single(mean, log_scale, logit, rgb=(1.0, 0.5, 0.25), quat=(1, 0, 0, 0)):

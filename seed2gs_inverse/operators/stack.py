@@ -16,6 +16,7 @@ from scipy.sparse.linalg import LinearOperator
 
 from .._selection import index_list
 from ..errors import ValidationError
+from ..scene import GaussianScene
 from . import _passes, store
 from .view import ViewOperator, _Transposed, view_label
 
@@ -36,9 +37,14 @@ class OperatorStack(LinearOperator):
         (``.views``): a stack does not change after it is made.
     fingerprint : str, optional
         :func:`scene_fingerprint` of the scene the views were built from.
+    scene : GaussianScene, optional
+        That scene, when ``fingerprint`` is not given: :attr:`fingerprint` is
+        then its :func:`~.store.scene_fingerprint`, computed when first read
+        (it hashes every Gaussian of the scene; a stack that is never saved
+        or compared never pays for it). The scene must not change meanwhile.
     """
 
-    def __init__(self, views, fingerprint: str | None = None):
+    def __init__(self, views, fingerprint: str | None = None, *, scene: GaussianScene | None = None):
         views = list(views)
         if not views:
             raise ValidationError("operator stack is empty: give at least one view")
@@ -52,15 +58,29 @@ class OperatorStack(LinearOperator):
                                       f"view 0 has {n}: operators from different scenes cannot be stacked")
         if fingerprint is not None and not isinstance(fingerprint, str):
             raise ValidationError(f"fingerprint must be a string, got {type(fingerprint).__name__}")
+        if scene is not None:
+            if not isinstance(scene, GaussianScene) or len(scene) != n:
+                raise ValidationError(f"scene must be the GaussianScene of the views' {n} Gaussians, got "
+                                      f"{type(scene).__name__}"
+                                      + (f" of {len(scene)}" if isinstance(scene, GaussianScene) else ""))
         super().__init__(np.float32, (sum(v.n_pixels for v in views), n))
         # A tuple: the shape and the cached stacked matrix depend on the views.
         self.views = tuple(views)
-        self.fingerprint = fingerprint
+        self._fingerprint = fingerprint
+        self._fingerprint_scene = scene if fingerprint is None else None
         self._stacked = None
         self._stacked_T = None
         self._column_sums = None
         self._row_sums = None
         self._offsets = None
+
+    @property
+    def fingerprint(self) -> str | None:
+        """:func:`~.store.scene_fingerprint` of the views' scene, or None when unknown (computed once, when first read)."""
+        if self._fingerprint is None and self._fingerprint_scene is not None:
+            self._fingerprint = store.scene_fingerprint(self._fingerprint_scene)
+            self._fingerprint_scene = None
+        return self._fingerprint
 
     # -- container protocol ---------------------------------------------------
     def __len__(self) -> int:
@@ -133,7 +153,7 @@ class OperatorStack(LinearOperator):
         """A stack of the views ``indices`` (integers, negative from the end, or a bool mask of length
         ``len(self)``), with the same fingerprint."""
         idx = index_list(indices, len(self), "view indices", negative=True)
-        return OperatorStack([self.views[int(i)] for i in idx], self.fingerprint)
+        return OperatorStack([self.views[int(i)] for i in idx], self._fingerprint, scene=self._fingerprint_scene)
 
     # -- linear algebra ------------------------------------------------------
     def stacked(self) -> sp.csr_matrix:

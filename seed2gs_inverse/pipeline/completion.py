@@ -68,8 +68,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import ValidationError
-from ..graph import follow_matrix, gaussian_graph, region_subset
+from ..graph import follow_matrix, gaussian_graph
 from ..solvers.smoothing import harmonic_extension
+from .local import neighbourhood
 
 __all__ = ["object_graph", "complete_membership", "tracked_membership", "fill_unknown", "faint_follow_matrix",
            "GRAPH_DEFAULTS"]
@@ -83,7 +84,7 @@ def _region(scene, center, radius: float, region: float) -> np.ndarray:
     """Indices of the Gaussians within ``region * radius`` of ``center`` (``region`` validated)."""
     if not (np.isfinite(region) and region > 0):
         raise ValidationError(f"region must be positive, got {region!r}")
-    return region_subset(scene, center, float(region) * float(radius))
+    return neighbourhood(scene, center, float(region) * float(radius))
 
 
 def object_graph(scene, center, radius: float, *, k: int = GRAPH_DEFAULTS["k"],

@@ -20,7 +20,7 @@ from __future__ import annotations
 import warnings
 from typing import TYPE_CHECKING, Any, Sequence
 
-from .._threads import run_both
+from .._threads import one_blas_thread, run_both
 from ..camera import Camera
 from ..errors import ValidationError
 from ..frontend.base import wants_regularizer
@@ -28,8 +28,11 @@ from ..frontend.model_free import GeometricTracker
 from ..progress import Feedback, Progress, StageTimer
 from ..raster import Renderer, compile_seconds
 from ..scene import GaussianScene
+from .completion import GRAPH_DEFAULTS
 from .extraction import STAGES, Extraction, result_warnings
+from .local import Neighbourhood, object_neighbourhood, support_reach
 from .settings import MODEL_FREE_SMOOTHNESS, SOLVER_DEFAULTS, ExtractSettings
+from .support import SUPPORT_DEFAULTS
 from .stages import (OrbitViews, ReferenceView, Selection, complete_masks, evidence_graph, lift_seed, orbit_axis,
                      orbit_views, reference_view, render_reference, seed_from_prompt, solve_selection,
                      stack_operators, support_band, track_clips, view_caps)
@@ -103,16 +106,30 @@ def _trackers(tracker: Tracker | None, settings: ExtractSettings) -> tuple[Track
     return tracker, filler, float(smoothness)
 
 
+def _neighbourhood(scene: GaussianScene, lift: SeedLift, orbits: OrbitViews,
+                   settings: ExtractSettings) -> Neighbourhood:
+    """The Gaussians the stages after the orbit views work on (:func:`~.local.object_neighbourhood`).
+
+    Every orbit view's columns, G0, and the ball holding the region of the
+    evidence graph and of the faint Gaussians' rule and the support
+    surface's annulus.
+    """
+    region = float({**GRAPH_DEFAULTS, **settings.graph_options}["region"])
+    reach = max(region, support_reach(SUPPORT_DEFAULTS["inner"], SUPPORT_DEFAULTS["outer"]))
+    return object_neighbourhood(scene, lift, [f.operator for _, frames in orbits.clips() for f in frames], reach)
+
+
 def _supervision(scene: GaussianScene, lift: SeedLift, ref: ReferenceView, orbits: OrbitViews,
                  settings: ExtractSettings, tracker: Tracker, filler: LabelFiller | None, smoothness: float,
-                 bar: Progress) -> tuple[list, list, sp.csr_matrix | None, dict, Tracker]:
+                 bar: Progress, local: Neighbourhood | None) -> tuple[list, list, sp.csr_matrix | None, dict, Tracker]:
     """The tracking stages: support band, tracking beside the evidence graph, mask completion.
 
     Returns ``(labelled, masks, graph, support report, tracker used)``. The
     evidence graph needs only the lift, so it is built on a second thread
-    while the tracker runs on this one.
+    while the tracker runs on this one. ``local``: the object's neighbourhood
+    the support surface and the graph are found in (None: the whole scene).
     """
-    surface, support_info = support_band(scene, lift, orbits, settings, tracker)
+    surface, support_info = support_band(scene, lift, orbits, settings, tracker, local)
     if surface is not None:
         tracker = tracker.with_support_plane(surface.axis, surface.point)
     out = {}
@@ -121,7 +138,7 @@ def _supervision(scene: GaussianScene, lift: SeedLift, ref: ReferenceView, orbit
         if k == 0:
             out["labelled"] = track_clips(tracker, orbits, ref.seed, bar)
         else:
-            out["graph"] = evidence_graph(scene, lift, settings, smoothness)
+            out["graph"] = evidence_graph(scene, lift, settings, smoothness, local)
 
     run_both(work)
     labelled, graph = out["labelled"], out["graph"]
@@ -206,7 +223,8 @@ def extract(scene: GaussianScene, camera: Camera, prompt: Any, grounder: Grounde
     feedback = Feedback.of(s.progress)
     timer = StageTimer(STAGES, compile_clock=compile_seconds, feedback=feedback)
     renderer = Renderer(scene, s.mode)
-    with feedback.active():
+    # Every stage calls BLAS on small products, view after view: one thread (see one_blas_thread).
+    with feedback.active(), one_blas_thread():
         with timer("render"), feedback.bar("render", steps=False):
             reference = render_reference(renderer, camera)
         with timer("grounding"), feedback.bar("grounding", steps=False):
@@ -224,12 +242,13 @@ def extract(scene: GaussianScene, camera: Camera, prompt: Any, grounder: Grounde
         timer.finish("vaas")
         timer.finish("operators")
         with timer("tracking"), feedback.bar("tracking", total=len(orbits.clips()), unit="clip") as bar:
+            local = _neighbourhood(scene, lift, orbits, s)
             labelled, masks, graph, support_info, tracker = _supervision(scene, lift, ref, orbits, s, tracker,
-                                                                         filler, smoothness, bar)
+                                                                         filler, smoothness, bar, local)
         with timer("solve"), feedback.bar(f"solve ({s.method})") as bar:
             stack = stack_operators(labelled, scene)
             sel = solve_selection(stack, masks, lift, s, progress=bar.solve_callback, graph=graph,
-                                  smoothness=smoothness, scene=scene)
+                                  smoothness=smoothness, scene=scene, local=local)
     notes = result_warnings(ref, lift, masks, stack, sel)
     for note in notes:
         warnings.warn(note, stacklevel=2)

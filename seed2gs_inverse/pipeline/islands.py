@@ -117,7 +117,7 @@ def seed_connected(means, selected, support, *, k_neighbors: int = 8, link_facto
     anchor = g0[idx]
     if not anchor.any() or anchor.all():
         return selected.copy()
-    labels, ncomp = neighbour_components(means[idx], int(k_neighbors), float(link_factor))
+    labels, ncomp = neighbour_components(np.asarray(means[idx], np.float64), int(k_neighbors), float(link_factor))
     sizes = np.bincount(labels, minlength=ncomp)
     body = np.zeros(ncomp, bool)
     body[labels[anchor]] = True
@@ -133,7 +133,7 @@ def seed_connected(means, selected, support, *, k_neighbors: int = 8, link_facto
 
 def _check_inputs(means, selected, support, votes, *, k_neighbors, link_factor, island_fraction,
                   island_vote) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[np.ndarray] | None]:
-    """:func:`seed_connected`'s arguments checked: ``(means (N, 3) float64, selected, support, votes)``.
+    """:func:`seed_connected`'s arguments checked: ``(means (N, 3) as given, selected, support, votes)``.
 
     Raises
     ------
@@ -146,9 +146,10 @@ def _check_inputs(means, selected, support, votes, *, k_neighbors, link_factor, 
     if selected.dtype != bool or selected.ndim != 1 or support.dtype != bool or support.shape != (n,):
         raise ValidationError("seed_connected: selected and support must be boolean (N,) masks of the same N, "
                               f"got {selected.dtype} {selected.shape} and {support.dtype} {support.shape}")
-    means = np.asarray(means, dtype=np.float64)
-    if means.shape != (n, 3):
-        raise ValidationError(f"seed_connected: means must have shape ({n}, 3), got {means.shape}")
+    means = np.asarray(means)  # converted where used: the selected Gaussians' alone
+    if means.shape != (n, 3) or means.dtype.kind not in "fiu":
+        raise ValidationError(f"seed_connected: means must have shape ({n}, 3) and a numeric dtype, got "
+                              f"{means.shape} {means.dtype}")
     if int(k_neighbors) < 1 or not (np.isfinite(link_factor) and link_factor > 0):
         raise ValidationError(f"seed_connected: k_neighbors must be >= 1 and link_factor > 0, got "
                               f"{k_neighbors!r} and {link_factor!r}")

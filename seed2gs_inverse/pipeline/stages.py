@@ -43,7 +43,7 @@ from ..errors import ValidationError
 from ..frontend.base import SupportPlaneTracker
 from ..frontend.prompts import BoxPrompt, PointPrompt, seed_mask_from_prompt
 from ..graph import apply_follow
-from ..operators import OperatorStack, as_stack, scene_fingerprint
+from ..operators import OperatorStack, as_stack
 from ..solvers import solve
 from ..solvers._common import normalize_mask
 from .box_object import box_object_mask
@@ -51,6 +51,7 @@ from .completion import (GRAPH_DEFAULTS, complete_membership, faint_follow_matri
                          tracked_membership)
 from .point_object import point_object_mask
 from .islands import seed_connected
+from .local import Neighbourhood, neighbourhood
 from .seed_lift import seed_lift
 from .support import SUPPORT_DEFAULTS, support_surface
 from .up_axis import WEAK_CONFIDENCE, camera_list, estimate_up, estimate_up_axis, flat_normals
@@ -392,15 +393,22 @@ def _clip_frame(op: ViewOperator, clip: str, index: int) -> ClipFrame:
     return ClipFrame(r.rgb, r.depth, r.alpha, op.camera, clip, index, operator=op)
 
 
-def _level(scene: GaussianScene, up: np.ndarray) -> np.ndarray:
-    """(N,) bool: the flat, level Gaussians of ``scene`` about ``up`` (ground, table tops, seats).
+def _level(scene: GaussianScene, up: np.ndarray, center: np.ndarray, reach: float) -> np.ndarray:
+    """(N,) bool: the flat, level Gaussians of ``scene`` about ``up`` within ``reach`` of ``center``.
 
     Flat and level as :func:`~.support.support_surface` takes them
     (:func:`~.up_axis.flat_normals`, ``|n . up|`` at least its default
-    ``min_alignment``).
+    ``min_alignment``): the ground, table tops and seats that the orbit
+    views' near cut leaves in place. Only those within ``reach`` of the
+    object are looked at (:func:`~.local.neighbourhood`): the near cut of a
+    view at distance ``D`` from the object removes Gaussians in front of
+    the object inside the view's cone, which lie within ``2 D`` of it.
     """
-    normals, flat = flat_normals(scene, np.arange(len(scene)))
-    return flat & (np.abs(normals @ up) >= SUPPORT_DEFAULTS["min_alignment"])
+    idx = neighbourhood(scene, center, reach)
+    normals, flat = flat_normals(scene, idx)
+    out = np.zeros(len(scene), bool)
+    out[idx] = flat & (np.abs(normals @ up) >= SUPPORT_DEFAULTS["min_alignment"])
+    return out
 
 
 def orbit_views(renderer: Renderer, camera: Camera, ref: ReferenceView, lift: SeedLift,
@@ -428,7 +436,10 @@ def orbit_views(renderer: Renderer, camera: Camera, ref: ReferenceView, lift: Se
     # The near cut leaves level surfaces in place: the ground cut in front of the object shows its
     # edge at the object's depth next to the object's base, where the tracker takes it for the object.
     # Not only those below the object's centre: an axis given upside down would cut the ground.
-    spare = _level(scene, up) if s.cull and s.near_margin is not None else None
+    spare = None
+    if s.cull and s.near_margin is not None:
+        # every orbit camera keeps the reference's distance to o (vaas.orbit_cameras)
+        spare = _level(scene, up, lift.center, 2.0 * float(np.linalg.norm(base.center - lift.center)))
 
     def view(cam: Camera, clip: str, k: int) -> ClipFrame:
         if cam is base:
@@ -444,7 +455,7 @@ def orbit_views(renderer: Renderer, camera: Camera, ref: ReferenceView, lift: Se
             progress.update()
         return _clip_frame(op, clip, k)
 
-    sigma = scene.scales.max(axis=1)[lift.g0]
+    sigma = scene.subset(lift.g0).scales.max(axis=1)  # G0's own: the scene's activations cost O(N)
     plan, flat, spiral = run_vaas(
         scene.means[lift.g0], sigma, base, lift.center, view, n_views=s.n_views, a_max_deg=s.a_max_deg,
         gamma=s.gamma, skip_deg=s.skip_deg, profile=s.profile, max_elevation_deg=s.max_elevation_deg,
@@ -453,7 +464,8 @@ def orbit_views(renderer: Renderer, camera: Camera, ref: ReferenceView, lift: Se
 
 
 def support_band(scene: GaussianScene, lift: SeedLift, orbits: OrbitViews, settings: ExtractSettings,
-                 tracker: Tracker | None = None) -> tuple[SupportSurface | None, dict]:
+                 tracker: Tracker | None = None,
+                 local: Neighbourhood | None = None) -> tuple[SupportSurface | None, dict]:
     """Stage 5b: the support surface under the object, for a tracker's ``support_plane``.
 
     :func:`~.support.support_surface` about the orbit axis, when
@@ -464,7 +476,15 @@ def support_band(scene: GaussianScene, lift: SeedLift, orbits: OrbitViews, setti
     confidence >= :data:`~.up_axis.WEAK_CONFIDENCE`). Returns
     ``(surface or None, report)`` with ``report`` the JSON-ready
     ``resolved["support"]``: the surface's fields and ``used: True``, or
-    ``used: False`` and the reason.
+    ``used: False`` and the reason. Given the object's neighbourhood
+    ``local`` (:func:`~.local.object_neighbourhood`, holding the ball of
+    :func:`~.local.support_reach`), the surface is found among its Gaussians
+    alone: the same surface.
+
+    Raises
+    ------
+    ValidationError
+        ``local`` is not a neighbourhood of ``scene``.
     """
     info = orbits.up_info or {}
     if not settings.support_background:
@@ -476,7 +496,9 @@ def support_band(scene: GaussianScene, lift: SeedLift, orbits: OrbitViews, setti
     elif info.get("method") != "user" and (info.get("confidence") or 0.0) < WEAK_CONFIDENCE:
         reason = f"the orbit axis is not trusted (method {info.get('method')}, confidence {info.get('confidence')})"
     else:
-        surface = support_surface(scene, lift.g0, lift.center, lift.radius, orbits.up, **SUPPORT_DEFAULTS)
+        _check_local(scene, local)
+        where, g0 = (scene, lift.g0) if local is None else (local.scene, local.local(lift.g0))
+        surface = support_surface(where, g0, lift.center, lift.radius, orbits.up, **SUPPORT_DEFAULTS)
         if surface is not None:
             return surface, {"used": True, **surface.summary()}
         reason = "no level surface below the object"
@@ -530,17 +552,28 @@ def track_clips(tracker: Tracker, orbits: OrbitViews, seed: np.ndarray, progress
 
 
 def evidence_graph(scene: GaussianScene, lift: SeedLift, settings: ExtractSettings,
-                   smoothness: float) -> sp.csr_matrix | None:
+                   smoothness: float, local: Neighbourhood | None = None) -> sp.csr_matrix | None:
     """Stage 6b: the Gaussian affinity graph around the object, or None when nothing needs it.
 
     :func:`~seed2gs_inverse.pipeline.completion.object_graph` about the
     lift's centre (``region`` lift radii, :data:`~.completion.GRAPH_DEFAULTS`
     updated by ``settings.graph_options``), built when the regulariser is on
-    (``smoothness > 0``, resolved) or ``settings.completion`` is set.
+    (``smoothness > 0``, resolved) or ``settings.completion`` is set. Given
+    the object's neighbourhood ``local`` (holding the graph's region), it is
+    built among its Gaussians and renumbered to the scene's: the same graph.
+
+    Raises
+    ------
+    ValidationError
+        ``local`` is not a neighbourhood of ``scene``.
     """
     if not (smoothness > 0 or settings.completion):
         return None
-    return object_graph(scene, lift.center, lift.radius, **{**GRAPH_DEFAULTS, **settings.graph_options})
+    opts = {**GRAPH_DEFAULTS, **settings.graph_options}
+    _check_local(scene, local)
+    if local is None:
+        return object_graph(scene, lift.center, lift.radius, **opts)
+    return local.expand(object_graph(local.scene, lift.center, lift.radius, **opts))
 
 
 def complete_masks(graph: sp.csr_matrix | None, labelled: list, lift: SeedLift, ref: ReferenceView,
@@ -583,13 +616,17 @@ def complete_masks(graph: sp.csr_matrix | None, labelled: list, lift: SeedLift, 
 
 
 def stack_operators(labelled: list, scene: GaussianScene) -> OperatorStack:
-    """Stage 7: the ``OperatorStack`` of the supervision views (``frame.operator`` of each pair)."""
-    return OperatorStack([f.operator for f, _ in labelled], fingerprint=scene_fingerprint(scene))
+    """Stage 7: the ``OperatorStack`` of the supervision views (``frame.operator`` of each pair).
+
+    Its ``fingerprint`` (:func:`~seed2gs_inverse.operators.scene_fingerprint`
+    of ``scene``) is computed when first read (saving the operators reads it).
+    """
+    return OperatorStack([f.operator for f, _ in labelled], scene=scene)
 
 
 def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, progress=None, *,
                     graph: sp.csr_matrix | None = None, smoothness: float = 0.0,
-                    scene: GaussianScene | None = None) -> Selection:
+                    scene: GaussianScene | None = None, local: Neighbourhood | None = None) -> Selection:
     """Stage 8: ``q`` from the solver initialised from G0, and ``selected = q > tau``.
 
     Parameters
@@ -609,6 +646,11 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     scene : GaussianScene, optional
         The scene of the operators; needed with ``settings.seed_connected``
         or ``settings.follow_faint``.
+    local : Neighbourhood, optional
+        The object's neighbourhood in ``scene``
+        (:func:`~.local.object_neighbourhood`: every column of the stack,
+        G0 and the graph's region): the faint Gaussians' rule and the
+        islands then run on its Gaussians alone, with the same result.
 
     Returns
     -------
@@ -617,7 +659,8 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     Raises
     ------
     ValidationError
-        ``settings.seed_connected`` or ``settings.follow_faint`` without ``scene``.
+        ``settings.seed_connected`` or ``settings.follow_faint`` without ``scene``, or a
+        ``local`` that is not a neighbourhood of ``scene``.
 
     Notes
     -----
@@ -647,22 +690,63 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     if (settings.seed_connected or settings.follow_faint) and scene is None:
         raise ValidationError("solve_selection: settings.seed_connected and settings.follow_faint need the scene "
                               "(scene=); pass it or set both to False")
+    if scene is not None:
+        _check_local(scene, local)
     follow = None
     if settings.follow_faint:
         opts = {**GRAPH_DEFAULTS, **settings.graph_options}
-        follow = faint_follow_matrix(scene, lift.center, lift.radius, region=opts["region"],
-                                     min_opacity=opts["min_opacity"])
-        q = apply_follow(q, follow)
+        follow, q = _follow_faint(scene, lift, q, opts, local)
     n_removed = 0
     if settings.seed_connected:
         graph_kw = {k: settings.lift_options[k] for k in ("k_neighbors", "link_factor") if k in settings.lift_options}
-        island = (q > tau) & ~seed_connected(scene.means, q > tau, lift.g0, votes=_votes(stack, masks),
-                                             **graph_kw)  # the lift's graph
+        island = _islands(scene, lift, q > tau, _votes(stack, masks), graph_kw, local)
         # islands hold no G0 Gaussian: they take the prior of the Gaussians outside G0 (0)
         q = np.where(island, np.float32(0), q)
         n_removed = int(island.sum())
     selected = q > tau
     return Selection(result, q, tau, selected, n_removed, follow)
+
+
+def _check_local(scene: GaussianScene, local) -> None:
+    """Raise a ValidationError unless ``local`` is None or a :class:`~.local.Neighbourhood` of ``scene``'s size."""
+    if local is not None and (not isinstance(local, Neighbourhood) or local.n != len(scene)):
+        raise ValidationError(f"local must be None or a Neighbourhood of the scene's {len(scene)} Gaussians "
+                              f"(pipeline.local.object_neighbourhood), got {type(local).__name__}"
+                              + (f" of {local.n}" if isinstance(local, Neighbourhood) else ""))
+
+
+def _follow_faint(scene: GaussianScene, lift: SeedLift, q: np.ndarray, opts: dict,
+                  local: Neighbourhood | None) -> tuple[sp.csr_matrix, np.ndarray]:
+    """``(follow (N, N), q after it)``: :func:`~.completion.faint_follow_matrix` applied to ``q``.
+
+    With ``local`` (holding the rule's region) the matrix is built among the
+    neighbourhood's Gaussians and applied to their ``q``; the rest of ``q``
+    has no row in it and is unchanged.
+    """
+    kw = {"region": opts["region"], "min_opacity": opts["min_opacity"]}
+    if local is None:
+        follow = faint_follow_matrix(scene, lift.center, lift.radius, **kw)
+        return follow, apply_follow(q, follow)
+    follow = faint_follow_matrix(local.scene, lift.center, lift.radius, **kw)
+    out = np.array(q, dtype=np.float32)
+    out[local.index] = apply_follow(out[local.index], follow)
+    return local.expand(follow), out
+
+
+def _islands(scene: GaussianScene, lift: SeedLift, above: np.ndarray, votes: tuple, graph_kw: dict,
+             local: Neighbourhood | None) -> np.ndarray:
+    """(N,) bool: the Gaussians of ``above`` (``q > tau``) in islands apart from G0 (:func:`~.islands.seed_connected`).
+
+    With ``local``, on its Gaussians alone when it holds all of ``above``
+    (outside it ``q`` is the prior, 0 away from G0).
+    """
+    if local is not None:
+        above_l = local.local(above)
+        if int(above_l.sum()) == int(np.count_nonzero(above)):
+            kept = seed_connected(local.scene.means, above_l, local.local(lift.g0),
+                                  votes=(local.local(votes[0]), local.local(votes[1])), **graph_kw)
+            return local.scatter(above_l & ~kept, False)
+    return above & ~seed_connected(scene.means, above, lift.g0, votes=votes, **graph_kw)  # the lift's graph
 
 
 def _votes(stack: OperatorStack, masks: list) -> tuple[np.ndarray, np.ndarray]:

@@ -578,7 +578,8 @@ def flat_normals(scene: GaussianScene, idx: np.ndarray, flatness: float = 0.3) -
     flat : (M,) bool
         Smallest scale below ``flatness`` times the middle one.
     """
-    s = scene.scales[idx].astype(np.float64)
+    # GaussianScene.scales of these Gaussians alone (the property activates all N)
+    s = np.exp(scene.log_scales[idx].astype(np.float64)).astype(np.float32).astype(np.float64)
     order = np.argsort(s, axis=1)
     smin = np.take_along_axis(s, order[:, :1], 1)[:, 0]
     smid = np.take_along_axis(s, order[:, 1:2], 1)[:, 0]

@@ -83,6 +83,7 @@ from typing import NamedTuple
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import numpy as np  # noqa: E402
+from llvmlite import ir  # noqa: E402
 from numba import get_num_threads, njit, prange, types  # noqa: E402
 from numba.core import cgutils  # noqa: E402
 from numba.core import event as _numba_event  # noqa: E402
@@ -112,8 +113,9 @@ _C30, _C31, _C32, _C33, _C34, _C35, _C36 = SH_C3
 # other threads sit idle. The tile loops below instead start one worker per
 # thread, and each worker claims the next tile from a shared counter with an
 # atomic fetch-and-add until none is left: a slowed thread just takes fewer
-# tiles. Every tile writes only its own outputs, so results do not depend on
-# which thread took which tile.
+# tiles. The per-Gaussian loops (projection, culling) claim CHUNK Gaussians
+# at a time the same way. Every tile and every Gaussian writes only its own
+# outputs, so results do not depend on which thread took which.
 @intrinsic
 def _fetch_add(typingctx, counter, value):
     """``old = counter[0]; counter[0] += value; return old``, atomically (``counter``: (1,) int64)."""
@@ -127,6 +129,39 @@ def _fetch_add(typingctx, counter, value):
         zero = context.get_constant(types.intp, 0)
         ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [zero])
         return builder.atomic_rmw("add", ptr, args[1], "monotonic")
+
+    return sig, codegen
+
+
+# Per-Gaussian data is read in depth order, i.e. at random rows: each tile-Gaussian
+# pair of the compositing loop (and each Gaussian of the binning) waited on a
+# cache miss before its work. The loops ask for the rows PREFETCH items
+# ahead; a prefetch only moves memory into the cache, so results are unchanged.
+PREFETCH = 8
+
+
+@intrinsic
+def _prefetch(typingctx, arr, row):
+    """Hint the CPU to bring ``arr[row, 0, ...]`` into the cache (``llvm.prefetch``; never faults, no result)."""
+    if not (isinstance(arr, types.Array) and isinstance(row, types.Integer)):
+        return None
+    sig = types.void(arr, row)
+
+    def codegen(context, builder, signature, args):
+        aryty = signature.args[0]
+        ary = context.make_array(aryty)(context, builder, args[0])
+        idx = [context.cast(builder, args[1], signature.args[1], types.intp)]
+        idx += [context.get_constant(types.intp, 0)] * (aryty.ndim - 1)
+        ptr = cgutils.get_item_pointer2(context, builder, ary.data, cgutils.unpack_tuple(builder, ary.shape),
+                                        cgutils.unpack_tuple(builder, ary.strides), aryty.layout, idx,
+                                        wraparound=False, boundscheck=False)
+        i8p = ir.IntType(8).as_pointer()
+        i32 = ir.IntType(32)
+        fnty = ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32])
+        fn = cgutils.get_or_insert_function(builder.module, fnty, "llvm.prefetch.p0i8")
+        # read (0), keep in all cache levels (3), data (1)
+        builder.call(fn, [builder.bitcast(ptr, i8p), i32(0), i32(3), i32(1)])
+        return context.get_dummy_value()
 
     return sig, codegen
 
@@ -147,6 +182,17 @@ def workers(n_items: int) -> int:
     kernel would keep it out of the on-disk cache.
     """
     return max(1, min(get_num_threads(), int(n_items)))
+
+
+#: Items a worker claims at a time in the per-Gaussian loops (projection,
+#: culling): small enough that a descheduled thread leaves little behind,
+#: large enough that claiming costs nothing beside the work.
+CHUNK = 1024
+
+
+def chunk_workers(n_items: int) -> int:
+    """:func:`workers` for a loop over ``n_items`` claimed :data:`CHUNK` at a time."""
+    return workers(-(-int(n_items) // CHUNK))
 
 
 # -- argument bundles (Numba passes NamedTuples of arrays and scalars as typed tuples) --
@@ -313,6 +359,31 @@ def _activate(idx, quats, log_scales, opacity_logits, sh, mfac, opac, col0):
         mfac[i, 8] = (1.0 - 2.0 * (qx * qx + qy * qy)) * s2
 
 
+@njit(cache=True, inline="always")
+def _view_color(i, g, a_row, px, py, pz, center, k, sh, col0, colors):
+    """``colors[i]`` of Gaussian ``g`` at ``(px, py, pz)`` seen from ``center``: ``max(eval_sh + 0.5, 0)``
+    with the first ``k`` SH terms, or the view-independent ``col0[a_row]`` when given (SH degree 0)."""
+    if col0.shape[0] > 0:
+        for ch in range(3):
+            colors[i, ch] = col0[a_row, ch]
+        return
+    basis = np.empty(16)
+    dx = px - center[0]
+    dy = py - center[1]
+    dz = pz - center[2]
+    nrm = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if nrm > 0.0:
+        dx /= nrm
+        dy /= nrm
+        dz /= nrm
+    _sh_basis(dx, dy, dz, k, basis)
+    for ch in range(3):
+        acc = 0.0
+        for j in range(k):
+            acc += basis[j] * sh[g, j, ch]
+        colors[i, ch] = max(acc + 0.5, 0.0)
+
+
 def project(idx, act_rows, means, sh, act, cam, eps2d, antialiased, tile_box, out):
     """:func:`_project` with the activations ``act`` (:class:`Activations`), the camera
     ``cam`` (:class:`CameraParams`) and the outputs ``out`` (:class:`Splats`) bundled.
@@ -327,156 +398,147 @@ def project(idx, act_rows, means, sh, act, cam, eps2d, antialiased, tile_box, ou
     means2d, conics, radii, depths, colors, opacities, support, rects = out
     _project(idx, act_rows, means, mfac, opac, col0, sh, rot, trans, center,
              fx, fy, cx, cy, width, height, near, eps2d, antialiased, tile_box,
-             means2d, conics, radii, depths, colors, opacities, support, rects)
+             means2d, conics, radii, depths, colors, opacities, support, rects, chunk_workers(idx.shape[0]))
 
 
 @njit(cache=True, parallel=True)
 def _project(idx, act_rows, means, mfac, opac, col0, sh, rot, trans, center,
              fx, fy, cx, cy, width, height, near, eps2d, antialiased, tile_box,
-             means2d, conics, radii, depths, colors, opacities, support, rects):
-    """Project the Gaussians ``idx`` (module docstring, "Projection"; maths in ``project_gaussians``)."""
+             means2d, conics, radii, depths, colors, opacities, support, rects, n_workers):
+    """Project the Gaussians ``idx`` (module docstring, "Projection"; maths in ``project_gaussians``).
+
+    ``n_workers``: :func:`chunk_workers` of ``idx``'s length (dynamic scheduling by chunks).
+    """
     n = idx.shape[0]
     k = sh.shape[1]
     tiles_x = (width + TILE - 1) // TILE
     tiles_y = (height + TILE - 1) // TILE
     lim_x_pos, lim_x_neg, lim_y_pos, lim_y_neg = _jacobian_limits(width, height, fx, fy, cx, cy)
-    for i in prange(n):
-        g = idx[i]
-        px = np.float64(means[g, 0])
-        py = np.float64(means[g, 1])
-        pz = np.float64(means[g, 2])
-        x = rot[0, 0] * px + rot[0, 1] * py + rot[0, 2] * pz + trans[0]
-        y = rot[1, 0] * px + rot[1, 1] * py + rot[1, 2] * pz + trans[1]
-        z = rot[2, 0] * px + rot[2, 1] * py + rot[2, 2] * pz + trans[2]
-        depths[i] = z
+    claimed = np.zeros(1, np.int64)  # items handed out so far (_fetch_add)
+    for _worker in prange(n_workers):
+        while True:
+            first = _fetch_add(claimed, CHUNK)
+            if first >= n:
+                break
+            for i in range(first, min(first + CHUNK, n)):
+                g = idx[i]
+                px = np.float64(means[g, 0])
+                py = np.float64(means[g, 1])
+                pz = np.float64(means[g, 2])
+                x = rot[0, 0] * px + rot[0, 1] * py + rot[0, 2] * pz + trans[0]
+                y = rot[1, 0] * px + rot[1, 1] * py + rot[1, 2] * pz + trans[1]
+                z = rot[2, 0] * px + rot[2, 1] * py + rot[2, 2] * pz + trans[2]
+                depths[i] = z
 
-        a_row = act_rows[i]
-        # View-dependent colour, for every Gaussian (callers use it for W @ colors).
-        if col0.shape[0] > 0:
-            for ch in range(3):
-                colors[i, ch] = col0[a_row, ch]
-        else:
-            basis = np.empty(16)
-            dx = px - center[0]
-            dy = py - center[1]
-            dz = pz - center[2]
-            nrm = math.sqrt(dx * dx + dy * dy + dz * dz)
-            if nrm > 0.0:
-                dx /= nrm
-                dy /= nrm
-                dz /= nrm
-            _sh_basis(dx, dy, dz, k, basis)
-            for ch in range(3):
-                acc = 0.0
-                for j in range(k):
-                    acc += basis[j] * sh[g, j, ch]
-                colors[i, ch] = max(acc + 0.5, 0.0)
+                a_row = act_rows[i]
+                # View-dependent colour, for every Gaussian (callers use it for W @ colors).
+                _view_color(i, g, a_row, px, py, pz, center, k, sh, col0, colors)
 
-        opacities[i] = opac[a_row]
-        radii[i] = 0
-        means2d[i, 0] = 0.0
-        means2d[i, 1] = 0.0
-        conics[i, 0] = 0.0
-        conics[i, 1] = 0.0
-        conics[i, 2] = 0.0
-        for j in range(4):
-            rects[i, j] = 0
-        for j in range(3):
-            support[i, j] = 0.0
-        if not z >= near:  # also rejects NaN
-            continue
+                opacities[i] = opac[a_row]
+                radii[i] = 0
+                means2d[i, 0] = 0.0
+                means2d[i, 1] = 0.0
+                conics[i, 0] = 0.0
+                conics[i, 1] = 0.0
+                conics[i, 2] = 0.0
+                for j in range(4):
+                    rects[i, j] = 0
+                for j in range(3):
+                    support[i, j] = 0.0
+                if not z >= near:  # also rejects NaN
+                    continue
 
-        # World covariance Sigma = M M^T with M = R(q) diag(s).
-        m00 = mfac[a_row, 0]
-        m01 = mfac[a_row, 1]
-        m02 = mfac[a_row, 2]
-        m10 = mfac[a_row, 3]
-        m11 = mfac[a_row, 4]
-        m12 = mfac[a_row, 5]
-        m20 = mfac[a_row, 6]
-        m21 = mfac[a_row, 7]
-        m22 = mfac[a_row, 8]
+                # World covariance Sigma = M M^T with M = R(q) diag(s).
+                m00 = mfac[a_row, 0]
+                m01 = mfac[a_row, 1]
+                m02 = mfac[a_row, 2]
+                m10 = mfac[a_row, 3]
+                m11 = mfac[a_row, 4]
+                m12 = mfac[a_row, 5]
+                m20 = mfac[a_row, 6]
+                m21 = mfac[a_row, 7]
+                m22 = mfac[a_row, 8]
 
-        # EWA Jacobian, with the view-space x/y clamped to 1.3 x the field of
-        # view so Gaussians far outside the image do not blow up (gsplat persp_proj).
-        tx = z * min(lim_x_pos, max(-lim_x_neg, x / z))
-        ty = z * min(lim_y_pos, max(-lim_y_neg, y / z))
-        j00 = fx / z
-        j02 = -fx * tx / (z * z)
-        j11 = fy / z
-        j12 = -fy * ty / (z * z)
-        # T = J R_cam (2x3); cov2d = (T M)(T M)^T.
-        t00 = j00 * rot[0, 0] + j02 * rot[2, 0]
-        t01 = j00 * rot[0, 1] + j02 * rot[2, 1]
-        t02 = j00 * rot[0, 2] + j02 * rot[2, 2]
-        t10 = j11 * rot[1, 0] + j12 * rot[2, 0]
-        t11 = j11 * rot[1, 1] + j12 * rot[2, 1]
-        t12 = j11 * rot[1, 2] + j12 * rot[2, 2]
-        u0 = t00 * m00 + t01 * m10 + t02 * m20
-        u1 = t00 * m01 + t01 * m11 + t02 * m21
-        u2 = t00 * m02 + t01 * m12 + t02 * m22
-        v0 = t10 * m00 + t11 * m10 + t12 * m20
-        v1 = t10 * m01 + t11 * m11 + t12 * m21
-        v2 = t10 * m02 + t11 * m12 + t12 * m22
-        a = u0 * u0 + u1 * u1 + u2 * u2
-        b = u0 * v0 + u1 * v1 + u2 * v2
-        c = v0 * v0 + v1 * v1 + v2 * v2
-        det_orig = a * c - b * b
-        a += eps2d
-        c += eps2d
-        det = a * c - b * b
-        if not det > 0.0:
-            continue
-        if antialiased:
-            opacities[i] *= math.sqrt(max(0.0, det_orig / det))
-        mid = 0.5 * (a + c)
-        lam = mid + math.sqrt(max(0.01, mid * mid - det))
-        # Float ceil, capped so the int32 radius cannot overflow.
-        radius = min(np.ceil(3.0 * math.sqrt(lam)), 2.0e9)
-        mx = fx * x / z + cx
-        my = fy * y / z + cy
-        # Tile rectangle of [mean - r, mean + r] as getRect of the reference code.
-        rx0 = _clamp_floor((mx - radius) / TILE, tiles_x)
-        ry0 = _clamp_floor((my - radius) / TILE, tiles_y)
-        rx1 = _clamp_floor((mx + radius + TILE - 1) / TILE, tiles_x)
-        ry1 = _clamp_floor((my + radius + TILE - 1) / TILE, tiles_y)
-        if rx1 <= rx0 or ry1 <= ry0:
-            continue
-        radii[i] = np.int32(radius)
-        means2d[i, 0] = mx
-        means2d[i, 1] = my
-        ca = c / det
-        cb = -b / det
-        cc = a / det
-        conics[i, 0] = ca
-        conics[i, 1] = cb
-        conics[i, 2] = cc
-        o = opacities[i]
-        if not o >= ALPHA_MIN:
-            continue
-        pmin = math.log(ALPHA_MIN / o) - 1e-6
-        kq = max(0.0, -2.0 * pmin) / (ca * cc - cb * cb)
-        # Capped so that pixel bounds computed from them stay sane integers.
-        hx = min(math.sqrt(kq * cc) + 1e-3, 1e9)
-        hy = min(math.sqrt(kq * ca) + 1e-3, 1e9)
-        support[i, 0] = pmin
-        support[i, 1] = hx
-        support[i, 2] = hy
-        # Pixels whose centre can lie in the support box, then their tiles.
-        sx0 = _clamp_floor(np.ceil(mx - hx - 0.5) / TILE, tiles_x)
-        sx1 = _clamp_floor(np.floor(mx + hx - 0.5) / TILE, tiles_x - 1) + 1
-        sy0 = _clamp_floor(np.ceil(my - hy - 0.5) / TILE, tiles_y)
-        sy1 = _clamp_floor(np.floor(my + hy - 0.5) / TILE, tiles_y - 1) + 1
-        rx0 = max(rx0, sx0, tile_box[0])
-        rx1 = min(rx1, sx1, tile_box[2])
-        ry0 = max(ry0, sy0, tile_box[1])
-        ry1 = min(ry1, sy1, tile_box[3])
-        if rx1 <= rx0 or ry1 <= ry0:
-            continue
-        rects[i, 0] = rx0
-        rects[i, 1] = ry0
-        rects[i, 2] = rx1
-        rects[i, 3] = ry1
+                # EWA Jacobian, with the view-space x/y clamped to 1.3 x the field of
+                # view so Gaussians far outside the image do not blow up (gsplat persp_proj).
+                tx = z * min(lim_x_pos, max(-lim_x_neg, x / z))
+                ty = z * min(lim_y_pos, max(-lim_y_neg, y / z))
+                j00 = fx / z
+                j02 = -fx * tx / (z * z)
+                j11 = fy / z
+                j12 = -fy * ty / (z * z)
+                # T = J R_cam (2x3); cov2d = (T M)(T M)^T.
+                t00 = j00 * rot[0, 0] + j02 * rot[2, 0]
+                t01 = j00 * rot[0, 1] + j02 * rot[2, 1]
+                t02 = j00 * rot[0, 2] + j02 * rot[2, 2]
+                t10 = j11 * rot[1, 0] + j12 * rot[2, 0]
+                t11 = j11 * rot[1, 1] + j12 * rot[2, 1]
+                t12 = j11 * rot[1, 2] + j12 * rot[2, 2]
+                u0 = t00 * m00 + t01 * m10 + t02 * m20
+                u1 = t00 * m01 + t01 * m11 + t02 * m21
+                u2 = t00 * m02 + t01 * m12 + t02 * m22
+                v0 = t10 * m00 + t11 * m10 + t12 * m20
+                v1 = t10 * m01 + t11 * m11 + t12 * m21
+                v2 = t10 * m02 + t11 * m12 + t12 * m22
+                a = u0 * u0 + u1 * u1 + u2 * u2
+                b = u0 * v0 + u1 * v1 + u2 * v2
+                c = v0 * v0 + v1 * v1 + v2 * v2
+                det_orig = a * c - b * b
+                a += eps2d
+                c += eps2d
+                det = a * c - b * b
+                if not det > 0.0:
+                    continue
+                if antialiased:
+                    opacities[i] *= math.sqrt(max(0.0, det_orig / det))
+                mid = 0.5 * (a + c)
+                lam = mid + math.sqrt(max(0.01, mid * mid - det))
+                # Float ceil, capped so the int32 radius cannot overflow.
+                radius = min(np.ceil(3.0 * math.sqrt(lam)), 2.0e9)
+                mx = fx * x / z + cx
+                my = fy * y / z + cy
+                # Tile rectangle of [mean - r, mean + r] as getRect of the reference code.
+                rx0 = _clamp_floor((mx - radius) / TILE, tiles_x)
+                ry0 = _clamp_floor((my - radius) / TILE, tiles_y)
+                rx1 = _clamp_floor((mx + radius + TILE - 1) / TILE, tiles_x)
+                ry1 = _clamp_floor((my + radius + TILE - 1) / TILE, tiles_y)
+                if rx1 <= rx0 or ry1 <= ry0:
+                    continue
+                radii[i] = np.int32(radius)
+                means2d[i, 0] = mx
+                means2d[i, 1] = my
+                ca = c / det
+                cb = -b / det
+                cc = a / det
+                conics[i, 0] = ca
+                conics[i, 1] = cb
+                conics[i, 2] = cc
+                o = opacities[i]
+                if not o >= ALPHA_MIN:
+                    continue
+                pmin = math.log(ALPHA_MIN / o) - 1e-6
+                kq = max(0.0, -2.0 * pmin) / (ca * cc - cb * cb)
+                # Capped so that pixel bounds computed from them stay sane integers.
+                hx = min(math.sqrt(kq * cc) + 1e-3, 1e9)
+                hy = min(math.sqrt(kq * ca) + 1e-3, 1e9)
+                support[i, 0] = pmin
+                support[i, 1] = hx
+                support[i, 2] = hy
+                # Pixels whose centre can lie in the support box, then their tiles.
+                sx0 = _clamp_floor(np.ceil(mx - hx - 0.5) / TILE, tiles_x)
+                sx1 = _clamp_floor(np.floor(mx + hx - 0.5) / TILE, tiles_x - 1) + 1
+                sy0 = _clamp_floor(np.ceil(my - hy - 0.5) / TILE, tiles_y)
+                sy1 = _clamp_floor(np.floor(my + hy - 0.5) / TILE, tiles_y - 1) + 1
+                rx0 = max(rx0, sx0, tile_box[0])
+                rx1 = min(rx1, sx1, tile_box[2])
+                ry0 = max(ry0, sy0, tile_box[1])
+                ry1 = min(ry1, sy1, tile_box[3])
+                if rx1 <= rx0 or ry1 <= ry0:
+                    continue
+                rects[i, 0] = rx0
+                rects[i, 1] = ry0
+                rects[i, 2] = rx1
+                rects[i, 3] = ry1
 
 
 @njit(cache=True, parallel=True)
@@ -494,8 +556,11 @@ def bin_tiles(order, rects, tiles_x, n_tiles):
     n_chunks = max(1, min(32, n // 16384))
     counts = np.zeros((n_chunks, n_tiles), np.int64)
     for c in prange(n_chunks):
-        for k in range(c * n // n_chunks, (c + 1) * n // n_chunks):
+        end = (c + 1) * n // n_chunks
+        for k in range(c * n // n_chunks, end):
             g = order[k]
+            if k + PREFETCH < end:  # rows in depth order: random (see PREFETCH)
+                _prefetch(rects, order[k + PREFETCH])
             for ty in range(rects[g, 1], rects[g, 3]):
                 for tx in range(rects[g, 0], rects[g, 2]):
                     counts[c, ty * tiles_x + tx] += 1
@@ -510,8 +575,11 @@ def bin_tiles(order, rects, tiles_x, n_tiles):
     tile_gauss = np.empty(tile_start[n_tiles], np.int32)
     for c in prange(n_chunks):
         cursor = counts[c]
-        for k in range(c * n // n_chunks, (c + 1) * n // n_chunks):
+        end = (c + 1) * n // n_chunks
+        for k in range(c * n // n_chunks, end):
             g = order[k]
+            if k + PREFETCH < end:
+                _prefetch(rects, order[k + PREFETCH])
             for ty in range(rects[g, 1], rects[g, 3]):
                 for tx in range(rects[g, 0], rects[g, 2]):
                     t = ty * tiles_x + tx
@@ -624,6 +692,14 @@ def _composite_tiles(tile_start, tile_gauss, tile_order, means2d, conics, opacit
             j = s
             while j < e and n_done < npix:
                 gi = tile_gauss[j]
+                if j + PREFETCH < e:
+                    ahead = tile_gauss[j + PREFETCH]
+                    _prefetch(means2d, ahead)
+                    _prefetch(support, ahead)
+                    _prefetch(conics, ahead)
+                    _prefetch(opacities, ahead)
+                    _prefetch(colors, ahead)
+                    _prefetch(depths, ahead)
                 j += 1
                 mx = means2d[gi, 0]
                 my = means2d[gi, 1]
@@ -741,18 +817,23 @@ def scatter(tiles, lo, hi, width, height, scr_pix, scr_gi, scr_w, gid, indptr, i
                 cursor[lp] = c + 1
 
 
-def cone_cull(means, cam, roi, smax, eps2d, axis, far, keep):
+def cone_cull(means, cam, roi, sigma3, eps2d, axis, far, cut, spare, keep):
     """:func:`_cone_cull` with the camera ``cam`` (:class:`CameraParams`) bundled."""
     _cone_cull(means, cam.rot, cam.trans, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, cam.near,
-               roi, smax, eps2d, axis, far, keep)
+               roi, sigma3, eps2d, axis, far, cut, spare, keep, chunk_workers(means.shape[0]))
 
 
 @njit(cache=True, parallel=True)
-def _cone_cull(means, rot, trans, fx, fy, cx, cy, width, height, near, roi, smax, eps2d, axis, far, keep):
+def _cone_cull(means, rot, trans, fx, fy, cx, cy, width, height, near, roi, sigma3, eps2d, axis, far, cut, spare,
+               keep, n_workers):
     """Gaussians whose screen footprint in :func:`_project` can reach the pixel box ``roi`` (parallel).
 
-    With ``v = R x + t`` (view frame), ``keep[i]`` requires ``v_z >= near``
-    (the projection's own test), ``v . axis - 3 smax[i] <= far`` and the
+    With ``smax[i] = sigma3[i] / 3`` (``sigma3``: the 3-sigma sizes of
+    :func:`~seed2gs_inverse.raster.frozen.sigma3`) and ``v = R x + t`` (view
+    frame), ``keep[i]`` requires ``v_z >= near``
+    (the projection's own test), ``v . axis - 3 smax[i] <= far``, ``v . axis
+    >= cut`` unless ``spare[i]`` (``spare``: (N,) bool, or (0,) for none;
+    ``cut = -inf`` for no cut) and the
     square of half-size ``r`` around the projected centre ``m`` meeting
     ``roi = (x0, y0, x1, y1)``: ``m_x + r >= x0`` and ``m_x - r <= x1``
     (and in y). ``r = sqrt(2 ln 255) sqrt(lam) + 2`` px bounds both the
@@ -761,33 +842,45 @@ def _cone_cull(means, rot, trans, fx, fy, cx, cy, width, height, near, roi, smax
     2D covariance ``J R Sigma R^T J^T + eps2d I`` has its largest eigenvalue
     ``lam2d <= lam = lmax(J J^T) smax^2 + eps2d`` (``Sigma``'s largest
     eigenvalue is ``smax^2``; ``J`` the same clamped EWA Jacobian).
+    ``n_workers``: :func:`chunk_workers` of N (dynamic scheduling by chunks).
     """
     lim_x_pos, lim_x_neg, lim_y_pos, lim_y_neg = _jacobian_limits(width, height, fx, fy, cx, cy)
     k_support = math.sqrt(2.0 * math.log(255.0))
-    for i in prange(means.shape[0]):
-        px = np.float64(means[i, 0])
-        py = np.float64(means[i, 1])
-        pz = np.float64(means[i, 2])
-        x = px * rot[0, 0] + py * rot[0, 1] + pz * rot[0, 2] + trans[0]
-        y = px * rot[1, 0] + py * rot[1, 1] + pz * rot[1, 2] + trans[1]
-        z = px * rot[2, 0] + py * rot[2, 1] + pz * rot[2, 2] + trans[2]
-        keep[i] = False
-        if not z >= near:  # also rejects NaN
-            continue
-        if not x * axis[0] + y * axis[1] + z * axis[2] - 3.0 * smax[i] <= far:
-            continue
-        tx = min(lim_x_pos, max(-lim_x_neg, x / z))
-        ty = min(lim_y_pos, max(-lim_y_neg, y / z))
-        # J J^T = [[a, b], [b, c]] for J = [[fx/z, 0, -fx tx/z], [0, fy/z, -fy ty/z]].
-        a = (fx / z) ** 2 * (1.0 + tx * tx)
-        c = (fy / z) ** 2 * (1.0 + ty * ty)
-        b = (fx / z) * (fy / z) * tx * ty
-        mid = 0.5 * (a + c)
-        lmax = mid + math.sqrt(max(mid * mid - (a * c - b * b), 0.0))
-        r = k_support * math.sqrt(lmax * smax[i] * smax[i] + eps2d) + 2.0
-        mx = fx * x / z + cx
-        my = fy * y / z + cy
-        keep[i] = mx + r >= roi[0] and mx - r <= roi[2] and my + r >= roi[1] and my - r <= roi[3]
+    n_items = means.shape[0]
+    claimed = np.zeros(1, np.int64)  # items handed out so far (_fetch_add)
+    for _worker in prange(n_workers):
+        while True:
+            first = _fetch_add(claimed, CHUNK)
+            if first >= n_items:
+                break
+            for i in range(first, min(first + CHUNK, n_items)):
+                px = np.float64(means[i, 0])
+                py = np.float64(means[i, 1])
+                pz = np.float64(means[i, 2])
+                x = px * rot[0, 0] + py * rot[0, 1] + pz * rot[0, 2] + trans[0]
+                y = px * rot[1, 0] + py * rot[1, 1] + pz * rot[1, 2] + trans[1]
+                z = px * rot[2, 0] + py * rot[2, 1] + pz * rot[2, 2] + trans[2]
+                keep[i] = False
+                if not z >= near:  # also rejects NaN
+                    continue
+                t_a = x * axis[0] + y * axis[1] + z * axis[2]
+                smax = sigma3[i] / 3.0
+                if not t_a - 3.0 * smax <= far:
+                    continue
+                if t_a < cut and not (spare.shape[0] > 0 and spare[i]):
+                    continue
+                tx = min(lim_x_pos, max(-lim_x_neg, x / z))
+                ty = min(lim_y_pos, max(-lim_y_neg, y / z))
+                # J J^T = [[a, b], [b, c]] for J = [[fx/z, 0, -fx tx/z], [0, fy/z, -fy ty/z]].
+                a = (fx / z) ** 2 * (1.0 + tx * tx)
+                c = (fy / z) ** 2 * (1.0 + ty * ty)
+                b = (fx / z) * (fy / z) * tx * ty
+                mid = 0.5 * (a + c)
+                lmax = mid + math.sqrt(max(mid * mid - (a * c - b * b), 0.0))
+                r = k_support * math.sqrt(lmax * smax * smax + eps2d) + 2.0
+                mx = fx * x / z + cx
+                my = fy * y / z + cy
+                keep[i] = mx + r >= roi[0] and mx - r <= roi[2] and my + r >= roi[1] and my - r <= roi[3]
 
 
 # -- compilation, said once ----------------------------------------------------

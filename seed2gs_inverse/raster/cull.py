@@ -85,26 +85,22 @@ def cone_cull(scene, camera: Camera, roi=None, far: float | None = None, near: f
                                   f"got {spare.dtype} of shape {spare.shape}")
     x0, y0, x1, y1 = roi_box(roi, camera)
     scene, frozen = unfreeze(scene)
+    s3 = frozen.sigma3 if frozen is not None else sigma3(scene)
     axis = np.array([(0.5 * (x0 + x1) - camera.cx) / camera.fx, (0.5 * (y0 + y1) - camera.cy) / camera.fy, 1.0])
     axis /= np.linalg.norm(axis)
+    use_spare = spare is not None and near is not None
     if frozen is None:
-        means, smax = scene.means, sigma3(scene) / 3.0
+        # One parallel pass over the scene, the near cut included.
+        means, cand = scene.means, None
     else:
         # The kernel on the index's candidates only (chunk order; sorted once kept).
         cand = frozen.spatial.view_rows(camera, roi, far)
-        means, smax = scene.means[cand], frozen.sigma3[cand] / 3.0
+        means, s3 = scene.means[cand], s3[cand]
+        spare = spare[cand] if use_spare else spare
     keep = np.empty(len(means), bool)
     _kernels.announce_compilation((_kernels._cone_cull,))
-    _kernels.cone_cull(means, camera_params(camera), np.array([x0, y0, x1, y1]), np.ascontiguousarray(smax),
-                       EPS2D, axis, np.inf if far is None else far, keep)
+    _kernels.cone_cull(means, camera_params(camera), np.array([x0, y0, x1, y1]), np.ascontiguousarray(s3),
+                       EPS2D, axis, np.inf if far is None else far, -np.inf if near is None else near,
+                       np.ascontiguousarray(spare) if use_spare else np.zeros(0, bool), keep)
     idx = np.flatnonzero(keep).astype(np.int64, copy=False)
-    if frozen is not None:
-        idx = frozen.spatial.ascending(cand[idx])
-    if near is not None and idx.size:
-        # On the kept subset only, usually a small part of the scene: t_a = (R x + t) . axis.
-        t_a = (scene.means[idx].astype(np.float64) @ camera.rotation.T + camera.translation) @ axis
-        cut = t_a < near
-        if spare is not None:
-            cut &= ~spare[idx]
-        idx = idx[~cut]
-    return idx
+    return idx if cand is None else frozen.spatial.ascending(cand[idx])

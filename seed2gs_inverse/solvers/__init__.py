@@ -26,22 +26,22 @@ This package needs only numpy and scipy (never the rasterizer or Numba).
 
 from __future__ import annotations
 
-import sys
 import time
 from typing import TYPE_CHECKING
 
 import numpy as np
-from threadpoolctl import ThreadpoolController
 
+from .._threads import one_blas_thread
 from .._validation import as_real
 from ..errors import ValidationError
 from ..graph import check_graph
 from . import beta_bernoulli, least_squares, voting, weighted_bce  # noqa: F401  (importing registers them)
 from ._common import (MethodResult, Problem, SolveResult, available_methods, check_options,
-                      check_range, get_check, get_method, method_options, prepare,
-                      register_method)
+                      check_range, get_check, get_method, method_options, prepare, prior_from_init,
+                      problem_of, register_method, stack_masks)
+from ._local import LOCAL_METHODS, restrict_graph, restrict_stack, touched_columns
 from ._progress import SolveProgress, reporting
-from .smoothing import harmonic_extension, laplacian_smooth, smooth_checked
+from .smoothing import RIDGE, harmonic_extension, laplacian_smooth, smooth_checked
 from .weighted_bce import WeightedBCE
 
 if TYPE_CHECKING:
@@ -56,24 +56,6 @@ __all__ = ["solve", "available_methods", "register_method", "get_method", "metho
 #: error up front instead of a run that never ends.
 COUNT_LIMITS = {"max_iter": 100_000, "inner_iters": 100_000, "maxcor": 1_000, "power_iters": 10_000,
                 "budget": 1_000_000}
-
-
-_controller, _modules_seen = None, -1
-
-
-def _one_blas_thread():
-    """A context with BLAS limited to one thread.
-
-    The loaded libraries are inspected again only when a module was imported
-    since the last look (a new BLAS comes with a new extension module):
-    ``threadpool_limits`` inspects them on every call, and a controller kept
-    for the whole process would leave a BLAS loaded after the first solve
-    unlimited.
-    """
-    global _controller, _modules_seen
-    if _controller is None or len(sys.modules) != _modules_seen:
-        _controller, _modules_seen = ThreadpoolController(), len(sys.modules)
-    return _controller.limit(limits=1, user_api="blas")
 
 
 def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidence: float = 0.0,
@@ -141,13 +123,59 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
     """
     fn = _check_request(operators, method, min_evidence, progress, options, smoothness, graph)
     t0 = time.perf_counter()
-    problem = prepare(operators, masks, init)
+    stack, mask_list = stack_masks(operators, masks)
+    n = stack.n_gaussians
     if smoothness > 0:  # before the method runs: a wrong graph must not cost a whole fit
-        graph = check_graph(graph, problem.n_gaussians)
+        graph = check_graph(graph, n)
+    cols = touched_columns(stack, graph if smoothness > 0 else None) if method in LOCAL_METHODS else None
+    if cols is None or cols.size in (0, n):
+        problem = problem_of(stack, mask_list, init)
+        result = _solve_prepared(fn, problem, method, min_evidence, progress, smoothness, graph, options)
+    else:
+        # The other Gaussians keep the prior whatever the method does (module _local): solve on these.
+        prior = prior_from_init(init, n)
+        problem = problem_of(restrict_stack(stack, cols), mask_list, init, prior[cols])
+        local = _solve_prepared(fn, problem, method, min_evidence, progress, smoothness,
+                                None if graph is None or smoothness == 0 else restrict_graph(graph, cols), options)
+        result = _scattered(local, cols, prior, min_evidence, smoothness)
+    result.seconds = time.perf_counter() - t0
+    return result
+
+
+def _scattered(local: SolveResult, cols: np.ndarray, prior: np.ndarray, min_evidence: float,
+               smoothness: float) -> SolveResult:
+    """The N-Gaussian result of a solve on the columns ``cols``: the others as :func:`solve` leaves them.
+
+    They are unobserved, so they keep the prior, through the regulariser's
+    closed form for an isolated node without evidence when it is on
+    (:func:`~.smoothing.smooth_checked`), and they count as weak evidence
+    when ``min_evidence > 0``.
+    """
+    n = prior.size
+    if smoothness > 0:
+        rest = np.clip((0.0 * prior + RIDGE * prior) / (0.0 + RIDGE), 0.0, 1.0)
+    else:
+        rest = prior
+    q = rest.astype(np.float32)
+    q[cols] = local.q
+    unobserved = np.ones(n, bool)
+    unobserved[cols] = local.unobserved
+    info = dict(local.info)
+    if min_evidence > 0:
+        info["n_weak_evidence"] = int(info["n_weak_evidence"]) + (n - cols.size)
+    return SolveResult(q=q, method=local.method, iterations=local.iterations, history=local.history,
+                       view_weights=local.view_weights, unobserved=unobserved, seconds=local.seconds,
+                       threshold=local.threshold, info=info)
+
+
+def _solve_prepared(fn, problem: Problem, method: str, min_evidence: float, progress, smoothness: float, graph,
+                    options: dict) -> SolveResult:
+    """:func:`solve` on a prepared problem (``graph`` checked, of the problem's columns, when ``smoothness > 0``)."""
+    t0 = time.perf_counter()
     # Solvers call BLAS on vectors of length N every iteration; a multi-threaded
     # OpenBLAS beside Numba's threads spends more on thread start-up than on
     # the work.
-    with _one_blas_thread(), reporting(progress):
+    with one_blas_thread(), reporting(progress):
         t_method = time.perf_counter()
         out = fn(problem, **options)
         t_method = time.perf_counter() - t_method
@@ -174,7 +202,7 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
         # One BLAS thread here too: the factorisation's dense kernels round
         # differently with more threads, and q must not depend on the machine's
         # thread settings (a Dask worker runs with one BLAS thread).
-        with _one_blas_thread():
+        with one_blas_thread():
             # evidence only where the method fitted q (not where it left the prior: views beyond a
             # budget, weighted_bce's pixels below alpha_min), and only from the views it used
             q = smooth_checked(q.astype(np.float64), np.where(weak | unobserved, 0.0, used),

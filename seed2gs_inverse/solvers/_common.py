@@ -29,7 +29,8 @@ if TYPE_CHECKING:
 
     from ..operators import OperatorStack
 
-__all__ = ["Problem", "SolveResult", "MethodResult", "prepare", "normalize_mask", "prior_from_init",
+__all__ = ["Problem", "SolveResult", "MethodResult", "prepare", "stack_masks", "problem_of", "normalize_mask",
+           "prior_from_init",
            "register_method", "available_methods", "get_method", "method_options", "get_check", "check_count", "check_range"]
 
 _METHODS: dict = {}
@@ -417,19 +418,13 @@ def prior_from_init(init, n: int) -> np.ndarray:
     raise ValidationError(f"init must be None, a bool support mask, indices or a float prior, got dtype {a.dtype}")
 
 
-def prepare(operators, masks, init=None) -> Problem:
-    """Validate operators and masks and stack them into a :class:`Problem`.
-
-    A view whose mask is entirely NaN (a lost view) simply carries no
-    evidence.
+def stack_masks(operators, masks) -> tuple[OperatorStack, list]:
+    """``(stack, masks as a list)``: :func:`prepare`'s checks of the operators and the mask count.
 
     Raises
     ------
     ValidationError
-        Empty stack, mismatched Gaussian counts (operators of different
-        scenes), a mask whose shape differs from its view's image, masks of
-        the wrong dtype/range, masks that are all NaN in every view, or a
-        mask count different from the view count. Messages name the view.
+        As :func:`prepare` (all but the masks' contents).
     """
     views = getattr(operators, "views", operators)
     if isinstance(masks, np.ndarray) and masks.ndim == 2 and isinstance(views, (list, tuple)) \
@@ -446,6 +441,33 @@ def prepare(operators, masks, init=None) -> Problem:
     stack = as_stack(operators, mask_list)
     if len(mask_list) != len(stack):
         raise ValidationError(f"got {len(mask_list)} masks for {len(stack)} views; give one mask per view")
+    return stack, mask_list
+
+
+def prepare(operators, masks, init=None) -> Problem:
+    """Validate operators and masks and stack them into a :class:`Problem`.
+
+    A view whose mask is entirely NaN (a lost view) simply carries no
+    evidence.
+
+    Raises
+    ------
+    ValidationError
+        Empty stack, mismatched Gaussian counts (operators of different
+        scenes), a mask whose shape differs from its view's image, masks of
+        the wrong dtype/range, masks that are all NaN in every view, or a
+        mask count different from the view count. Messages name the view.
+    """
+    stack, mask_list = stack_masks(operators, masks)
+    return problem_of(stack, mask_list, init)
+
+
+def problem_of(stack: OperatorStack, mask_list: list, init=None, prior: np.ndarray | None = None) -> Problem:
+    """:func:`prepare` on a stack and mask list that :func:`stack_masks` returned.
+
+    ``prior`` (the stack's columns, float64), when given, replaces the one
+    of ``init`` (which then only says whether a prior was given).
+    """
     n = stack.n_gaussians
     shapes = stack.image_shapes
     names = [v.name for v in stack]
@@ -465,4 +487,5 @@ def prepare(operators, masks, init=None) -> Problem:
     else:
         known_weight = np.asarray(AT @ known.astype(np.float32), dtype=np.float64).ravel()
     return Problem(A=A, AT=AT, y=y, known=known, offsets=offsets, image_shapes=list(shapes), names=names,
-                   known_weight=known_weight, prior=prior_from_init(init, n), init_given=init is not None)
+                   known_weight=known_weight, prior=prior_from_init(init, n) if prior is None else prior,
+                   init_given=init is not None)

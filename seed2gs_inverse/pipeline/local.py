@@ -1,0 +1,189 @@
+"""The object's neighbourhood: the Gaussians the stages after the orbit views work on.
+
+Once the orbit views are rendered, the stages of
+:func:`~seed2gs_inverse.pipeline.extract.extract` need only the Gaussians
+that can reach the object's views and those the 3D rules look at around the
+object. :func:`object_neighbourhood` gathers them, ``L`` (ascending scene
+indices):
+
+* every column of a supervision view's operator (what any view sees);
+* the lift's G0;
+* the Gaussians within ``reach * R`` of the lift's centre ``o`` (``R`` the
+  lift's radius): the region of the evidence graph and of the faint
+  Gaussians' rule (:data:`~.completion.GRAPH_DEFAULTS` ``region``) and the
+  support surface's annulus (:func:`support_reach`). They hold Gaussians no
+  view sees (inner layers, the hidden ground under the object), which
+  those rules decide.
+
+A :class:`Neighbourhood` holds ``L`` and the sub-scene ``scene.subset(L)``;
+the support surface, the evidence graph, the faint Gaussians' rule and the
+islands then run on the sub-scene, and their results are put back in the
+scene's numbering (:meth:`Neighbourhood.expand`, :meth:`Neighbourhood.scatter`).
+As ``L`` keeps the scene's order, each rule sees the same Gaussians in the
+same order as on the whole scene and gives the same result. Memory and time
+after the orbit views follow the neighbourhood, not the scene's size N; the
+N-length results are the extraction's own (``q``, ``selected``).
+
+Every lookup of "the Gaussians whose centre lies near the object" goes
+through :func:`neighbourhood`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+import scipy.sparse as sp
+
+from .._validation import as_real
+from ..errors import ValidationError
+from ..scene import GaussianScene
+
+if TYPE_CHECKING:
+    from .seed_lift import SeedLift
+
+__all__ = ["neighbourhood", "Neighbourhood", "object_neighbourhood", "support_reach"]
+
+#: Means per block of :func:`neighbourhood`'s brute-force scan.
+_BLOCK = 1 << 18
+
+
+def neighbourhood(scene: GaussianScene, center, radius: float) -> np.ndarray:
+    """Ascending indices of the Gaussians whose means lie within ``radius`` of ``center`` (boundary included).
+
+    Parameters
+    ----------
+    scene : GaussianScene
+    center : (3,) float
+        A finite point.
+    radius : float
+        A finite distance >= 0.
+
+    Returns
+    -------
+    (M,) int64
+
+    Raises
+    ------
+    ValidationError
+        ``scene`` is not a GaussianScene, ``center`` not a finite 3-vector
+        or ``radius`` not a finite number >= 0.
+    """
+    if not isinstance(scene, GaussianScene):
+        raise ValidationError(f"neighbourhood: scene must be a GaussianScene, got {type(scene).__name__}")
+    c = np.asarray(center, np.float64)
+    if c.shape != (3,) or not np.all(np.isfinite(c)):
+        raise ValidationError(f"neighbourhood: center must be a finite 3-vector, got {np.asarray(center).tolist()}")
+    r = as_real(radius)
+    if r is None or not r >= 0:
+        raise ValidationError(f"neighbourhood: radius must be a finite number >= 0, got {radius!r}")
+    # float64 squares as graph.region_subset takes them (the same Gaussians on the boundary), a
+    # block of means at a time: the temporaries stay a few MB whatever the scene's size
+    means = scene.means
+    out = [np.flatnonzero(np.sum((means[i:i + _BLOCK].astype(np.float64) - c) ** 2, axis=1) <= r ** 2) + i
+           for i in range(0, len(means), _BLOCK)]
+    return np.concatenate(out).astype(np.int64, copy=False) if out else np.zeros(0, np.int64)
+
+
+def support_reach(inner: float, outer: float) -> float:
+    """Radius, in lift radii, of the ball about ``o`` holding :func:`~.support.support_surface`'s annulus.
+
+    Its splats lie within ``outer`` ``R`` of the axis and ``2 R`` of ``o``
+    along it (``inner`` is not needed: the annulus lies inside the ball either way).
+    """
+    del inner
+    return float(np.hypot(outer, 2.0))
+
+
+@dataclass(frozen=True)
+class Neighbourhood:
+    """The Gaussians ``index`` of a scene of ``n`` Gaussians, and their sub-scene.
+
+    Attributes
+    ----------
+    index : (M,) int64
+        Ascending scene indices, ``L``.
+    scene : GaussianScene
+        ``parent.subset(index)``: Gaussian ``j`` of it is ``index[j]`` of the parent.
+    n : int
+        The parent scene's size N.
+    """
+
+    index: np.ndarray
+    scene: GaussianScene
+    n: int
+
+    @classmethod
+    def of(cls, scene: GaussianScene, index) -> "Neighbourhood":
+        """The neighbourhood of ``scene`` made of ``index`` (scene indices; sorted and made unique here)."""
+        idx = np.asarray(index, dtype=np.int64).reshape(-1)
+        if idx.size > 1 and not np.all(idx[1:] > idx[:-1]):
+            idx = np.unique(idx)
+        if idx.size and (idx[0] < 0 or idx[-1] >= len(scene)):
+            raise ValidationError(f"neighbourhood indices must lie in 0..{len(scene) - 1}")
+        return cls(idx, scene.subset(idx), len(scene))
+
+    def __len__(self) -> int:
+        return int(self.index.size)
+
+    def local(self, values: np.ndarray) -> np.ndarray:
+        """``values`` (N, ...) of the parent scene restricted to the neighbourhood (M, ...)."""
+        return np.asarray(values)[self.index]
+
+    def scatter(self, values, fill=0) -> np.ndarray:
+        """(N,) array: ``values`` (M,) at the neighbourhood's Gaussians, ``fill`` elsewhere (same dtype)."""
+        v = np.asarray(values)
+        out = np.full(self.n, fill, dtype=v.dtype)
+        out[self.index] = v
+        return out
+
+    def expand(self, matrix: sp.spmatrix) -> sp.csr_matrix:
+        """An (M, M) sparse matrix of the neighbourhood as the parent's (N, N) CSR (rows and columns renumbered).
+
+        Costs the N + 1 row pointers and the entries: the order of each
+        row's entries is kept (the renumbering is increasing).
+        """
+        m = sp.csr_matrix(matrix)
+        counts = np.zeros(self.n, np.int64)
+        counts[self.index] = np.diff(m.indptr)
+        indptr = np.concatenate([[0], np.cumsum(counts)])
+        return sp.csr_matrix((m.data, self.index[m.indices], indptr), shape=(self.n, self.n))
+
+
+def object_neighbourhood(scene: GaussianScene, lift: SeedLift, operators, reach: float) -> Neighbourhood:
+    """The neighbourhood ``L`` of the module docstring: the operators' columns, G0, and the ball of ``reach * R``.
+
+    Parameters
+    ----------
+    scene : GaussianScene
+    lift : SeedLift
+        The seed lift (G0, centre ``o``, radius ``R``).
+    operators : iterable of ViewOperator or sparse matrices
+        The supervision views (N columns each).
+    reach : float
+        The ball's radius in lift radii (> 0).
+
+    Returns
+    -------
+    Neighbourhood
+
+    Raises
+    ------
+    ValidationError
+        ``reach`` is not a positive number, or an operator without N columns.
+    """
+    r = as_real(reach)
+    if r is None or not r > 0:
+        raise ValidationError(f"object_neighbourhood: reach must be a positive number, got {reach!r}")
+    n = len(scene)
+    mark = np.zeros(n, bool)  # one byte per Gaussian, set at the stored entries: no sort of the indices
+    mark[lift.g0] = True
+    mark[neighbourhood(scene, lift.center, r * float(lift.radius))] = True
+    for i, op in enumerate(operators):
+        W = getattr(op, "W", op)
+        if W.shape[1] != n:
+            raise ValidationError(f"object_neighbourhood: view {i} has {W.shape[1]} columns, the scene {n} "
+                                  "Gaussians")
+        mark[W.indices] = True
+    return Neighbourhood.of(scene, np.flatnonzero(mark))

@@ -1,0 +1,73 @@
+"""The solve on the Gaussians the problem touches: operators and graph restricted to their columns.
+
+A Gaussian whose column is empty in every view and that has no edge in the
+graph takes no part in the solve: it keeps the prior whatever the method
+does. :func:`~seed2gs_inverse.solvers.solve` therefore runs the methods of
+:data:`LOCAL_METHODS` on the touched columns alone (:func:`touched_columns`,
+:func:`restrict_stack`, :func:`restrict_graph`) and scatters ``q`` back to
+the N Gaussians, so that the solve's vectors have the length of the object's
+neighbourhood, not of the scene. The columns keep their order, so every
+per-Gaussian sum runs over the same terms in the same order: ``q`` is bit
+for bit the one of the N-column problem.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..operators import OperatorStack, ViewOperator
+
+__all__ = ["LOCAL_METHODS", "touched_columns", "restrict_stack", "restrict_graph"]
+
+#: Methods whose arithmetic on a Gaussian's column never mixes with another column's (each
+#: Gaussian's value comes from sums over its own column, the pixels' sums from their own rows):
+#: on the touched columns alone they give the N-column problem's ``q`` bit for bit.
+#: ``least_squares`` draws a random start vector of length N for its step size and
+#: ``beta_bernoulli`` orders views by sums over all Gaussians: they solve over all N.
+LOCAL_METHODS = frozenset({"voting", "weighted_bce"})
+
+
+def touched_columns(stack: OperatorStack, graph: sp.csr_matrix | None = None) -> np.ndarray:
+    """Ascending indices of the columns with a weight in some view or an edge in ``graph`` (checked, (N, N))."""
+    n = stack.n_gaussians
+    mark = np.zeros(n, bool)  # one byte per Gaussian, set at the stored entries only
+    for v in stack:
+        mark[v.W.indices] = True
+    if graph is not None and graph.nnz:
+        mark[graph.indices] = True  # symmetric: the column indices name every node with an edge
+    return np.flatnonzero(mark)
+
+
+def restrict_stack(stack: OperatorStack, cols: np.ndarray) -> OperatorStack:
+    """The stack on the columns ``cols`` (ascending, holding every stored column of every view).
+
+    Each view keeps its rows, data and row pointers; only the column
+    indices are renumbered (an order-preserving map), so the entries of a
+    row keep their order.
+    """
+    remap = _renumbering(stack.n_gaussians, cols)
+    views = []
+    for v in stack:
+        W = v.W
+        local = remap[W.indices].astype(W.indices.dtype, copy=False)
+        Wl = sp.csr_matrix((W.data, local, W.indptr), shape=(W.shape[0], cols.size))
+        views.append(ViewOperator(Wl, v.camera, v.image_shape))
+    return OperatorStack(views)  # the solve's own: no fingerprint (reading it would hash the scene)
+
+
+def restrict_graph(graph: sp.csr_matrix, cols: np.ndarray) -> sp.csr_matrix:
+    """The graph among ``cols`` (ascending, holding every node with an edge): rows and columns renumbered."""
+    start, stop = graph.indptr[cols], graph.indptr[cols + 1]
+    counts = stop - start
+    indptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    take = np.repeat(start - indptr[:-1], counts) + np.arange(indptr[-1])
+    local = _renumbering(graph.shape[0], cols)[graph.indices[take]]
+    return sp.csr_matrix((graph.data[take], local, indptr), shape=(cols.size, cols.size))
+
+
+def _renumbering(n: int, cols: np.ndarray) -> np.ndarray:
+    """(n,) int64 with ``out[cols[j]] = j``; undefined elsewhere (only the pages of ``cols`` are written)."""
+    out = np.empty(n, np.int64)
+    out[cols] = np.arange(cols.size)
+    return out

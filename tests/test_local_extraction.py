@@ -1,0 +1,188 @@
+"""Extraction local to the object: the stages after the orbit views see the object's neighbourhood, not the scene.
+
+The reference for each check is the same computation over the whole scene:
+``solve`` with every method solving over all N columns, and ``extract``
+with its stages given no neighbourhood (the whole scene, as before).
+"""
+
+from __future__ import annotations
+
+import importlib
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+import seed2gs_inverse.solvers as solvers
+from _pipeline_scenes import reference_camera, sphere_scene
+from _solver_scenes import random_views
+from seed2gs_inverse import GaussianScene
+from seed2gs_inverse.errors import ValidationError
+from seed2gs_inverse.pipeline import extract
+from seed2gs_inverse.pipeline.local import Neighbourhood, neighbourhood
+from seed2gs_inverse.raster import build_operator
+
+extract_module = importlib.import_module("seed2gs_inverse.pipeline.extract")  # (the package exports the function)
+
+
+def _with_empty_columns(rng, n_extra=60):
+    """Random views over 40 Gaussians, widened by ``n_extra`` empty columns placed among them."""
+    ops, masks = random_views(rng, n=40)
+    n = 40 + n_extra
+    where = np.sort(rng.choice(n, 40, replace=False))  # the seen Gaussians' columns in the wide problem
+    wide = []
+    for W in ops:
+        W = sp.csr_matrix(W)
+        wide.append(sp.csr_matrix((W.data, where[W.indices], W.indptr), shape=(W.shape[0], n)))
+    return wide, masks, where, n
+
+
+def _graph(rng, n, nodes):
+    """A symmetric random graph among ``nodes`` (some of them seen by no view)."""
+    i = rng.choice(nodes, 80)
+    j = rng.choice(nodes, 80)
+    keep = i != j
+    g = sp.csr_matrix((rng.random(keep.sum()) + 0.1, (i[keep], j[keep])), shape=(n, n))
+    return g.maximum(g.T).tocsr()
+
+
+@pytest.mark.parametrize("method", ["weighted_bce", "voting"])
+@pytest.mark.parametrize("smooth", [0.0, 2.0])
+@pytest.mark.parametrize("prior", ["support", "float"])
+def test_solve_on_the_touched_columns_gives_the_full_problems_q_bit_for_bit(monkeypatch, method, smooth, prior):
+    rng = np.random.default_rng(3)
+    ops, masks, seen, n = _with_empty_columns(rng)
+    unseen = np.setdiff1d(np.arange(n), seen)
+    # the graph reaches Gaussians no view sees (they take their neighbours' values), not all of them
+    graph = _graph(rng, n, np.r_[seen[:20], unseen[:15]])
+    init = np.zeros(n, bool)
+    init[seen[:10]] = True
+    init[unseen[:5]] = True  # a prior of 1 on unseen Gaussians, inside and outside the graph
+    if prior == "float":
+        init = np.where(init, 0.8, 0.3) * rng.random(n)
+    kw = dict(method=method, init=init, min_evidence=0.05, smoothness=smooth, graph=graph if smooth else None)
+    calls = []
+    real = solvers.problem_of
+    monkeypatch.setattr(solvers, "problem_of", lambda stack, *a, **k: calls.append(stack.n_gaussians)
+                        or real(stack, *a, **k))
+    local = solvers.solve(ops, masks, **kw)
+    assert calls and calls[-1] < n  # it did solve on fewer columns
+    monkeypatch.setattr(solvers, "LOCAL_METHODS", frozenset())
+    full = solvers.solve(ops, masks, **kw)
+    assert calls[-1] == n
+    np.testing.assert_array_equal(local.q, full.q)
+    assert local.q.dtype == full.q.dtype and local.q.shape == (n,)
+    np.testing.assert_array_equal(local.unobserved, full.unobserved)
+    assert local.info["n_weak_evidence"] == full.info["n_weak_evidence"]
+    assert local.threshold == full.threshold and local.iterations == full.iterations
+    np.testing.assert_array_equal(local.view_weights, full.view_weights)
+
+
+def test_neighbourhood_is_the_ball_and_checks_its_arguments():
+    rng = np.random.default_rng(0)
+    scene, _, _ = sphere_scene(n_sphere=100, n_ground=100)
+    c = np.array([0.2, -0.1, 0.3])
+    idx = neighbourhood(scene, c, 0.7)
+    d = np.linalg.norm(scene.means.astype(np.float64) - c, axis=1)
+    np.testing.assert_array_equal(idx, np.flatnonzero(d <= 0.7))
+    assert idx.dtype == np.int64 and np.all(np.diff(idx) > 0)
+    assert neighbourhood(scene, c, 0.0).size == 0
+    for bad in [(c, -1.0), (c, np.nan), ((0, 0), 1.0), ((0, 0, np.inf), 1.0)]:
+        with pytest.raises(ValidationError, match="neighbourhood"):
+            neighbourhood(scene, *bad)
+    nb = Neighbourhood.of(scene, rng.choice(len(scene), 30))  # unsorted, repeated: sorted and unique
+    assert np.all(np.diff(nb.index) > 0) and len(nb.scene) == len(nb)
+    m = sp.random(len(nb), len(nb), density=0.2, format="csr", random_state=1)
+    big = nb.expand(m)
+    assert big.shape == (len(scene), len(scene))
+    np.testing.assert_array_equal(big[nb.index][:, nb.index].toarray(), m.toarray())
+    assert big.nnz == m.nnz
+    np.testing.assert_array_equal(nb.scatter(np.ones(len(nb)), 0)[nb.index], 1)
+    assert nb.scatter(np.ones(len(nb)), 0).sum() == len(nb)
+
+
+def _problem():
+    scene, labels, info = sphere_scene(n_sphere=500, n_ground=900)
+    cam = reference_camera(info)
+    seed = (build_operator(scene, cam).W @ labels.astype(np.float32)).reshape(cam.image_shape) > 0.5
+    return scene, labels, info, cam, seed
+
+
+def _same_matrix(a, b):
+    assert a.shape == b.shape and (a != b).nnz == 0
+
+
+def test_extract_on_the_neighbourhood_is_extract_on_the_scene(monkeypatch):
+    scene, _, _, cam, seed = _problem()
+    kw = dict(n_views=6, progress=False)
+    sizes = []
+    real = extract_module._neighbourhood
+    monkeypatch.setattr(extract_module, "_neighbourhood", lambda *a: sizes.append(len(real(*a))) or real(*a))
+    local = extract(scene, cam, seed, **kw)
+    assert sizes and 0 < sizes[0] < len(scene)  # the ground far from the sphere is outside it
+    monkeypatch.setattr(extract_module, "_neighbourhood", lambda *a: None)
+    monkeypatch.setattr(solvers, "LOCAL_METHODS", frozenset())
+    whole = extract(scene, cam, seed, **kw)
+    np.testing.assert_array_equal(local.q, whole.q)
+    np.testing.assert_array_equal(local.selected, whole.selected)
+    np.testing.assert_array_equal(local.result.q, whole.result.q)
+    assert local.selected.any()
+    _same_matrix(local.graph, whole.graph)
+    _same_matrix(local.follow, whole.follow)
+    assert local.resolved["support"] == whole.resolved["support"]
+    assert local.resolved["n_disconnected"] == whole.resolved["n_disconnected"]
+    assert local.resolved["n_weak_evidence"] == whole.resolved["n_weak_evidence"]
+
+
+def test_a_far_copy_of_the_scene_changes_nothing_and_the_stages_do_not_see_it(monkeypatch):
+    scene, _, info, cam, seed = _problem()
+    n0 = len(scene)
+    far = 200.0 * info["e1"]  # along the ground: the same planes, outside every view
+    copy = GaussianScene(scene.means + far.astype(np.float32), scene.quats, scene.log_scales,
+                         scene.opacity_logits, scene.sh)
+    big = GaussianScene.concat([scene, copy, copy.subset(np.arange(n0)[::-1])])
+    # the up axis given: up="auto" fits a plane to a sample of the whole scene, which the copies change
+    kw = dict(n_views=6, progress=False, up=tuple(info["up"]))
+    base = extract(scene, cam, seed, **kw)
+    sizes, solved = [], []
+    real_nb, real_problem = extract_module._neighbourhood, solvers.problem_of
+    monkeypatch.setattr(extract_module, "_neighbourhood", lambda *a: sizes.append(len(real_nb(*a))) or real_nb(*a))
+    monkeypatch.setattr(solvers, "problem_of", lambda stack, *a, **k: solved.append(stack.n_gaussians)
+                        or real_problem(stack, *a, **k))
+    tiled = extract(big, cam, seed, **kw)
+    assert tiled.q.shape == (3 * n0,) and tiled.operators.n_gaussians == 3 * n0
+    np.testing.assert_array_equal(tiled.selected[:n0], base.selected)
+    assert not tiled.selected[n0:].any()
+    np.testing.assert_array_equal(tiled.q[:n0], base.q)
+    assert sizes[0] < n0 and solved[0] < n0  # neither the neighbourhood nor the solve holds the copies
+
+
+def test_the_stacks_fingerprint_is_the_scenes_computed_when_first_read(monkeypatch):
+    import seed2gs_inverse.operators.store as store
+    from seed2gs_inverse.operators import OperatorStack, scene_fingerprint
+
+    scene, _, _, cam, _ = _problem()
+    want = scene_fingerprint(scene)
+    calls = []
+    real = store.scene_fingerprint
+    monkeypatch.setattr(store, "scene_fingerprint", lambda s: calls.append(1) or real(s))
+    stack = OperatorStack([build_operator(scene, cam), build_operator(scene, cam)], scene=scene)
+    sub = stack.subset([1])
+    assert not calls  # neither made nor subset hashes the scene
+    assert stack.fingerprint == want and sub.fingerprint == want
+    assert stack.fingerprint == want and len(calls) == 2  # once per stack
+    assert OperatorStack([build_operator(scene, cam)], "given", scene=scene).fingerprint == "given"
+    with pytest.raises(ValidationError, match="scene must be the GaussianScene"):
+        OperatorStack([build_operator(scene, cam)], scene=scene.subset(np.arange(10)))
+
+
+def test_a_stage_refuses_the_neighbourhood_of_another_scene():
+    from seed2gs_inverse.pipeline.settings import ExtractSettings
+    from seed2gs_inverse.pipeline.stages import evidence_graph
+
+    scene, _, _ = sphere_scene(n_sphere=100, n_ground=100)
+    other = Neighbourhood.of(scene.subset(np.arange(50)), np.arange(10))
+    with pytest.raises(ValidationError, match="Neighbourhood of the scene's"):
+        evidence_graph(scene, None, ExtractSettings(), 1.0, local=other)
+    with pytest.raises(ValidationError, match="Neighbourhood of the scene's"):
+        evidence_graph(scene, None, ExtractSettings(), 1.0, local=np.arange(10))
