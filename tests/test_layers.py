@@ -207,7 +207,7 @@ DEFERRED_INTERNAL = {
     "seed2gs_inverse.cli._operators": {"seed2gs_inverse.raster"},
     "seed2gs_inverse.cli._render": {"seed2gs_inverse.raster"},
     "seed2gs_inverse.batch.jobs": {"seed2gs_inverse.pipeline.settings"},
-    "seed2gs_inverse.batch.worker": {"seed2gs_inverse.pipeline"},
+    "seed2gs_inverse.batch.worker": {"seed2gs_inverse.pipeline", "seed2gs_inverse.raster"},
     "seed2gs_inverse.evaluation.engine": {"seed2gs_inverse.raster"},
 }
 

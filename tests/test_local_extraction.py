@@ -14,13 +14,14 @@ import pytest
 import scipy.sparse as sp
 
 import seed2gs_inverse.solvers as solvers
+from seed2gs_inverse.batch import worker
 from _pipeline_scenes import reference_camera, sphere_scene
 from _solver_scenes import random_views
 from seed2gs_inverse import GaussianScene
 from seed2gs_inverse.errors import ValidationError
 from seed2gs_inverse.pipeline import extract
 from seed2gs_inverse.pipeline.local import Neighbourhood, neighbourhood
-from seed2gs_inverse.raster import build_operator
+from seed2gs_inverse.raster import FrozenScene, build_operator
 
 extract_module = importlib.import_module("seed2gs_inverse.pipeline.extract")  # (the package exports the function)
 
@@ -157,6 +158,40 @@ def test_a_far_copy_of_the_scene_changes_nothing_and_the_stages_do_not_see_it(mo
     assert sizes[0] < n0 and solved[0] < n0  # neither the neighbourhood nor the solve holds the copies
 
 
+def test_the_frozen_scenes_index_finds_the_same_ball():
+    """``neighbourhood`` through a FrozenScene's spatial index against the brute-force scan, at many radii."""
+    scene, _, _ = sphere_scene(n_sphere=400, n_ground=900)
+    frozen = FrozenScene(scene)
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        c = rng.normal(0, 1.0, 3)
+        r = float(rng.uniform(0, 2.5))
+        np.testing.assert_array_equal(neighbourhood(frozen, c, r), neighbourhood(scene, c, r))
+    # a radius exactly at a Gaussian's distance keeps it both ways (the boundary is included)
+    d = np.sqrt(np.sum((scene.means[17].astype(np.float64) - c) ** 2))
+    assert 17 in neighbourhood(frozen, c, d) and 17 in neighbourhood(scene, c, d)
+
+
+def test_extract_on_a_frozen_scene_is_extract_on_the_scene_and_keeps_its_index():
+    """A FrozenScene passed to extract: the same result, the plain scene in Extraction.scene, and one
+    spatial index for every extraction from it."""
+    scene, _, info, cam, seed = _problem()
+    kw = dict(n_views=6, progress=False, up=tuple(info["up"]))
+    plain = extract(scene, cam, seed, **kw)
+    frozen = FrozenScene(scene)
+    first = extract(frozen, cam, seed, **kw)
+    index = frozen._spatial
+    assert index is not None  # built by the first extraction...
+    again = extract(frozen, cam, seed, **kw)
+    assert frozen._spatial is index  # ...and kept for the next
+    for ex in (first, again):
+        assert ex.scene is scene
+        np.testing.assert_array_equal(ex.q, plain.q)
+        np.testing.assert_array_equal(ex.selected, plain.selected)
+    with pytest.raises(ValidationError, match="GaussianScene or FrozenScene"):
+        extract(scene.means, cam, seed, **kw)
+
+
 def test_the_stacks_fingerprint_is_the_scenes_computed_when_first_read(monkeypatch):
     import seed2gs_inverse.operators.store as store
     from seed2gs_inverse.operators import OperatorStack, scene_fingerprint
@@ -186,3 +221,16 @@ def test_a_stage_refuses_the_neighbourhood_of_another_scene():
         evidence_graph(scene, None, ExtractSettings(), 1.0, local=other)
     with pytest.raises(ValidationError, match="Neighbourhood of the scene's"):
         evidence_graph(scene, None, ExtractSettings(), 1.0, local=np.arange(10))
+
+
+def test_a_batch_worker_freezes_each_cached_scene_once():
+    a, _, _ = sphere_scene(n_sphere=50, n_ground=50)
+    b, _, _ = sphere_scene(n_sphere=60, n_ground=50)
+    worker.clear_scene_cache()
+    fa = worker._frozen_scene(a)
+    assert isinstance(fa, FrozenScene) and fa.scene is a
+    assert worker._frozen_scene(a) is fa  # the next job on the scene shares it
+    assert worker._frozen_scene(b) is not fa
+    worker.clear_scene_cache()
+    assert worker._frozen_scene(a) is not fa  # forgotten with the scenes
+    worker.clear_scene_cache()

@@ -50,6 +50,8 @@ SCENE_CACHE_SIZE = 2
 
 _lock = threading.Lock()
 _scenes: OrderedDict[tuple, GaussianScene] = OrderedDict()
+# id(scene) -> (scene, its FrozenScene): activations and spatial index made once per cached scene
+_frozen: OrderedDict[int, tuple] = OrderedDict()
 _reads: list = []          # (path, seconds) of every read by this process
 _models: dict = {}         # (path, size, mtime) of a models file -> (grounder, tracker)
 _model_loads: list = []    # path of every models file this process opened
@@ -207,6 +209,25 @@ def cached_scene(path: str) -> tuple[GaussianScene, float, bool]:
         return scene, dt, False
 
 
+def _frozen_scene(scene: GaussianScene):
+    """The :class:`~seed2gs_inverse.raster.FrozenScene` of a cached ``scene``, made once while it stays cached.
+
+    The jobs on one scene then share its activations and spatial index
+    (``extract`` visits only the Gaussians near each object).
+    """
+    from ..raster import FrozenScene  # deferred: see the module docstring
+
+    with _lock:
+        entry = _frozen.get(id(scene))
+        if entry is None or entry[0] is not scene:
+            entry = (scene, FrozenScene(scene))
+            _frozen[id(scene)] = entry
+        _frozen.move_to_end(id(scene))
+        while len(_frozen) > SCENE_CACHE_SIZE:
+            _frozen.popitem(last=False)
+        return entry[1]
+
+
 def scene_cache_info() -> dict:
     """This process's scene reads and models loads.
 
@@ -220,6 +241,7 @@ def clear_scene_cache() -> None:
     """Forget this process's scenes, models and counts (after running jobs in a non-worker process)."""
     with _lock:
         _scenes.clear()
+        _frozen.clear()
         _reads.clear()
         _models.clear()
         _model_loads.clear()
@@ -293,7 +315,8 @@ def run_job(job: Job, output=None, attempt: int = 1) -> JobResult:
         grounder, tracker = job_models(job.models)
         scene, seconds["read"], res.scene_cached = cached_scene(job.scene)
         res.n_gaussians = int(len(scene))
-        ex = extract(scene, camera, job.prompt, grounder=grounder, tracker=tracker, **job.extract_kwargs())
+        ex = extract(_frozen_scene(scene), camera, job.prompt, grounder=grounder, tracker=tracker,
+                     **job.extract_kwargs())
         seconds.update({k: float(v) for k, v in ex.seconds.items()})
         res.n_selected = int(np.count_nonzero(ex.selected))
         res.n_views = int(len(ex.views))

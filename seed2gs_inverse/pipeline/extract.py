@@ -26,7 +26,7 @@ from ..errors import ValidationError
 from ..frontend.base import wants_regularizer
 from ..frontend.model_free import GeometricTracker
 from ..progress import Feedback, Progress, StageTimer
-from ..raster import Renderer, compile_seconds
+from ..raster import FrozenScene, Renderer, compile_seconds
 from ..scene import GaussianScene
 from .completion import GRAPH_DEFAULTS
 from .extraction import STAGES, Extraction, result_warnings
@@ -72,7 +72,7 @@ def _settings(settings: ExtractSettings | str | None, overrides: dict) -> Extrac
 
 def _check_inputs(scene: GaussianScene, camera: Camera) -> None:
     if not isinstance(scene, GaussianScene):
-        raise ValidationError(f"scene must be a GaussianScene, got {type(scene).__name__}")
+        raise ValidationError(f"scene must be a GaussianScene or FrozenScene, got {type(scene).__name__}")
     if len(scene) == 0:
         raise ValidationError("the scene has no Gaussians")
     if not isinstance(camera, Camera):
@@ -106,7 +106,7 @@ def _trackers(tracker: Tracker | None, settings: ExtractSettings) -> tuple[Track
     return tracker, filler, float(smoothness)
 
 
-def _neighbourhood(scene: GaussianScene, lift: SeedLift, orbits: OrbitViews,
+def _neighbourhood(scene: GaussianScene | FrozenScene, lift: SeedLift, orbits: OrbitViews,
                    settings: ExtractSettings) -> Neighbourhood:
     """The Gaussians the stages after the orbit views work on (:func:`~.local.object_neighbourhood`).
 
@@ -169,8 +169,12 @@ def extract(scene: GaussianScene, camera: Camera, prompt: Any, grounder: Grounde
 
     Parameters
     ----------
-    scene : GaussianScene
-        The frozen scene.
+    scene : GaussianScene or FrozenScene
+        The frozen scene. A :class:`~seed2gs_inverse.raster.FrozenScene`
+        keeps the scene's activations and spatial index: pass the same one
+        to extract several objects from one scene, and each extraction
+        then visits only the Gaussians near its object (the result is the
+        same as with the plain scene; ``Extraction.scene`` is the plain one).
     camera : Camera
         Reference camera ``c_r`` (the user's view). Its resolution is the
         prompt's pixel space.
@@ -218,11 +222,13 @@ def extract(scene: GaussianScene, camera: Camera, prompt: Any, grounder: Grounde
         in ``resolved["warnings"]``), and a weak or suspicious orbit axis.
     """
     s = _settings(settings, overrides)
+    frozen = scene if isinstance(scene, FrozenScene) else None
+    scene = scene.scene if frozen is not None else scene
     _check_inputs(scene, camera)
     tracker, filler, smoothness = _trackers(tracker, s)
     feedback = Feedback.of(s.progress)
     timer = StageTimer(STAGES, compile_clock=compile_seconds, feedback=feedback)
-    renderer = Renderer(scene, s.mode)
+    renderer = Renderer(scene if frozen is None else frozen, s.mode)
     # Every stage calls BLAS on small products, view after view: one thread (see one_blas_thread).
     with feedback.active(), one_blas_thread():
         with timer("render"), feedback.bar("render", steps=False):
@@ -242,7 +248,7 @@ def extract(scene: GaussianScene, camera: Camera, prompt: Any, grounder: Grounde
         timer.finish("vaas")
         timer.finish("operators")
         with timer("tracking"), feedback.bar("tracking", total=len(orbits.clips()), unit="clip") as bar:
-            local = _neighbourhood(scene, lift, orbits, s)
+            local = _neighbourhood(renderer.frozen, lift, orbits, s)
             labelled, masks, graph, support_info, tracker = _supervision(scene, lift, ref, orbits, s, tracker,
                                                                          filler, smoothness, bar, local)
         with timer("solve"), feedback.bar(f"solve ({s.method})") as bar:

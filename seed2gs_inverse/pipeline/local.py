@@ -38,6 +38,7 @@ import scipy.sparse as sp
 
 from .._validation import as_real
 from ..errors import ValidationError
+from ..raster import FrozenScene
 from ..scene import GaussianScene
 
 if TYPE_CHECKING:
@@ -49,12 +50,16 @@ __all__ = ["neighbourhood", "Neighbourhood", "object_neighbourhood", "support_re
 _BLOCK = 1 << 18
 
 
-def neighbourhood(scene: GaussianScene, center, radius: float) -> np.ndarray:
+def neighbourhood(scene: GaussianScene | FrozenScene, center, radius: float) -> np.ndarray:
     """Ascending indices of the Gaussians whose means lie within ``radius`` of ``center`` (boundary included).
 
     Parameters
     ----------
-    scene : GaussianScene
+    scene : GaussianScene or FrozenScene
+        A :class:`~seed2gs_inverse.raster.FrozenScene` tests only the
+        Gaussians of the chunks its spatial index finds near the ball
+        (:meth:`~seed2gs_inverse.raster.spatial.SpatialIndex.ball`, a
+        superset); the same Gaussians are returned.
     center : (3,) float
         A finite point.
     radius : float
@@ -70,8 +75,9 @@ def neighbourhood(scene: GaussianScene, center, radius: float) -> np.ndarray:
         ``scene`` is not a GaussianScene, ``center`` not a finite 3-vector
         or ``radius`` not a finite number >= 0.
     """
-    if not isinstance(scene, GaussianScene):
-        raise ValidationError(f"neighbourhood: scene must be a GaussianScene, got {type(scene).__name__}")
+    if not isinstance(scene, (GaussianScene, FrozenScene)):
+        raise ValidationError(f"neighbourhood: scene must be a GaussianScene or FrozenScene, "
+                              f"got {type(scene).__name__}")
     c = np.asarray(center, np.float64)
     if c.shape != (3,) or not np.all(np.isfinite(c)):
         raise ValidationError(f"neighbourhood: center must be a finite 3-vector, got {np.asarray(center).tolist()}")
@@ -80,6 +86,11 @@ def neighbourhood(scene: GaussianScene, center, radius: float) -> np.ndarray:
         raise ValidationError(f"neighbourhood: radius must be a finite number >= 0, got {radius!r}")
     # float64 squares as graph.region_subset takes them (the same Gaussians on the boundary), a
     # block of means at a time: the temporaries stay a few MB whatever the scene's size
+    if isinstance(scene, FrozenScene):
+        # the index's ball, loosened a little, is a superset; the test below decides as the scan does
+        rows = scene.spatial.ball(c, r * (1.0 + 1e-6) + 1e-12)
+        d2 = np.sum((scene.scene.means[rows].astype(np.float64) - c) ** 2, axis=1)
+        return rows[d2 <= r ** 2]
     means = scene.means
     out = [np.flatnonzero(np.sum((means[i:i + _BLOCK].astype(np.float64) - c) ** 2, axis=1) <= r ** 2) + i
            for i in range(0, len(means), _BLOCK)]
@@ -151,12 +162,14 @@ class Neighbourhood:
         return sp.csr_matrix((m.data, self.index[m.indices], indptr), shape=(self.n, self.n))
 
 
-def object_neighbourhood(scene: GaussianScene, lift: SeedLift, operators, reach: float) -> Neighbourhood:
+def object_neighbourhood(scene: GaussianScene | FrozenScene, lift: SeedLift, operators,
+                         reach: float) -> Neighbourhood:
     """The neighbourhood ``L`` of the module docstring: the operators' columns, G0, and the ball of ``reach * R``.
 
     Parameters
     ----------
-    scene : GaussianScene
+    scene : GaussianScene or FrozenScene
+        A frozen scene finds the ball through its spatial index (:func:`neighbourhood`).
     lift : SeedLift
         The seed lift (G0, centre ``o``, radius ``R``).
     operators : iterable of ViewOperator or sparse matrices
@@ -176,7 +189,8 @@ def object_neighbourhood(scene: GaussianScene, lift: SeedLift, operators, reach:
     r = as_real(reach)
     if r is None or not r > 0:
         raise ValidationError(f"object_neighbourhood: reach must be a positive number, got {reach!r}")
-    n = len(scene)
+    base = scene.scene if isinstance(scene, FrozenScene) else scene
+    n = len(base)
     mark = np.zeros(n, bool)  # one byte per Gaussian, set at the stored entries: no sort of the indices
     mark[lift.g0] = True
     mark[neighbourhood(scene, lift.center, r * float(lift.radius))] = True
@@ -186,4 +200,4 @@ def object_neighbourhood(scene: GaussianScene, lift: SeedLift, operators, reach:
             raise ValidationError(f"object_neighbourhood: view {i} has {W.shape[1]} columns, the scene {n} "
                                   "Gaussians")
         mark[W.indices] = True
-    return Neighbourhood.of(scene, np.flatnonzero(mark))
+    return Neighbourhood.of(base, np.flatnonzero(mark))

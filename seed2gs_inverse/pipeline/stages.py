@@ -64,7 +64,7 @@ if TYPE_CHECKING:
     from ..frontend.base import LabelFiller, Tracker
     from ..operators import Rendering, ViewOperator
     from ..progress import Progress
-    from ..raster import Renderer
+    from ..raster import FrozenScene, Renderer
     from ..scene import GaussianScene
     from ..solvers import SolveResult
     from .seed_lift import SeedLift
@@ -393,8 +393,8 @@ def _clip_frame(op: ViewOperator, clip: str, index: int) -> ClipFrame:
     return ClipFrame(r.rgb, r.depth, r.alpha, op.camera, clip, index, operator=op)
 
 
-def _level(scene: GaussianScene, up: np.ndarray, center: np.ndarray, reach: float) -> np.ndarray:
-    """(N,) bool: the flat, level Gaussians of ``scene`` about ``up`` within ``reach`` of ``center``.
+def _level(frozen: FrozenScene, up: np.ndarray, center: np.ndarray, reach: float) -> np.ndarray:
+    """(N,) bool: the flat, level Gaussians of ``frozen``'s scene about ``up`` within ``reach`` of ``center``.
 
     Flat and level as :func:`~.support.support_surface` takes them
     (:func:`~.up_axis.flat_normals`, ``|n . up|`` at least its default
@@ -404,7 +404,8 @@ def _level(scene: GaussianScene, up: np.ndarray, center: np.ndarray, reach: floa
     view at distance ``D`` from the object removes Gaussians in front of
     the object inside the view's cone, which lie within ``2 D`` of it.
     """
-    idx = neighbourhood(scene, center, reach)
+    scene = frozen.scene
+    idx = neighbourhood(frozen, center, reach)  # through the frozen scene's spatial index
     normals, flat = flat_normals(scene, idx)
     out = np.zeros(len(scene), bool)
     out[idx] = flat & (np.abs(normals @ up) >= SUPPORT_DEFAULTS["min_alignment"])
@@ -439,7 +440,7 @@ def orbit_views(renderer: Renderer, camera: Camera, ref: ReferenceView, lift: Se
     spare = None
     if s.cull and s.near_margin is not None:
         # every orbit camera keeps the reference's distance to o (vaas.orbit_cameras)
-        spare = _level(scene, up, lift.center, 2.0 * float(np.linalg.norm(base.center - lift.center)))
+        spare = _level(renderer.frozen, up, lift.center, 2.0 * float(np.linalg.norm(base.center - lift.center)))
 
     def view(cam: Camera, clip: str, k: int) -> ClipFrame:
         if cam is base:
