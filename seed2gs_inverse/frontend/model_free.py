@@ -303,12 +303,7 @@ class GeometricTracker:
         and a band removes thin parts of small objects.
     color_tol : float or None
         Photometric consistency of a copied label (max per-channel RGB
-        difference, default 0.08), see :func:`warp_labels`; None disables
-        it. Where an object meets the ground within the z-test's tolerance
-        (its base on gravel), a looser check copies the ground's 0 onto the
-        object's lower part, and the next views copy that on around the
-        orbit; the default was chosen on both suites of
-        benchmarks/bench_extract.py.
+        difference, 0.15), see :func:`warp_labels`; None disables it.
     max_sources : int
         Source frames tried per pixel: the seed frame, then the
         ``max_sources - 1`` labelled views with the nearest camera centres
@@ -352,7 +347,7 @@ class GeometricTracker:
     def __init__(self, alpha_min: float = 0.5, depth_tol: float = 0.01, fill: bool = True,
                  fill_radius: float = 0.1, fill_sigma_color: float = 0.15, decisive: float = 0.2,
                  min_support: float = 0.02, max_sources: int = 4, boundary_band: int = 0,
-                 color_tol: float | None = 0.08, fill_depth_jump: float = 0.03, refill: bool = False,
+                 color_tol: float | None = 0.15, fill_depth_jump: float = 0.03, refill: bool = False,
                  fill_passes: int = 1, support_plane=None, support_alignment: float = 0.8,
                  fill_from_empty: bool = False):
         # NaN fails every range check: it is refused like any other value out of range.
