@@ -163,7 +163,7 @@ __all__ = ["UpEstimate", "PlaneFit", "estimate_up_axis", "estimate_up", "fit_pla
 WEAK_CONFIDENCE = 0.5
 
 #: Defaults of :func:`estimate_up_axis`.
-UP_DEFAULTS = {"local_factor": 3.0, "scene_factor": 2.0, "max_below": 3.0, "max_roll_deg": 20.0, "max_pitch_deg": 80.0,
+UP_DEFAULTS = {"local_factor": 3.0, "scene_factor": 4.0, "max_below": 3.0, "max_roll_deg": 20.0, "max_pitch_deg": 80.0,
                "max_camera_deg": 25.0, "agree_deg": 5.0, "min_inliers": 30, "n_hypotheses": 400, "max_points": 6000,
                "min_opacity": 0.2, "robust_scale": 3.0, "seed": 0}
 
