@@ -142,7 +142,7 @@ def test_a_far_copy_of_the_scene_changes_nothing_and_the_stages_do_not_see_it(mo
     copy = GaussianScene(scene.means + far.astype(np.float32), scene.quats, scene.log_scales,
                          scene.opacity_logits, scene.sh)
     big = GaussianScene.concat([scene, copy, copy.subset(np.arange(n0)[::-1])])
-    # the up axis given: up="auto" fits a plane to a sample of the whole scene, which the copies change
+    # the up axis given (tests/test_up_axis.py checks that up="auto" ignores far copies too)
     kw = dict(n_views=6, progress=False, up=tuple(info["up"]))
     base = extract(scene, cam, seed, **kw)
     sizes, solved = [], []

@@ -12,6 +12,9 @@ from seed2gs_inverse.pipeline.up_axis import (WEAK_CONFIDENCE, UpEstimate, angle
                                               estimate_up_axis, fit_plane)
 from seed2gs_inverse.pipeline.up_axis import estimate_up
 from seed2gs_inverse.scene import GaussianScene
+from seed2gs_inverse.pipeline import extract
+from seed2gs_inverse.raster import build_operator
+from _pipeline_scenes import reference_camera, sphere_scene
 
 
 def _normals(scene: GaussianScene) -> np.ndarray:
@@ -19,6 +22,14 @@ def _normals(scene: GaussianScene) -> np.ndarray:
 
     rot = quat_to_rotmat(scene.quats)
     return rot[np.arange(len(scene)), :, np.argmin(scene.scales, axis=1)]
+
+
+def _sphere_problem():
+    """A sphere on a ground disc, its reference camera and true seed mask (as tests/test_local_extraction.py)."""
+    scene, labels, info = sphere_scene(n_sphere=500, n_ground=900)
+    cam = reference_camera(info)
+    seed = (build_operator(scene, cam).W @ labels.astype(np.float32)).reshape(cam.image_shape) > 0.5
+    return scene, labels, info, cam, seed
 
 
 def _case(k: int):
@@ -30,14 +41,18 @@ def _case(k: int):
     return g, name, cam
 
 
-@pytest.mark.parametrize("k", range(20))
-def test_axis_within_5_degrees_on_vertical_clutter(k):
-    g, name, cam = _case(k)
-    # G0 as a seed lift gives it: the object's Gaussians that face the reference.
+def _facing(g, name: str, cam: Camera) -> np.ndarray:
+    """G0 as a seed lift gives it: the object's Gaussians that face the reference."""
     n = _normals(g.scene)
     outward = n * np.sign(np.sum(n * (g.scene.means - g.object_center(name)), axis=1))[:, None]
     facing = np.sum(outward * (cam.center - g.scene.means), axis=1) > 0
-    m = g.object_mask(name) & facing
+    return g.object_mask(name) & facing
+
+
+@pytest.mark.parametrize("k", range(20))
+def test_axis_within_5_degrees_on_vertical_clutter(k):
+    g, name, cam = _case(k)
+    m = _facing(g, name, cam)
     assert m.sum() > 100
     est = estimate_up_axis(g.scene, cam, support=m)
     assert isinstance(est, UpEstimate)
@@ -60,6 +75,90 @@ def _vertical_panel(width, height, spacing):
     st = 0.7 * spacing
     log_scales = np.log(np.tile([st, st, 0.1 * st], (n, 1)))
     return GaussianScene(means, quats, log_scales, np.full(n, 3.0), np.zeros((n, 1, 3)))
+
+
+def _steep_camera(g, name: str, pitch_deg: float, azimuth_deg: float, spin_deg: float = 0.0) -> Camera:
+    """A look-at camera ``pitch_deg`` below the horizon (90: straight down; more: past it) at the object.
+
+    Its image-up is the true up made orthogonal to the view (straight down:
+    the level direction away from the azimuth), turned by ``spin_deg`` about
+    the viewing direction (a drone's top view has no preferred image-up).
+    """
+    t = g.object_center(name)
+    az, el = np.radians(azimuth_deg), np.radians(pitch_deg)
+    eye = t + (2.0 + 4 * g.heights[name]) * (g.rotation @ [np.cos(el) * np.cos(az), np.cos(el) * np.sin(az),
+                                                          np.sin(el)])
+    f = (t - eye) / np.linalg.norm(t - eye)
+    up = g.up - (g.up @ f) * f
+    if np.linalg.norm(up) < 1e-6:
+        up = g.rotation @ [-np.cos(az), -np.sin(az), 0.0]
+    up /= np.linalg.norm(up)
+    s = np.radians(spin_deg)
+    return Camera.look_at(eye, t, np.cos(s) * up + np.sin(s) * np.cross(f, up), 50.0, 320, 240)
+
+
+@pytest.mark.parametrize("k", range(3))
+@pytest.mark.parametrize("pitch", [60, 80, 88, 90, 95])
+def test_a_reference_pitched_down_to_straight_down_and_past_finds_the_ground(pitch, k):
+    # Grass, bushes, a fence and a wall stand around: seen from above, their vertical planes lie where
+    # the ground's normal lies for a level view (along the image-up).
+    g = make_ground_scene(200 + k)
+    name = g.object_names[k]
+    cam = _steep_camera(g, name, pitch, 70.0 * k + 20.0, spin_deg=0.0 if pitch < 90 else 110.0 * k + 15.0)
+    est = estimate_up_axis(g.scene, cam, support=_facing(g, name, cam))
+    assert angle_deg(est.axis, g.up) <= 3.0, (est.method, est.details)
+    assert est.method.startswith("support-plane") and est.confidence >= WEAK_CONFIDENCE
+    # beyond max_pitch_deg the ground is found in the steep window, its confidence lowered by the
+    # ordinary rival's share
+    assert est.method.endswith("steep reference") == (pitch > 80)
+    if pitch > 80:
+        assert est.confidence <= 1.0 - est.details["steep_rival_share"] + 1e-12
+
+
+def test_a_top_down_reference_gives_the_ground_whatever_its_image_rotation():
+    g = make_ground_scene(204)
+    axes = []
+    for spin in (0.0, 45.0, 137.0, 250.0, 301.0):
+        cam = _steep_camera(g, "table", 90.0, 30.0, spin)
+        assert abs(cam.forward @ g.up) > 1 - 1e-9  # straight down: the image-up is level
+        est = estimate_up_axis(g.scene, cam, support=_facing(g, "table", cam))
+        assert angle_deg(est.axis, g.up) <= 3.0, (spin, est.method, est.details)
+        axes.append(est.axis)
+    assert max(angle_deg(u, axes[0]) for u in axes) <= 2.0
+
+
+def test_far_copies_of_the_scene_leave_the_axis_bit_for_bit():
+    g = make_ground_scene(7)
+    cam = g.camera("box", 40.0, 35.0, 2.5)
+    m = _facing(g, "box", cam)
+    base = estimate_up_axis(g.scene, cam, support=m)
+    e1 = g.rotation @ [1.0, 0.0, 0.0]
+    e2 = g.rotation @ [0.0, 1.0, 0.0]
+    copies = [GaussianScene(g.scene.means + (d * 60.0).astype(np.float32), g.scene.quats, g.scene.log_scales,
+                            g.scene.opacity_logits, g.scene.sh) for d in (e1, e2, -e1 + e2)]
+    n0 = len(g.scene)
+    for before, after in ((copies[:1], copies[1:]), ([], copies), (copies, [])):
+        big = GaussianScene.concat(before + [g.scene] + after)
+        support = np.zeros(len(big), bool)
+        support[n0 * len(before):n0 * (len(before) + 1)] = m
+        est = estimate_up_axis(big, cam, support=support)
+        np.testing.assert_array_equal(est.axis, base.axis)
+        assert est.method == base.method and est.confidence == base.confidence
+    assert base.method == "support-plane+scene-plane"
+
+
+def test_extract_auto_up_selects_the_same_gaussians_with_far_copies():
+    scene, _, info, cam, seed = _sphere_problem()
+    n0 = len(scene)
+    copy = GaussianScene(scene.means + (200.0 * info["e1"]).astype(np.float32), scene.quats, scene.log_scales,
+                         scene.opacity_logits, scene.sh)
+    kw = dict(n_views=6, progress=False, up="auto")
+    base = extract(scene, cam, seed, **kw)
+    tiled = extract(GaussianScene.concat([scene, copy, copy.subset(np.arange(n0)[::-1])]), cam, seed, **kw)
+    assert base.report()["up"]["method"].startswith("support-plane")
+    assert tiled.report()["up"] == base.report()["up"]
+    np.testing.assert_array_equal(tiled.selected[:n0], base.selected)
+    assert base.selected.any() and not tiled.selected[n0:].any()
 
 
 def test_a_wall_behind_the_object_facing_the_camera_does_not_win():

@@ -14,7 +14,10 @@ Reference no-roll constraint
     :math:`u \cdot r = 0` and :math:`u \in \mathrm{span}(a, b)` with
     :math:`a` the image-up (:attr:`Camera.up`) and :math:`b` the backward
     direction made orthogonal to :math:`a` (:func:`roll_basis`). The
-    camera's pitch is the angle of :math:`u` from :math:`a` in that plane.
+    camera's pitch is the angle of :math:`u` from :math:`a` in that plane:
+    :math:`u = \cos\phi\, a + \sin\phi\, b` for a view looking down by
+    :math:`\phi` (straight down: :math:`u = b`, the image-up level, and the
+    constraint still holds whatever the image's rotation about the view).
     Used as a filter on plane candidates (:math:`|n \cdot r| \le \sin`
     ``max_roll_deg``) and as a check.
 Training cameras (``cameras``)
@@ -50,6 +53,23 @@ Support plane (local)
       its positive side (a plane through G0, e.g. the top of a table when
       G0 is that top, is the object, not the surface it rests on).
 
+    A view pitched past ``max_pitch_deg`` (a drone looking straight down)
+    sees its ground outside that window, and the vertical planes around
+    (walls, fences, seen edge-on) inside it. So the search is repeated in
+    the steep window: normals oriented towards the camera's side
+    (:math:`n \cdot b > 0`) with :math:`|n \cdot a| < \cos`
+    ``max_pitch_deg`` and the same roll bound, pitches from
+    ``max_pitch_deg`` to as far past straight down. A wall seen face-on
+    from a level view lies there too, so the steep planes are taken only
+    when they dominate: the steep scene plane holds twice
+    (:data:`_STEEP_FACTOR`) the inliers of the ordinary scene plane (the ground extends, a
+    wall ends) and the steep local plane at least as many as the ordinary
+    one (without a steep scene plane, the local planes compared with the
+    factor). Method ``"...; steep reference"``; the confidence is
+    multiplied by 1 minus the ordinary rival's share of the steep plane's
+    inliers. With capture cameras their axis sets the window and there is
+    no steep search.
+
     Its score is its inlier count :math:`|\{i : |n \cdot (x_i - p)| \le \tau\}|`
     with :math:`\tau` half the median distance of a point to its 4th
     nearest neighbour (scale-free: it follows the sampling density). The
@@ -63,14 +83,20 @@ Support plane (local)
     weighted fit recovers the mean plane. Vertical clutter (grass, plants,
     fences) does not form a plane under the object, so it cannot win however
     many flat splats it has.
-Scene plane (global)
-    The same fit over a random subsample of the whole scene (the dominant
+Scene plane (regional)
+    The same fit over a random subsample of the Gaussians within
+    :math:`\rho = \max(` ``scene_factor`` :math:`\|c - o\|,\ 3`
+    ``local_factor`` :math:`R)` of :math:`o`, :math:`c` the reference's
+    centre (the surroundings the user sees the object in; the dominant
     large plane below the object): a cross-check for the local plane, and
-    the answer when the neighbourhood holds too few points.
+    the answer when the neighbourhood holds too few points. The ball is
+    :func:`~.local.neighbourhood`'s and the subsample depends only on the
+    Gaussians in it: parts of the scene farther away change nothing.
+    Without an object (no G0 and no centre) it is the whole scene.
 Normals (fallback)
     :func:`estimate_up`: the dominant normal of flat splats within the
-    no-roll plane. Wrong in vegetation; used only when nothing above is
-    available, with confidence 0.2.
+    no-roll plane, over the scene plane's ball. Wrong in vegetation; used
+    only when nothing above is available, with confidence 0.2.
 
 Decision and confidence
 -----------------------
@@ -128,6 +154,7 @@ from scipy.spatial import cKDTree
 from ..camera import Camera
 from ..errors import ValidationError
 from ..scene import GaussianScene, quat_to_rotmat
+from .local import neighbourhood
 
 __all__ = ["UpEstimate", "PlaneFit", "estimate_up_axis", "estimate_up", "fit_plane", "cameras_up", "roll_basis",
            "camera_list", "flat_normals", "angle_deg", "WEAK_CONFIDENCE", "UP_DEFAULTS"]
@@ -136,7 +163,7 @@ __all__ = ["UpEstimate", "PlaneFit", "estimate_up_axis", "estimate_up", "fit_pla
 WEAK_CONFIDENCE = 0.5
 
 #: Defaults of :func:`estimate_up_axis`.
-UP_DEFAULTS = {"local_factor": 3.0, "max_below": 3.0, "max_roll_deg": 20.0, "max_pitch_deg": 80.0,
+UP_DEFAULTS = {"local_factor": 3.0, "scene_factor": 4.0, "max_below": 3.0, "max_roll_deg": 20.0, "max_pitch_deg": 80.0,
                "max_camera_deg": 25.0, "agree_deg": 5.0, "min_inliers": 30, "n_hypotheses": 400, "max_points": 6000,
                "min_opacity": 0.2, "robust_scale": 3.0, "seed": 0}
 
@@ -151,6 +178,9 @@ _FRACTION_MIN = 0.05
 #: The normals fallback is taken only within this angle of the image-up (a view pitched further with
 #: no plane in sight is less likely than a dominant flat surface that is not the ground).
 _NORMALS_MAX_PITCH_DEG = 45.0
+#: Planes in the steep pitch window (the reference looking down past ``max_pitch_deg``) replace the
+#: ordinary ones only with this many times their inliers (a wall seen face-on from a level view lies there too).
+_STEEP_FACTOR = 2.0
 #: Capture cameras whose quality (:func:`cameras_up`) is below this leave the axis undetermined.
 _MIN_CAMERA_QUALITY = 0.05
 #: At most this many Gaussians of G0 test "the object is above the plane".
@@ -592,6 +622,7 @@ class _Prior(NamedTuple):
     """What a plane's orientation is checked against (module docstring, "Support plane")."""
 
     a: np.ndarray                   # (3,) image-up of the reference
+    b: np.ndarray                   # (3,) backward direction of the reference, orthogonal to a
     r: np.ndarray                   # (3,) right vector of the reference
     cam_axis: np.ndarray | None     # (3,) up of the capture cameras, None when undetermined
     sin_roll: float                 # sin(max_roll_deg)
@@ -697,37 +728,50 @@ def _g0_sample(means: np.ndarray, g0: np.ndarray | None, seed: int) -> np.ndarra
 
 
 def _plane_point_sets(scene: GaussianScene, means: np.ndarray, g0: np.ndarray | None, center: np.ndarray,
-                      radius: float, local_ok: bool, opt: dict) -> tuple[np.ndarray, np.ndarray]:
-    """The Gaussians the two planes are fitted on: ``(local, scene)`` int64 index arrays.
+                      radius: float, local_ok: bool, reach: float,
+                      opt: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The Gaussians the two planes are fitted on: ``(local, scene, region)`` int64 index arrays.
+
+    ``region`` is every Gaussian of the scene set's ball (None: the whole
+    scene), for :func:`_fallback_axis`.
 
     Both leave out G0 and splats with opacity below ``min_opacity``. The
-    local set is those within ``local_factor`` ``R`` of ``o`` (empty unless
-    ``local_ok``), the scene set all others; each is randomly subsampled
-    (sorted, by ``opt["seed"]``) to at most :data:`_MAX_FIT_POINTS`.
+    local set is those within ``local_factor`` ``R`` of ``o``, the scene
+    set those within ``reach`` of ``o`` (:func:`~.local.neighbourhood`);
+    without ``local_ok`` the local set is empty and the scene set is the
+    whole scene. Each is randomly subsampled (sorted, by ``opt["seed"]``)
+    to at most :data:`_MAX_FIT_POINTS`: the draw depends on the Gaussians
+    inside the ball only.
     """
-    usable = scene.opacities >= opt["min_opacity"]
-    if g0 is not None:
-        usable &= ~g0
+    def usable(idx: np.ndarray) -> np.ndarray:
+        keep = scene.opacities[idx] >= opt["min_opacity"]
+        if g0 is not None:
+            keep &= ~g0[idx]
+        idx = idx[keep]
+        return np.sort(rng.choice(idx, _MAX_FIT_POINTS, replace=False)) if len(idx) > _MAX_FIT_POINTS else idx
+
     rng = np.random.default_rng(opt["seed"])
-    local_idx = np.zeros(0, np.int64)
-    if local_ok:
-        dist = np.linalg.norm(means - center, axis=1)
-        local_idx = np.flatnonzero(usable & (dist <= opt["local_factor"] * radius))
-        if len(local_idx) > _MAX_FIT_POINTS:
-            local_idx = np.sort(rng.choice(local_idx, _MAX_FIT_POINTS, replace=False))
-    glob_idx = np.flatnonzero(usable)
-    if len(glob_idx) > _MAX_FIT_POINTS:
-        glob_idx = np.sort(rng.choice(glob_idx, _MAX_FIT_POINTS, replace=False))
-    return local_idx, glob_idx
+    if not local_ok:
+        return np.zeros(0, np.int64), usable(np.arange(len(means))), None
+    local_idx = usable(neighbourhood(scene, center, opt["local_factor"] * radius))
+    region = neighbourhood(scene, center, reach)
+    return local_idx, usable(region), region
 
 
-def _oriented(n: np.ndarray, prior: _Prior, use_prior: bool) -> np.ndarray:
-    """Which of the unit normals ``n`` (H, 3), oriented with ``n . a >= 0``, the prior allows: (H,) bool.
+def _oriented(n: np.ndarray, prior: _Prior, use_prior: bool, steep: bool = False) -> np.ndarray:
+    """Which of the unit normals ``n`` (H, 3), oriented by :func:`_admissible`, the prior allows: (H,) bool.
 
-    Always :math:`n \\cdot a \\ge \\cos` ``max_pitch_deg``; with ``use_prior``
-    also within ``max_camera_deg`` of the cameras' axis when there is one,
-    else :math:`|n \\cdot r| \\le \\sin` ``max_roll_deg`` (the reference's no-roll prior).
+    Ordinary (``steep`` False, ``n . a >= 0``): always :math:`n \\cdot a \\ge \\cos`
+    ``max_pitch_deg``; with ``use_prior`` also within ``max_camera_deg`` of
+    the cameras' axis when there is one, else :math:`|n \\cdot r| \\le \\sin`
+    ``max_roll_deg`` (the reference's no-roll prior). Steep (``n . b >= 0``,
+    only under the no-roll prior): :math:`|n \\cdot a| < \\cos`
+    ``max_pitch_deg`` and :math:`|n \\cdot r| \\le \\sin` ``max_roll_deg``,
+    the pitches the ordinary bound refuses, from ``max_pitch_deg`` to as far
+    past straight down.
     """
+    if steep:
+        return (np.abs(n @ prior.a) < prior.cos_pitch) & (np.abs(n @ prior.r) <= prior.sin_roll)
     if not use_prior:
         return n @ prior.a >= prior.cos_pitch
     if prior.cam_axis is not None:
@@ -736,20 +780,22 @@ def _oriented(n: np.ndarray, prior: _Prior, use_prior: bool) -> np.ndarray:
 
 
 def _admissible(hn: np.ndarray, hp: np.ndarray, *, prior: _Prior, use_prior: bool,
-                below: _Below | None) -> tuple[np.ndarray, np.ndarray]:
+                below: _Below | None, steep: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """:func:`fit_plane`'s ``admissible`` test for the support plane: ``(ok (H,) bool, sign (H,))``.
 
     ``hn`` (H, 3) unit normals and ``hp`` (H, 3) points of the hypotheses.
-    Each normal is oriented along the image-up (``sign``); it is admissible
+    Each normal is oriented along the image-up ``a`` (``sign``), or with
+    ``steep`` along the backward direction ``b`` (towards the camera's side:
+    a view looking straight down has its image-up level); it is admissible
     when :func:`_oriented` allows it and, with ``below``, the object is
     above it: :math:`0 < n \\cdot (o - p) \\le` ``max_below`` ``R`` and the
     10th percentile of G0's heights above it is positive (the object stands
     on the surface, it is not part of it: a table top seen as G0 would
     otherwise be the surface it rests on).
     """
-    sign = np.where(hn @ prior.a >= 0, 1.0, -1.0)
+    sign = np.where(hn @ (prior.b if steep else prior.a) >= 0, 1.0, -1.0)
     n = hn * sign[:, None]
-    ok = _oriented(n, prior, use_prior)
+    ok = _oriented(n, prior, use_prior, steep)
     if below is not None:
         h = np.einsum("ij,ij->i", n, below.center - hp)
         ok &= (h > 0) & (h <= below.max_height)
@@ -759,49 +805,90 @@ def _admissible(hn: np.ndarray, hp: np.ndarray, *, prior: _Prior, use_prior: boo
     return ok, sign
 
 
-def _keeps_orientation(n: np.ndarray, *, prior: _Prior, use_prior: bool) -> bool:
-    """:func:`fit_plane`'s ``keep_normal``: the refined (3,) normal still points up and the prior allows it."""
-    return n @ prior.a > 0 and bool(_oriented(n[None], prior, use_prior)[0])
+def _keeps_orientation(n: np.ndarray, *, prior: _Prior, use_prior: bool, steep: bool = False) -> bool:
+    """:func:`fit_plane`'s ``keep_normal``: the refined (3,) normal keeps its side and the prior allows it."""
+    return n @ (prior.b if steep else prior.a) > 0 and bool(_oriented(n[None], prior, use_prior, steep)[0])
 
 
 def _fit_ground_plane(scene: GaussianScene, means: np.ndarray, idx: np.ndarray, *, prior: _Prior,
-                      use_prior: bool, below: _Below | None, seed: int, opt: dict) -> PlaneFit | None:
+                      use_prior: bool, below: _Below | None, seed: int, opt: dict,
+                      steep: bool = False) -> PlaneFit | None:
     """:func:`fit_plane` over the Gaussians ``idx``, flat ones giving 1-point hypotheses along their normals.
 
-    Returns None with fewer than ``min_inliers`` (at least 3) points or
-    when the best admissible plane has fewer than ``min_inliers`` inliers.
+    ``steep`` selects the steep pitch window of :func:`_oriented`. Returns
+    None with fewer than ``min_inliers`` (at least 3) points or when the
+    best admissible plane has fewer than ``min_inliers`` inliers.
     """
     if len(idx) < max(opt["min_inliers"], 3):
         return None
     nrm, flat = flat_normals(scene, idx)
     nrm = np.where(flat[:, None], nrm, 0.0)  # non-flat splats give no 1-point hypothesis
     f = fit_plane(means[idx], normals=nrm, admissible=partial(_admissible, prior=prior, use_prior=use_prior,
-                                                              below=below),
+                                                              below=below, steep=steep),
                   n_hypotheses=opt["n_hypotheses"], max_points=opt["max_points"], seed=seed,
                   robust_scale=opt["robust_scale"],
-                  keep_normal=partial(_keeps_orientation, prior=prior, use_prior=use_prior))
+                  keep_normal=partial(_keeps_orientation, prior=prior, use_prior=use_prior, steep=steep))
     if f is None or f.n_inliers < opt["min_inliers"]:
         return None
     return f
 
 
+class _Planes(NamedTuple):
+    """What :func:`_search_planes` found."""
+
+    local: PlaneFit | None          # the support plane
+    glob: PlaneFit | None           # the scene plane
+    roll_dropped: bool              # found without the roll prior
+    steep_rival: float | None       # steep planes: the ordinary rival's inliers over theirs; else None
+
+
+def _steep_rival(local_s: PlaneFit | None, glob_s: PlaneFit | None, local: PlaneFit | None,
+                 glob: PlaneFit | None) -> float | None:
+    """Whether the steep planes win over the ordinary ones: the ordinary rival's share of their inliers, or None.
+
+    The ground extends, a wall seen face-on ends: when there is a steep
+    scene plane it must hold :data:`_STEEP_FACTOR` times the ordinary scene
+    plane's inliers and the steep local plane at least as many as the
+    ordinary local plane; without one, the steep local plane must hold
+    :data:`_STEEP_FACTOR` times the ordinary local plane's. The better
+    steep plane must hold :data:`_FRACTION_MIN` of its points.
+    """
+    def k(f: PlaneFit | None) -> int:
+        return f.n_inliers if f is not None else 0
+
+    best = local_s if local_s is not None else glob_s
+    if best is None or best.fraction < _FRACTION_MIN:
+        return None
+    if glob_s is not None:
+        if k(glob_s) >= _STEEP_FACTOR * k(glob) and k(local_s) >= k(local):
+            return k(glob) / k(glob_s)
+        return None
+    if k(local_s) >= _STEEP_FACTOR * k(local):
+        return k(local) / k(local_s)
+    return None
+
+
 def _search_planes(scene: GaussianScene, means: np.ndarray, local_idx: np.ndarray, glob_idx: np.ndarray,
-                   local_ok: bool, prior: _Prior, below: _Below,
-                   opt: dict) -> tuple[PlaneFit | None, PlaneFit | None, bool]:
-    """The support plane (local) and the scene plane: ``(local, scene, roll_prior_dropped)``.
+                   local_ok: bool, prior: _Prior, below: _Below, opt: dict) -> _Planes:
+    """The support plane (local) and the scene plane, and how they were found.
 
     Under the prior first (seeds ``seed`` and ``seed + 1``); when the
     better of the two holds less than :data:`_FRACTION_FULL` of its points,
     again without the roll prior (seeds ``seed + 2``, ``seed + 3``), whose
     planes replace the first ones when the better holds at least that share
-    and twice the inliers. The scene plane is tested against the object's
-    position only when there is a local neighbourhood (``local_ok``).
+    and twice the inliers. Without capture cameras, then in the steep pitch
+    window (:func:`_oriented`; seeds ``seed + 4``, ``seed + 5``): those
+    planes replace the ordinary ones when they dominate them
+    (:func:`_steep_rival`). The scene plane is tested against
+    the object's position only when there is a local neighbourhood
+    (``local_ok``).
     """
     seed = opt["seed"]
     glob_below = below if local_ok else None
     fit = partial(_fit_ground_plane, scene, means, prior=prior, opt=opt)
     local = fit(local_idx, use_prior=True, below=below, seed=seed) if local_ok else None
     glob = fit(glob_idx, use_prior=True, below=glob_below, seed=seed + 1)
+    dropped = False
     best = local if local is not None else glob
     if best is None or best.fraction < _FRACTION_FULL:
         # Nothing convincing under the prior: the reference may have roll. Overriding the user's level
@@ -812,8 +899,17 @@ def _search_planes(scene: GaussianScene, means: np.ndarray, local_idx: np.ndarra
         best_u = local_u if local_u is not None else glob_u
         if best_u is not None and best_u.fraction >= _FRACTION_FULL and (
                 best is None or best_u.n_inliers >= 2 * best.n_inliers):
-            return local_u, glob_u, True
-    return local, glob, False
+            local, glob, dropped = local_u, glob_u, True
+    if prior.cam_axis is None:
+        # A view pitched past max_pitch_deg (a drone looking straight down) has its ground's normal
+        # near b, outside the ordinary window, where a wall seen face-on from a level view also lies:
+        # the steep planes must dominate the ordinary ones to be taken.
+        local_s = fit(local_idx, use_prior=True, below=below, seed=seed + 4, steep=True) if local_ok else None
+        glob_s = fit(glob_idx, use_prior=True, below=glob_below, seed=seed + 5, steep=True)
+        rival = _steep_rival(local_s, glob_s, local, glob)
+        if rival is not None:
+            return _Planes(local_s, glob_s, False, rival)
+    return _Planes(local, glob, dropped, None)
 
 
 def _screen_planes(local: PlaneFit | None, glob: PlaneFit | None, means: np.ndarray, glob_idx: np.ndarray,
@@ -853,14 +949,14 @@ def _check_angles(axis: np.ndarray, other: PlaneFit | None, prior: _Prior) -> li
 
 
 def _plane_answer(chosen: PlaneFit, method: str, other: PlaneFit | None, prior: _Prior, agree_deg: float,
-                  roll_prior_dropped: bool) -> tuple[np.ndarray, str, float, list[float]]:
+                  trust: float) -> tuple[np.ndarray, str, float, list[float]]:
     """``(axis, method, confidence, check angles)`` with ``chosen`` deciding and ``other`` as a check.
 
     When ``other`` agrees within ``agree_deg`` the axis is the two normals'
     inlier-weighted mean (method ``"support-plane+scene-plane"``): the same
     surface seen wider, whose many more inliers pin its direction down (a
     local patch of uneven ground is tilted by its slope). The confidence is
-    :math:`c` of the module docstring, halved when the roll prior was dropped.
+    :math:`c` of the module docstring times ``trust`` (:func:`_plane_trust`).
     """
     axis = chosen.normal / np.linalg.norm(chosen.normal)
     if other is not None and angle_deg(axis, other.normal) <= agree_deg:
@@ -870,11 +966,18 @@ def _plane_answer(chosen: PlaneFit, method: str, other: PlaneFit | None, prior: 
     th = _check_angles(axis, other, prior)
     agree = float(np.mean(np.exp(-(np.asarray(th) / _CHECK_DEG) ** 2)))
     conf = min(1.0, chosen.fraction / _FRACTION_FULL) * agree
-    return axis, method, conf * (0.5 if roll_prior_dropped else 1.0), th
+    return axis, method, conf * trust, th
+
+
+def _plane_trust(planes: _Planes) -> float:
+    """The factor on a plane answer's confidence: 1/2 when the roll prior was dropped; for steep
+    planes 1 minus the ordinary rival's share of their inliers (:func:`_steep_rival`)."""
+    trust = 0.5 if planes.roll_dropped else 1.0
+    return trust * (1.0 - planes.steep_rival) if planes.steep_rival is not None else trust
 
 
 def _decide_plane(local: PlaneFit | None, glob: PlaneFit | None, prior: _Prior, agree_deg: float,
-                  roll_prior_dropped: bool) -> tuple[np.ndarray, str, float, list[float]] | None:
+                  trust: float) -> tuple[np.ndarray, str, float, list[float]] | None:
     """The plane answer (:func:`_plane_answer`), or None without a plane.
 
     The local plane decides, checked against the scene plane; when the two
@@ -883,7 +986,7 @@ def _decide_plane(local: PlaneFit | None, glob: PlaneFit | None, prior: _Prior, 
     the local one, wins when its confidence is higher (the disagreement
     stays in the confidence: it is real doubt).
     """
-    answer = partial(_plane_answer, prior=prior, agree_deg=agree_deg, roll_prior_dropped=roll_prior_dropped)
+    answer = partial(_plane_answer, prior=prior, agree_deg=agree_deg, trust=trust)
     if local is not None:
         best = answer(local, "support-plane", glob)
         if glob is not None and best[1] == "support-plane":
@@ -896,17 +999,18 @@ def _decide_plane(local: PlaneFit | None, glob: PlaneFit | None, prior: _Prior, 
     return None
 
 
-def _fallback_axis(scene: GaussianScene, reference: Camera, a: np.ndarray, cam_axis: np.ndarray | None,
-                   cam_quality: float, details: dict) -> UpEstimate:
+def _fallback_axis(scene: GaussianScene, region: np.ndarray | None, reference: Camera, a: np.ndarray,
+                   cam_axis: np.ndarray | None, cam_quality: float, details: dict) -> UpEstimate:
     """The answer without a plane: the cameras' axis, else the normals (:func:`estimate_up`), else the image-up.
 
-    The normals are used only within :data:`_NORMALS_MAX_PITCH_DEG` of the
+    The normals are those of the Gaussians ``region`` (indices; None: the
+    whole scene). They are used only within :data:`_NORMALS_MAX_PITCH_DEG` of the
     image-up ``a`` (confidence 0.2); otherwise the image-up itself
     (confidence 0.1). The cameras' answer has confidence 0.8 times their quality.
     """
     if cam_axis is not None:
         return UpEstimate(cam_axis, "cameras", float(0.8 * cam_quality), details)
-    axis = np.asarray(estimate_up(scene, reference), dtype=np.float64)
+    axis = np.asarray(estimate_up(scene if region is None else scene.subset(region), reference), dtype=np.float64)
     axis /= np.linalg.norm(axis)
     if angle_deg(axis, a) < 1e-9 or angle_deg(axis, a) > _NORMALS_MAX_PITCH_DEG:
         return UpEstimate(a.copy(), "image-up", 0.1, details)
@@ -951,24 +1055,29 @@ def estimate_up_axis(scene: GaussianScene, reference: Camera, support=None, cent
     opt = _up_options(options)
     if not isinstance(scene, GaussianScene) or len(scene) == 0:
         raise ValidationError("estimate_up_axis: scene must be a non-empty GaussianScene")
-    a, _, r = roll_basis(reference)
+    a, b, r = roll_basis(reference)
     means = scene.means.astype(np.float64)
     g0, o, radius, local_ok = _object_frame(means, support, center, radius)
     cam_axis, cam_quality, cams = _camera_axis(cameras)
-    prior = _Prior(a, r, cam_axis, np.sin(np.radians(opt["max_roll_deg"])),
+    prior = _Prior(a, b, r, cam_axis, np.sin(np.radians(opt["max_roll_deg"])),
                    np.cos(np.radians(opt["max_pitch_deg"])), np.cos(np.radians(opt["max_camera_deg"])))
     below = _Below(o, opt["max_below"] * radius, _g0_sample(means, g0, opt["seed"]))
-    local_idx, glob_idx = _plane_point_sets(scene, means, g0, o, radius, local_ok, opt)
+    reach = max(opt["scene_factor"] * float(np.linalg.norm(reference.center - o)), 3 * opt["local_factor"] * radius)
+    local_idx, glob_idx, region = _plane_point_sets(scene, means, g0, o, radius, local_ok, reach, opt)
     details: dict = {"center": o.tolist(), "radius": radius, "reference_up": a.tolist(),
-                     "n_local_points": int(len(local_idx))}
-    local, glob, dropped = _search_planes(scene, means, local_idx, glob_idx, local_ok, prior, below, opt)
-    local, glob = _screen_planes(local, glob, means, glob_idx, o, radius, local_ok, opt["local_factor"], details)
+                     "n_local_points": int(len(local_idx)), "scene_reach": reach if local_ok else None}
+    planes = _search_planes(scene, means, local_idx, glob_idx, local_ok, prior, below, opt)
+    local, glob = _screen_planes(planes.local, planes.glob, means, glob_idx, o, radius, local_ok,
+                                 opt["local_factor"], details)
     if cam_axis is not None:
         details["cameras"] = {"axis": cam_axis.tolist(), "quality": cam_quality, "n": len(cams)}
-    best = _decide_plane(local, glob, prior, opt["agree_deg"], dropped)
+    best = _decide_plane(local, glob, prior, opt["agree_deg"], _plane_trust(planes))
     if best is None:
-        return _fallback_axis(scene, reference, a, cam_axis, cam_quality, details)
+        return _fallback_axis(scene, region, reference, a, cam_axis, cam_quality, details)
     axis, method, conf, th = best
     details["check_angles_deg"] = th
-    return UpEstimate(axis, method + ("; roll prior dropped" if dropped else ""), float(np.clip(conf, 0, 1)),
-                      details)
+    if planes.steep_rival is not None:
+        details["steep_rival_share"] = planes.steep_rival
+    suffix = ("; roll prior dropped" if planes.roll_dropped
+              else "; steep reference" if planes.steep_rival is not None else "")
+    return UpEstimate(axis, method + suffix, float(np.clip(conf, 0, 1)), details)
