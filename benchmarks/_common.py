@@ -38,6 +38,16 @@ DATA = Path(os.environ.get("SEED2GS_DATA", REPO.parent / "shared" / "data"))
 POSE0 = ((400, 470), 20.0, 0.8)
 
 
+def reset_peak() -> bool:
+    """Reset this process's peak resident size (VmHWM); False where Linux does not allow it."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        return True
+    except OSError:
+        return False
+
+
 def load_average() -> float:
     """The one-minute load average (NaN where the platform has none)."""
     try:

@@ -46,7 +46,7 @@ import sys
 import time
 
 import numpy as np
-from _common import DATA, firepit_unicorn_problem, load_average, median_time
+from _common import DATA, firepit_unicorn_problem, load_average, median_time, reset_peak
 
 from seed2gs_inverse import GaussianScene
 from seed2gs_inverse.pipeline import extract
@@ -73,16 +73,6 @@ def _release_free_memory() -> None:
         ctypes.CDLL("libc.so.6").malloc_trim(0)
     except (OSError, AttributeError):
         pass
-
-
-def _reset_peak() -> bool:
-    """Reset this process's peak resident size (VmHWM); False where Linux does not allow it."""
-    try:
-        with open("/proc/self/clear_refs", "w") as f:
-            f.write("5")
-        return True
-    except OSError:
-        return False
 
 
 def _available_gb() -> float:
@@ -136,7 +126,7 @@ def _run(label, scene, truth, cam, seed, views, base_sel, render_s):
     load0 = load_average()
     _release_free_memory()
     rss0 = _proc_kb("VmRSS")
-    reset_ok = _reset_peak()
+    reset_ok = reset_peak()
     t0 = time.perf_counter()
     ex = extract(scene, cam, seed, n_views=views, progress=False)
     wall = time.perf_counter() - t0

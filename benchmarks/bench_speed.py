@@ -54,7 +54,7 @@ import sys
 import time
 
 import numpy as np
-from _common import (DATA, extract_kwargs, firepit_unicorn_problem, load_average, parse_set,
+from _common import (DATA, extract_kwargs, firepit_unicorn_problem, load_average, parse_set, reset_peak,
                      same_run_baselines)
 
 from seed2gs_inverse import Camera
@@ -62,16 +62,6 @@ from seed2gs_inverse.metrics import boundary_iou, iou, membership_scores
 from seed2gs_inverse.pipeline import extract
 from seed2gs_inverse.raster import build_operator
 from seed2gs_inverse.solvers import solve
-
-
-def _reset_peak() -> bool:
-    """Reset the kernel's peak-RSS counter (VmHWM) of this process; False where not allowed."""
-    try:
-        with open("/proc/self/clear_refs", "w") as f:
-            f.write("5")
-        return True
-    except OSError:
-        return False
 
 
 def _peak_rss_gb(reset_ok: bool) -> float:
@@ -125,7 +115,7 @@ def run_once(scene, truth, cam, seed, up, views: int, method: str, accuracy: boo
     ``options``: further ``extract()`` keywords (``--set``).
     """
     load0 = load_average()
-    reset_ok = _reset_peak()
+    reset_ok = reset_peak()
     t0 = time.perf_counter()
     ex = extract(scene, cam, seed, n_views=views, method=method, progress=False, **(options or {}))
     wall = time.perf_counter() - t0
