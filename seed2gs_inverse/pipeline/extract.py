@@ -162,7 +162,7 @@ def _resolved(s: ExtractSettings, ref: ReferenceView, orbits: OrbitViews, sel: S
             "warnings": [w for w in [orbits.up_info.get("warning")] if w] + notes}
 
 
-def extract(scene: GaussianScene, camera: Camera, prompt: Any, grounder: Grounder | None = None,
+def extract(scene: GaussianScene | FrozenScene, camera: Camera, prompt: Any, grounder: Grounder | None = None,
             tracker: Tracker | None = None, settings: ExtractSettings | None = None, *,
             up_cameras: Sequence[Camera] | None = None, **overrides) -> Extraction:
     """Extract one object from a frozen 3DGS scene (Algorithm 1).
