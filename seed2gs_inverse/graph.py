@@ -53,22 +53,49 @@ from .sh import SH_C0
 __all__ = ["gaussian_graph", "graph_laplacian", "check_graph", "region_subset", "follow_matrix", "check_follow",
            "apply_follow"]
 
+#: Means per block of :func:`region_subset`'s scan.
+_BLOCK = 1 << 18
 
-def region_subset(scene: GaussianScene, center, radius: float) -> np.ndarray:
-    """Indices of the Gaussians whose means lie within ``radius`` of ``center``.
+
+def region_subset(scene: GaussianScene, center, radius: float, rows=None) -> np.ndarray:
+    """Ascending indices of the Gaussians whose means lie within ``radius`` of ``center`` (boundary included).
 
     The graph is only needed around the object: this keeps its cost
     independent of the scene's size.
+
+    Parameters
+    ----------
+    scene : GaussianScene
+    center : (3,) float
+        A finite point.
+    radius : float
+        A finite distance >= 0.
+    rows : (M,) int array, optional
+        Ascending candidate indices (a superset of the answer, e.g. from a
+        spatial index); only they are tested. Default: every Gaussian.
+
+    Returns
+    -------
+    (K,) int64
+        The indices ``i`` with ``sum_k (means[i, k] - center[k])^2 <= radius^2`` in float64.
     """
     if not isinstance(scene, GaussianScene):
         raise ValidationError(f"scene must be a GaussianScene, got {type(scene).__name__}")
     c = np.asarray(center, np.float64)
     if c.shape != (3,) or not np.all(np.isfinite(c)):
         raise ValidationError(f"center must be a finite 3-vector, got {np.asarray(center).tolist()}")
-    if not (np.isfinite(radius) and radius > 0):
-        raise ValidationError(f"radius must be positive, got {radius!r}")
-    d2 = np.sum((scene.means.astype(np.float64) - c) ** 2, axis=1)
-    return np.flatnonzero(d2 <= float(radius) ** 2)
+    if isinstance(radius, bool) or not isinstance(radius, (int, float, np.integer, np.floating)) \
+            or not (np.isfinite(radius) and radius >= 0):
+        raise ValidationError(f"radius must be a finite number >= 0, got {radius!r}")
+    r2 = float(radius) ** 2
+    if rows is not None:
+        rows = np.asarray(rows, np.int64)
+        return rows[np.sum((scene.means[rows].astype(np.float64) - c) ** 2, axis=1) <= r2]
+    # a block of means at a time: the temporaries stay a few MB whatever the scene's size
+    means = scene.means
+    out = [np.flatnonzero(np.sum((means[i:i + _BLOCK].astype(np.float64) - c) ** 2, axis=1) <= r2) + i
+           for i in range(0, len(means), _BLOCK)]
+    return np.concatenate(out).astype(np.int64, copy=False) if out else np.zeros(0, np.int64)
 
 
 def gaussian_graph(scene: GaussianScene, k: int = 10, *, subset=None, sigma_color: float | None = 0.1,

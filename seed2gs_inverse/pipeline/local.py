@@ -38,6 +38,7 @@ import scipy.sparse as sp
 
 from .._validation import as_real
 from ..errors import ValidationError
+from ..graph import region_subset
 from ..raster import FrozenScene
 from ..scene import GaussianScene
 
@@ -45,10 +46,6 @@ if TYPE_CHECKING:
     from .seed_lift import SeedLift
 
 __all__ = ["neighbourhood", "Neighbourhood", "object_neighbourhood", "support_reach"]
-
-#: Means per block of :func:`neighbourhood`'s brute-force scan.
-_BLOCK = 1 << 18
-
 
 def neighbourhood(scene: GaussianScene | FrozenScene, center, radius: float) -> np.ndarray:
     """Ascending indices of the Gaussians whose means lie within ``radius`` of ``center`` (boundary included).
@@ -84,17 +81,10 @@ def neighbourhood(scene: GaussianScene | FrozenScene, center, radius: float) -> 
     r = as_real(radius)
     if r is None or not r >= 0:
         raise ValidationError(f"neighbourhood: radius must be a finite number >= 0, got {radius!r}")
-    # float64 squares as graph.region_subset takes them (the same Gaussians on the boundary), a
-    # block of means at a time: the temporaries stay a few MB whatever the scene's size
     if isinstance(scene, FrozenScene):
-        # the index's ball, loosened a little, is a superset; the test below decides as the scan does
-        rows = scene.spatial.ball(c, r * (1.0 + 1e-6) + 1e-12)
-        d2 = np.sum((scene.scene.means[rows].astype(np.float64) - c) ** 2, axis=1)
-        return rows[d2 <= r ** 2]
-    means = scene.means
-    out = [np.flatnonzero(np.sum((means[i:i + _BLOCK].astype(np.float64) - c) ** 2, axis=1) <= r ** 2) + i
-           for i in range(0, len(means), _BLOCK)]
-    return np.concatenate(out).astype(np.int64, copy=False) if out else np.zeros(0, np.int64)
+        # the index's ball, loosened a little, is a superset; region_subset decides as its scan does
+        return region_subset(scene.scene, c, r, rows=scene.spatial.ball(c, r * (1.0 + 1e-6) + 1e-12))
+    return region_subset(scene, c, r)
 
 
 def support_reach(inner: float, outer: float) -> float:
