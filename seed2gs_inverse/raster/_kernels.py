@@ -459,7 +459,7 @@ def _project(idx, act_rows, means, mfac, opac, col0, sh, rot, trans, center,
                 m21 = mfac[a_row, 7]
                 m22 = mfac[a_row, 8]
 
-                # EWA Jacobian, with the view-space x/y clamped to 1.3 x the field of
+                # EWA Jacobian, with the view-space x/y clamped to 1.3 times the field of
                 # view so Gaussians far outside the image do not blow up (gsplat persp_proj).
                 tx = z * min(lim_x_pos, max(-lim_x_neg, x / z))
                 ty = z * min(lim_y_pos, max(-lim_y_neg, y / z))
