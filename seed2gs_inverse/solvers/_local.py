@@ -67,7 +67,11 @@ def restrict_graph(graph: sp.csr_matrix, cols: np.ndarray) -> sp.csr_matrix:
 
 
 def _renumbering(n: int, cols: np.ndarray) -> np.ndarray:
-    """(n,) int64 with ``out[cols[j]] = j``; undefined elsewhere (only the pages of ``cols`` are written)."""
-    out = np.empty(n, np.int64)
+    """(n,) int with ``out[cols[j]] = j``; undefined elsewhere (only the pages of ``cols`` are written).
+
+    int32 when the local indices fit (CSR's own index type): the lookup of
+    every stored entry then makes no int64 temporary to cast back.
+    """
+    out = np.empty(n, np.int32 if cols.size <= np.iinfo(np.int32).max else np.int64)
     out[cols] = np.arange(cols.size)
     return out
