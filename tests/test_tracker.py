@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from seed2gs_inverse import Camera, ValidationError
-from seed2gs_inverse.frontend.model_free import GeometricTracker, warp_labels
+from seed2gs_inverse.frontend.model_free import GeometricTracker, _pixel_rays, _world_points, warp_labels
 from seed2gs_inverse.raster import build_operator
 from seed2gs_inverse.pipeline.vaas import ClipFrame, flat_orbit
 
@@ -46,6 +46,21 @@ def test_warp_plane_translation_shifts_by_disparity():
     part = warp_labels(dst, src, lab, pixels=ask)
     np.testing.assert_array_equal(part[ask], out[ask])
     assert np.isnan(part[~ask]).all()
+
+
+def test_world_points_of_chosen_pixels_are_those_of_the_whole_grid():
+    # the chosen pixels' rays are made alone; the reference is the whole grid's rays, then the choice
+    rng = np.random.default_rng(4)
+    pose = np.eye(4)
+    pose[:3, :3] = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    pose[:3, 3] = rng.normal(size=3)
+    cam = Camera(23, 17, 19.0, 27.0, 11.3, 7.9).with_pose(pose)
+    depth = rng.random((17, 23)).astype(np.float32) + 0.5
+    where = rng.random((17, 23)) < 0.4
+    d = depth.astype(np.float64)
+    expect = (_pixel_rays(cam)[where] * d[where][:, None] - cam.translation) @ cam.rotation
+    np.testing.assert_array_equal(_world_points(cam, depth, where), expect)
+    np.testing.assert_array_equal(_world_points(cam, depth)[where], expect)
 
 
 @pytest.mark.parametrize("axis", [0, 1])

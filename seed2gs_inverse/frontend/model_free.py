@@ -147,9 +147,17 @@ def _pixel_rays(camera: Camera) -> np.ndarray:
 
 def _world_points(camera: Camera, depth: np.ndarray, where: np.ndarray | None = None) -> np.ndarray:
     """World points of the pixels (all (H, W, 3), or (M, 3) at the bool mask ``where``) at rendered ``depth``."""
-    pc = _pixel_rays(camera)
     d = np.asarray(depth, np.float64)
-    pc = pc[where] * d[where][:, None] if where is not None else pc * d[..., None]
+    if where is None:
+        pc = _pixel_rays(camera) * d[..., None]
+    else:
+        # the rays of the chosen pixels alone (row-major, as a mask selects them): no (H, W, 3) array
+        ys, xs = np.nonzero(where)
+        pc = np.empty((ys.size, 3))
+        pc[:, 0] = (xs + 0.5 - camera.cx) / camera.fx
+        pc[:, 1] = (ys + 0.5 - camera.cy) / camera.fy
+        pc[:, 2] = 1.0
+        pc *= d[ys, xs][:, None]
     return (pc - camera.translation) @ camera.rotation  # R^T (p - t)
 
 
@@ -225,8 +233,9 @@ def warp_labels(dst, src, src_labels: np.ndarray, *, alpha_min: float = 0.5,
     py = np.floor(np.where(ok, uv[:, 1], -1)).astype(np.int64)
     ok &= (px >= 0) & (px < sw) & (py >= 0) & (py < sh)
     i = np.nonzero(ok)[0]
-    sdep = np.asarray(src.depth, np.float64)
-    salp = np.asarray(src.alpha)
+    # the source images flat: every lookup below is one gather at a flat pixel index
+    sdep = np.asarray(src.depth, np.float64).reshape(-1)
+    salp = np.asarray(src.alpha).reshape(-1)
     # z-test against the depths of the 2x2 pixel centres around p' (their
     # range brackets the surface at p'); a nearest-pixel test fails in bands
     # on oblique surfaces, where depth changes by a lot within one pixel.
@@ -234,28 +243,32 @@ def warp_labels(dst, src, src_labels: np.ndarray, *, alpha_min: float = 0.5,
     fy = np.floor(uv[i, 1] - 0.5).astype(np.int64)
     lo = np.full(i.size, np.inf)
     hi = np.full(i.size, -np.inf)
-    for ox in (0, 1):
-        for oy in (0, 1):
-            qx = np.clip(fx + ox, 0, sw - 1)
-            qy = np.clip(fy + oy, 0, sh - 1)
-            dq = sdep[qy, qx]
-            good = (salp[qy, qx] >= alpha_min) & (dq > 0)
-            lo = np.where(good, np.minimum(lo, dq), lo)
-            hi = np.where(good, np.maximum(hi, dq), hi)
+    cols = [np.clip(fx + ox, 0, sw - 1) for ox in (0, 1)]
+    for oy in (0, 1):
+        row = np.clip(fy + oy, 0, sh - 1) * sw
+        for qx in cols:
+            q = row + qx
+            dq = sdep[q]
+            good = (salp[q] >= alpha_min) & (dq > 0)
+            # a pixel that is no surface leaves the bracket as it is (min with +inf, max with -inf)
+            np.minimum(lo, np.where(good, dq, np.inf), out=lo)
+            np.maximum(hi, np.where(good, dq, -np.inf), out=hi)
     zi = z[i]
     tol = depth_tol * zi
     # The bracket only stands in for the surface where it is smooth: across a
     # silhouette it spans foreground to background and would accept points
     # hidden behind the foreground.
     smooth = (hi - lo) <= max_step * zi
-    near = np.abs(zi - sdep[py[i], px[i]]) <= tol
-    seen = (salp[py[i], px[i]] >= alpha_min) & (near | (smooth & (zi >= lo - tol) & (zi <= hi + tol)))
+    at = py[i] * sw + px[i]
+    near = np.abs(zi - sdep[at]) <= tol
+    seen = (salp[at] >= alpha_min) & (near | (smooth & (zi >= lo - tol) & (zi <= hi + tol)))
     if color_tol is not None:
-        c_dst = np.asarray(dst.rgb, np.float64)[valid][i]
-        c_src = np.asarray(src.rgb, np.float64)[py[i], px[i]]
+        # float64 of the compared pixels only (exact: the images are float32 or float64)
+        c_dst = np.asarray(dst.rgb)[valid][i].astype(np.float64)
+        c_src = np.asarray(src.rgb).reshape(-1, 3)[at].astype(np.float64)
         seen &= np.abs(c_dst - c_src).max(axis=1) <= color_tol
     vals = np.full(len(z), np.nan)
-    vals[i[seen]] = np.asarray(src_labels, np.float64)[py[i[seen]], px[i[seen]]]
+    vals[i[seen]] = np.asarray(src_labels, np.float64).reshape(-1)[at[seen]]
     out[valid] = vals
     return out
 
