@@ -817,16 +817,20 @@ def scatter(tiles, lo, hi, width, height, scr_pix, scr_gi, scr_w, gid, indptr, i
                 cursor[lp] = c + 1
 
 
-def cone_cull(means, cam, roi, sigma3, eps2d, axis, far, cut, spare, keep):
+def cone_cull(means, rows, cam, roi, sigma3, eps2d, axis, far, cut, spare, keep):
     """:func:`_cone_cull` with the camera ``cam`` (:class:`CameraParams`) bundled."""
-    _cone_cull(means, cam.rot, cam.trans, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, cam.near,
-               roi, sigma3, eps2d, axis, far, cut, spare, keep, chunk_workers(means.shape[0]))
+    _cone_cull(means, rows, cam.rot, cam.trans, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, cam.near,
+               roi, sigma3, eps2d, axis, far, cut, spare, keep, chunk_workers(keep.shape[0]))
 
 
 @njit(cache=True, parallel=True)
-def _cone_cull(means, rot, trans, fx, fy, cx, cy, width, height, near, roi, sigma3, eps2d, axis, far, cut, spare,
-               keep, n_workers):
+def _cone_cull(means, rows, rot, trans, fx, fy, cx, cy, width, height, near, roi, sigma3, eps2d, axis, far, cut,
+               spare, keep, n_workers):
     """Gaussians whose screen footprint in :func:`_project` can reach the pixel box ``roi`` (parallel).
+
+    ``keep[k]`` is the test of Gaussian ``rows[k]`` (``rows``: int64 scene
+    rows, read where the kernel tests them, so the caller gathers no copy of
+    their means), or of Gaussian ``k`` when ``rows`` is empty (every row).
 
     With ``smax[i] = sigma3[i] / 3`` (``sigma3``: the 3-sigma sizes of
     :func:`~seed2gs_inverse.raster.frozen.sigma3`) and ``v = R x + t`` (view
@@ -846,21 +850,23 @@ def _cone_cull(means, rot, trans, fx, fy, cx, cy, width, height, near, roi, sigm
     """
     lim_x_pos, lim_x_neg, lim_y_pos, lim_y_neg = _jacobian_limits(width, height, fx, fy, cx, cy)
     k_support = math.sqrt(2.0 * math.log(255.0))
-    n_items = means.shape[0]
+    n_items = keep.shape[0]
+    some = rows.shape[0] > 0
     claimed = np.zeros(1, np.int64)  # items handed out so far (_fetch_add)
     for _worker in prange(n_workers):
         while True:
             first = _fetch_add(claimed, CHUNK)
             if first >= n_items:
                 break
-            for i in range(first, min(first + CHUNK, n_items)):
+            for k in range(first, min(first + CHUNK, n_items)):
+                i = rows[k] if some else k
                 px = np.float64(means[i, 0])
                 py = np.float64(means[i, 1])
                 pz = np.float64(means[i, 2])
                 x = px * rot[0, 0] + py * rot[0, 1] + pz * rot[0, 2] + trans[0]
                 y = px * rot[1, 0] + py * rot[1, 1] + pz * rot[1, 2] + trans[1]
                 z = px * rot[2, 0] + py * rot[2, 1] + pz * rot[2, 2] + trans[2]
-                keep[i] = False
+                keep[k] = False
                 if not z >= near:  # also rejects NaN
                     continue
                 t_a = x * axis[0] + y * axis[1] + z * axis[2]
@@ -880,7 +886,7 @@ def _cone_cull(means, rot, trans, fx, fy, cx, cy, width, height, near, roi, sigm
                 r = k_support * math.sqrt(lmax * smax * smax + eps2d) + 2.0
                 mx = fx * x / z + cx
                 my = fy * y / z + cy
-                keep[i] = mx + r >= roi[0] and mx - r <= roi[2] and my + r >= roi[1] and my - r <= roi[3]
+                keep[k] = mx + r >= roi[0] and mx - r <= roi[2] and my + r >= roi[1] and my - r <= roi[3]
 
 
 # -- compilation, said once ----------------------------------------------------

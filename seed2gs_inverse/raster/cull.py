@@ -91,16 +91,19 @@ def cone_cull(scene, camera: Camera, roi=None, far: float | None = None, near: f
     use_spare = spare is not None and near is not None
     if frozen is None:
         # One parallel pass over the scene, the near cut included.
-        means, cand = scene.means, None
+        cand = None
+        keep = np.empty(len(scene), bool)
     else:
-        # The kernel on the index's candidates only (chunk order; sorted once kept).
-        cand = frozen.spatial.view_rows(camera, roi, far)
-        means, s3 = scene.means[cand], s3[cand]
-        spare = spare[cand] if use_spare else spare
-    keep = np.empty(len(means), bool)
+        # The kernel on the index's candidates only (chunk order; sorted once kept), reading their
+        # rows in place.
+        cand = frozen.spatial.view_rows(camera, roi, far).astype(np.int64, copy=False)
+        keep = np.empty(cand.size, bool)
+        if cand.size == 0:  # (an empty rows array tells the kernel "every row")
+            return cand
     _kernels.announce_compilation((_kernels._cone_cull,))
-    _kernels.cone_cull(means, camera_params(camera), np.array([x0, y0, x1, y1]), np.ascontiguousarray(s3),
-                       EPS2D, axis, np.inf if far is None else far, -np.inf if near is None else near,
+    _kernels.cone_cull(scene.means, np.zeros(0, np.int64) if cand is None else cand, camera_params(camera),
+                       np.array([x0, y0, x1, y1]), np.ascontiguousarray(s3), EPS2D, axis,
+                       np.inf if far is None else far, -np.inf if near is None else near,
                        np.ascontiguousarray(spare) if use_spare else np.zeros(0, bool), keep)
     idx = np.flatnonzero(keep).astype(np.int64, copy=False)
     return idx if cand is None else frozen.spatial.ascending(cand[idx])
