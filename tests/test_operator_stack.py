@@ -554,3 +554,29 @@ def test_run_both_nested_in_a_second_half_runs_in_turn(monkeypatch):
     t.join(30)
     assert not t.is_alive(), "nested run_both hung"
     assert sorted(done) == [("inner", 0), ("inner", 1), ("outer", 0), ("outer", 1)]
+
+
+def test_columns_and_on_columns_against_the_dense_matrix(rng):
+    s = OperatorStack([_random_view(rng, 60, 6 + i, 8, density=0.02) for i in range(3)], fingerprint="abc")
+    dense = np.vstack([v.W.toarray() for v in s])
+    seen = np.flatnonzero(np.vstack([np.diff(v.W.tocsc().indptr) for v in s]).sum(0) > 0)  # stored columns
+    np.testing.assert_array_equal(s.columns(), seen)
+    assert s.columns().dtype == np.int64 and not s.columns().flags.writeable
+    assert s.columns() is s.columns()  # cached
+    # a superset of the stored columns: one column no view stores, kept as an empty column
+    extra = np.setdiff1d(np.arange(60), seen)[:1]
+    assert extra.size and seen.size > 1
+    cols = np.union1d(seen, extra)
+    local = s.on_columns(cols)
+    assert local.shape == (s.n_pixels, cols.size) and local.fingerprint is None
+    np.testing.assert_array_equal(np.vstack([v.W.toarray() for v in local]), dense[:, cols])
+    q = rng.random(60).astype(np.float32)
+    r = rng.random(s.n_pixels).astype(np.float32)
+    np.testing.assert_array_equal(local.matvec(q[cols]), s.matvec(q))  # bit for bit: the rows keep their order
+    np.testing.assert_array_equal(local.rmatvec(r), s.rmatvec(r)[cols])
+    assert s.on_columns(cols.copy()) is local  # the last restriction is kept
+    assert s.on_columns(np.arange(60)) is not local
+    for bad, match in [(seen[1:], "every column"), (cols[::-1], "ascending"), (np.r_[cols, 60], "ascending"),
+                       (cols.astype(float), "integer"), (cols[None], "1-D")]:
+        with pytest.raises(ValidationError, match=match):
+            s.on_columns(bad)

@@ -73,6 +73,8 @@ class OperatorStack(LinearOperator):
         self._column_sums = None
         self._row_sums = None
         self._offsets = None
+        self._columns = None
+        self._restricted = None  # (columns, stack) of the last on_columns
 
     @property
     def fingerprint(self) -> str | None:
@@ -148,6 +150,67 @@ class OperatorStack(LinearOperator):
                                     for v in self.views)
             self._column_sums.setflags(write=False)
         return self._column_sums
+
+    def columns(self) -> np.ndarray:
+        """(M,) int64, ascending: the columns with a stored weight in some view (read-only; cached).
+
+        One pass over the views' column indices, marking one byte per column.
+        """
+        if self._columns is None:
+            mark = np.zeros(self.n_gaussians, bool)  # set at the stored entries only: no sort of the indices
+            for v in self.views:
+                mark[v.W.indices] = True
+            self._columns = np.flatnonzero(mark)
+            self._columns.setflags(write=False)
+        return self._columns
+
+    def on_columns(self, columns) -> "OperatorStack":
+        """The stack on the columns ``columns`` alone: column ``j`` of the result is column ``columns[j]``.
+
+        Parameters
+        ----------
+        columns : (M,) int array
+            Strictly ascending column indices holding every column of
+            :meth:`columns` (the others have no stored weight).
+
+        Returns
+        -------
+        OperatorStack
+            Each view keeps its rows, weights and row pointers; only the
+            column indices are renumbered (an order-preserving map), so the
+            entries of every row keep their order and every product gives,
+            at each kept column or row, the values of this stack's. It has
+            no fingerprint (it is no scene's) and no renderings. The last
+            one made is kept: asking again for the same columns returns it.
+
+        Raises
+        ------
+        ValidationError
+            ``columns`` is not a strictly ascending integer array within
+            ``[0, N)``, or leaves out a column with a stored weight.
+        """
+        cols = np.asarray(columns)
+        n = self.n_gaussians
+        if cols.ndim != 1 or cols.dtype.kind not in "ui":
+            raise ValidationError(f"columns must be a 1-D integer array of column indices, got shape {cols.shape} "
+                                  f"and dtype {cols.dtype}")
+        if cols.size and (cols[0] < 0 or cols[-1] >= n or np.any(cols[1:] <= cols[:-1])):
+            raise ValidationError(f"columns must be strictly ascending indices in [0, {n})")
+        if self._restricted is not None and np.array_equal(self._restricted[0], cols):
+            return self._restricted[1]
+        need = self.columns()
+        at = np.searchsorted(cols, need)
+        if need.size and (at[-1] >= cols.size or np.any(cols[np.minimum(at, cols.size - 1)] != need)):
+            raise ValidationError("columns must hold every column with a stored weight (OperatorStack.columns())")
+        # int32 when the local indices fit (CSR's own index type): no int64 temporary per stored entry
+        remap = np.empty(n, np.int32 if cols.size <= np.iinfo(np.int32).max else np.int64)
+        remap[cols] = np.arange(cols.size)  # only the pages of cols are written
+        out = OperatorStack([v._renumbered(remap[v.W.indices].astype(v.W.indices.dtype, copy=False), cols.size)
+                             for v in self.views])
+        kept = cols.astype(np.int64)  # a copy: the caller's array may change
+        kept.setflags(write=False)
+        self._restricted = (kept, out)
+        return out
 
     def subset(self, indices) -> "OperatorStack":
         """A stack of the views ``indices`` (integers, negative from the end, or a bool mask of length

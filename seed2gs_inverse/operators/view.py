@@ -232,6 +232,21 @@ class ViewOperator(LinearOperator):
         out[np.asarray(self.W.indices)[np.asarray(self.W.data) != 0]] = True
         return out
 
+    def _renumbered(self, indices: np.ndarray, n_columns: int) -> "ViewOperator":
+        """This view with its column indices replaced by ``indices`` (same order, in ``[0, n_columns)``).
+
+        For :meth:`OperatorStack.on_columns`, whose renumbering of checked
+        views keeps every index in range: the weights are this view's,
+        checked when it was made, so nothing is checked again (a pass over
+        every weight). The rendering is not carried.
+        """
+        W = sp.csr_matrix((self.W.data, indices, self.W.indptr), shape=(self.W.shape[0], int(n_columns)),
+                          copy=False)
+        out = ViewOperator.__new__(ViewOperator)
+        LinearOperator.__init__(out, np.float32, W.shape)
+        out.W, out.camera, out.image_shape, out.rendering = W, self.camera, self.image_shape, None
+        return out
+
     def alpha(self) -> np.ndarray:
         """Rendered opacity ``W 1`` as an (H, W) float32 image."""
         return np.asarray(self.W.sum(axis=1), dtype=np.float32).reshape(self.image_shape)

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from ..operators import OperatorStack, ViewOperator
+from ..operators import OperatorStack
 
 __all__ = ["LOCAL_METHODS", "touched_columns", "restrict_stack", "restrict_graph"]
 
@@ -29,31 +29,33 @@ LOCAL_METHODS = frozenset({"voting", "weighted_bce"})
 
 
 def touched_columns(stack: OperatorStack, graph: sp.csr_matrix | None = None) -> np.ndarray:
-    """Ascending indices of the columns with a weight in some view or an edge in ``graph`` (checked, (N, N))."""
-    n = stack.n_gaussians
-    mark = np.zeros(n, bool)  # one byte per Gaussian, set at the stored entries only
-    for v in stack:
-        mark[v.W.indices] = True
-    if graph is not None and graph.nnz:
-        mark[graph.indices] = True  # symmetric: the column indices name every node with an edge
+    """Ascending indices of the columns with a weight in some view or an edge in ``graph`` (checked, (N, N)).
+
+    The views' part is the stack's cached :meth:`~.OperatorStack.columns`;
+    a graph whose edges all join those columns adds nothing, and is found
+    to by its row pointers at those columns alone.
+    """
+    cols = stack.columns()
+    if graph is None or not graph.nnz:
+        return cols
+    # symmetric: the rows with entries are the nodes with an edge
+    if int((graph.indptr[cols + 1] - graph.indptr[cols]).sum()) == graph.nnz:
+        return cols
+    mark = np.zeros(stack.n_gaussians, bool)
+    mark[cols] = True
+    mark[graph.indices] = True
     return np.flatnonzero(mark)
 
 
 def restrict_stack(stack: OperatorStack, cols: np.ndarray) -> OperatorStack:
     """The stack on the columns ``cols`` (ascending, holding every stored column of every view).
 
-    Each view keeps its rows, data and row pointers; only the column
-    indices are renumbered (an order-preserving map), so the entries of a
-    row keep their order.
+    :meth:`~.OperatorStack.on_columns`: each view keeps its rows, data and
+    row pointers, only the column indices are renumbered (the entries of a
+    row keep their order); the stack keeps the last restriction, so a
+    second solve of the same stack does not restrict it again.
     """
-    remap = _renumbering(stack.n_gaussians, cols)
-    views = []
-    for v in stack:
-        W = v.W
-        local = remap[W.indices].astype(W.indices.dtype, copy=False)
-        Wl = sp.csr_matrix((W.data, local, W.indptr), shape=(W.shape[0], cols.size))
-        views.append(ViewOperator(Wl, v.camera, v.image_shape))
-    return OperatorStack(views)  # the solve's own: no fingerprint (reading it would hash the scene)
+    return stack.on_columns(cols)
 
 
 def restrict_graph(graph: sp.csr_matrix, cols: np.ndarray) -> sp.csr_matrix:
@@ -62,16 +64,5 @@ def restrict_graph(graph: sp.csr_matrix, cols: np.ndarray) -> sp.csr_matrix:
     counts = stop - start
     indptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     take = np.repeat(start - indptr[:-1], counts) + np.arange(indptr[-1])
-    local = _renumbering(graph.shape[0], cols)[graph.indices[take]]
+    local = np.searchsorted(cols, graph.indices[take])  # every neighbour is in cols: its position there
     return sp.csr_matrix((graph.data[take], local, indptr), shape=(cols.size, cols.size))
-
-
-def _renumbering(n: int, cols: np.ndarray) -> np.ndarray:
-    """(n,) int with ``out[cols[j]] = j``; undefined elsewhere (only the pages of ``cols`` are written).
-
-    int32 when the local indices fit (CSR's own index type): the lookup of
-    every stored entry then makes no int64 temporary to cast back.
-    """
-    out = np.empty(n, np.int32 if cols.size <= np.iinfo(np.int32).max else np.int64)
-    out[cols] = np.arange(cols.size)
-    return out
