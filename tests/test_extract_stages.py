@@ -261,6 +261,15 @@ def test_stack_operators(syn, staged):
     st = staged.stack
     assert len(st) == len(staged.labelled) and st.fingerprint == scene_fingerprint(syn.scene)
     assert all(v is f.operator for v, (f, _) in zip(st, staged.labelled))
+    # the supervision frames are the labelled ones, in their order: the stack made from them before
+    # the tracking is the one the solve gets
+    early = ex_mod.stack_operators([(f, None) for f in ex_mod.supervision_frames(staged.orbits)], syn.scene)
+    assert ex_mod.stack_operators(staged.labelled, syn.scene, built=early) is early
+    # a stack of other operators (one view fewer, or another order) is not reused
+    assert ex_mod.stack_operators(staged.labelled[:-1], syn.scene, built=early) is not early
+    swapped = [staged.labelled[1], staged.labelled[0], *staged.labelled[2:]]
+    other = ex_mod.stack_operators(swapped, syn.scene, built=early)
+    assert other is not early and other[0] is staged.labelled[1][0].operator
 
 
 def _evidence(syn, labelled):

@@ -35,12 +35,13 @@ from .settings import MODEL_FREE_SMOOTHNESS, SOLVER_DEFAULTS, ExtractSettings
 from .support import SUPPORT_DEFAULTS
 from .stages import (OrbitViews, ReferenceView, Selection, complete_masks, evidence_graph, lift_seed, orbit_axis,
                      orbit_views, reference_view, render_reference, seed_from_prompt, solve_selection,
-                     stack_operators, support_band, track_clips, view_caps)
+                     stack_operators, supervision_frames, support_band, track_clips, view_caps)
 
 if TYPE_CHECKING:
     import scipy.sparse as sp
 
     from ..frontend.base import Grounder, LabelFiller, Tracker
+    from ..operators import OperatorStack
     from .seed_lift import SeedLift
 
 __all__ = ["Extraction", "extract", "Renderer", "ExtractSettings", "EXTRACT_DEFAULTS", "SOLVER_DEFAULTS", "STAGES",
@@ -107,16 +108,19 @@ def _trackers(tracker: Tracker | None, settings: ExtractSettings) -> tuple[Track
 
 
 def _neighbourhood(scene: GaussianScene | FrozenScene, lift: SeedLift, orbits: OrbitViews,
-                   settings: ExtractSettings) -> Neighbourhood:
+                   settings: ExtractSettings, stack: OperatorStack) -> Neighbourhood:
     """The Gaussians the stages after the orbit views work on (:func:`~.local.object_neighbourhood`).
 
-    Every orbit view's columns, G0, and the ball holding the region of the
+    Every orbit view's columns (``stack``, the supervision views' stack,
+    keeps its own for the solve), G0, and the ball holding the region of the
     evidence graph and of the faint Gaussians' rule and the support
     surface's annulus.
     """
     region = float({**GRAPH_DEFAULTS, **settings.graph_options}["region"])
     reach = max(region, support_reach(SUPPORT_DEFAULTS["inner"], SUPPORT_DEFAULTS["outer"]))
-    return object_neighbourhood(scene, lift, [f.operator for _, frames in orbits.clips() for f in frames], reach)
+    others = [f.operator for _, frames in orbits.clips() for f in frames
+              if not any(f.operator is v for v in stack.views)]
+    return object_neighbourhood(scene, lift, [stack, *others], reach)
 
 
 def _supervision(scene: GaussianScene, lift: SeedLift, ref: ReferenceView, orbits: OrbitViews,
@@ -248,11 +252,13 @@ def extract(scene: GaussianScene | FrozenScene, camera: Camera, prompt: Any, gro
         timer.finish("vaas")
         timer.finish("operators")
         with timer("tracking"), feedback.bar("tracking", total=len(orbits.clips()), unit="clip") as bar:
-            local = _neighbourhood(renderer.frozen, lift, orbits, s)
+            # the supervision views' stack, made once: the neighbourhood and the solve read its columns
+            stack = stack_operators([(f, None) for f in supervision_frames(orbits)], scene)
+            local = _neighbourhood(renderer.frozen, lift, orbits, s, stack)
             labelled, masks, graph, support_info, tracker = _supervision(scene, lift, ref, orbits, s, tracker,
                                                                          filler, smoothness, bar, local)
         with timer("solve"), feedback.bar(f"solve ({s.method})") as bar:
-            stack = stack_operators(labelled, scene)
+            stack = stack_operators(labelled, scene, built=stack)
             sel = solve_selection(stack, masks, lift, s, progress=bar.solve_callback, graph=graph,
                                   smoothness=smoothness, scene=scene, local=local)
     notes = result_warnings(ref, lift, masks, stack, sel)

@@ -39,6 +39,7 @@ import scipy.sparse as sp
 from .._validation import as_real
 from ..errors import ValidationError
 from ..graph import region_subset
+from ..operators import OperatorStack
 from ..raster import FrozenScene
 from ..scene import GaussianScene
 
@@ -162,8 +163,9 @@ def object_neighbourhood(scene: GaussianScene | FrozenScene, lift: SeedLift, ope
         A frozen scene finds the ball through its spatial index (:func:`neighbourhood`).
     lift : SeedLift
         The seed lift (G0, centre ``o``, radius ``R``).
-    operators : iterable of ViewOperator or sparse matrices
-        The supervision views (N columns each).
+    operators : iterable of OperatorStack, ViewOperator or sparse matrices
+        The supervision views (N columns each); a stack's columns are its
+        cached :meth:`~seed2gs_inverse.operators.OperatorStack.columns`.
     reach : float
         The ball's radius in lift radii (> 0).
 
@@ -185,9 +187,9 @@ def object_neighbourhood(scene: GaussianScene | FrozenScene, lift: SeedLift, ope
     mark[lift.g0] = True
     mark[neighbourhood(scene, lift.center, r * float(lift.radius))] = True
     for i, op in enumerate(operators):
-        W = getattr(op, "W", op)
-        if W.shape[1] != n:
-            raise ValidationError(f"object_neighbourhood: view {i} has {W.shape[1]} columns, the scene {n} "
-                                  "Gaussians")
-        mark[W.indices] = True
+        cols = op.n_gaussians if isinstance(op, OperatorStack) else getattr(op, "W", op).shape[1]
+        if cols != n:
+            raise ValidationError(f"object_neighbourhood: view {i} has {cols} columns, the scene {n} Gaussians")
+        # a stack's columns are marked once and kept (its solve reads them again)
+        mark[op.columns() if isinstance(op, OperatorStack) else getattr(op, "W", op).indices] = True
     return Neighbourhood.of(base, np.flatnonzero(mark))

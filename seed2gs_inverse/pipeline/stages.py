@@ -540,7 +540,7 @@ def track_clips(tracker: Tracker, orbits: OrbitViews, seed: np.ndarray, progress
         if len(out) != len(frames):
             raise ValidationError(f"tracker returned {len(out)} masks for a {name} clip of {len(frames)} frames")
         for k, (f, m) in enumerate(zip(frames, out)):
-            if name == "spiral" and k == 0:
+            if not _supervises(name, k):
                 continue  # the reference view is already the flat clip's frame 0
             m = np.asarray(m, dtype=np.float32)
             if m.shape != f.camera.image_shape:
@@ -616,13 +616,29 @@ def complete_masks(graph: sp.csr_matrix | None, labelled: list, lift: SeedLift, 
     return masks
 
 
-def stack_operators(labelled: list, scene: GaussianScene) -> OperatorStack:
+def stack_operators(labelled: list, scene: GaussianScene, built: OperatorStack | None = None) -> OperatorStack:
     """Stage 7: the ``OperatorStack`` of the supervision views (``frame.operator`` of each pair).
 
     Its ``fingerprint`` (:func:`~seed2gs_inverse.operators.scene_fingerprint`
     of ``scene``) is computed when first read (saving the operators reads it).
+    ``built``, a stack made before of these very operators in this order, is
+    returned as it is (with what it has cached, such as its columns);
+    otherwise a new stack is made.
     """
-    return OperatorStack([f.operator for f, _ in labelled], scene=scene)
+    ops = [f.operator for f, _ in labelled]
+    if built is not None and len(built) == len(ops) and all(a is b for a, b in zip(built.views, ops)):
+        return built
+    return OperatorStack(ops, scene=scene)
+
+
+def supervision_frames(orbits: OrbitViews) -> list:
+    """The orbit frames :func:`track_clips` labels, in its order: the flat clip, then the spiral without its frame 0."""
+    return [f for name, frames in orbits.clips() for k, f in enumerate(frames) if _supervises(name, k)]
+
+
+def _supervises(clip: str, k: int) -> bool:
+    """Whether frame ``k`` of ``clip`` is a supervision view (the spiral's frame 0 is the reference view again)."""
+    return not (clip == "spiral" and k == 0)
 
 
 def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, progress=None, *,
