@@ -181,7 +181,9 @@ class OperatorStack(LinearOperator):
             entries of every row keep their order and every product gives,
             at each kept column or row, the values of this stack's. It has
             no fingerprint (it is no scene's) and no renderings. The last
-            one made is kept: asking again for the same columns returns it.
+            one made is kept while this stack lives (its own column
+            indices: 4 bytes per stored weight): asking again for the same
+            columns returns it.
 
         Raises
         ------
