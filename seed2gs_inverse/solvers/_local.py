@@ -32,8 +32,8 @@ def touched_columns(stack: OperatorStack, graph: sp.csr_matrix | None = None) ->
     """Ascending indices of the columns with a weight in some view or an edge in ``graph`` (checked, (N, N)).
 
     The views' part is the stack's cached :meth:`~.OperatorStack.columns`;
-    a graph whose edges all join those columns adds nothing, and is found
-    to by its row pointers at those columns alone.
+    a graph whose edges all join those columns adds nothing (its row
+    pointers at those columns account for every edge).
     """
     cols = stack.columns()
     if graph is None or not graph.nnz:
