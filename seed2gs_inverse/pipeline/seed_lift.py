@@ -378,8 +378,9 @@ def seed_lift(scene: GaussianScene | FrozenScene, camera: Camera, mask, depth, W
     ------
     ValidationError
         ``scene`` not a GaussianScene or FrozenScene, ``mask`` or ``depth``
-        not of the camera's (H, W), a non-numeric or empty mask, an empty scene, ``W`` not a sparse (H*W, N) matrix, or
-        no Gaussian passing the constraints (the message says which case).
+        not of the camera's (H, W), a non-numeric or empty mask, an empty
+        scene, ``W`` not a sparse (H*W, N) matrix, or no Gaussian passing
+        the constraints (the message says which case).
 
     Notes
     -----
