@@ -199,3 +199,114 @@ def test_support_is_a_deprecated_alias_of_g0(setup):
         assert lift.support is lift.g0
     with pytest.warns(DeprecationWarning, match="SeedLift.n_g0"):
         assert lift.n_support == lift.n_g0
+
+
+# -- the lift examines only the Gaussians that can pass its constraints ------------------------------------
+
+def _whole_scene_lift(scene, cam, mask, depth, W, *, eps_rel=0.02, eps_sigma=2.0, min_membership=0.5,
+                      min_weight=1e-3, k_neighbors=8, link_factor=3.0, keep_fraction=0.2, max_size_ratio=4.0):
+    """The lift of seed_lift's docstring computed over all N Gaussians, array by array:
+    ``(g0, candidates, membership or None, eps_depth, center, radius)``."""
+    h, w = cam.image_shape
+    m, d = np.asarray(mask) > 0.5, np.asarray(depth, np.float64)
+    means = scene.means.astype(np.float64)
+    uv, z = cam.project(means)
+    sigma = scene.scales.max(axis=1).astype(np.float64)
+    eps = eps_rel * np.abs(z) + eps_sigma * sigma
+    ok = np.isfinite(uv).all(axis=1) & (z > cam.near)
+    px = np.floor(np.where(ok, uv[:, 0], -1)).astype(np.int64)
+    py = np.floor(np.where(ok, uv[:, 1], -1)).astype(np.int64)
+    ok &= (px >= 0) & (px < w) & (py >= 0) & (py < h)
+    px, py = np.where(ok, px, 0), np.where(ok, py, 0)
+    depth_ok = ok & (d[py, px] > 0) & (np.abs(z - d[py, px]) <= eps)
+    membership = None
+    if W is None:
+        cand, score = ok & m[py, px] & depth_ok, np.ones(len(scene))
+    else:
+        W = W.tocsr()
+        colsum = np.asarray(W.sum(axis=0)).ravel().astype(np.float64)
+        inside = np.asarray(W.T @ m.ravel().astype(np.float64)).ravel()
+        rows = np.repeat(np.arange(h * w), np.diff(W.indptr))
+        resid = np.bincount(W.indices, weights=W.data * np.abs(z[W.indices] - d.ravel()[rows]), minlength=len(z))
+        safe = np.maximum(colsum, 1e-30)
+        membership = np.where(colsum > 0, inside / safe, 0.0)
+        resid = np.where(colsum > 0, resid / safe, np.inf)
+        cand = (colsum >= min_weight) & (membership >= min_membership) & depth_ok & (resid <= eps)
+        score = inside
+    if cand.any() and max_size_ratio is not None:
+        cand &= sigma <= max_size_ratio * np.median(sigma[cand])
+    idx = np.flatnonzero(cand)
+    labels, ncomp = _components(means[idx], k_neighbors, link_factor)
+    comp = np.bincount(labels, weights=score[idx], minlength=ncomp)
+    keep = comp >= keep_fraction * comp.max()
+    keep[np.argmax(comp)] = True
+    g0 = np.zeros(len(scene), bool)
+    g0[idx[keep[labels]]] = True
+    lo, hi = np.percentile(means[g0], [2, 98], axis=0) if g0.sum() >= 10 else (means[g0].min(0), means[g0].max(0))
+    radius = max(0.5 * float(np.linalg.norm(hi - lo)), 3.0 * float(sigma[g0].max()), 1e-6)
+    return g0, cand, membership, eps.astype(np.float32), 0.5 * (lo + hi), radius
+
+
+def _with_far_copies(scene, info, cam):
+    """``scene`` between copies of itself: one behind the camera, one far to the side (outside the view)
+    and one far beyond the object along the view (inside it); returns the scene and the original's slice."""
+    back = -cam.forward
+    copies = [scene.transformed(np.eye(3), off, 1.0) for off in
+              (40.0 * back, 50.0 * info["e2"] + 5.0 * info["e1"], -30.0 * back)]
+    tiled = GaussianScene.concat([copies[0], scene, copies[1], copies[2]])
+    return tiled, slice(len(scene), 2 * len(scene))
+
+
+@pytest.mark.parametrize("frozen", [False, True])
+@pytest.mark.parametrize("use_w", [True, False])
+@pytest.mark.parametrize("loose", [False, True])
+def test_lift_equals_the_whole_scene_computation(setup, frozen, use_w, loose):
+    """G0, the candidates, the membership, the tolerance, the centre and the radius equal those computed over
+    every Gaussian, with far copies of the scene around it (behind the camera, outside the view, beyond the
+    object in it), from a plain or a frozen scene, with and without W, with a tight and a loose seed."""
+    import cv2
+
+    from seed2gs_inverse.raster import FrozenScene
+
+    scene, labels, info, cam, op, truth2d = setup
+    tiled, mine = _with_far_copies(scene, info, cam)
+    top = build_operator(tiled, cam)
+    assert np.asarray(top.W[:, mine.start:mine.stop].sum()) > 0  # the original is what the view shows
+    seed = cv2.dilate(truth2d.astype(np.uint8), np.ones((13, 13), np.uint8)) > 0 if loose else truth2d
+    W = top.W if use_w else None
+    lift = seed_lift(FrozenScene(tiled) if frozen else tiled, cam, seed, top.rendering.depth, W)
+    g0, cand, membership, eps, center, radius = _whole_scene_lift(tiled, cam, seed, top.rendering.depth, W)
+    np.testing.assert_array_equal(lift.g0, g0)
+    np.testing.assert_array_equal(lift.candidates, cand)
+    np.testing.assert_array_equal(lift.center, center)
+    assert lift.radius == radius
+    assert lift.g0.any() and not lift.g0[:mine.start].any() and not lift.g0[mine.stop:].any()
+    # the tolerance where it was computed, NaN elsewhere; every candidate among the examined
+    inside = np.zeros(len(tiled), bool)
+    inside[lift.index] = True
+    assert not (cand & ~inside).any()
+    np.testing.assert_array_equal(lift.eps_depth[inside], eps[inside])
+    assert np.isnan(lift.eps_depth[~inside]).all()
+    if use_w:
+        np.testing.assert_array_equal(lift.membership, membership.astype(np.float32))
+        np.testing.assert_array_equal(lift.index, np.unique(top.W.indices))  # W's columns
+    else:
+        assert lift.membership is None
+    if frozen or use_w:  # the copies behind and beside the camera are not examined
+        beside = (lift.index >= mine.stop) & (lift.index < mine.stop + len(scene))
+        assert not (lift.index < mine.start).any() and not beside.any()
+    else:
+        assert len(lift.index) == len(tiled)
+
+
+def test_lift_takes_w_in_any_sparse_format(setup):
+    scene, labels, info, cam, op, truth2d = setup
+    want = seed_lift(scene, cam, truth2d, op.rendering.depth, op.W)
+    for fmt in ("coo", "csc"):
+        got = seed_lift(scene, cam, truth2d, op.rendering.depth, op.W.asformat(fmt))
+        np.testing.assert_array_equal(got.g0, want.g0)
+        np.testing.assert_array_equal(got.membership, want.membership)
+    with pytest.raises(ValidationError, match="sparse"):
+        seed_lift(scene, cam, truth2d, op.rendering.depth, op.W.toarray())
+    with pytest.raises(ValidationError, match="GaussianScene or FrozenScene"):
+        seed_lift(scene.means, cam, truth2d, op.rendering.depth, op.W)

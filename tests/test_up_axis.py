@@ -13,7 +13,7 @@ from seed2gs_inverse.pipeline.up_axis import (WEAK_CONFIDENCE, UpEstimate, angle
 from seed2gs_inverse.pipeline.up_axis import estimate_up
 from seed2gs_inverse.scene import GaussianScene
 from seed2gs_inverse.pipeline import extract
-from seed2gs_inverse.raster import build_operator
+from seed2gs_inverse.raster import FrozenScene, build_operator
 from _pipeline_scenes import reference_camera, sphere_scene
 
 
@@ -144,6 +144,13 @@ def test_far_copies_of_the_scene_leave_the_axis_bit_for_bit():
         est = estimate_up_axis(big, cam, support=support)
         np.testing.assert_array_equal(est.axis, base.axis)
         assert est.method == base.method and est.confidence == base.confidence
+        # a frozen scene finds the same Gaussians through its spatial index, with or without o and R given
+        assert estimate_up_axis(FrozenScene(big), cam, support=support).summary() == est.summary()
+        o, r = est.details["center"], est.details["radius"]
+        given = estimate_up_axis(big, cam, support=support, center=o, radius=r)
+        assert estimate_up_axis(FrozenScene(big), cam, support=support, center=o, radius=r).summary() \
+            == given.summary()
+        np.testing.assert_array_equal(given.axis, estimate_up_axis(g.scene, cam, support=m, center=o, radius=r).axis)
     assert base.method == "support-plane+scene-plane"
 
 
@@ -287,6 +294,8 @@ def test_validation():
         estimate_up_axis(g.scene, cam, tolerance=3)
     with pytest.raises(ValidationError, match="Camera"):
         estimate_up_axis(g.scene, "overview")
+    with pytest.raises(ValidationError, match="GaussianScene or FrozenScene"):
+        estimate_up_axis(g.scene.means, cam)
 
 
 @pytest.mark.shared_data

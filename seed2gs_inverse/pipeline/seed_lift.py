@@ -9,11 +9,14 @@ parameterise the VAAS orbits, and initialises the membership logits. (The
 support *surface*, the ground the object rests on, is
 :mod:`seed2gs_inverse.pipeline.support`.)
 
-:func:`seed_lift` runs the steps in order: :func:`_centre_tests` (the
-paper's two constraints at the projected centre), :func:`_contribution`
-(the same judged over every pixel a Gaussian renders to, when ``W`` is
-given), :func:`_candidates`, :func:`_keep_components` (over
-:func:`neighbour_components`) and :func:`_extent`.
+:func:`seed_lift` runs the steps in order: :func:`_examined` (``K``, the
+only Gaussians that can pass the constraints: the lift's time and memory
+follow the reference view, not the scene's size), then on them
+:func:`_centre_tests` (the paper's two constraints at the projected
+centre), :func:`_contribution` (the same judged over every pixel a
+Gaussian renders to, when ``W`` is given), :func:`_candidates`,
+:func:`_keep_components` (over :func:`neighbour_components`) and
+:func:`_extent`.
 """
 
 from __future__ import annotations
@@ -29,10 +32,11 @@ from scipy.spatial import cKDTree
 
 from .._threads import n_threads
 from ..errors import ValidationError
+from ..raster import FrozenScene
+from ..scene import GaussianScene
 
 if TYPE_CHECKING:
     from ..camera import Camera
-    from ..scene import GaussianScene
 
 __all__ = ["SeedLift", "seed_lift", "neighbour_components"]
 
@@ -40,6 +44,12 @@ __all__ = ["SeedLift", "seed_lift", "neighbour_components"]
 @dataclass
 class SeedLift:
     """Result of :func:`seed_lift`.
+
+    The constraints are judged only on the Gaussians ``index`` (``K``): the
+    columns of the reference operator ``W`` when it is given, else those whose
+    centre may project into the reference image in front of its near plane.
+    No other Gaussian can pass them (it has no weight in the view, or its
+    centre is outside it), so it is in neither G0 nor the candidates.
 
     Attributes
     ----------
@@ -55,17 +65,20 @@ class SeedLift:
         The robust bounding box ``[min, max]``.
     candidates : (N,) bool
         Gaussians passing the mask and depth constraints, before components.
-    membership : (N,) float32 or None
-        Contribution-weighted mask membership ``(W^T m) / (W^T 1)`` when the
-        reference operator was given, else None.
     n_components : int
         Connected components among the candidates.
     kept_components : int
         Components retained in G0.
-    eps_depth : (N,) float32
-        The per-Gaussian depth tolerance used.
     mode : str
         ``"contribution"`` (W given) or ``"center"``.
+    index : (K,) int64
+        Ascending scene indices of the Gaussians examined.
+    local_membership : (K,) float32 or None
+        :attr:`membership` at ``index``.
+    local_eps_depth : (K,) float32
+        :attr:`eps_depth` at ``index``.
+    n : int
+        The scene's size N.
     """
 
     g0: np.ndarray
@@ -73,11 +86,37 @@ class SeedLift:
     radius: float
     bbox: np.ndarray
     candidates: np.ndarray
-    membership: np.ndarray | None
     n_components: int
     kept_components: int
-    eps_depth: np.ndarray
     mode: str
+    index: np.ndarray
+    local_membership: np.ndarray | None
+    local_eps_depth: np.ndarray
+    n: int
+
+    @property
+    def membership(self) -> np.ndarray | None:
+        """(N,) float32 or None: the contribution-weighted mask membership ``(W^T m) / (W^T 1)``.
+
+        None when the reference operator was not given. 0 outside
+        ``index``, as the ratio's rule gives a Gaussian without weight in
+        the view. Built on each access from :attr:`local_membership`.
+        """
+        if self.local_membership is None:
+            return None
+        out = np.zeros(self.n, np.float32)
+        out[self.index] = self.local_membership
+        return out
+
+    @property
+    def eps_depth(self) -> np.ndarray:
+        """(N,) float32: the per-Gaussian depth tolerance used; NaN outside ``index`` (never needed there).
+
+        Built on each access from :attr:`local_eps_depth`.
+        """
+        out = np.full(self.n, np.nan, np.float32)
+        out[self.index] = self.local_eps_depth
+        return out
 
     @property
     def n_g0(self) -> int:
@@ -104,7 +143,7 @@ class SeedLift:
 
 
 class _Contribution(NamedTuple):
-    """Per-Gaussian sums over the pixels it renders to in the reference view, all (N,) float64."""
+    """Per-Gaussian sums over the pixels it renders to in the reference view, all (K,) float64."""
 
     weight: np.ndarray      # sum_u w_ui
     inside: np.ndarray      # sum_u w_ui m*_u
@@ -131,12 +170,46 @@ def _seed_pixels(mask, shape: tuple[int, int]) -> np.ndarray:
     return m
 
 
+def _examined(scene: GaussianScene, frozen: FrozenScene | None, camera: Camera,
+              W) -> tuple[np.ndarray, sp.csr_matrix | None]:
+    """``K``, the Gaussians that can pass the constraints, and ``W`` on their columns (None without ``W``).
+
+    With ``W``: its stored columns (a Gaussian without weight in the view
+    passes neither rule), ``W`` keeping its rows, entries and their order,
+    its columns renumbered ``0..K-1``. Without: the Gaussians whose centre
+    may lie in the image in front of the near plane, from ``frozen``'s
+    spatial index (a superset), else every Gaussian.
+
+    Raises
+    ------
+    ValidationError
+        ``W`` is not a sparse (H*W, N) matrix.
+    """
+    n = len(scene)
+    h, w = camera.image_shape
+    if W is None:
+        if frozen is not None:
+            return frozen.spatial.view_candidates(camera), None
+        return np.arange(n, dtype=np.int64), None
+    if not sp.issparse(W) or W.shape != (h * w, n):
+        raise ValidationError(f"seed lift: W must be a sparse ({h * w}, {n}) matrix, got "
+                              f"{type(W).__name__} {getattr(W, 'shape', None)}")
+    W = sp.csr_matrix(W)
+    # Marks, then each column's new number, in one array of W's index type: no sort of the stored
+    # entries, and only the memory pages that hold a column are ever written.
+    number = np.zeros(n, W.indices.dtype)
+    number[W.indices] = 1
+    index = np.flatnonzero(number)
+    number[index] = np.arange(index.size)
+    return index, sp.csr_matrix((W.data, number[W.indices], W.indptr), shape=(h * w, index.size))
+
+
 def _centre_tests(camera: Camera, uv: np.ndarray, z: np.ndarray, eps: np.ndarray, m: np.ndarray,
                   d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    r"""The paper's two constraints at the projected centre :math:`\pi_i`: ``(depth_ok, centre_in_mask)``, (N,) bool.
+    r"""The paper's two constraints at the projected centre :math:`\pi_i`: ``(depth_ok, centre_in_mask)``, (K,) bool.
 
-    ``uv`` (N, 2) and ``z`` (N,) are the projected centres and view depths,
-    ``eps`` (N,) the depth tolerances, ``m`` the (H, W) seed and ``d`` the
+    ``uv`` (K, 2) and ``z`` (K,) are the projected centres and view depths,
+    ``eps`` (K,) the depth tolerances, ``m`` the (H, W) seed and ``d`` the
     (H, W) rendered depth. A centre outside the image or nearer than the near
     plane fails both.
     """
@@ -155,24 +228,16 @@ def _centre_tests(camera: Camera, uv: np.ndarray, z: np.ndarray, eps: np.ndarray
     return depth_ok, centre_in_mask
 
 
-def _contribution(W, m: np.ndarray, z: np.ndarray, d: np.ndarray) -> _Contribution:
+def _contribution(W: sp.csr_matrix, m: np.ndarray, z: np.ndarray, d: np.ndarray) -> _Contribution:
     r"""The contribution rule's per-Gaussian sums over the pixels it renders to (:func:`seed_lift`'s Notes).
 
     :math:`\sum_u w_{u,i}`, :math:`\sum_u w_{u,i} m^\star_u`, :math:`\mu_i`
-    and :math:`r_i`, from the reference operator ``W`` (H*W, N), the (H, W)
-    seed ``m``, the view depths ``z`` (N,) and the rendered depth ``d`` (H, W).
-
-    Raises
-    ------
-    ValidationError
-        ``W`` is not a sparse (H*W, N) matrix.
+    and :math:`r_i`, from the reference operator ``W`` (H*W, K) on the
+    examined Gaussians' columns (:func:`_examined`), the (H, W) seed ``m``,
+    their view depths ``z`` (K,) and the rendered depth ``d`` (H, W).
     """
     h, w = m.shape
-    n = len(z)
-    if not sp.issparse(W) or W.shape != (h * w, n):
-        raise ValidationError(f"seed lift: W must be a sparse ({h * w}, {n}) matrix, got "
-                              f"{type(W).__name__} {getattr(W, 'shape', None)}")
-    W = sp.csr_matrix(W)
+    n = W.shape[1]
     colsum = np.asarray(W.sum(axis=0)).ravel().astype(np.float64)
     inside = np.asarray(W.T @ m.ravel().astype(np.float64)).ravel()
     rows = np.repeat(np.arange(h * w), np.diff(W.indptr))
@@ -187,7 +252,7 @@ def _contribution(W, m: np.ndarray, z: np.ndarray, d: np.ndarray) -> _Contributi
 def _candidates(depth_ok: np.ndarray, centre_in_mask: np.ndarray, contrib: _Contribution | None,
                 eps: np.ndarray, sigma: np.ndarray, *, min_membership: float, min_weight: float,
                 max_size_ratio: float | None) -> tuple[np.ndarray, np.ndarray]:
-    """The Gaussians that pass the constraints, ``(candidates (N,) bool, score (N,) float)``.
+    """The Gaussians that pass the constraints, ``(candidates (K,) bool, score (K,) float)``.
 
     The contribution rule when ``contrib`` is given (score: the mask-weighted
     contribution), else the centre rule (score 1 each); then the size cut
@@ -227,7 +292,7 @@ def _no_candidate_error(m: np.ndarray, depth_ok: np.ndarray, contrib: _Contribut
 
 def _keep_components(means: np.ndarray, cand: np.ndarray, score: np.ndarray, *, k_neighbors: int,
                      link_factor: float, keep_fraction: float) -> tuple[np.ndarray, int, int]:
-    """G0: the candidates' best components, ``(g0 (N,) bool, n_components, kept_components)``.
+    """G0: the candidates' best components, ``(g0 (K,) bool, n_components, kept_components)``.
 
     Components of :func:`neighbour_components` over the candidates, scored
     by the sum of ``score``; the best is kept with every component scoring
@@ -256,7 +321,7 @@ def _extent(means: np.ndarray, g0: np.ndarray, sigma: np.ndarray) -> tuple[np.nd
     return center, radius, np.stack([lo, hi])
 
 
-def seed_lift(scene: GaussianScene, camera: Camera, mask, depth, W=None, *, eps_rel: float = 0.02,
+def seed_lift(scene: GaussianScene | FrozenScene, camera: Camera, mask, depth, W=None, *, eps_rel: float = 0.02,
               eps_sigma: float = 2.0, min_membership: float = 0.5, min_weight: float = 1e-3,
               k_neighbors: int = 8, link_factor: float = 3.0, keep_fraction: float = 0.2,
               max_size_ratio: float | None = 4.0) -> SeedLift:
@@ -264,7 +329,10 @@ def seed_lift(scene: GaussianScene, camera: Camera, mask, depth, W=None, *, eps_
 
     Parameters
     ----------
-    scene : GaussianScene
+    scene : GaussianScene or FrozenScene
+        Without ``W``, a :class:`~seed2gs_inverse.raster.FrozenScene` finds
+        the Gaussians whose centre may lie in the view through its spatial
+        index; a plain scene examines every Gaussian. The result is the same.
     camera : Camera
         The reference camera ``c_r`` at the resolution of ``mask``/``depth``.
     mask : (H, W) bool or float array
@@ -309,9 +377,10 @@ def seed_lift(scene: GaussianScene, camera: Camera, mask, depth, W=None, *, eps_
     Raises
     ------
     ValidationError
-        ``mask`` or ``depth`` not of the camera's (H, W), a non-numeric or
-        empty mask, an empty scene, ``W`` not a sparse (H*W, N) matrix, or
-        no Gaussian passing the constraints (the message says which case).
+        ``scene`` not a GaussianScene or FrozenScene, ``mask`` or ``depth``
+        not of the camera's (H, W), a non-numeric or empty mask, an empty
+        scene, ``W`` not a sparse (H*W, N) matrix, or no Gaussian passing
+        the constraints (the message says which case).
 
     Notes
     -----
@@ -339,15 +408,22 @@ def seed_lift(scene: GaussianScene, camera: Camera, mask, depth, W=None, *, eps_
     rules are conservative: Gaussians on the hidden side of the object are
     not in G0; the orbits and the solver recover them.
     """
+    if not isinstance(scene, (GaussianScene, FrozenScene)):
+        raise ValidationError(f"seed lift: scene must be a GaussianScene or FrozenScene, got {type(scene).__name__}")
+    frozen = scene if isinstance(scene, FrozenScene) else None
+    scene = scene.scene if frozen is not None else scene
     n = len(scene)
     shape = camera.image_shape
     m = _seed_pixels(mask, shape)
     d = _check_image("depth", depth, shape).astype(np.float64)
     if n == 0:
         raise ValidationError("seed lift: the scene has no Gaussians")
-    means = scene.means.astype(np.float64)
+    index, W = _examined(scene, frozen, camera, W)
+    # Everything below is over the examined Gaussians K, in the scene's order.
+    means = scene.means[index].astype(np.float64)
     uv, z = camera.project(means)
-    sigma = scene.scales.max(axis=1).astype(np.float64)
+    # GaussianScene.scales of these Gaussians alone (the property activates all N)
+    sigma = np.exp(scene.log_scales[index].astype(np.float64)).astype(np.float32).max(axis=1).astype(np.float64)
     eps = eps_rel * np.abs(z) + eps_sigma * sigma
     depth_ok, centre_in_mask = _centre_tests(camera, uv, z, eps, m, d)
     contrib = None if W is None else _contribution(W, m, z, d)
@@ -359,8 +435,15 @@ def seed_lift(scene: GaussianScene, camera: Camera, mask, depth, W=None, *, eps_
                                        keep_fraction=keep_fraction)
     center, radius, bbox = _extent(means, g0, sigma)
     membership = None if contrib is None else contrib.membership.astype(np.float32)
-    return SeedLift(g0, center, radius, bbox, cand, membership, ncomp, kept, eps.astype(np.float32),
-                    "center" if contrib is None else "contribution")
+    return SeedLift(_scatter(n, index, g0), center, radius, bbox, _scatter(n, index, cand), ncomp, kept,
+                    "center" if contrib is None else "contribution", index, membership, eps.astype(np.float32), n)
+
+
+def _scatter(n: int, index: np.ndarray, local: np.ndarray) -> np.ndarray:
+    """(n,) bool: ``local`` (K,) bool at ``index``, False elsewhere."""
+    out = np.zeros(n, bool)
+    out[index[local]] = True
+    return out
 
 
 def neighbour_components(points: np.ndarray, k: int, link_factor: float) -> tuple[np.ndarray, int]:

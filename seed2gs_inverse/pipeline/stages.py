@@ -349,7 +349,7 @@ def lift_seed(scene: GaussianScene, ref: ReferenceView, lift_options: dict | Non
     return seed_lift(scene, ref.camera, ref.seed, op.rendering.depth, op.W, **dict(lift_options or {}))
 
 
-def orbit_axis(up, scene: GaussianScene, base: Camera, ref: ReferenceView, lift: SeedLift,
+def orbit_axis(up, scene: GaussianScene | FrozenScene, base: Camera, ref: ReferenceView, lift: SeedLift,
                up_cameras: Sequence[Camera] | None = None) -> dict:
     """The VAAS axis of the ``up`` setting, as a report dict ``{axis, method, confidence, details}``.
 
@@ -360,8 +360,9 @@ def orbit_axis(up, scene: GaussianScene, base: Camera, ref: ReferenceView, lift:
     removed, weighted by the reference view's operator
     (:func:`~seed2gs_inverse.pipeline.up_axis.estimate_up`); ``"camera"``: the
     image-up itself; a vector: that vector, normalised. ``confidence`` is
-    None unless estimated. The warnings name the caller of
-    :func:`orbit_views` (``stacklevel=4``).
+    None unless estimated. A frozen ``scene`` lets ``"auto"`` find the
+    Gaussians about the object through its spatial index. The warnings name
+    the caller of :func:`orbit_views` (``stacklevel=4``).
     """
     if isinstance(up, str) and up == "auto":
         if up_cameras is not None:
@@ -372,7 +373,8 @@ def orbit_axis(up, scene: GaussianScene, base: Camera, ref: ReferenceView, lift:
             warnings.warn(est.warning(), stacklevel=4)
         return {**est.summary(), "warning": est.warning()}
     if isinstance(up, str) and up == "level":
-        axis = estimate_up(scene, base, weights=np.asarray(ref.operator.W.sum(axis=0)).ravel())
+        plain = getattr(scene, "scene", scene)  # a FrozenScene's GaussianScene
+        axis = estimate_up(plain, base, weights=np.asarray(ref.operator.W.sum(axis=0)).ravel())
         return {"axis": np.asarray(axis, float).tolist(), "method": "level", "confidence": None, "details": {}}
     if isinstance(up, str) and up == "camera":
         return {"axis": base.up.tolist(), "method": "camera", "confidence": None, "details": {}}
@@ -431,7 +433,7 @@ def orbit_views(renderer: Renderer, camera: Camera, ref: ReferenceView, lift: Se
     scene = renderer.scene
     view_scale = _view_scale(camera, s.orbit_scale, s.max_view_pixels)
     base = camera.scaled(view_scale)  # the orbits' base camera (geometry + view resolution)
-    up_info = orbit_axis(s.up, scene, base, ref, lift, up_cameras)
+    up_info = orbit_axis(s.up, renderer.frozen, base, ref, lift, up_cameras)
     up = np.asarray(up_info["axis"], dtype=np.float64)
 
     # The near cut leaves level surfaces in place: the ground cut in front of the object shows its
@@ -456,9 +458,10 @@ def orbit_views(renderer: Renderer, camera: Camera, ref: ReferenceView, lift: Se
             progress.update()
         return _clip_frame(op, clip, k)
 
-    sigma = scene.subset(lift.g0).scales.max(axis=1)  # G0's own: the scene's activations cost O(N)
+    g0 = np.flatnonzero(lift.g0)  # one pass over the mask; the arrays are then read at G0's rows only
+    sigma = scene.subset(g0).scales.max(axis=1)  # G0's own: the scene's activations cost O(N)
     plan, flat, spiral = run_vaas(
-        scene.means[lift.g0], sigma, base, lift.center, view, n_views=s.n_views, a_max_deg=s.a_max_deg,
+        scene.means[g0], sigma, base, lift.center, view, n_views=s.n_views, a_max_deg=s.a_max_deg,
         gamma=s.gamma, skip_deg=s.skip_deg, profile=s.profile, max_elevation_deg=s.max_elevation_deg,
         fit_radius=None if s.zoom_margin is None else s.zoom_margin * lift.radius, up=up)
     return OrbitViews(plan, flat, spiral, view_scale, up, up_info, (base.width, base.height))

@@ -150,9 +150,11 @@ from typing import Callable, Iterable, NamedTuple
 
 import numpy as np
 from scipy.spatial import cKDTree
+from scipy.special import expit
 
 from ..camera import Camera
 from ..errors import ValidationError
+from ..raster import FrozenScene
 from ..scene import GaussianScene, quat_to_rotmat
 from .local import neighbourhood
 
@@ -651,7 +653,8 @@ def _object_frame(means: np.ndarray, support, center, radius) -> tuple[np.ndarra
 
     Parameters
     ----------
-    means : (N, 3) float64
+    means : (N, 3) float array
+        The scene's means (taken in float64 where used).
     support, center, radius
         As in :func:`estimate_up_axis`.
 
@@ -683,7 +686,8 @@ def _object_frame(means: np.ndarray, support, center, radius) -> tuple[np.ndarra
         if not g0.any():
             g0 = None
     if center is None:
-        o = means[g0].mean(axis=0) if g0 is not None else np.median(means, axis=0)
+        o = means[g0].astype(np.float64).mean(axis=0) if g0 is not None else np.median(
+            means.astype(np.float64), axis=0)
         local_ok = g0 is not None
     else:
         o = np.asarray(center, dtype=np.float64)
@@ -692,9 +696,9 @@ def _object_frame(means: np.ndarray, support, center, radius) -> tuple[np.ndarra
         local_ok = True
     if radius is None:
         if g0 is not None:
-            radius = float(np.percentile(np.linalg.norm(means[g0] - o, axis=1), 95))
+            radius = float(np.percentile(np.linalg.norm(means[g0].astype(np.float64) - o, axis=1), 95))
         else:
-            radius = float(np.linalg.norm(np.ptp(means, axis=0))) / 20
+            radius = float(np.linalg.norm(np.ptp(means.astype(np.float64), axis=0))) / 20
     radius = float(radius)
     if not (np.isfinite(radius) and radius > 0):
         raise ValidationError(f"radius must be a positive distance, got {radius!r}")
@@ -724,11 +728,11 @@ def _g0_sample(means: np.ndarray, g0: np.ndarray | None, seed: int) -> np.ndarra
     idx = np.flatnonzero(g0)
     if len(idx) > _MAX_G0_POINTS:
         idx = np.random.default_rng(seed).choice(idx, _MAX_G0_POINTS, replace=False)
-    return means[idx]
+    return means[idx].astype(np.float64)
 
 
-def _plane_point_sets(scene: GaussianScene, means: np.ndarray, g0: np.ndarray | None, center: np.ndarray,
-                      radius: float, local_ok: bool, reach: float,
+def _plane_point_sets(scene: GaussianScene, frozen: FrozenScene | None, g0: np.ndarray | None,
+                      center: np.ndarray, radius: float, local_ok: bool, reach: float,
                       opt: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """The Gaussians the two planes are fitted on: ``(local, scene, region)`` int64 index arrays.
 
@@ -737,14 +741,16 @@ def _plane_point_sets(scene: GaussianScene, means: np.ndarray, g0: np.ndarray | 
 
     Both leave out G0 and splats with opacity below ``min_opacity``. The
     local set is those within ``local_factor`` ``R`` of ``o``, the scene
-    set those within ``reach`` of ``o`` (:func:`~.local.neighbourhood`);
+    set those within ``reach`` of ``o`` (:func:`~.local.neighbourhood`,
+    through ``frozen``'s spatial index when given);
     without ``local_ok`` the local set is empty and the scene set is the
     whole scene. Each is randomly subsampled (sorted, by ``opt["seed"]``)
     to at most :data:`_MAX_FIT_POINTS`: the draw depends on the Gaussians
     inside the ball only.
     """
     def usable(idx: np.ndarray) -> np.ndarray:
-        keep = scene.opacities[idx] >= opt["min_opacity"]
+        # GaussianScene.opacities of these Gaussians alone (the property activates all N)
+        keep = expit(scene.opacity_logits[idx].astype(np.float64)).astype(np.float32) >= opt["min_opacity"]
         if g0 is not None:
             keep &= ~g0[idx]
         idx = idx[keep]
@@ -752,9 +758,10 @@ def _plane_point_sets(scene: GaussianScene, means: np.ndarray, g0: np.ndarray | 
 
     rng = np.random.default_rng(opt["seed"])
     if not local_ok:
-        return np.zeros(0, np.int64), usable(np.arange(len(means))), None
-    local_idx = usable(neighbourhood(scene, center, opt["local_factor"] * radius))
-    region = neighbourhood(scene, center, reach)
+        return np.zeros(0, np.int64), usable(np.arange(len(scene))), None
+    where = scene if frozen is None else frozen
+    local_idx = usable(neighbourhood(where, center, opt["local_factor"] * radius))
+    region = neighbourhood(where, center, reach)
     return local_idx, usable(region), region
 
 
@@ -823,8 +830,8 @@ def _fit_ground_plane(scene: GaussianScene, means: np.ndarray, idx: np.ndarray, 
         return None
     nrm, flat = flat_normals(scene, idx)
     nrm = np.where(flat[:, None], nrm, 0.0)  # non-flat splats give no 1-point hypothesis
-    f = fit_plane(means[idx], normals=nrm, admissible=partial(_admissible, prior=prior, use_prior=use_prior,
-                                                              below=below, steep=steep),
+    f = fit_plane(means[idx].astype(np.float64), normals=nrm,
+                  admissible=partial(_admissible, prior=prior, use_prior=use_prior, below=below, steep=steep),
                   n_hypotheses=opt["n_hypotheses"], max_points=opt["max_points"], seed=seed,
                   robust_scale=opt["robust_scale"],
                   keep_normal=partial(_keeps_orientation, prior=prior, use_prior=use_prior, steep=steep))
@@ -924,7 +931,7 @@ def _screen_planes(local: PlaneFit | None, glob: PlaneFit | None, means: np.ndar
     (no ground in sight).
     """
     if local is not None and glob is not None and local_ok and np.mean(
-            np.linalg.norm(means[glob_idx] - center, axis=1) > local_factor * radius) < 0.1:
+            np.linalg.norm(means[glob_idx].astype(np.float64) - center, axis=1) > local_factor * radius) < 0.1:
         details["scene_plane_dropped"] = "fitted on the support plane's points: the scene holds little else"
         glob = None
     if local is not None:
@@ -1017,14 +1024,17 @@ def _fallback_axis(scene: GaussianScene, region: np.ndarray | None, reference: C
     return UpEstimate(axis, "normals", 0.2, details)
 
 
-def estimate_up_axis(scene: GaussianScene, reference: Camera, support=None, center=None,
+def estimate_up_axis(scene: GaussianScene | FrozenScene, reference: Camera, support=None, center=None,
                      radius: float | None = None, cameras: Iterable[Camera] | None = None,
                      **options) -> UpEstimate:
     """World up for the VAAS orbit axis; see the module docstring for the method.
 
     Parameters
     ----------
-    scene : GaussianScene
+    scene : GaussianScene or FrozenScene
+        A :class:`~seed2gs_inverse.raster.FrozenScene` finds the Gaussians
+        about the object through its spatial index
+        (:func:`~.local.neighbourhood`); the estimate is the same.
     reference : Camera
         The user's view ``c_r``.
     support : (N,) bool or None
@@ -1053,17 +1063,19 @@ def estimate_up_axis(scene: GaussianScene, reference: Camera, support=None, cent
         the wrong kind.
     """
     opt = _up_options(options)
+    frozen = scene if isinstance(scene, FrozenScene) else None
+    scene = scene.scene if frozen is not None else scene
     if not isinstance(scene, GaussianScene) or len(scene) == 0:
-        raise ValidationError("estimate_up_axis: scene must be a non-empty GaussianScene")
+        raise ValidationError("estimate_up_axis: scene must be a non-empty GaussianScene or FrozenScene")
     a, b, r = roll_basis(reference)
-    means = scene.means.astype(np.float64)
+    means = scene.means  # float32, taken in float64 where used: no copy of all N
     g0, o, radius, local_ok = _object_frame(means, support, center, radius)
     cam_axis, cam_quality, cams = _camera_axis(cameras)
     prior = _Prior(a, b, r, cam_axis, np.sin(np.radians(opt["max_roll_deg"])),
                    np.cos(np.radians(opt["max_pitch_deg"])), np.cos(np.radians(opt["max_camera_deg"])))
     below = _Below(o, opt["max_below"] * radius, _g0_sample(means, g0, opt["seed"]))
     reach = max(opt["scene_factor"] * float(np.linalg.norm(reference.center - o)), 3 * opt["local_factor"] * radius)
-    local_idx, glob_idx, region = _plane_point_sets(scene, means, g0, o, radius, local_ok, reach, opt)
+    local_idx, glob_idx, region = _plane_point_sets(scene, frozen, g0, o, radius, local_ok, reach, opt)
     details: dict = {"center": o.tolist(), "radius": radius, "reference_up": a.tolist(),
                      "n_local_points": int(len(local_idx)), "scene_reach": reach if local_ok else None}
     planes = _search_planes(scene, means, local_idx, glob_idx, local_ok, prior, below, opt)
