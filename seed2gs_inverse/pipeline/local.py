@@ -144,13 +144,16 @@ class Neighbourhood:
         """An (M, M) sparse matrix of the neighbourhood as the parent's (N, N) CSR (rows and columns renumbered).
 
         Costs the N + 1 row pointers and the entries: the order of each
-        row's entries is kept (the renumbering is increasing).
+        row's entries is kept (the renumbering is increasing). The indices
+        are int32 where the size and the entries allow (scipy's own choice).
         """
         m = sp.csr_matrix(matrix)
-        counts = np.zeros(self.n, np.int64)
-        counts[self.index] = np.diff(m.indptr)
-        indptr = np.concatenate([[0], np.cumsum(counts)])
-        return sp.csr_matrix((m.data, self.index[m.indices], indptr), shape=(self.n, self.n))
+        # built in the index type scipy would convert to, and summed in place: one (N + 1,) array
+        dtype = np.int32 if max(self.n, m.nnz) <= np.iinfo(np.int32).max else np.int64
+        indptr = np.zeros(self.n + 1, dtype)
+        indptr[self.index + 1] = np.diff(m.indptr)
+        np.cumsum(indptr, out=indptr)
+        return sp.csr_matrix((m.data, self.index.astype(dtype)[m.indices], indptr), shape=(self.n, self.n))
 
 
 def object_neighbourhood(scene: GaussianScene | FrozenScene, lift: SeedLift, operators,

@@ -720,8 +720,11 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     if settings.seed_connected:
         graph_kw = {k: settings.lift_options[k] for k in ("k_neighbors", "link_factor") if k in settings.lift_options}
         island = _islands(scene, lift, q > tau, _votes(stack, masks), graph_kw, local)
-        # islands hold no G0 Gaussian: they take the prior of the Gaussians outside G0 (0)
-        q = np.where(island, np.float32(0), q)
+        # islands hold no G0 Gaussian: they take the prior of the Gaussians outside G0 (0); set in
+        # place, in q's own copy (result.q keeps the solver's values)
+        if np.shares_memory(q, result.q):
+            q = q.copy()
+        q[island] = np.float32(0)
         n_removed = int(island.sum())
     selected = q > tau
     return Selection(result, q, tau, selected, n_removed, follow)

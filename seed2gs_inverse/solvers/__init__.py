@@ -37,9 +37,9 @@ from ..errors import ValidationError
 from ..graph import check_graph
 from . import beta_bernoulli, least_squares, voting, weighted_bce  # noqa: F401  (importing registers them)
 from ._common import (MethodResult, Problem, SolveResult, available_methods, check_options,
-                      check_range, get_check, get_method, method_options, prepare, prior_from_init,
+                      check_range, get_check, get_method, method_options, prepare,
                       problem_of, register_method, stack_masks)
-from ._local import LOCAL_METHODS, restrict_graph, restrict_stack, touched_columns
+from ._local import LOCAL_METHODS, SupportPrior, restrict_graph, restrict_stack, touched_columns
 from ._progress import SolveProgress, reporting
 from .smoothing import RIDGE, harmonic_extension, laplacian_smooth, smooth_checked
 from .weighted_bce import WeightedBCE
@@ -133,8 +133,8 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
         result = _solve_prepared(fn, problem, method, min_evidence, progress, smoothness, graph, options)
     else:
         # The other Gaussians keep the prior whatever the method does (module _local): solve on these.
-        prior = prior_from_init(init, n)
-        problem = problem_of(restrict_stack(stack, cols), mask_list, init, prior[cols])
+        prior = SupportPrior(init, n)  # no (N,) float64 prior: the rest's q is spread from its two values
+        problem = problem_of(restrict_stack(stack, cols), mask_list, init, prior.at(cols))
         local = _solve_prepared(fn, problem, method, min_evidence, progress, smoothness,
                                 None if graph is None or smoothness == 0 else restrict_graph(graph, cols), options)
         result = _scattered(local, cols, prior, min_evidence, smoothness)
@@ -142,7 +142,7 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
     return result
 
 
-def _scattered(local: SolveResult, cols: np.ndarray, prior: np.ndarray, min_evidence: float,
+def _scattered(local: SolveResult, cols: np.ndarray, prior: SupportPrior, min_evidence: float,
                smoothness: float) -> SolveResult:
     """The N-Gaussian result of a solve on the columns ``cols``: the others as :func:`solve` leaves them.
 
@@ -151,12 +151,11 @@ def _scattered(local: SolveResult, cols: np.ndarray, prior: np.ndarray, min_evid
     (:func:`~.smoothing.smooth_checked`), and they count as weak evidence
     when ``min_evidence > 0``.
     """
-    n = prior.size
+    n = prior.n
     if smoothness > 0:
-        rest = np.clip((0.0 * prior + RIDGE * prior) / (0.0 + RIDGE), 0.0, 1.0)
+        q = prior.map(lambda p: np.clip((0.0 * p + RIDGE * p) / (0.0 + RIDGE), 0.0, 1.0))
     else:
-        rest = prior
-    q = rest.astype(np.float32)
+        q = prior.map(lambda p: p)
     q[cols] = local.q
     unobserved = np.ones(n, bool)
     unobserved[cols] = local.unobserved

@@ -16,9 +16,12 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from .._selection import support_mask
+from ..graph import graph_on_nodes
 from ..operators import OperatorStack
+from ._common import prior_from_init
 
-__all__ = ["LOCAL_METHODS", "touched_columns", "restrict_stack", "restrict_graph"]
+__all__ = ["LOCAL_METHODS", "touched_columns", "restrict_stack", "restrict_graph", "SupportPrior"]
 
 #: Methods whose arithmetic on a Gaussian's column never mixes with another column's (each
 #: Gaussian's value comes from sums over its own column, the pixels' sums from their own rows):
@@ -60,9 +63,47 @@ def restrict_stack(stack: OperatorStack, cols: np.ndarray) -> OperatorStack:
 
 def restrict_graph(graph: sp.csr_matrix, cols: np.ndarray) -> sp.csr_matrix:
     """The graph among ``cols`` (ascending, holding every node with an edge): rows and columns renumbered."""
-    start, stop = graph.indptr[cols], graph.indptr[cols + 1]
-    counts = stop - start
-    indptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    take = np.repeat(start - indptr[:-1], counts) + np.arange(indptr[-1])
-    local = np.searchsorted(cols, graph.indices[take])  # every neighbour is in cols: its position there
-    return sp.csr_matrix((graph.data[take], local, indptr), shape=(cols.size, cols.size))
+    return graph_on_nodes(graph, cols)
+
+
+class SupportPrior:
+    """The prior ``q0`` (N,) of :func:`~._common.prior_from_init`, kept as its support set when ``init`` is one.
+
+    A support set (None, a bool mask or indices) gives 1 on it and 0
+    elsewhere: it is kept as the (N,) bool mask instead of an (N,) float64
+    array. A float prior is kept as :func:`~._common.prior_from_init` returns
+    it. Either way :meth:`at` and :meth:`map` give the values the float64
+    array would.
+
+    Raises
+    ------
+    ValidationError
+        ``init`` is not a valid prior (:func:`~._common.prior_from_init`'s checks and messages).
+    """
+
+    def __init__(self, init, n: int):
+        a = None if init is None else np.asarray(init)
+        self.n = int(n)
+        if a is None:
+            self.support, self.values = np.zeros(self.n, bool), None
+        elif a.ndim >= 1 and (a.dtype == bool or a.dtype.kind in "ui"):
+            self.support, self.values = support_mask(a.reshape(-1) if a.dtype != bool else a, self.n, "init"), None
+        else:
+            self.support, self.values = None, prior_from_init(init, self.n)
+
+    def at(self, cols: np.ndarray) -> np.ndarray:
+        """The prior at ``cols``, float64."""
+        return self.values[cols] if self.support is None else self.support[cols].astype(np.float64)
+
+    def map(self, fn) -> np.ndarray:
+        """(N,) float32: ``fn(q0).astype(float32)`` for an elementwise ``fn`` of float64 arrays.
+
+        On a support set ``fn`` is evaluated on 0 and 1 alone and spread: the
+        same values, without an (N,) float64 temporary.
+        """
+        if self.support is None:
+            return np.asarray(fn(self.values), np.float64).astype(np.float32)
+        off, on = np.asarray(fn(np.array([0.0, 1.0])), np.float64).astype(np.float32)
+        out = np.full(self.n, off, np.float32)
+        out[self.support] = on
+        return out
