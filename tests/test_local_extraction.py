@@ -234,3 +234,49 @@ def test_a_batch_worker_freezes_each_cached_scene_once():
     worker.clear_scene_cache()
     assert worker._frozen_scene(a) is not fa  # forgotten with the scenes
     worker.clear_scene_cache()
+
+
+def test_the_lean_n_long_arrays_are_those_of_the_whole_computation():
+    """What the extraction keeps (N,)-long, it builds without the (N,)-long temporaries: the same arrays."""
+    from seed2gs_inverse.graph import check_graph
+    from seed2gs_inverse.operators import OperatorStack, ViewOperator
+    from seed2gs_inverse.solvers._common import prior_from_init
+    from seed2gs_inverse.solvers._local import SupportPrior
+
+    rng = np.random.default_rng(5)
+    n = 500
+    index = np.sort(rng.choice(n, 60, replace=False))
+    nb = Neighbourhood(index, None, n)
+    m = sp.random(60, 60, density=0.2, format="csr", random_state=2)
+    big = nb.expand(m)
+    coo = m.tocoo()
+    ref = sp.csr_matrix((coo.data, (index[coo.row], index[coo.col])), shape=(n, n))  # scipy's own build
+    for name in ("indptr", "indices", "data"):
+        a, b = getattr(big, name), getattr(ref, name)
+        assert a.dtype == b.dtype
+        np.testing.assert_array_equal(a, b)
+    # the symmetry check looks among the nodes with an entry: an edge whose mirror row is empty is found
+    g = nb.expand(m + m.T)
+    assert check_graph(g, n).nnz == g.nnz
+    one_way = sp.csr_matrix(([1.0], ([index[3]], [index[7]])), shape=(n, n))
+    with pytest.raises(ValidationError, match="symmetric"):
+        check_graph(g + one_way, n)
+    # a support-set prior kept as its mask: the float64 prior's values, where taken and mapped
+    cols = np.sort(rng.choice(n, 100, replace=False))
+    for init in (None, rng.random(n) < 0.2, index[:9], rng.random(n)):
+        full = prior_from_init(init, n)
+        p = SupportPrior(init, n)
+        np.testing.assert_array_equal(p.at(cols), full[cols])
+        fn = lambda v: np.clip((0.0 * v + 1e-3 * v) / (0.0 + 1e-3), 0.0, 1.0)  # noqa: E731
+        got = p.map(fn)
+        assert got.dtype == np.float32
+        np.testing.assert_array_equal(got, fn(full).astype(np.float32))
+    # the adjoint adds its two runs at the stack's columns alone: the same product
+    views = [ViewOperator(sp.csr_matrix(((0.2 * rng.random(40)).astype(np.float32),
+                                         (rng.integers(0, 30, 40), rng.choice(index, 40))), shape=(30, n)),
+                          image_shape=(5, 6)) for _ in range(6)]
+    y = rng.random(6 * 30).astype(np.float32)
+    plain = OperatorStack(views).rmatvec(y)
+    stack = OperatorStack(views)
+    stack.columns()  # cached: the adjoint now adds at these alone
+    np.testing.assert_array_equal(stack.rmatvec(y), plain)

@@ -98,7 +98,7 @@ def forward(mats, offsets, n_cols: int, x: np.ndarray) -> np.ndarray:
     return out
 
 
-def adjoint(mats, offsets, n_cols: int, y: np.ndarray) -> np.ndarray:
+def adjoint(mats, offsets, n_cols: int, y: np.ndarray, columns: np.ndarray | None = None) -> np.ndarray:
     """The stacked adjoint product ``sum_c W(c)^T y[offsets[c]:offsets[c+1]]``.
 
     Parameters
@@ -110,6 +110,12 @@ def adjoint(mats, offsets, n_cols: int, y: np.ndarray) -> np.ndarray:
     n_cols : int
         N, the number of columns (Gaussians).
     y : (P,) or (P, K) ndarray
+    columns : (M,) int array, optional
+        Ascending indices holding every column with a stored weight in
+        ``mats`` (not checked): the two runs' sums are added there alone
+        (elsewhere both are 0), so that the rows of the result no weight
+        reaches are not written (an (N,) product about a small object then
+        costs memory only near its columns).
 
     Returns
     -------
@@ -131,4 +137,7 @@ def adjoint(mats, offsets, n_cols: int, y: np.ndarray) -> np.ndarray:
                 acc += W.T @ yc
 
     _threads.run_both(run, sum(W.nnz for W in mats) >= PARALLEL_MIN_NNZ and len(halves[1]) > 0)
-    return np.add(out[0], out[1], out=out[0])
+    if columns is None:
+        return np.add(out[0], out[1], out=out[0])
+    out[0][columns] += out[1][columns]
+    return out[0]

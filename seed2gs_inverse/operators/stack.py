@@ -275,7 +275,9 @@ class OperatorStack(LinearOperator):
         return _passes.forward(self._mats(), self.row_offsets(), self.n_gaussians, np.ascontiguousarray(np.ravel(x)))
 
     def _rmatvec(self, y):
-        return _passes.adjoint(self._mats(), self.row_offsets(), self.n_gaussians, np.ascontiguousarray(np.ravel(y)))
+        # the cached columns, when known: the two runs' sums are added there alone
+        return _passes.adjoint(self._mats(), self.row_offsets(), self.n_gaussians, np.ascontiguousarray(np.ravel(y)),
+                               self._columns)
 
     def _matmat(self, X):
         return _passes.forward(self._mats(), self.row_offsets(), self.n_gaussians, np.asarray(X))

@@ -719,7 +719,7 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     n_removed = 0
     if settings.seed_connected:
         graph_kw = {k: settings.lift_options[k] for k in ("k_neighbors", "link_factor") if k in settings.lift_options}
-        island = _islands(scene, lift, q > tau, _votes(stack, masks), graph_kw, local)
+        island = _islands(scene, lift, q > tau, stack, masks, graph_kw, local)
         # islands hold no G0 Gaussian: they take the prior of the Gaussians outside G0 (0); set in
         # place, in q's own copy (result.q keeps the solver's values)
         if np.shares_memory(q, result.q):
@@ -756,29 +756,34 @@ def _follow_faint(scene: GaussianScene, lift: SeedLift, q: np.ndarray, opts: dic
     return local.expand(follow), out
 
 
-def _islands(scene: GaussianScene, lift: SeedLift, above: np.ndarray, votes: tuple, graph_kw: dict,
-             local: Neighbourhood | None) -> np.ndarray:
+def _islands(scene: GaussianScene, lift: SeedLift, above: np.ndarray, stack: OperatorStack, masks: list,
+             graph_kw: dict, local: Neighbourhood | None) -> np.ndarray:
     """(N,) bool: the Gaussians of ``above`` (``q > tau``) in islands apart from G0 (:func:`~.islands.seed_connected`).
 
-    With ``local``, on its Gaussians alone when it holds all of ``above``
-    (outside it ``q`` is the prior, 0 away from G0).
+    The votes are the masks' (:func:`_votes`). With ``local``, on its
+    Gaussians alone when it holds all of ``above`` (outside it ``q`` is the
+    prior, 0 away from G0).
     """
     if local is not None:
         above_l = local.local(above)
         if int(above_l.sum()) == int(np.count_nonzero(above)):
             kept = seed_connected(local.scene.means, above_l, local.local(lift.g0),
-                                  votes=(local.local(votes[0]), local.local(votes[1])), **graph_kw)
+                                  votes=_votes(stack, masks, local.local), **graph_kw)
             return local.scatter(above_l & ~kept, False)
+    votes = _votes(stack, masks)
     return above & ~seed_connected(scene.means, above, lift.g0, votes=votes, **graph_kw)  # the lift's graph
 
 
-def _votes(stack: OperatorStack, masks: list) -> tuple[np.ndarray, np.ndarray]:
+def _votes(stack: OperatorStack, masks: list, take=None) -> tuple[np.ndarray, np.ndarray]:
     """``(A^T (k y), A^T k)``: each Gaussian's weight on object pixels and on decided pixels (two passes).
 
     The masks are read by the solver's rule (uint8 0/255 is 0/1, NaN unknown).
+    ``take`` (e.g. :meth:`~.local.Neighbourhood.local`) keeps part of each
+    (N,) product as soon as it is made, so that the two are not held at once.
     """
+    take = (lambda v: v) if take is None else take
     y = np.concatenate([normalize_mask(m, v.image_shape, f"view {i}").ravel()
                         for i, (v, m) in enumerate(zip(stack, masks))])
     decided = ~np.isnan(y)
-    return (stack.rmatvec(np.where(decided, y, np.float32(0))),
-            stack.rmatvec(decided.astype(np.float32)))
+    return (take(stack.rmatvec(np.where(decided, y, np.float32(0)))),
+            take(stack.rmatvec(decided.astype(np.float32))))
