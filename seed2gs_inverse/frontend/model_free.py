@@ -153,8 +153,8 @@ def _world_points(camera: Camera, depth: np.ndarray, where: np.ndarray | None = 
     return (pc - camera.translation) @ camera.rotation  # R^T (p - t)
 
 
-def _on_support(frame, normal: np.ndarray, point: np.ndarray, alignment: float) -> np.ndarray:
-    """(H, W) bool: surface points in the support band that face along ``normal`` (module docstring)."""
+def _support_geometry(frame, normal: np.ndarray, point: np.ndarray, alignment: float):
+    """Per pixel (all (H, W)): height ``n . (X - x_s)`` of the surface point, whether it faces along ``n``, rendered."""
     world = _world_points(frame.camera, frame.depth)
     dx = np.zeros_like(world)
     dy = np.zeros_like(world)
@@ -162,8 +162,14 @@ def _on_support(frame, normal: np.ndarray, point: np.ndarray, alignment: float) 
     dy[1:-1] = world[2:] - world[:-2]
     nu = np.cross(dx, dy)
     norm = np.linalg.norm(nu, axis=-1)
-    facing = np.abs(nu @ normal) >= alignment * np.maximum(norm, 1e-30)
-    return (np.asarray(frame.depth) > 0) & ((world - point) @ normal <= 0.0) & facing & (norm > 0)
+    facing = (np.abs(nu @ normal) >= alignment * np.maximum(norm, 1e-30)) & (norm > 0)
+    return (world - point) @ normal, facing, np.asarray(frame.depth) > 0
+
+
+def _on_support(frame, normal: np.ndarray, point: np.ndarray, alignment: float) -> np.ndarray:
+    """(H, W) bool: surface points in the support band that face along ``normal`` (module docstring)."""
+    height, facing, rendered = _support_geometry(frame, normal, point, alignment)
+    return rendered & (height <= 0.0) & facing
 
 
 def _core(labels: np.ndarray, band: int) -> np.ndarray:
@@ -349,7 +355,7 @@ class GeometricTracker:
                  min_support: float = 0.02, max_sources: int = 4, boundary_band: int = 0,
                  color_tol: float | None = 0.15, fill_depth_jump: float = 0.03, refill: bool = False,
                  fill_passes: int = 1, support_plane=None, support_alignment: float = 0.8,
-                 fill_from_empty: bool = False):
+                 fill_from_empty: bool = False, contact_height: float | None = None):
         # NaN fails every range check: it is refused like any other value out of range.
         self.alpha_min = check_real("alpha_min", alpha_min, lo=0, hi=1, lo_open=True, hi_open=True)
         self.depth_tol = check_real("depth_tol", depth_tol, lo=0, lo_open=True)
@@ -373,6 +379,7 @@ class GeometricTracker:
         self.refill = bool(refill)
         self.fill_from_empty = bool(fill_from_empty)
         self.support_plane = self._plane(support_plane)
+        self.contact_height = check_real("contact_height", contact_height, lo=0, optional=True)
         # id(frame) -> (weak reference to the frame, (H, W) bool: label filled,
         # not observed) for the masks this tracker returned (module docstring).
         self._filled = {}
@@ -425,6 +432,7 @@ class GeometricTracker:
             order = np.argsort(dist, kind="stable")[: max(self.max_sources - 1, 0)]
             lab = np.full(f.camera.image_shape, np.nan)
             seen_as_object = None  # the seed frame's 1 labels: never overruled by the support rule
+            on, contact = self._support_pixels(f)
             for src, src_mask in [(frames[0], seed)] + [cands[i] for i in order]:
                 src_mask = _core(src_mask, self.boundary_band)
                 todo = np.isnan(lab)
@@ -432,6 +440,8 @@ class GeometricTracker:
                     break
                 w = warp_labels(f, src, src_mask, alpha_min=self.alpha_min, depth_tol=self.depth_tol,
                                 color_tol=self.color_tol, pixels=todo)
+                if seen_as_object is not None and contact is not None:
+                    w[contact & (w < 0.5)] = np.nan  # a 0 copied at the contact: not evidence (docstring)
                 lab[todo] = w[todo]
                 if seen_as_object is None:
                     seen_as_object = w == 1
@@ -439,8 +449,7 @@ class GeometricTracker:
             lab = np.where(np.isnan(lab), lab, (lab > 0.5).astype(np.float64))
             void = np.asarray(f.alpha) < self.alpha_min
             empty = void.copy()
-            if self.support_plane is not None:
-                on = _on_support(f, *self.support_plane, self.support_alignment)
+            if on is not None:
                 empty |= on if seen_as_object is None else on & ~seen_as_object
             lab[empty] = 0.0
             copied_fill &= ~empty
@@ -470,6 +479,16 @@ class GeometricTracker:
             done.append(k)
         return masks
 
+    def _support_pixels(self, frame):
+        """``(on, contact)``: the frame's support pixels and its contact zone, (H, W) bool or None without a plane."""
+        if self.support_plane is None:
+            return None, None
+        height, facing, rendered = _support_geometry(frame, *self.support_plane, self.support_alignment)
+        on = rendered & (height <= 0.0) & facing
+        if not self.contact_height:
+            return on, None
+        return on, rendered & (height <= self.contact_height) & ~facing
+
     @staticmethod
     def _plane(plane):
         if plane is None:
@@ -488,6 +507,13 @@ class GeometricTracker:
         """A copy of this tracker with ``support_plane=(normal, point)`` (this one is left as it is)."""
         out = copy.copy(self)
         out.support_plane = self._plane((normal, point))
+        out._filled = {}
+        return out
+
+    def with_contact_height(self, height: float) -> "GeometricTracker":
+        """A copy of this tracker with ``contact_height=height`` (this one is left as it is)."""
+        out = copy.copy(self)
+        out.contact_height = check_real("contact_height", height, lo=0)
         out._filled = {}
         return out
 
