@@ -76,23 +76,25 @@ def test_the_base_at_the_contact_is_kept(seed, base_like_ground):
 
 def test_without_the_contact_zone_the_base_is_lost():
     """The check can fail: copied ground labels, trusted at the contact, eat the base around the orbit."""
-    ious, low_share, _ = _scores(11, False, tracker=GeometricTracker(contact_height=0.0))
+    ious, low_share, _ = _scores(11, False, tracker=GeometricTracker(contact_zone=(0.0, 0.0)))
     assert low_share < 0.7 and ious.min() < 0.9
 
 
-def test_contact_zone_height_follows_the_lift_radius():
+def test_contact_zone_follows_the_lift_radius():
     gs, scene, truth, _ = _contact_scene(11, False)
     center = scene.means[truth].mean(0)
     radius = 0.3
     kw = {k: v for k, v in SUPPORT_DEFAULTS.items() if k != "contact"}
     surf = support_surface(scene, truth, center, radius, gs.up, contact=0.5, **kw)
-    assert surf is not None and np.isclose(surf.contact_height, 0.15)
+    assert surf is not None and np.allclose(surf.contact_zone(), (0.15, 0.3))
     assert surf.summary()["contact_height"] == pytest.approx(0.15)
+    assert surf.summary()["contact_radius"] == pytest.approx(0.3)
     assert support_surface(scene, truth, center, radius, gs.up, contact=0.0, **kw).contact_height == 0.0
     with pytest.raises(ValidationError, match="contact"):
         support_surface(scene, truth, center, radius, gs.up, contact=-1.0, **kw)
-    with pytest.raises(ValidationError, match="contact_height"):
-        GeometricTracker(contact_height=-0.1)
+    for bad in (-0.1, (0.1,), (0.1, -1.0), (float("nan"), 0.2)):
+        with pytest.raises(ValidationError, match="contact_zone"):
+            GeometricTracker(contact_zone=bad)
     tr = GeometricTracker()
-    assert tr.contact_height is None and tr.with_contact_height(0.2).contact_height == 0.2
-    assert tr.contact_height is None
+    assert tr.contact_zone is None and tr.with_contact_zone(0.2, 0.5).contact_zone == (0.2, 0.5)
+    assert tr.contact_zone is None

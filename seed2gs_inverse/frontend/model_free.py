@@ -50,6 +50,28 @@ the seed frame labelled it 1 (what the reference saw of the object stays
 object). The object's own walls near the ground face sideways and keep their
 labels.
 
+**The contact zone (``contact_zone``).** Just above the band the object's
+base and the support meet: the z-test cannot separate them (the ground
+behind the base lies within the depth tolerance), and a shadowed base is
+often of the ground's colour, so the photometric check passes too. A 0
+copied there onto the base is then copied on by the next view, and the
+lower body is eaten band by band around the orbit. So in frame ``k`` >= 1 a
+pixel whose surface point lies in the zone, a slab of height :math:`h_c`
+above the band within the radius :math:`\rho` of the axis through
+:math:`x_s` (the object's footprint: clutter further out is not touched),
+and does not face along ``n``,
+
+.. math::
+
+    n \cdot (X - x_s) \le h_c, \quad \|(X - x_s) - (n \cdot (X - x_s))\, n\| \le \rho
+    \quad\text{and}\quad |n \cdot \nu(p)| < \text{support\_alignment},
+
+takes no 0 from any source but the seed frame: such a copy is no evidence,
+the next source is tried, and a pixel no source labels 1 is left to the
+fill (and, where it cannot decide, to the solve's graph regulariser). Level
+ground in the zone faces along ``n`` and keeps its copied 0; a 1 is copied
+as everywhere else.
+
 Frames are labelled in the order of :meth:`GeometricTracker._order`: always
 the frame nearest to one already labelled, so a closed orbit is walked from
 both sides of the reference.
@@ -154,7 +176,7 @@ def _world_points(camera: Camera, depth: np.ndarray, where: np.ndarray | None = 
 
 
 def _support_geometry(frame, normal: np.ndarray, point: np.ndarray, alignment: float):
-    """Per pixel (all (H, W)): height ``n . (X - x_s)`` of the surface point, whether it faces along ``n``, rendered."""
+    """Per pixel: world point ``X`` (H, W, 3); its height ``n . (X - x_s)``, facing along ``n``, rendered (H, W)."""
     world = _world_points(frame.camera, frame.depth)
     dx = np.zeros_like(world)
     dy = np.zeros_like(world)
@@ -163,13 +185,33 @@ def _support_geometry(frame, normal: np.ndarray, point: np.ndarray, alignment: f
     nu = np.cross(dx, dy)
     norm = np.linalg.norm(nu, axis=-1)
     facing = (np.abs(nu @ normal) >= alignment * np.maximum(norm, 1e-30)) & (norm > 0)
-    return (world - point) @ normal, facing, np.asarray(frame.depth) > 0
+    return world, (world - point) @ normal, facing, np.asarray(frame.depth) > 0
 
 
 def _on_support(frame, normal: np.ndarray, point: np.ndarray, alignment: float) -> np.ndarray:
     """(H, W) bool: surface points in the support band that face along ``normal`` (module docstring)."""
-    height, facing, rendered = _support_geometry(frame, normal, point, alignment)
+    _, height, facing, rendered = _support_geometry(frame, normal, point, alignment)
     return rendered & (height <= 0.0) & facing
+
+
+def _keep_apart(lab: np.ndarray, held: np.ndarray) -> None:
+    """Give ``held`` 0s back to the unknown pixels of ``lab`` not connected to its object labels (in place).
+
+    A pixel whose copied 0 was held back at the contact stays unknown only
+    where it touches the object: its 8-connected component of held-back
+    unknown and object (> 0.5) pixels holds an object pixel. Elsewhere
+    (clutter near the footprint, cut off from the object by level ground)
+    the copy stands.
+    """
+    back = np.isnan(lab) & ~np.isnan(held)
+    if not back.any():
+        return
+    obj = lab > 0.5
+    _, comp = cv2.connectedComponents((back | obj).astype(np.uint8), connectivity=8)
+    touching = np.zeros(int(comp.max()) + 1, bool)
+    touching[np.unique(comp[obj])] = True
+    give = back & ~touching[comp]
+    lab[give] = held[give]
 
 
 def _core(labels: np.ndarray, band: int) -> np.ndarray:
@@ -270,7 +312,9 @@ class GeometricTracker:
     r"""Model-free :class:`~seed2gs_inverse.frontend.base.Tracker` for rendered clips.
 
     It also takes a support plane
-    (:class:`~seed2gs_inverse.frontend.base.SupportPlaneTracker`), fills
+    (:class:`~seed2gs_inverse.frontend.base.SupportPlaneTracker`) and the
+    contact zone above it
+    (:class:`~seed2gs_inverse.frontend.base.ContactZoneTracker`), fills
     one frame's unknown labels on request
     (:class:`~seed2gs_inverse.frontend.base.LabelFiller`) and declares
     ``wants_regularizer``: pixels it cannot decide stay unknown (NaN), for
@@ -339,6 +383,14 @@ class GeometricTracker:
     fill_passes : int
         Passes of the fill per view (module docstring), >= 1; one pass
         without ``refill`` was chosen on benchmarks/bench_extract.py.
+    contact_zone : (height, radius) or None
+        :math:`(h_c, \rho)`, the contact zone's height above the support
+        band's top and its radius about the axis through the plane's point
+        (scene units, both >= 0; module docstring); used only with a
+        ``support_plane``. None (default): unset, and
+        :func:`~seed2gs_inverse.pipeline.extract.extract` sets it with the
+        support plane (:meth:`~seed2gs_inverse.pipeline.support.SupportSurface.contact_zone`);
+        a zero height or radius: no contact zone.
 
     Raises
     ------
@@ -355,7 +407,7 @@ class GeometricTracker:
                  min_support: float = 0.02, max_sources: int = 4, boundary_band: int = 0,
                  color_tol: float | None = 0.15, fill_depth_jump: float = 0.03, refill: bool = False,
                  fill_passes: int = 1, support_plane=None, support_alignment: float = 0.8,
-                 fill_from_empty: bool = False, contact_height: float | None = None):
+                 fill_from_empty: bool = False, contact_zone=None):
         # NaN fails every range check: it is refused like any other value out of range.
         self.alpha_min = check_real("alpha_min", alpha_min, lo=0, hi=1, lo_open=True, hi_open=True)
         self.depth_tol = check_real("depth_tol", depth_tol, lo=0, lo_open=True)
@@ -379,7 +431,7 @@ class GeometricTracker:
         self.refill = bool(refill)
         self.fill_from_empty = bool(fill_from_empty)
         self.support_plane = self._plane(support_plane)
-        self.contact_height = check_real("contact_height", contact_height, lo=0, optional=True)
+        self.contact_zone = None if contact_zone is None else self._zone(contact_zone)
         # id(frame) -> (weak reference to the frame, (H, W) bool: label filled,
         # not observed) for the masks this tracker returned (module docstring).
         self._filled = {}
@@ -433,6 +485,7 @@ class GeometricTracker:
             lab = np.full(f.camera.image_shape, np.nan)
             seen_as_object = None  # the seed frame's 1 labels: never overruled by the support rule
             on, contact = self._support_pixels(f)
+            held = None if contact is None else np.full(lab.shape, np.nan)  # the 0s not copied at the contact
             for src, src_mask in [(frames[0], seed)] + [cands[i] for i in order]:
                 src_mask = _core(src_mask, self.boundary_band)
                 todo = np.isnan(lab)
@@ -441,10 +494,14 @@ class GeometricTracker:
                 w = warp_labels(f, src, src_mask, alpha_min=self.alpha_min, depth_tol=self.depth_tol,
                                 color_tol=self.color_tol, pixels=todo)
                 if seen_as_object is not None and contact is not None:
+                    bg = contact & (w < 0.5) & np.isnan(held)
+                    held[bg] = w[bg]
                     w[contact & (w < 0.5)] = np.nan  # a 0 copied at the contact: not evidence (docstring)
                 lab[todo] = w[todo]
                 if seen_as_object is None:
                     seen_as_object = w == 1
+            if held is not None:
+                _keep_apart(lab, held)
             copied_fill = (lab > 0) & (lab < 1)
             lab = np.where(np.isnan(lab), lab, (lab > 0.5).astype(np.float64))
             void = np.asarray(f.alpha) < self.alpha_min
@@ -483,11 +540,14 @@ class GeometricTracker:
         """``(on, contact)``: the frame's support pixels and its contact zone, (H, W) bool or None without a plane."""
         if self.support_plane is None:
             return None, None
-        height, facing, rendered = _support_geometry(frame, *self.support_plane, self.support_alignment)
+        normal, point = self.support_plane
+        world, height, facing, rendered = _support_geometry(frame, normal, point, self.support_alignment)
         on = rendered & (height <= 0.0) & facing
-        if not self.contact_height:
+        if self.contact_zone is None or min(self.contact_zone) <= 0:
             return on, None
-        return on, rendered & (height <= self.contact_height) & ~facing
+        h_c, rho = self.contact_zone
+        across = np.linalg.norm((world - point) - height[..., None] * normal, axis=-1)
+        return on, rendered & (height <= h_c) & (across <= rho) & ~facing
 
     @staticmethod
     def _plane(plane):
@@ -510,10 +570,18 @@ class GeometricTracker:
         out._filled = {}
         return out
 
-    def with_contact_height(self, height: float) -> "GeometricTracker":
-        """A copy of this tracker with ``contact_height=height`` (this one is left as it is)."""
+    @staticmethod
+    def _zone(zone) -> tuple:
+        try:
+            height, radius = zone
+        except (TypeError, ValueError):
+            raise ValidationError(f"contact_zone must be (height, radius) or None, got {zone!r}") from None
+        return (check_real("contact_zone height", height, lo=0), check_real("contact_zone radius", radius, lo=0))
+
+    def with_contact_zone(self, height: float, radius: float) -> "GeometricTracker":
+        """A copy of this tracker with ``contact_zone=(height, radius)`` (this one is left as it is)."""
         out = copy.copy(self)
-        out.contact_height = check_real("contact_height", height, lo=0)
+        out.contact_zone = self._zone((height, radius))
         out._filled = {}
         return out
 

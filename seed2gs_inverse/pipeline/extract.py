@@ -132,8 +132,8 @@ def _supervision(scene: GaussianScene, lift: SeedLift, ref: ReferenceView, orbit
     surface, support_info = support_band(scene, lift, orbits, settings, tracker, local)
     if surface is not None:
         tracker = tracker.with_support_plane(surface.axis, surface.point)
-        if isinstance(tracker, ContactZoneTracker) and tracker.contact_height is None:
-            tracker = tracker.with_contact_height(surface.contact_height)
+        if isinstance(tracker, ContactZoneTracker) and tracker.contact_zone is None:
+            tracker = tracker.with_contact_zone(*surface.contact_zone())
     out = {}
 
     def work(k: int) -> None:

@@ -38,11 +38,12 @@ band reaches up to
     t = \hat h + \max(\text{margin}\, R,\; 2 s),
 
 and :attr:`SupportSurface.point` is :math:`o + t u`. The contact zone
-reaches ``contact`` :math:`R` higher (:attr:`SupportSurface.contact_height`):
+reaches ``contact`` :math:`R` higher, within :math:`R` of the axis
+(:meth:`SupportSurface.contact_zone`):
 there the object's base and the support meet within the z-test's reach of
 each other, often in like colours (a shadowed base on gravel), so the
 tracker does not copy background labels onto surfaces that do not face
-along the axis (``GeometricTracker(contact_height=)``). Fewer than
+along the axis (``GeometricTracker(contact_zone=)``). Fewer than
 ``min_splats`` such Gaussians, or a level :math:`\hat h \ge 0` (not below
 the object's centre: an axis pointing down): no support surface (None),
 and the tracker labels no pixel as support.
@@ -85,8 +86,9 @@ class SupportSurface:
         :math:`s`, their robust spread (normalised MAD).
     n_splats : int
         How many splats the level came from.
-    contact_height : float
-        Height of the contact zone above ``point`` (scene units, >= 0).
+    contact_height, contact_radius : float
+        The contact zone's height above ``point`` and its radius about the
+        axis through it (scene units, >= 0).
     """
 
     axis: np.ndarray
@@ -95,12 +97,17 @@ class SupportSurface:
     spread: float
     n_splats: int
     contact_height: float = 0.0
+    contact_radius: float = 0.0
+
+    def contact_zone(self) -> tuple:
+        """``(contact_height, contact_radius)``, as a tracker's ``contact_zone`` takes it."""
+        return float(self.contact_height), float(self.contact_radius)
 
     def summary(self) -> dict:
         """JSON-ready fields (``report.json``)."""
         return {"axis": [float(v) for v in self.axis], "point": [float(v) for v in self.point],
                 "level": float(self.level), "spread": float(self.spread), "n_splats": int(self.n_splats),
-                "contact_height": float(self.contact_height)}
+                "contact_height": float(self.contact_height), "contact_radius": float(self.contact_radius)}
 
 
 def support_surface(scene: GaussianScene, support, center, radius: float, axis, *, inner: float = 1.0,
@@ -130,7 +137,8 @@ def support_surface(scene: GaussianScene, support, center, radius: float, axis, 
     margin : float
         The band reaches at least ``margin`` :math:`R` above the level.
     contact : float
-        The contact zone's height above the band, in :math:`R` (>= 0; 0: none).
+        The contact zone's height above the band, in :math:`R` (>= 0; 0:
+        none); its radius is :math:`R`.
 
     Returns
     -------
@@ -176,4 +184,5 @@ def support_surface(scene: GaussianScene, support, center, radius: float, axis, 
         return None
     spread = 1.4826 * float(np.median(np.abs(level_h - level)))
     top = level + max(margin * radius, 2.0 * spread)
-    return SupportSurface(u, o + top * u, level, spread, int(level_h.size), float(contact * radius))
+    return SupportSurface(u, o + top * u, level, spread, int(level_h.size), float(contact * radius),
+                          float(radius))
