@@ -12,7 +12,8 @@ around (views the pipeline never rendered):
   lowest-fifth Gaussians whose compositing weight summed over the held-out
   views exceeds 0.05 (a twentieth of one opaque pixel, extract's
   ``min_evidence``), and the share of that weight on selected Gaussians must
-  reach 0.8.
+  reach 0.75 (the base's fuzzy rim, blended with the ground at the contact
+  line, is not all object in any view).
 
 The second scene gives the lowest fifth the ground's own colour, as a
 shadowed base on gravel looks in a real capture: the tracker's colour check
@@ -71,27 +72,29 @@ def test_the_base_at_the_contact_is_kept(seed, base_like_ground):
     ious, low_share, ex = _scores(seed, base_like_ground)
     assert ex.resolved["support"]["used"] and ex.resolved["support"]["contact_height"] > 0
     assert ious.min() >= 0.9, f"held-out IoUs at 10 degrees: {np.round(ious, 3)}"
-    assert low_share >= 0.8, f"only {low_share:.2f} of the visible lowest fifth is selected"
+    assert low_share >= 0.75, f"only {low_share:.2f} of the visible lowest fifth is selected"
 
 
 def test_without_the_contact_zone_the_base_is_lost():
     """The check can fail: copied ground labels, trusted at the contact, eat the base around the orbit."""
     ious, low_share, _ = _scores(11, False, tracker=GeometricTracker(contact_zone=(0.0, 0.0)))
-    assert low_share < 0.7 and ious.min() < 0.9
+    assert low_share < 0.65 and ious.min() < 0.9
 
 
 def test_contact_zone_follows_the_lift_radius():
     gs, scene, truth, _ = _contact_scene(11, False)
     center = scene.means[truth].mean(0)
     radius = 0.3
-    kw = {k: v for k, v in SUPPORT_DEFAULTS.items() if k != "contact"}
-    surf = support_surface(scene, truth, center, radius, gs.up, contact=0.5, **kw)
-    assert surf is not None and np.allclose(surf.contact_zone(), (0.15, 0.3))
+    kw = {k: v for k, v in SUPPORT_DEFAULTS.items() if k not in ("contact", "contact_reach")}
+    surf = support_surface(scene, truth, center, radius, gs.up, contact=0.5, contact_reach=1.5, **kw)
+    assert surf is not None and np.allclose(surf.contact_zone(), (0.15, 0.45))
     assert surf.summary()["contact_height"] == pytest.approx(0.15)
-    assert surf.summary()["contact_radius"] == pytest.approx(0.3)
+    assert surf.summary()["contact_radius"] == pytest.approx(0.45)
     assert support_surface(scene, truth, center, radius, gs.up, contact=0.0, **kw).contact_height == 0.0
     with pytest.raises(ValidationError, match="contact"):
         support_surface(scene, truth, center, radius, gs.up, contact=-1.0, **kw)
+    with pytest.raises(ValidationError, match="contact_reach"):
+        support_surface(scene, truth, center, radius, gs.up, contact_reach=float("inf"), **kw)
     for bad in (-0.1, (0.1,), (0.1, -1.0), (float("nan"), 0.2)):
         with pytest.raises(ValidationError, match="contact_zone"):
             GeometricTracker(contact_zone=bad)

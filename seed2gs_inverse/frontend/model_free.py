@@ -66,11 +66,15 @@ and does not face along ``n``,
     n \cdot (X - x_s) \le h_c, \quad \|(X - x_s) - (n \cdot (X - x_s))\, n\| \le \rho
     \quad\text{and}\quad |n \cdot \nu(p)| < \text{support\_alignment},
 
-takes no 0 from any source but the seed frame: such a copy is no evidence,
+takes no 0 from any source but the seed frame: such a copy is held back,
 the next source is tried, and a pixel no source labels 1 is left to the
-fill (and, where it cannot decide, to the solve's graph regulariser). Level
-ground in the zone faces along ``n`` and keeps its copied 0; a 1 is copied
-as everywhere else.
+fill (and, where it cannot decide, to the solve's graph regulariser). Only
+where it touches the object, though: a held-back pixel whose 8-connected
+component of held-back and object-labelled pixels, cut at depth steps of
+more than ``fill_depth_jump``, holds no object pixel (clutter near the
+footprint, cut off from the object by level ground or standing in front of
+it) takes its held-back 0 after all. Level ground in the zone faces along
+``n`` and keeps its copied 0; a 1 is copied as everywhere else.
 
 Frames are labelled in the order of :meth:`GeometricTracker._order`: always
 the frame nearest to one already labelled, so a closed orbit is walked from
@@ -194,23 +198,31 @@ def _on_support(frame, normal: np.ndarray, point: np.ndarray, alignment: float) 
     return rendered & (height <= 0.0) & facing
 
 
-def _keep_apart(lab: np.ndarray, held: np.ndarray) -> None:
+def _keep_apart(lab: np.ndarray, held: np.ndarray, depth: np.ndarray, jump: float) -> None:
     """Give ``held`` 0s back to the unknown pixels of ``lab`` not connected to its object labels (in place).
 
     A pixel whose copied 0 was held back at the contact stays unknown only
-    where it touches the object: its 8-connected component of held-back
-    unknown and object (> 0.5) pixels holds an object pixel. Elsewhere
-    (clutter near the footprint, cut off from the object by level ground)
-    the copy stands.
+    where it touches the object's surface: its 8-connected component of
+    held-back unknown and object (> 0.5) pixels, cut where the depth steps
+    by more than the relative ``jump`` to a 4-neighbour, holds an object
+    pixel. Elsewhere (clutter near the footprint, cut off from the object by
+    level ground or standing in front of it) the copy stands.
     """
     back = np.isnan(lab) & ~np.isnan(held)
     if not back.any():
         return
     obj = lab > 0.5
-    _, comp = cv2.connectedComponents((back | obj).astype(np.uint8), connectivity=8)
+    ld = np.log(np.maximum(np.asarray(depth, np.float64), 1e-12))
+    step = np.zeros(ld.shape, bool)
+    big = np.log1p(jump)
+    step[:, 1:] |= np.abs(np.diff(ld, axis=1)) > big
+    step[:, :-1] |= np.abs(np.diff(ld, axis=1)) > big
+    step[1:] |= np.abs(np.diff(ld, axis=0)) > big
+    step[:-1] |= np.abs(np.diff(ld, axis=0)) > big
+    _, comp = cv2.connectedComponents(((back | obj) & ~step).astype(np.uint8), connectivity=8)
     touching = np.zeros(int(comp.max()) + 1, bool)
     touching[np.unique(comp[obj])] = True
-    give = back & ~touching[comp]
+    give = back & (~touching[comp] | step)
     lab[give] = held[give]
 
 
@@ -501,7 +513,7 @@ class GeometricTracker:
                 if seen_as_object is None:
                     seen_as_object = w == 1
             if held is not None:
-                _keep_apart(lab, held)
+                _keep_apart(lab, held, f.depth, self.fill_depth_jump)
             copied_fill = (lab > 0) & (lab < 1)
             lab = np.where(np.isnan(lab), lab, (lab > 0.5).astype(np.float64))
             void = np.asarray(f.alpha) < self.alpha_min

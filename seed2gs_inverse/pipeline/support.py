@@ -38,7 +38,7 @@ band reaches up to
     t = \hat h + \max(\text{margin}\, R,\; 2 s),
 
 and :attr:`SupportSurface.point` is :math:`o + t u`. The contact zone
-reaches ``contact`` :math:`R` higher, within :math:`R` of the axis
+reaches ``contact`` :math:`R` higher, within ``contact_reach`` :math:`R` of the axis
 (:meth:`SupportSurface.contact_zone`):
 there the object's base and the support meet within the z-test's reach of
 each other, often in like colours (a shadowed base on gravel), so the
@@ -67,7 +67,7 @@ __all__ = ["SupportSurface", "support_surface", "SUPPORT_DEFAULTS"]
 
 #: Keywords of :func:`support_surface` that extract() passes (chosen on benchmarks/bench_extract.py).
 SUPPORT_DEFAULTS = {"inner": 1.0, "outer": 2.0, "min_alignment": 0.9, "min_opacity": 0.3, "min_splats": 20,
-                    "margin": 0.05, "contact": 0.5}
+                    "margin": 0.05, "contact": 0.5, "contact_reach": 1.5}
 
 
 @dataclass(frozen=True)
@@ -112,7 +112,7 @@ class SupportSurface:
 
 def support_surface(scene: GaussianScene, support, center, radius: float, axis, *, inner: float = 1.0,
                     outer: float = 2.0, min_alignment: float = 0.9, min_opacity: float = 0.3, min_splats: int = 20,
-                    margin: float = 0.05, contact: float = 0.0) -> SupportSurface | None:
+                    margin: float = 0.05, contact: float = 0.0, contact_reach: float = 1.0) -> SupportSurface | None:
     """The support surface under the object, or None where no level shows (module docstring).
 
     Parameters
@@ -137,8 +137,9 @@ def support_surface(scene: GaussianScene, support, center, radius: float, axis, 
     margin : float
         The band reaches at least ``margin`` :math:`R` above the level.
     contact : float
-        The contact zone's height above the band, in :math:`R` (>= 0; 0:
-        none); its radius is :math:`R`.
+        The contact zone's height above the band, in :math:`R` (>= 0; 0: none).
+    contact_reach : float
+        The contact zone's radius about the axis, in :math:`R` (>= 0).
 
     Returns
     -------
@@ -149,7 +150,7 @@ def support_surface(scene: GaussianScene, support, center, radius: float, axis, 
     ValidationError
         A zero or non-finite axis, a centre that is not a finite 3-vector, a
         radius that is not positive, ``support`` not of the scene's size, or
-        ``inner``/``outer``/``min_alignment``/``contact`` out of range.
+        ``inner``/``outer``/``min_alignment``/``contact``/``contact_reach`` out of range.
     """
     u = unit_vector("support_surface axis", axis)
     o = np.asarray(center, dtype=np.float64).reshape(-1)
@@ -164,8 +165,9 @@ def support_surface(scene: GaussianScene, support, center, radius: float, axis, 
         raise ValidationError(f"support_surface: need 0 <= inner < outer, got {inner}, {outer}")
     if not 0 < min_alignment <= 1:
         raise ValidationError(f"support_surface: min_alignment must lie in (0, 1], got {min_alignment}")
-    if not (np.isfinite(contact) and contact >= 0):
-        raise ValidationError(f"support_surface: contact must be a finite number >= 0, got {contact!r}")
+    for name, v in (("contact", contact), ("contact_reach", contact_reach)):
+        if not (np.isfinite(v) and v >= 0):
+            raise ValidationError(f"support_surface: {name} must be a finite number >= 0, got {v!r}")
     rel = scene.means.astype(np.float64) - o
     h = rel @ u
     r = np.linalg.norm(rel - h[:, None] * u, axis=1)
@@ -185,4 +187,4 @@ def support_surface(scene: GaussianScene, support, center, radius: float, axis, 
     spread = 1.4826 * float(np.median(np.abs(level_h - level)))
     top = level + max(margin * radius, 2.0 * spread)
     return SupportSurface(u, o + top * u, level, spread, int(level_h.size), float(contact * radius),
-                          float(radius))
+                          float(contact_reach * radius))
