@@ -78,8 +78,9 @@ def staged(syn, setup):
     bar = Counter()
     orbits = ex_mod.orbit_views(r, cam, ref, lift, s, bar)
     surface, support_info = ex_mod.support_band(syn.scene, lift, orbits, s, GeometricTracker())
-    tracker = GeometricTracker() if surface is None else GeometricTracker().with_support_plane(surface.axis,
-                                                                                                surface.point)
+    tracker = GeometricTracker()
+    if surface is not None:
+        tracker = tracker.with_support_plane(surface.axis, surface.point).with_contact_zone(*surface.contact_zone())
     labelled = ex_mod.track_clips(tracker, orbits, ref.seed)
     graph = ex_mod.evidence_graph(syn.scene, lift, s, ex_mod.MODEL_FREE_SMOOTHNESS)  # smoothness=None resolved
     masks = ex_mod.complete_masks(graph, labelled, lift, ref, s.completion)

@@ -13,6 +13,9 @@ through this module, never by the tracker's class:
   unknown and counts on the solve's graph regulariser;
 * :class:`SupportPlaneTracker`: it can label the support surface under the
   object as background (``support_plane``, ``with_support_plane``);
+* :class:`ContactZoneTracker`: it can distrust the background labels it
+  copies onto the object's base just above that surface (``contact_zone``,
+  ``with_contact_zone``);
 * :class:`LabelFiller`: it can decide the unknown pixels of one labelled
   frame from the frame's image (``fill_labels``).
 """
@@ -24,7 +27,8 @@ from typing import Any, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
-__all__ = ["Candidate", "Detection", "Grounder", "Tracker", "SupportPlaneTracker", "LabelFiller", "wants_regularizer"]
+__all__ = ["Candidate", "Detection", "Grounder", "Tracker", "SupportPlaneTracker", "ContactZoneTracker",
+           "LabelFiller", "wants_regularizer"]
 
 
 @dataclass
@@ -118,6 +122,28 @@ class SupportPlaneTracker(Protocol):
     support_plane: Any
 
     def with_support_plane(self, normal: np.ndarray, point: np.ndarray) -> Tracker:
+        ...
+
+
+@runtime_checkable
+class ContactZoneTracker(Protocol):
+    """A support-plane tracker that distrusts copied background labels at the contact.
+
+    ``contact_zone`` is ``(height, radius)``: within ``radius`` of the axis
+    through the support plane's point and up to ``height`` above the support
+    band's top (scene units), a background label copied from another view
+    onto a surface that does not face along the band's normal (the object's
+    base, not the ground) is left unknown; None when unset.
+    ``with_contact_zone(height, radius)`` returns a copy of the tracker with
+    that zone (the tracker itself is left as it is). The pipeline sets it
+    from the support surface it finds
+    (:meth:`~seed2gs_inverse.pipeline.support.SupportSurface.contact_zone`)
+    unless the tracker has a zone of its own.
+    """
+
+    contact_zone: Any
+
+    def with_contact_zone(self, height: float, radius: float) -> Tracker:
         ...
 
 

@@ -50,6 +50,32 @@ the seed frame labelled it 1 (what the reference saw of the object stays
 object). The object's own walls near the ground face sideways and keep their
 labels.
 
+**The contact zone (``contact_zone``).** Just above the band the object's
+base and the support meet: the z-test cannot separate them (the ground
+behind the base lies within the depth tolerance), and a shadowed base is
+often of the ground's colour, so the photometric check passes too. A 0
+copied there onto the base is then copied on by the next view, and the
+lower body is eaten band by band around the orbit. So in frame ``k`` >= 1 a
+pixel whose surface point lies in the zone, a slab of height :math:`h_c`
+above the band within the radius :math:`\rho` of the axis through
+:math:`x_s` (the object's footprint: clutter further out is not touched),
+and does not face along ``n``,
+
+.. math::
+
+    n \cdot (X - x_s) \le h_c, \quad \|(X - x_s) - (n \cdot (X - x_s))\, n\| \le \rho
+    \quad\text{and}\quad |n \cdot \nu(p)| < \text{support\_alignment},
+
+takes no 0 from any source but the seed frame: such a copy is held back,
+the next source is tried, and a pixel no source labels 1 is left to the
+fill (and, where it cannot decide, to the solve's graph regulariser). Only
+where it touches the object, though: a held-back pixel whose 8-connected
+component of held-back and object-labelled pixels, cut at depth steps of
+more than ``fill_depth_jump``, holds no object pixel (clutter near the
+footprint, cut off from the object by level ground or standing in front of
+it) takes its held-back 0 after all. Level ground in the zone faces along
+``n`` and keeps its copied 0; a 1 is copied as everywhere else.
+
 Frames are labelled in the order of :meth:`GeometricTracker._order`: always
 the frame nearest to one already labelled, so a closed orbit is walked from
 both sides of the reference.
@@ -161,8 +187,8 @@ def _world_points(camera: Camera, depth: np.ndarray, where: np.ndarray | None = 
     return (pc - camera.translation) @ camera.rotation  # R^T (p - t)
 
 
-def _on_support(frame, normal: np.ndarray, point: np.ndarray, alignment: float) -> np.ndarray:
-    """(H, W) bool: surface points in the support band that face along ``normal`` (module docstring)."""
+def _support_geometry(frame, normal: np.ndarray, point: np.ndarray, alignment: float):
+    """Per pixel: world point ``X`` (H, W, 3); its height ``n . (X - x_s)``, facing along ``n``, rendered (H, W)."""
     world = _world_points(frame.camera, frame.depth)
     dx = np.zeros_like(world)
     dy = np.zeros_like(world)
@@ -170,8 +196,42 @@ def _on_support(frame, normal: np.ndarray, point: np.ndarray, alignment: float) 
     dy[1:-1] = world[2:] - world[:-2]
     nu = np.cross(dx, dy)
     norm = np.linalg.norm(nu, axis=-1)
-    facing = np.abs(nu @ normal) >= alignment * np.maximum(norm, 1e-30)
-    return (np.asarray(frame.depth) > 0) & ((world - point) @ normal <= 0.0) & facing & (norm > 0)
+    facing = (np.abs(nu @ normal) >= alignment * np.maximum(norm, 1e-30)) & (norm > 0)
+    return world, (world - point) @ normal, facing, np.asarray(frame.depth) > 0
+
+
+def _on_support(frame, normal: np.ndarray, point: np.ndarray, alignment: float) -> np.ndarray:
+    """(H, W) bool: surface points in the support band that face along ``normal`` (module docstring)."""
+    _, height, facing, rendered = _support_geometry(frame, normal, point, alignment)
+    return rendered & (height <= 0.0) & facing
+
+
+def _keep_apart(lab: np.ndarray, held: np.ndarray, depth: np.ndarray, jump: float) -> None:
+    """Give ``held`` 0s back to the unknown pixels of ``lab`` not connected to its object labels (in place).
+
+    A pixel whose copied 0 was held back at the contact stays unknown only
+    where it touches the object's surface: its 8-connected component of
+    held-back unknown and object (> 0.5) pixels, cut where the depth steps
+    by more than the relative ``jump`` to a 4-neighbour, holds an object
+    pixel. Elsewhere (clutter near the footprint, cut off from the object by
+    level ground or standing in front of it) the copy stands.
+    """
+    back = np.isnan(lab) & ~np.isnan(held)
+    if not back.any():
+        return
+    obj = lab > 0.5
+    ld = np.log(np.maximum(np.asarray(depth, np.float64), 1e-12))
+    step = np.zeros(ld.shape, bool)
+    big = np.log1p(jump)
+    step[:, 1:] |= np.abs(np.diff(ld, axis=1)) > big
+    step[:, :-1] |= np.abs(np.diff(ld, axis=1)) > big
+    step[1:] |= np.abs(np.diff(ld, axis=0)) > big
+    step[:-1] |= np.abs(np.diff(ld, axis=0)) > big
+    _, comp = cv2.connectedComponents(((back | obj) & ~step).astype(np.uint8), connectivity=8)
+    touching = np.zeros(int(comp.max()) + 1, bool)
+    touching[np.unique(comp[obj])] = True
+    give = back & (~touching[comp] | step)
+    lab[give] = held[give]
 
 
 def _core(labels: np.ndarray, band: int) -> np.ndarray:
@@ -277,7 +337,9 @@ class GeometricTracker:
     r"""Model-free :class:`~seed2gs_inverse.frontend.base.Tracker` for rendered clips.
 
     It also takes a support plane
-    (:class:`~seed2gs_inverse.frontend.base.SupportPlaneTracker`), fills
+    (:class:`~seed2gs_inverse.frontend.base.SupportPlaneTracker`) and the
+    contact zone above it
+    (:class:`~seed2gs_inverse.frontend.base.ContactZoneTracker`), fills
     one frame's unknown labels on request
     (:class:`~seed2gs_inverse.frontend.base.LabelFiller`) and declares
     ``wants_regularizer``: pixels it cannot decide stay unknown (NaN), for
@@ -346,6 +408,14 @@ class GeometricTracker:
     fill_passes : int
         Passes of the fill per view (module docstring), >= 1; one pass
         without ``refill`` was chosen on benchmarks/bench_extract.py.
+    contact_zone : (height, radius) or None
+        :math:`(h_c, \rho)`, the contact zone's height above the support
+        band's top and its radius about the axis through the plane's point
+        (scene units, both >= 0; module docstring); used only with a
+        ``support_plane``. None (default): unset, and
+        :func:`~seed2gs_inverse.pipeline.extract.extract` sets it with the
+        support plane (:meth:`~seed2gs_inverse.pipeline.support.SupportSurface.contact_zone`);
+        a zero height or radius: no contact zone.
 
     Raises
     ------
@@ -362,7 +432,7 @@ class GeometricTracker:
                  min_support: float = 0.02, max_sources: int = 4, boundary_band: int = 0,
                  color_tol: float | None = 0.15, fill_depth_jump: float = 0.03, refill: bool = False,
                  fill_passes: int = 1, support_plane=None, support_alignment: float = 0.8,
-                 fill_from_empty: bool = False):
+                 fill_from_empty: bool = False, contact_zone=None):
         # NaN fails every range check: it is refused like any other value out of range.
         self.alpha_min = check_real("alpha_min", alpha_min, lo=0, hi=1, lo_open=True, hi_open=True)
         self.depth_tol = check_real("depth_tol", depth_tol, lo=0, lo_open=True)
@@ -386,6 +456,7 @@ class GeometricTracker:
         self.refill = bool(refill)
         self.fill_from_empty = bool(fill_from_empty)
         self.support_plane = self._plane(support_plane)
+        self.contact_zone = None if contact_zone is None else self._zone(contact_zone)
         # id(frame) -> (weak reference to the frame, (H, W) bool: label filled,
         # not observed) for the masks this tracker returned (module docstring).
         self._filled = {}
@@ -438,6 +509,8 @@ class GeometricTracker:
             order = np.argsort(dist, kind="stable")[: max(self.max_sources - 1, 0)]
             lab = np.full(f.camera.image_shape, np.nan)
             seen_as_object = None  # the seed frame's 1 labels: never overruled by the support rule
+            on, contact = self._support_pixels(f)
+            held = None if contact is None else np.full(lab.shape, np.nan)  # the 0s not copied at the contact
             for src, src_mask in [(frames[0], seed)] + [cands[i] for i in order]:
                 src_mask = _core(src_mask, self.boundary_band)
                 todo = np.isnan(lab)
@@ -445,15 +518,20 @@ class GeometricTracker:
                     break
                 w = warp_labels(f, src, src_mask, alpha_min=self.alpha_min, depth_tol=self.depth_tol,
                                 color_tol=self.color_tol, pixels=todo)
+                if seen_as_object is not None and contact is not None:
+                    bg = contact & (w < 0.5) & np.isnan(held)
+                    held[bg] = w[bg]
+                    w[contact & (w < 0.5)] = np.nan  # a 0 copied at the contact: not evidence (docstring)
                 lab[todo] = w[todo]
                 if seen_as_object is None:
                     seen_as_object = w == 1
+            if held is not None:
+                _keep_apart(lab, held, f.depth, self.fill_depth_jump)
             copied_fill = (lab > 0) & (lab < 1)
             lab = np.where(np.isnan(lab), lab, (lab > 0.5).astype(np.float64))
             void = np.asarray(f.alpha) < self.alpha_min
             empty = void.copy()
-            if self.support_plane is not None:
-                on = _on_support(f, *self.support_plane, self.support_alignment)
+            if on is not None:
                 empty |= on if seen_as_object is None else on & ~seen_as_object
             lab[empty] = 0.0
             copied_fill &= ~empty
@@ -483,6 +561,19 @@ class GeometricTracker:
             done.append(k)
         return masks
 
+    def _support_pixels(self, frame):
+        """``(on, contact)``: the frame's support pixels and its contact zone, (H, W) bool or None without a plane."""
+        if self.support_plane is None:
+            return None, None
+        normal, point = self.support_plane
+        world, height, facing, rendered = _support_geometry(frame, normal, point, self.support_alignment)
+        on = rendered & (height <= 0.0) & facing
+        if self.contact_zone is None or min(self.contact_zone) <= 0:
+            return on, None
+        h_c, rho = self.contact_zone
+        across = np.linalg.norm((world - point) - height[..., None] * normal, axis=-1)
+        return on, rendered & (height <= h_c) & (across <= rho) & ~facing
+
     @staticmethod
     def _plane(plane):
         if plane is None:
@@ -501,6 +592,21 @@ class GeometricTracker:
         """A copy of this tracker with ``support_plane=(normal, point)`` (this one is left as it is)."""
         out = copy.copy(self)
         out.support_plane = self._plane((normal, point))
+        out._filled = {}
+        return out
+
+    @staticmethod
+    def _zone(zone) -> tuple:
+        try:
+            height, radius = zone
+        except (TypeError, ValueError):
+            raise ValidationError(f"contact_zone must be (height, radius) or None, got {zone!r}") from None
+        return (check_real("contact_zone height", height, lo=0), check_real("contact_zone radius", radius, lo=0))
+
+    def with_contact_zone(self, height: float, radius: float) -> "GeometricTracker":
+        """A copy of this tracker with ``contact_zone=(height, radius)`` (this one is left as it is)."""
+        out = copy.copy(self)
+        out.contact_zone = self._zone((height, radius))
         out._filled = {}
         return out
 

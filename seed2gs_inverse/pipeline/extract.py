@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any, Sequence
 from .._threads import one_blas_thread, run_both
 from ..camera import Camera
 from ..errors import ValidationError
-from ..frontend.base import wants_regularizer
+from ..frontend.base import ContactZoneTracker, wants_regularizer
 from ..frontend.model_free import GeometricTracker
 from ..progress import Feedback, Progress, StageTimer
 from ..raster import FrozenScene, Renderer, compile_seconds
@@ -136,6 +136,8 @@ def _supervision(scene: GaussianScene, lift: SeedLift, ref: ReferenceView, orbit
     surface, support_info = support_band(scene, lift, orbits, settings, tracker, local)
     if surface is not None:
         tracker = tracker.with_support_plane(surface.axis, surface.point)
+        if isinstance(tracker, ContactZoneTracker) and tracker.contact_zone is None:
+            tracker = tracker.with_contact_zone(*surface.contact_zone())
     out = {}
 
     def work(k: int) -> None:

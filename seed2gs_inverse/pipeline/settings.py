@@ -292,7 +292,11 @@ class ExtractSettings:
         whose rendered surface is level, unless the reference saw them as
         object (``GeometricTracker(support_plane=)``). Labels copied and
         filled across the contact line (table legs in grass, the shadowed
-        ground between them) otherwise grow around the orbit. Used only when
+        ground between them) otherwise grow around the orbit. Just above
+        the band and within the object's reach (the surface's
+        ``contact_zone``), background labels the tracker copies onto
+        surfaces that are not level (the object's base) are left unknown
+        (``GeometricTracker(contact_zone=)``). Used only when
         the orbit axis is trusted (given as a vector, or estimated with
         confidence >= :data:`~seed2gs_inverse.pipeline.up_axis.WEAK_CONFIDENCE`)
         and the annulus shows a level; ``resolved["support"]`` says whether

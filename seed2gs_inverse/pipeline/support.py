@@ -37,7 +37,13 @@ band reaches up to
 
     t = \hat h + \max(\text{margin}\, R,\; 2 s),
 
-and :attr:`SupportSurface.point` is :math:`o + t u`. Fewer than
+and :attr:`SupportSurface.point` is :math:`o + t u`. The contact zone
+reaches ``contact`` :math:`R` higher, within ``contact_reach`` :math:`R` of the axis
+(:meth:`SupportSurface.contact_zone`):
+there the object's base and the support meet within the z-test's reach of
+each other, often in like colours (a shadowed base on gravel), so the
+tracker does not copy background labels onto surfaces that do not face
+along the axis (``GeometricTracker(contact_zone=)``). Fewer than
 ``min_splats`` such Gaussians, or a level :math:`\hat h \ge 0` (not below
 the object's centre: an axis pointing down): no support surface (None),
 and the tracker labels no pixel as support.
@@ -61,7 +67,7 @@ __all__ = ["SupportSurface", "support_surface", "SUPPORT_DEFAULTS"]
 
 #: Keywords of :func:`support_surface` that extract() passes (chosen on benchmarks/bench_extract.py).
 SUPPORT_DEFAULTS = {"inner": 1.0, "outer": 2.0, "min_alignment": 0.9, "min_opacity": 0.3, "min_splats": 20,
-                    "margin": 0.05}
+                    "margin": 0.05, "contact": 0.5, "contact_reach": 1.5}
 
 
 @dataclass(frozen=True)
@@ -80,6 +86,9 @@ class SupportSurface:
         :math:`s`, their robust spread (normalised MAD).
     n_splats : int
         How many splats the level came from.
+    contact_height, contact_radius : float
+        The contact zone's height above ``point`` and its radius about the
+        axis through it (scene units, >= 0).
     """
 
     axis: np.ndarray
@@ -87,16 +96,23 @@ class SupportSurface:
     level: float
     spread: float
     n_splats: int
+    contact_height: float = 0.0
+    contact_radius: float = 0.0
+
+    def contact_zone(self) -> tuple:
+        """``(contact_height, contact_radius)``, as a tracker's ``contact_zone`` takes it."""
+        return float(self.contact_height), float(self.contact_radius)
 
     def summary(self) -> dict:
         """JSON-ready fields (``report.json``)."""
         return {"axis": [float(v) for v in self.axis], "point": [float(v) for v in self.point],
-                "level": float(self.level), "spread": float(self.spread), "n_splats": int(self.n_splats)}
+                "level": float(self.level), "spread": float(self.spread), "n_splats": int(self.n_splats),
+                "contact_height": float(self.contact_height), "contact_radius": float(self.contact_radius)}
 
 
 def support_surface(scene: GaussianScene, support, center, radius: float, axis, *, inner: float = 1.0,
                     outer: float = 2.0, min_alignment: float = 0.9, min_opacity: float = 0.3, min_splats: int = 20,
-                    margin: float = 0.05) -> SupportSurface | None:
+                    margin: float = 0.05, contact: float = 0.0, contact_reach: float = 1.0) -> SupportSurface | None:
     """The support surface under the object, or None where no level shows (module docstring).
 
     Parameters
@@ -120,6 +136,10 @@ def support_surface(scene: GaussianScene, support, center, radius: float, axis, 
         Fewer support splats than this: None.
     margin : float
         The band reaches at least ``margin`` :math:`R` above the level.
+    contact : float
+        The contact zone's height above the band, in :math:`R` (>= 0; 0: none).
+    contact_reach : float
+        The contact zone's radius about the axis, in :math:`R` (>= 0).
 
     Returns
     -------
@@ -130,7 +150,7 @@ def support_surface(scene: GaussianScene, support, center, radius: float, axis, 
     ValidationError
         A zero or non-finite axis, a centre that is not a finite 3-vector, a
         radius that is not positive, ``support`` not of the scene's size, or
-        ``inner``/``outer``/``min_alignment`` out of range.
+        ``inner``/``outer``/``min_alignment``/``contact``/``contact_reach`` out of range.
     """
     u = unit_vector("support_surface axis", axis)
     o = np.asarray(center, dtype=np.float64).reshape(-1)
@@ -145,6 +165,9 @@ def support_surface(scene: GaussianScene, support, center, radius: float, axis, 
         raise ValidationError(f"support_surface: need 0 <= inner < outer, got {inner}, {outer}")
     if not 0 < min_alignment <= 1:
         raise ValidationError(f"support_surface: min_alignment must lie in (0, 1], got {min_alignment}")
+    for name, v in (("contact", contact), ("contact_reach", contact_reach)):
+        if not (np.isfinite(v) and v >= 0):
+            raise ValidationError(f"support_surface: {name} must be a finite number >= 0, got {v!r}")
     rel = scene.means.astype(np.float64) - o
     h = rel @ u
     r = np.linalg.norm(rel - h[:, None] * u, axis=1)
@@ -163,4 +186,5 @@ def support_surface(scene: GaussianScene, support, center, radius: float, axis, 
         return None
     spread = 1.4826 * float(np.median(np.abs(level_h - level)))
     top = level + max(margin * radius, 2.0 * spread)
-    return SupportSurface(u, o + top * u, level, spread, int(level_h.size))
+    return SupportSurface(u, o + top * u, level, spread, int(level_h.size), float(contact * radius),
+                          float(contact_reach * radius))
