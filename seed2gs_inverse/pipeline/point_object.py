@@ -41,7 +41,10 @@ found from geometry, in four steps:
    and big on grazing ones (its skirt); the second term links those, the
    first keeps gaps wider than the splats from being bridged. Gaussians of the *support
    plane* :math:`(n, p)` under the object (the ground), found by
-   :func:`~seed2gs_inverse.pipeline.up_axis.estimate_up_axis`, are removed
+   :func:`~seed2gs_inverse.pipeline.up_axis.estimate_up_axis` (a plane
+   with solid Gaussians under the seed, such as a chair's seat under a
+   click on its backrest, is passed over: the ground has nothing under
+   it), are removed
    first: those with :math:`n \cdot (x - p) <` ``band`` (3 times the plane
    fit's inlier distance, at least ``min_band`` :math:`R_0`), so the object
    does not grow into the floor it stands on, and neither does anything
@@ -328,17 +331,51 @@ def linked_components(scene: GaussianScene, idx: np.ndarray, ref_nodes: np.ndarr
     return lab, int(ncomp), cutoff
 
 
+#: A plane is no support when more than this share of the solid Gaussians in the column under the seed
+#: (:func:`_below_share`) lies below it: the ground has nothing under it, a chair's seat has its legs and the
+#: floor.
+MAX_BELOW_SHARE = 0.1
+
+#: Opacity of the Gaussians that :func:`_below_share` counts (the growth's ``min_opacity``).
+_SOLID = 0.2
+
+
+def _below_share(means: np.ndarray, opacities: np.ndarray, normal: np.ndarray, point: np.ndarray, threshold: float,
+                 center: np.ndarray, radius: float) -> float:
+    r"""Share of the solid Gaussians in the column under ``center`` that lie below the plane ``(normal, point)``.
+
+    The column holds the Gaussians of opacity at least :data:`_SOLID`
+    within ``radius`` of ``center`` across the normal and within
+    ``2 radius`` along it; a Gaussian is below when
+    :math:`n \cdot (x - p) < -3 \tau` (``threshold`` :math:`\tau`, the
+    plane fit's inlier distance). 0 when the column is empty.
+    """
+    rel = means - center
+    along = rel @ normal
+    across = np.linalg.norm(rel - np.outer(along, normal), axis=1)
+    col = (across <= radius) & (np.abs(along) <= 2.0 * radius) & (opacities >= _SOLID)
+    if not col.any():
+        return 0.0
+    return float(np.mean((means[col] - point) @ normal < -3.0 * threshold))
+
+
 def _support_plane(scene: GaussianScene, camera: Camera, seeds: np.ndarray, center: np.ndarray, radius: float,
                    min_band: float) -> tuple[tuple[np.ndarray, np.ndarray, float] | None, dict]:
     """The support plane under the grown object (the ground) for :func:`grow_object`, and what it came from.
 
-    The support or scene plane of
+    The first of the support and scene planes of
     :func:`~seed2gs_inverse.pipeline.up_axis.estimate_up_axis` (with the
-    click's lifted Gaussians as G0) that has the object above it, as
-    ``(normal, point, band)`` with band ``max(3 tau, min_band * radius)``;
-    None when neither qualifies.
+    click's lifted Gaussians as G0) that has the object above it and
+    nothing solid under it (at most :data:`MAX_BELOW_SHARE` of the column
+    under the seed below it, :func:`_below_share`: a flat part of the
+    object or of what it stands on, a chair's seat under a click on its
+    backrest, is no ground), as ``(normal, point, band)`` with band
+    ``max(3 tau, min_band * radius)``; None when neither qualifies. The
+    info names the planes passed over and why.
     """
     est = estimate_up_axis(scene, camera, support=seeds, center=center, radius=radius)
+    means = scene.means.astype(np.float64)
+    passed = {}
     for key in ("support_plane", "scene_plane"):
         p = est.details.get(key)
         if p is None:
@@ -346,11 +383,17 @@ def _support_plane(scene: GaussianScene, camera: Camera, seeds: np.ndarray, cent
         normal = np.asarray(p["normal"], float)
         point = np.asarray(p["point"], float)
         if normal @ (center - point) <= 0:
-            continue  # the object must be above its support
+            passed[key] = "the object is not above it"
+            continue
+        below = _below_share(means, scene.opacities, normal, point, float(p["threshold"]), center, radius)
+        if below > MAX_BELOW_SHARE:
+            passed[key] = f"{below:.0%} of the solid Gaussians under the seed lie below it"
+            continue
         band = max(3.0 * float(p["threshold"]), min_band * radius)
-        return (normal, point, band), {"source": key, "method": est.method,
-                                       "confidence": float(est.confidence)}
-    return None, {"source": None, "method": est.method, "confidence": float(est.confidence)}
+        info = {"source": key, "method": est.method, "confidence": float(est.confidence)}
+        return (normal, point, band), ({**info, "passed_over": passed} if passed else info)
+    info = {"source": None, "method": est.method, "confidence": float(est.confidence)}
+    return None, ({**info, "passed_over": passed} if passed else info)
 
 
 def _check_point_inputs(scene, camera, points, labels, region, options: dict):
