@@ -60,7 +60,7 @@ found from geometry, in four steps:
    Negative clicks are lifted the same way and their Gaussians removed
    from the graph. The click's region may be a small part of the object
    (a chair's backrest): while the grown object reaches the edge of the
-   growth region (a Gaussian beyond 0.9 of its radius), the radius doubles,
+   growth region (a node of its graph, not a faint splat, beyond 0.9 of its radius), the radius doubles,
    at most ``max_expansions`` times; an object that still reaches the edge
    after the last doubling is leaking into the scene, and the first growth
    is kept.
@@ -495,7 +495,7 @@ def _grow_with_expansions(scene: GaussianScene, seeds: np.ndarray, center: np.nd
 
     The click's region may be a small part of the object (a chair's
     backrest): while the grown object reaches the edge of the growth region
-    (a Gaussian beyond :data:`_EDGE` of its radius), the region doubles, at
+    (a node of its graph, not a faint splat, beyond :data:`_EDGE` of its radius), the region doubles, at
     most ``max_expansions`` times. An object the growth closes around stops
     short of the edge; one that still reaches it after every doubling leaks
     into the scene, and the first growth is kept (``info["expansion"]`` says so).
@@ -509,7 +509,9 @@ def _grow_with_expansions(scene: GaussianScene, seeds: np.ndarray, center: np.nd
             keep_fraction=opt["keep_fraction"], min_opacity=opt["min_opacity"])
         if expansions == 0:
             first = selected, grow_info
-        reach = np.linalg.norm(scene.means[selected].astype(np.float64) - center, axis=1).max(initial=0.0)
+        # the graph's own nodes decide whether the object closes: faint splats hang about every surface
+        solid = selected & ((scene.opacities >= opt["min_opacity"]) | seeds)
+        reach = np.linalg.norm(scene.means[solid].astype(np.float64) - center, axis=1).max(initial=0.0)
         if reach < _EDGE * radius:
             grow_info["expansions"] = expansions
             return selected, grow_info
