@@ -30,9 +30,14 @@ apart from those. The seed is cleaned in four steps:
    around the object it is about, which fills most of it; things seen
    through gaps or past its edge fill the rest. The box holds its object,
    so another component is dropped only when the box's edge cuts it (it
-   owns seed pixels within two pixels of the edge: it goes on beyond the
-   box) and it stays farther than ``gap`` times the main component's
-   radius from it. The distance is taken along the ground (across the
+   goes on beyond the box: it owns seed pixels within two pixels of the
+   edge, or, since GrabCut often stops short of the edge where the
+   neighbour's colour changes, it belongs to a component that renders
+   there with weight above one half in a wider graph: every Gaussian that
+   renders in the box, less the ground's band, joined to the lifted ones
+   by the same link rule, a component that does not hold the main one)
+   and it stays farther than ``gap`` times the main component's radius
+   from it. The distance is taken along the ground (across the
    support plane's normal) when there is one: what stands under or over
    the main part (a table's legs, hidden where they meet the top) is the
    same object; without a plane it is taken in 3D. A 1-sigma ellipsoid's
@@ -114,9 +119,12 @@ def _mask_box(mask: np.ndarray, pad: int) -> tuple[int, int, int, int]:
             min(int(xs.max()) + 1 + pad, w), min(int(ys.max()) + 1 + pad, h))
 
 
-def _reference_weights(scene: GaussianScene, camera: Camera, mask: np.ndarray, mode: str) -> sp.csr_matrix:
-    """The reference operator's ``W`` (H*W, N) over the box of the mask's pixels (zero rows elsewhere)."""
+def _reference_weights(scene: GaussianScene, camera: Camera, mask: np.ndarray, mode: str,
+                       box: tuple[int, int, int, int] | None = None) -> sp.csr_matrix:
+    """The reference operator's ``W`` (H*W, N) over the box of the mask's pixels and ``box`` (zero rows elsewhere)."""
     roi = _mask_box(mask, 2)
+    if box is not None:
+        roi = (min(roi[0], box[0]), min(roi[1], box[1]), max(roi[2], box[2]), max(roi[3], box[3]))
     op = build_operator(scene, camera, roi=roi, mode=mode, subset=cone_cull(scene, camera, roi))
     return sp.csr_matrix(op.W)
 
@@ -134,6 +142,59 @@ def _owners(W: sp.csr_matrix, mask: np.ndarray, label: np.ndarray, n_labels: int
     owner[weight.max(axis=2) <= 0] = -1
     owner[~mask] = -1
     return owner
+
+
+def _rendered_at(W: sp.csr_matrix, pixels: np.ndarray, label: np.ndarray, n_labels: int) -> np.ndarray:
+    """(n_labels,) bool: the labels whose Gaussians render at one of ``pixels`` (H, W) with weight above 1/2.
+
+    ``label`` (N,) gives each Gaussian its label, -1 (or ``n_labels`` and
+    up) for the others.
+    """
+    rows = np.flatnonzero(np.asarray(pixels).ravel())
+    cols = np.flatnonzero((label >= 0) & (label < n_labels))
+    if len(rows) == 0 or len(cols) == 0:
+        return np.zeros(n_labels, bool)
+    onehot = sp.csr_matrix((np.ones(len(cols)), (cols, label[cols])), shape=(len(label), n_labels))
+    weight = (W[rows] @ onehot).toarray()
+    return (weight > 0.5).any(axis=0)
+
+
+def _cut_beyond_seed(scene: GaussianScene, W: sp.csr_matrix, box: tuple[int, int, int, int], ring: np.ndarray,
+                     label: np.ndarray, ncomp: int, main: int, plane, opt: dict) -> np.ndarray:
+    """(ncomp,) bool: the seed's components that the box's edge cuts where the seed does not reach it.
+
+    GrabCut often stops short of the box's edge on the part of a neighbour
+    that crosses it (the dark top of a white table behind the object: only
+    its white side is in the seed). Every Gaussian that renders inside the
+    box (less the ground's band) joins the seed's lifted Gaussians in a
+    wider graph with the same link rule; a component is cut when its wider
+    component renders at the box's ``ring`` with weight above 1/2 and does
+    not hold the ``main`` component (what links to the main part is kept
+    as before).
+    """
+    h, w = ring.shape
+    x0, y0, x1, y1 = box
+    inside = np.zeros((h, w), bool)
+    inside[y0:y1, x0:x1] = True
+    lifted = label >= 0
+    lifted[label == ncomp] = False  # the ground's label
+    wide = (np.asarray(W.T @ inside.ravel().astype(np.float64)).ravel() > 0) | lifted
+    if plane is not None:
+        pn, pp, band = plane
+        wide &= ((scene.means.astype(np.float64) - pp) @ pn >= band) | lifted
+    idx = np.flatnonzero(wide)
+    if len(idx) < 2:
+        return np.zeros(ncomp, bool)
+    wlab, nwide, _ = linked_components(scene, idx, lifted[idx], k_neighbors=opt["k_neighbors"],
+                                       link_factor=opt["link_factor"], overlap=opt["overlap"])
+    wide_label = np.full(len(label), -1, np.int64)
+    wide_label[idx] = wlab
+    at_edge = _rendered_at(W, ring, wide_label, nwide)
+    at_edge[np.unique(wide_label[label == main])] = False
+    cut = np.zeros(ncomp, bool)
+    li = np.flatnonzero(lifted)
+    np.logical_or.at(cut, label[li], at_edge[wide_label[li]])
+    return cut
 
 
 def _check_box_inputs(scene, camera, mask, depth, options: dict) -> tuple[dict, np.ndarray, np.ndarray]:
@@ -230,7 +291,8 @@ def box_object_mask(scene: GaussianScene, camera: Camera, mask, depth, box=None,
     label = np.full(n, -1, np.int64)
     label[idx] = labels
     label[ground] = ncomp  # the ground, one more label
-    W = _reference_weights(scene, camera, m, mode)
+    pbox = _pixel_box(box, m)
+    W = _reference_weights(scene, camera, m, mode, pbox)
     owner = _owners(W, m, label, ncomp + 1)
     pixels = np.bincount(owner[owner >= 0], minlength=ncomp + 1)
     main = int(np.argmax(pixels[:ncomp]))
@@ -241,8 +303,12 @@ def box_object_mask(scene: GaussianScene, camera: Camera, mask, depth, box=None,
         pts = pts - np.outer(pts @ plane[0], plane[0])
     keep_comp, radius = _near_components(pts, sigma, labels, ncomp, main, float(opt["gap"]))
     # The box holds its object: only what the box's edge cuts continues beyond it and is something else.
-    ring = _box_ring(_pixel_box(box, m), m.shape, _BORDER)
-    keep_comp |= np.bincount(owner[ring & (owner >= 0) & (owner < ncomp)], minlength=ncomp + 1)[:ncomp] == 0
+    # GrabCut often stops short of the edge, so a component is cut where its seed pixels reach the edge or
+    # where it renders there with most of the alpha.
+    ring = _box_ring(pbox, m.shape, _BORDER)
+    cut = np.bincount(owner[ring & (owner >= 0) & (owner < ncomp)], minlength=ncomp + 1)[:ncomp] > 0
+    cut |= _cut_beyond_seed(scene, W, pbox, ring, label, ncomp, main, plane, opt)
+    keep_comp |= ~cut
     kept = np.zeros(n, bool)
     kept[idx[keep_comp[labels]]] = True
     if ground.any():

@@ -41,7 +41,10 @@ found from geometry, in four steps:
    and big on grazing ones (its skirt); the second term links those, the
    first keeps gaps wider than the splats from being bridged. Gaussians of the *support
    plane* :math:`(n, p)` under the object (the ground), found by
-   :func:`~seed2gs_inverse.pipeline.up_axis.estimate_up_axis`, are removed
+   :func:`~seed2gs_inverse.pipeline.up_axis.estimate_up_axis` (a plane
+   with solid Gaussians under the seed, such as a chair's seat under a
+   click on its backrest, is passed over for one without: the ground has
+   nothing under it), are removed
    first: those with :math:`n \cdot (x - p) <` ``band`` (3 times the plane
    fit's inlier distance, at least ``min_band`` :math:`R_0`), so the object
    does not grow into the floor it stands on, and neither does anything
@@ -49,10 +52,15 @@ found from geometry, in four steps:
    holding at least ``keep_fraction`` of the best component's seeds.
    Creases are crossed in 3D (a table's top and skirt meet at a right
    angle); only the support plane and spatial gaps stop the growth.
+   Faint Gaussians (opacity below ``min_opacity``) are no nodes, since
+   they would bridge the gaps between objects (a tree's haze), but each
+   in the growth region follows its nearest node when that lies within
+   the link rule's reach: where a capture is soft (an aerial capture's
+   walls), they carry much of a surface's colour.
    Negative clicks are lifted the same way and their Gaussians removed
    from the graph. The click's region may be a small part of the object
    (a chair's backrest): while the grown object reaches the edge of the
-   growth region (a Gaussian beyond 0.9 of its radius), the radius doubles,
+   growth region (a node of its graph, not a faint splat, beyond 0.9 of its radius), the radius doubles,
    at most ``max_expansions`` times; an object that still reaches the edge
    after the last doubling is leaking into the scene, and the first growth
    is kept.
@@ -229,7 +237,8 @@ def grow_object(scene, seeds, *, center, radius: float, plane=None, blocked=None
         raise ValidationError(f"seeds must be a boolean array of shape ({n_all},), got {seeds.shape}")
     means = scene.means.astype(np.float64)
     c = np.asarray(center, dtype=np.float64)
-    node = (np.linalg.norm(means - c, axis=1) <= float(radius)) & (scene.opacities >= min_opacity)
+    ball = np.linalg.norm(means - c, axis=1) <= float(radius)
+    node = ball & (scene.opacities >= min_opacity)
     node |= seeds
     info = {"radius": float(radius)}
     if plane is not None:
@@ -241,10 +250,12 @@ def grow_object(scene, seeds, *, center, radius: float, plane=None, blocked=None
         # cuts through the click (a wrong fit), and would leave nothing to grow from.
         if np.count_nonzero(above & seeds) >= 0.5 * np.count_nonzero(seeds):
             node &= above
+            ball &= above
         else:
             info["plane_rejected"] = "it cuts through the clicked Gaussians"
     if blocked is not None:
         node &= ~np.asarray(blocked, bool)
+        ball &= ~np.asarray(blocked, bool)
     idx = np.flatnonzero(node)
     sel = np.zeros(n_all, bool)
     seed_nodes = seeds[idx]
@@ -261,9 +272,32 @@ def grow_object(scene, seeds, *, center, radius: float, plane=None, blocked=None
     good &= score > 0
     sel[idx[good[lab]]] = True
     sel |= seeds & node  # the lifted click region is the object by definition
+    n_faint = _attach_faint(scene, idx, ball & ~node, sel, cutoff, overlap)
     info.update(n_nodes=int(len(idx)), link_distance=cutoff, n_components=int(ncomp),
-                kept_components=int(good.sum()), n_selected=int(sel.sum()))
+                kept_components=int(good.sum()), n_faint=n_faint, n_selected=int(sel.sum()))
     return sel, info
+
+
+def _attach_faint(scene: GaussianScene, idx: np.ndarray, faint: np.ndarray, sel: np.ndarray, cutoff: float,
+                  overlap: float) -> int:
+    """Let the faint Gaussians (below ``min_opacity``) follow their nearest node of the growth graph; in place.
+
+    A Gaussian of the (N,) bool ``faint`` whose nearest node ``j`` among
+    ``idx`` lies within the link rule's reach
+    (:math:`\max(\lambda \rho_0, \kappa (s_i + s_j))`, ``cutoff`` and
+    ``overlap``) takes ``sel[j]``. Faint splats are no links (they would
+    bridge the gaps between objects: a tree's haze), but they carry much of
+    a surface's colour where a capture is soft (an aerial capture's walls).
+    Returns how many joined the selection.
+    """
+    f_idx = np.flatnonzero(faint)
+    if len(f_idx) == 0 or len(idx) == 0:
+        return 0
+    dist, j = cKDTree(scene.means[idx].astype(np.float64)).query(scene.means[f_idx].astype(np.float64), k=1)
+    sig = scene.scales.max(axis=1).astype(np.float64)
+    join = (dist <= np.maximum(cutoff, overlap * (sig[f_idx] + sig[idx[j]]))) & sel[idx[j]]
+    sel[f_idx[join]] = True
+    return int(join.sum())
 
 
 def linked_components(scene: GaussianScene, idx: np.ndarray, ref_nodes: np.ndarray, *, k_neighbors: int = 10,
@@ -328,17 +362,52 @@ def linked_components(scene: GaussianScene, idx: np.ndarray, ref_nodes: np.ndarr
     return lab, int(ncomp), cutoff
 
 
+#: A plane with more than this share of the solid Gaussians in the column under the seed below it
+#: (:func:`_below_share`) is passed over for one with at most this share: the ground has nothing under it,
+#: a chair's seat has its legs and the floor.
+MAX_BELOW_SHARE = 0.1
+
+#: Opacity of the Gaussians that :func:`_below_share` counts (the growth's ``min_opacity``).
+_SOLID = 0.2
+
+
+def _below_share(means: np.ndarray, opacities: np.ndarray, normal: np.ndarray, point: np.ndarray, threshold: float,
+                 center: np.ndarray, radius: float) -> float:
+    r"""Share of the solid Gaussians in the column under ``center`` that lie below the plane ``(normal, point)``.
+
+    The column holds the Gaussians of opacity at least :data:`_SOLID`
+    within ``radius`` of ``center`` across the normal and within
+    ``2 radius`` along it; a Gaussian is below when
+    :math:`n \cdot (x - p) < -3 \tau` (``threshold`` :math:`\tau`, the
+    plane fit's inlier distance). 0 when the column is empty.
+    """
+    rel = means - center
+    along = rel @ normal
+    across = np.linalg.norm(rel - np.outer(along, normal), axis=1)
+    col = (across <= radius) & (np.abs(along) <= 2.0 * radius) & (opacities >= _SOLID)
+    if not col.any():
+        return 0.0
+    return float(np.mean((means[col] - point) @ normal < -3.0 * threshold))
+
+
 def _support_plane(scene: GaussianScene, camera: Camera, seeds: np.ndarray, center: np.ndarray, radius: float,
                    min_band: float) -> tuple[tuple[np.ndarray, np.ndarray, float] | None, dict]:
     """The support plane under the grown object (the ground) for :func:`grow_object`, and what it came from.
 
     The support or scene plane of
     :func:`~seed2gs_inverse.pipeline.up_axis.estimate_up_axis` (with the
-    click's lifted Gaussians as G0) that has the object above it, as
-    ``(normal, point, band)`` with band ``max(3 tau, min_band * radius)``;
-    None when neither qualifies.
+    click's lifted Gaussians as G0) that has the object above it, in that
+    order, as ``(normal, point, band)`` with band
+    ``max(3 tau, min_band * radius)``; None when neither qualifies. The
+    first is passed over when more than :data:`MAX_BELOW_SHARE` of the
+    solid Gaussians under the seed lie below it (:func:`_below_share`) and
+    the other has at most that share: a flat part of the object or of what
+    it stands on (a chair's seat under a click on its backrest) is no
+    ground. The info then says so (``passed_over``).
     """
     est = estimate_up_axis(scene, camera, support=seeds, center=center, radius=radius)
+    means = scene.means.astype(np.float64)
+    found = []
     for key in ("support_plane", "scene_plane"):
         p = est.details.get(key)
         if p is None:
@@ -347,10 +416,17 @@ def _support_plane(scene: GaussianScene, camera: Camera, seeds: np.ndarray, cent
         point = np.asarray(p["point"], float)
         if normal @ (center - point) <= 0:
             continue  # the object must be above its support
-        band = max(3.0 * float(p["threshold"]), min_band * radius)
-        return (normal, point, band), {"source": key, "method": est.method,
-                                       "confidence": float(est.confidence)}
-    return None, {"source": None, "method": est.method, "confidence": float(est.confidence)}
+        below = _below_share(means, scene.opacities, normal, point, float(p["threshold"]), center, radius)
+        found.append((key, normal, point, max(3.0 * float(p["threshold"]), min_band * radius), below))
+    info = {"method": est.method, "confidence": float(est.confidence)}
+    if not found:
+        return None, {"source": None, **info}
+    best = found[0]
+    if best[4] > MAX_BELOW_SHARE and len(found) > 1 and found[1][4] <= MAX_BELOW_SHARE:
+        info["passed_over"] = {best[0]: f"{best[4]:.0%} of the solid Gaussians under the seed lie below it"}
+        best = found[1]
+    key, normal, point, band, _ = best
+    return (normal, point, band), {"source": key, **info}
 
 
 def _check_point_inputs(scene, camera, points, labels, region, options: dict):
@@ -419,7 +495,7 @@ def _grow_with_expansions(scene: GaussianScene, seeds: np.ndarray, center: np.nd
 
     The click's region may be a small part of the object (a chair's
     backrest): while the grown object reaches the edge of the growth region
-    (a Gaussian beyond :data:`_EDGE` of its radius), the region doubles, at
+    (a node of its graph, not a faint splat, beyond :data:`_EDGE` of its radius), the region doubles, at
     most ``max_expansions`` times. An object the growth closes around stops
     short of the edge; one that still reaches it after every doubling leaks
     into the scene, and the first growth is kept (``info["expansion"]`` says so).
@@ -433,7 +509,9 @@ def _grow_with_expansions(scene: GaussianScene, seeds: np.ndarray, center: np.nd
             keep_fraction=opt["keep_fraction"], min_opacity=opt["min_opacity"])
         if expansions == 0:
             first = selected, grow_info
-        reach = np.linalg.norm(scene.means[selected].astype(np.float64) - center, axis=1).max(initial=0.0)
+        # the graph's own nodes decide whether the object closes: faint splats hang about every surface
+        solid = selected & ((scene.opacities >= opt["min_opacity"]) | seeds)
+        reach = np.linalg.norm(scene.means[solid].astype(np.float64) - center, axis=1).max(initial=0.0)
         if reach < _EDGE * radius:
             grow_info["expansions"] = expansions
             return selected, grow_info
