@@ -32,7 +32,7 @@ from seed2gs_inverse.operators import scene_fingerprint
 from seed2gs_inverse.raster import build_operator, render
 from seed2gs_inverse.pipeline import ExtractSettings, extract, seed_lift
 from seed2gs_inverse.graph import apply_follow
-from seed2gs_inverse.pipeline.completion import faint_follow_matrix
+from seed2gs_inverse.pipeline.completion import enclosed_by_selection, faint_follow_matrix
 from seed2gs_inverse.progress import Progress, StageTimer
 from seed2gs_inverse.solvers import solve
 from seed2gs_inverse.synthetic import make_scene
@@ -86,7 +86,7 @@ def staged(syn, setup):
     masks = ex_mod.complete_masks(graph, labelled, lift, ref, s.completion)
     stack = ex_mod.stack_operators(labelled, syn.scene)
     sel = ex_mod.solve_selection(stack, masks, lift, s, graph=graph, smoothness=ex_mod.MODEL_FREE_SMOOTHNESS,
-                                 scene=syn.scene)
+                                 scene=syn.scene, up=orbits.up)
     return SimpleNamespace(settings=s, ref_img=ref_img, seed=seed2, info=info, ref=ref, lift=lift, bar=bar,
                            orbits=orbits, support_info=support_info, labelled=labelled, stack=stack, sel=sel, renderer=r, graph=graph,
                            masks=masks)
@@ -325,10 +325,17 @@ def test_solve_selection_with_the_graph_regulariser(syn, staged):
     # CG to a relative residual of 1e-5 (laplacian_smooth's default): within a few 1e-3 of the exact solve
     np.testing.assert_allclose(staged.sel.result.q, want, atol=4e-3)
     # follow_faint, then seed_connected: q is the regularised q, its faint Gaussians near the object set by
-    # the follow matrix (checked on its own in test_object_layers.py), and 0 on islands apart from G0
-    want_follow = faint_follow_matrix(syn.scene, staged.lift.center, staged.lift.radius)
-    assert (staged.sel.follow != want_follow).nnz == 0
-    island = apply_follow(staged.sel.result.q, want_follow) != staged.sel.q
+    # the follow matrix, the Gaussians the selection encloses by one selected Gaussian each (both checked
+    # on their own in test_object_layers.py), and 0 on islands apart from G0
+    faint = faint_follow_matrix(syn.scene, staged.lift.center, staged.lift.radius)
+    followed = apply_follow(staged.sel.result.q, faint)
+    enc = enclosed_by_selection(staged.stack, followed > staged.sel.threshold, syn.scene.means, up=staged.orbits.up)
+    follow = staged.sel.follow.tocsr()
+    assert (follow[~enc] != faint[~enc]).nnz == 0
+    rows = follow[enc]
+    assert np.all(np.diff(rows.indptr) == 1) and np.all(rows.data == 1.0)
+    assert np.all(followed[rows.indices] > staged.sel.threshold) and faint[rows.indices].nnz == 0
+    island = apply_follow(staged.sel.result.q, follow) != staged.sel.q
     assert island.sum() == staged.sel.n_disconnected and np.all(staged.sel.q[island] == 0)
     # unseen Gaussians on the graph are decided by their neighbours, not reset to G0
     free = nodes[e[nodes] == 0]

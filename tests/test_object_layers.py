@@ -19,7 +19,7 @@ from _pipeline_scenes import reference_camera, sphere_scene, surface
 from seed2gs_inverse import GaussianScene, ValidationError, build_operator, extract, render
 from seed2gs_inverse.frontend.model_free import GeometricTracker
 from seed2gs_inverse.graph import apply_follow, check_follow
-from seed2gs_inverse.pipeline.completion import faint_follow_matrix
+from seed2gs_inverse.pipeline.completion import enclosed_by_selection, faint_follow_matrix
 from seed2gs_inverse.pipeline.outputs import save_extraction
 from seed2gs_inverse.solvers.inputs import load_solve_inputs
 
@@ -189,3 +189,109 @@ def test_saved_solve_inputs_reproduce_q_with_the_faint_rule(alone, tmp_path):
     raw = inputs.solve(keep_islands=True).q
     shell = np.flatnonzero(np.diff(inputs.follow.indptr) > 0)
     np.testing.assert_array_equal(raw[shell], ex.q[shell])  # the rule holds without the islands too
+
+
+def _stuffed_ball(center, radius, n=700, n_in=600, seed=0):
+    """An opaque skin around stuffing: long thin translucent splats inside it, in random directions.
+
+    The stuffing never shows through the skin; the splats reach past it at
+    the silhouette, where the pixels are background. Returns the ball and
+    the stuffing's mask.
+    """
+    rng = np.random.default_rng(seed)
+    dirs, th = _fibonacci(n)
+    colour = np.where((np.floor(th) % 2 == 0)[:, None], [0.9, 0.2, 0.1], [0.9, 0.7, 0.1])
+    skin = surface(center + radius * dirs, dirs, radius * 2.2 / np.sqrt(n), colour, opacity=0.95)
+    p = rng.normal(size=(n_in, 3))
+    p /= np.linalg.norm(p, axis=1, keepdims=True)
+    r = 0.9 * radius * rng.uniform(0.3, 0.85, n_in) ** (1 / 3)
+    along = rng.normal(size=(n_in, 3))  # surface() puts the thin axis along this "normal"
+    along /= np.linalg.norm(along, axis=1, keepdims=True)
+    stuffing = surface(center + r[:, None] * p, along, 0.2 * radius, np.tile([0.3, 0.25, 0.2], (n_in, 1)),
+                       thin=0.08, opacity=0.3)
+    return GaussianScene.concat([skin, stuffing]), np.r_[np.zeros(n, bool), np.ones(n_in, bool)]
+
+
+@pytest.fixture(scope="module", params=["on_ground", "alone"])
+def stuffed(request):
+    """The stuffed ball on the ground disc of ``sphere_scene``, or alone; (scene, truth, stuffing, info)."""
+    on_ground = request.param == "on_ground"
+    scene, labels, info = sphere_scene(seed=3, n_sphere=300, n_ground=2500 if on_ground else 100)
+    ball, stuffing = _stuffed_ball(info["center"], info["radius"])
+    if not on_ground:
+        return ball, np.ones(len(ball), bool), stuffing, info
+    ground = scene.subset(~labels)
+    no = np.zeros(len(ground), bool)
+    return GaussianScene.concat([ground, ball]), np.r_[no, np.ones(len(ball), bool)], np.r_[no, stuffing], info
+
+
+def test_stuffing_that_reaches_past_the_silhouette_follows_the_object(stuffed, tmp_path):
+    """The stuffing's only weight above the operators' cut-off lies on background pixels past the skin.
+
+    Without the enclosed Gaussians' rule the solver gives it 0 and the
+    remainder keeps most of the object's alpha (checked below); with it the
+    stuffing follows the skin, the ground under the ball stays out, and the
+    saved solve inputs still give the run's ``q``.
+    """
+    scene, truth, stuffing, info = stuffed
+    ref = reference_camera(info, 160, 120, dist=3.0, elev_deg=20.0)
+    seed = _seed(scene, truth, ref)
+    ex = extract(scene, ref, seed, progress=False, up=info["up"])
+    share = _left_behind(scene, truth, ex.selected, _views(info))
+    assert share <= 0.02, f"the remainder keeps {share:.1%} of the object's alpha"
+    assert ex.selected[stuffing].mean() >= 0.98
+    outside = ex.selected & ~truth
+    assert outside.sum() <= 0.02 * truth.sum(), f"{int(outside.sum())} ground Gaussians selected"
+    out = save_extraction(ex, tmp_path / "out", figure=False, save_operators=True)
+    np.testing.assert_array_equal(load_solve_inputs(out).solve().q, ex.q)
+    # the precondition: the solver's own q leaves most of the stuffing out, and it shows alone
+    raw = ex.result.q > ex.threshold
+    assert raw[stuffing].mean() < 0.8
+    assert _left_behind(scene, truth, raw | ~stuffing & ex.selected, _views(info)) > 0.2
+
+
+def _enclosed_brute_force(views, selected, means, up, footprint=0.5, base_quantile=0.01):
+    """Per Gaussian and per view, by plain loops: the reference of enclosed_by_selection."""
+    xs = means[selected]
+    lo, hi = xs.min(0), xs.max(0)
+    base = np.quantile(xs @ up, base_quantile)
+    out = np.zeros(len(means), bool)
+    images = [(op.W @ selected.astype(np.float32)).reshape(op.image_shape) for op in views]
+    for i, x in enumerate(means):
+        if selected[i] or np.any(x < lo) or np.any(x > hi) or x @ up < base:
+            continue
+        inside = True
+        for op, img in zip(views, images):
+            uv, z = op.camera.project(x[None])
+            u, v = np.floor(uv[0]) if np.isfinite(uv).all() else (-1, -1)
+            if not (z[0] > op.camera.near and 0 <= u < img.shape[1] and 0 <= v < img.shape[0]
+                    and img[int(v), int(u)] >= footprint):
+                inside = False
+                break
+        out[i] = inside
+    return out
+
+
+def test_enclosed_by_selection_against_brute_force(on_ground):
+    scene, truth, info = on_ground
+    views = [build_operator(scene, v) for v in _views(info)]
+    up = np.asarray(info["up"], np.float64)
+    selected = truth.copy()
+    rng = np.random.default_rng(1)
+    selected[np.flatnonzero(truth)[rng.random(int(truth.sum())) < 0.3]] = False  # holes, inner and outer
+    means = scene.means.astype(np.float64)
+    got = enclosed_by_selection(views, selected, means, up=up)
+    want = _enclosed_brute_force(views, selected, means, up)
+    np.testing.assert_array_equal(got, want)
+    assert got[truth].sum() >= 50  # the holes of the inner layer behind the outer surface
+    # of the ground, only what the ball hides from every view: right under it
+    rel = means[got & ~truth] - info["center"]
+    flat = np.linalg.norm(rel - np.outer(rel @ up, up), axis=1)
+    assert np.all(flat < 0.5 * info["radius"]), np.round(flat / info["radius"], 2)
+    assert not enclosed_by_selection(views, np.zeros(len(means), bool), means).any()
+    with pytest.raises(ValidationError, match="footprint"):
+        enclosed_by_selection(views, selected, means, footprint=0.0)
+    with pytest.raises(ValidationError, match="up"):
+        enclosed_by_selection(views, selected, means, up=(0.0, 0.0, 0.0))
+    with pytest.raises(ValidationError, match="selected"):
+        enclosed_by_selection(views, selected.astype(int), means)

@@ -140,8 +140,9 @@ def register(subparsers) -> None:
                         "default the model-free tracker does, where the orbit axis is trusted)")
     p.add_argument("--no-follow-faint", action="store_true",
                    help="leave faint Gaussians near the object to the solver (by default each takes the membership "
-                        "of its nearest opaque neighbours, so translucent shells and inner layers leave with the "
-                        "object instead of staying in the remainder)")
+                        "of its nearest opaque neighbours, and each Gaussian every view shows inside the "
+                        "selection's silhouette that of its nearest selected one, so translucent shells and inner "
+                        "layers leave with the object instead of staying in the remainder)")
     p.add_argument("--format", choices=("ply", "splat"), default=None, help="object/remainder format (default ply)")
     p.add_argument("--save-operators", action="store_true",
                    help="also write what the solve took into OUTDIR: operators/, masks/ (one view_NNN.npy per "

@@ -57,6 +57,15 @@ region takes the membership of its ``k`` nearest opaque ones,
 
 with :math:`\epsilon` a hundredth of the median neighbour distance.
 
+**Enclosed Gaussians follow the selection** (:func:`follow_enclosed`). The
+views' operators keep only weights of at least ``min_weight``; behind an
+opaque skin an inner splat's weights fall below it, so its only evidence
+comes from where it reaches past the silhouette, on background pixels, and
+the solver gives it 0. A Gaussian whose centre every view shows inside the
+selection's footprint (:func:`enclosed_by_selection`: the selection's
+visual hull, above its base) takes the membership of its nearest selected
+Gaussian.
+
 With user-supplied 2D trackers (SAM2) the masks have no unknown pixels where
 the object is visible: the fill is a no-op and the regulariser only decides
 Gaussians no view's pixels reach (Algorithm 1 is unchanged otherwise).
@@ -66,14 +75,17 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.spatial import cKDTree
 
+from .._threads import n_threads
 from ..errors import ValidationError
-from ..graph import follow_matrix, gaussian_graph
+from ..graph import check_follow, follow_matrix, gaussian_graph
 from ..solvers.smoothing import harmonic_extension
+from ..operators import as_stack
 from .local import neighbourhood
 
 __all__ = ["object_graph", "complete_membership", "tracked_membership", "fill_unknown", "faint_follow_matrix",
-           "GRAPH_DEFAULTS"]
+           "enclosed_by_selection", "follow_enclosed", "GRAPH_DEFAULTS"]
 
 #: Graph settings used by extract(): k neighbours, colour and normal sigmas,
 #: and the region (multiples of the lift's radius about its centre).
@@ -290,3 +302,142 @@ def tracked_membership(graph, operators, masks, prior=None, *, min_evidence: flo
     qhat = np.clip(qhat, 0.0, 1.0)
     fixed = (den >= min_evidence) & ((qhat <= confident) | (qhat >= 1.0 - confident))
     return harmonic_extension(graph, fixed, qhat, prior=prior, rtol=rtol)
+
+
+def enclosed_by_selection(stack, selected, means, *, up=None, footprint: float = 0.5,
+                          base_quantile: float = 0.01) -> np.ndarray:
+    r"""Bool (N,): unselected Gaussians whose centres every view shows inside the selection's footprint.
+
+    Parameters
+    ----------
+    stack : OperatorStack or sequence of views
+        The views (anything :func:`~seed2gs_inverse.operators.as_stack`
+        accepts), each with its camera.
+    selected : (N,) bool
+        The selection ``S``.
+    means : (N, 3) array
+        Gaussian centres.
+    up : (3,) array, optional
+        The orbit axis. Given, a candidate must also lie at or above the
+        selection's base: the ``base_quantile`` of the selected centres'
+        heights along ``up``.
+    footprint : float in (0, 1]
+        A pixel is in the selection's footprint where ``W(c) 1_S`` is at
+        least this.
+    base_quantile : float in [0, 1)
+        See ``up``.
+
+    Returns
+    -------
+    (N,) bool
+        The enclosed Gaussians (none of ``S``).
+
+    Raises
+    ------
+    ValidationError
+        Bad shapes or parameters, a view without a camera, or operators
+        :func:`~seed2gs_inverse.operators.as_stack` refuses.
+
+    Notes
+    -----
+    The candidates are the unselected Gaussians in the selection's
+    axis-aligned bounding box. A candidate is enclosed when, in every view
+    ``c``, its centre projects in front of the camera's near plane, inside
+    the image, onto a pixel ``u`` with :math:`(W(c) 1_S)(u) \ge`
+    ``footprint``: it lies in the selection's visual hull over the views.
+    Such a Gaussian sits inside the object or behind it from every side,
+    where it never dominates a pixel; what evidence it gets comes from the
+    parts of its footprint that reach past the silhouette (a long or
+    translucent splat), on background pixels. Anything standing apart from
+    the object shows beside it in some view, and the ground under it lies
+    below its base.
+    """
+    sel = np.asarray(selected)
+    x = np.asarray(means, np.float64)
+    if sel.dtype != bool or sel.ndim != 1 or x.shape != (sel.size, 3):
+        raise ValidationError(f"enclosed_by_selection: selected must be bool (N,) and means (N, 3), got "
+                              f"{sel.dtype} {sel.shape} and {x.shape}")
+    if not (0 < footprint <= 1) or not (0 <= base_quantile < 1):
+        raise ValidationError(f"enclosed_by_selection: footprint must be in (0, 1] and base_quantile in [0, 1), "
+                              f"got {footprint!r} and {base_quantile!r}")
+    out = np.zeros(sel.size, bool)
+    if not sel.any():
+        return out
+    xs = x[sel]
+    lo, hi = xs.min(0), xs.max(0)
+    cand = ~sel & np.all((x >= lo) & (x <= hi), axis=1)
+    if up is not None:
+        u = np.asarray(up, np.float64).ravel()
+        if u.shape != (3,) or not np.all(np.isfinite(u)) or np.linalg.norm(u) == 0:
+            raise ValidationError(f"enclosed_by_selection: up must be a nonzero finite 3-vector, got {up!r}")
+        u = u / np.linalg.norm(u)
+        cand &= x @ u >= np.quantile(xs @ u, base_quantile)
+    idx = np.flatnonzero(cand)
+    stack = as_stack(stack)
+    s = sel.astype(np.float32)
+    for i, view in enumerate(stack):
+        if idx.size == 0:
+            break
+        cam = view.camera
+        if cam is None:
+            raise ValidationError(f"enclosed_by_selection: view {i} has no camera")
+        h, w = view.image_shape
+        fp = np.asarray(view.W @ s).reshape(h, w) >= footprint
+        uv, z = cam.project(x[idx])
+        ok = np.isfinite(uv).all(1) & (z > cam.near)
+        px = np.floor(np.where(ok[:, None], uv, -1.0)).astype(np.int64)
+        ok &= (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
+        ok[ok] = fp[px[ok, 1], px[ok, 0]]
+        idx = idx[ok]
+    out[idx] = True
+    return out
+
+
+def follow_enclosed(stack, means, q, tau: float, follow, *, up=None) -> tuple[sp.csr_matrix, np.ndarray]:
+    """``(follow, q)`` with a row for each Gaussian the selection ``q > tau`` encloses.
+
+    Parameters
+    ----------
+    stack : OperatorStack or sequence of views
+        The supervision views, each with its camera.
+    means : (N, 3) array
+    q : (N,) array
+        The membership after ``follow`` was applied.
+    tau : float
+        The selection's threshold.
+    follow : (N, N) sparse
+        A follow matrix (:func:`~seed2gs_inverse.graph.check_follow`), e.g.
+        :func:`faint_follow_matrix`'s.
+    up : (3,) array, optional
+        Passed to :func:`enclosed_by_selection`.
+
+    Returns
+    -------
+    (N, N) scipy.sparse.csr_matrix, (N,) float32
+        ``follow`` in which each enclosed Gaussian's row (any faint row it
+        had replaced) holds weight 1 on its nearest Gaussian of the
+        selection that has no row (its ``q`` is the solver's own), and
+        ``q`` with that value; both unchanged when nothing is enclosed.
+
+    Raises
+    ------
+    ValidationError
+        A bad ``follow`` or ``q``, or what :func:`enclosed_by_selection` refuses.
+    """
+    qq = np.asarray(q, np.float32).ravel()
+    follow = check_follow(follow, qq.size)
+    above = qq > float(tau)
+    enclosed = enclosed_by_selection(stack, above, means, up=up)
+    anchors = np.flatnonzero(above & (np.diff(follow.indptr) == 0))
+    if not enclosed.any() or anchors.size == 0:
+        return follow, qq
+    x = np.asarray(means, np.float64)
+    rows = np.flatnonzero(enclosed)
+    _, nb = cKDTree(x[anchors]).query(x[rows], workers=n_threads())
+    cols = anchors[np.asarray(nb).ravel()]
+    kept = sp.diags((~enclosed).astype(np.float64)) @ follow  # an enclosed faint Gaussian's row is replaced
+    out = (kept + sp.csr_matrix((np.ones(rows.size), (rows, cols)), shape=follow.shape)).tocsr()
+    out.eliminate_zeros()
+    qq = qq.copy()
+    qq[rows] = qq[cols]
+    return out, qq

@@ -262,7 +262,7 @@ def extract(scene: GaussianScene | FrozenScene, camera: Camera, prompt: Any, gro
         with timer("solve"), feedback.bar(f"solve ({s.method})") as bar:
             stack = stack_operators(labelled, scene, built=stack)
             sel = solve_selection(stack, masks, lift, s, progress=bar.solve_callback, graph=graph,
-                                  smoothness=smoothness, scene=scene, local=local)
+                                  smoothness=smoothness, scene=scene, local=local, up=orbits.up)
     notes = result_warnings(ref, lift, masks, stack, sel)
     for note in notes:
         warnings.warn(note, stacklevel=2)

@@ -109,7 +109,7 @@ class Extraction:
         nothing needed it), which the solve's regulariser used when
         ``resolved["smoothness"] > 0``.
     follow : scipy.sparse (N, N) or None
-        The faint Gaussians' rows applied to the solver's ``q``
+        The faint and the enclosed Gaussians' rows applied to the solver's ``q``
         (:attr:`~seed2gs_inverse.pipeline.stages.Selection.follow`; None
         without ``settings.follow_faint``).
 

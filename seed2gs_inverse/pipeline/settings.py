@@ -282,8 +282,14 @@ class ExtractSettings:
         (:func:`~seed2gs_inverse.pipeline.completion.faint_follow_matrix`).
         Default True: their evidence is a trace, and left to the prior the
         translucent shells and inner layers of an object stay in the
-        remainder as a see-through copy of it. False: the solver's
-        membership for them.
+        remainder as a see-through copy of it. Then the unselected
+        Gaussians whose centres every supervision view shows inside the
+        selection's footprint, at or above its base, take the membership of
+        their nearest selected Gaussian
+        (:func:`~seed2gs_inverse.pipeline.completion.follow_enclosed`): their
+        only weight above ``min_weight`` lies where their splats reach past
+        the silhouette, on background pixels. False: the solver's
+        membership for both.
     support_background : bool
         The model-free tracker labels the support surface (the ground under
         the object) background in every orbit view (default True): pixels

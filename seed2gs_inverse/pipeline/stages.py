@@ -47,8 +47,8 @@ from ..operators import OperatorStack, as_stack
 from ..solvers import solve
 from ..solvers._common import normalize_mask
 from .box_object import box_object_mask
-from .completion import (GRAPH_DEFAULTS, complete_membership, faint_follow_matrix, fill_unknown, object_graph,
-                         tracked_membership)
+from .completion import (GRAPH_DEFAULTS, complete_membership, faint_follow_matrix, fill_unknown, follow_enclosed,
+                         object_graph, tracked_membership)
 from .point_object import point_object_mask
 from .islands import seed_connected
 from .local import Neighbourhood, neighbourhood
@@ -145,7 +145,9 @@ class Selection:
         reset or the regulariser.
     q : (N,) float32
         ``result.q``, its faint Gaussians near the object set to their
-        opaque neighbours' membership (with ``settings.follow_faint``), and
+        opaque neighbours' membership and the Gaussians the selection
+        encloses to their nearest selected one's (with
+        ``settings.follow_faint``), and
         set to 0 on the ``n_disconnected`` Gaussians of islands apart from
         G0 (with ``settings.seed_connected``).
     threshold : float
@@ -156,7 +158,9 @@ class Selection:
         Gaussians above tau in islands apart from G0, set to 0.
     follow : (N, N) sparse or None
         The faint Gaussians' rows (:func:`~.completion.faint_follow_matrix`)
-        applied to ``result.q`` (with ``settings.follow_faint``).
+        and the enclosed Gaussians' rows (:func:`~.completion.enclosed_by_selection`:
+        weight 1 on the nearest selected Gaussian whose ``q`` the solver
+        decided), applied to ``result.q`` (with ``settings.follow_faint``).
     """
 
     result: SolveResult
@@ -646,7 +650,8 @@ def _supervises(clip: str, k: int) -> bool:
 
 def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, progress=None, *,
                     graph: sp.csr_matrix | None = None, smoothness: float = 0.0,
-                    scene: GaussianScene | None = None, local: Neighbourhood | None = None) -> Selection:
+                    scene: GaussianScene | None = None, local: Neighbourhood | None = None,
+                    up=None) -> Selection:
     """Stage 8: ``q`` from the solver initialised from G0, and ``selected = q > tau``.
 
     Parameters
@@ -671,6 +676,10 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
         (:func:`~.local.object_neighbourhood`: every column of the stack,
         G0 and the graph's region): the faint Gaussians' rule and the
         islands then run on its Gaussians alone, with the same result.
+    up : (3,) array, optional
+        The orbit axis: the enclosed Gaussians' rule keeps out what lies
+        below the selection's base (the ground under it). None: no such
+        bound.
 
     Returns
     -------
@@ -694,6 +703,12 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     graph's region below its ``min_opacity`` then take the membership of
     their nearest opaque neighbours
     (:func:`~.completion.faint_follow_matrix`): their own evidence is a trace.
+    Then the unselected Gaussians whose centres every supervision view
+    shows inside the selection's footprint, at or above its base along
+    ``up`` (:func:`~.completion.follow_enclosed`: inside the object or
+    behind it from every side), take the ``q`` of their nearest selected
+    Gaussian that has no faint row: their evidence comes from the parts of
+    their splats that reach past the silhouette, on background pixels.
     ``tau`` is ``settings.threshold`` or the solver's own. With
     ``settings.seed_connected`` (default) the Gaussians above ``tau`` in
     islands apart from G0 that the masks do not call object
@@ -716,6 +731,7 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     if settings.follow_faint:
         opts = {**GRAPH_DEFAULTS, **settings.graph_options}
         follow, q = _follow_faint(scene, lift, q, opts, local)
+        follow, q = follow_enclosed(stack, scene.means, q, tau, follow, up=up)
     n_removed = 0
     if settings.seed_connected:
         graph_kw = {k: settings.lift_options[k] for k in ("k_neighbors", "link_factor") if k in settings.lift_options}
