@@ -19,7 +19,7 @@ from _pipeline_scenes import reference_camera, sphere_scene, surface
 from seed2gs_inverse import GaussianScene, ValidationError, build_operator, extract, render
 from seed2gs_inverse.frontend.model_free import GeometricTracker
 from seed2gs_inverse.graph import apply_follow, check_follow
-from seed2gs_inverse.pipeline.completion import enclosed_by_selection, faint_follow_matrix
+from seed2gs_inverse.pipeline.completion import enclosed_by_selection, faint_follow_matrix, follow_enclosed
 from seed2gs_inverse.pipeline.outputs import save_extraction
 from seed2gs_inverse.solvers.inputs import load_solve_inputs
 
@@ -295,3 +295,32 @@ def test_enclosed_by_selection_against_brute_force(on_ground):
         enclosed_by_selection(views, selected, means, up=(0.0, 0.0, 0.0))
     with pytest.raises(ValidationError, match="selected"):
         enclosed_by_selection(views, selected.astype(int), means)
+
+
+def test_follow_enclosed_replaces_the_enclosed_rows(on_ground):
+    """The follow matrix and q against the rule written as matrices: rows of the enclosed dropped, one 1 added."""
+    scene, truth, info = on_ground
+    views = [build_operator(scene, v) for v in _views(info)]
+    up = np.asarray(info["up"], np.float64)
+    n = len(scene)
+    rng = np.random.default_rng(2)
+    q = np.where(truth, 0.9, 0.1).astype(np.float32)
+    q[np.flatnonzero(truth)[rng.random(int(truth.sum())) < 0.3]] = 0.2  # holes the rule fills
+    holes = np.flatnonzero(q == np.float32(0.2))
+    faint = np.unique(np.r_[holes[:20], rng.choice(n, 20, replace=False)])  # rows of two, some enclosed
+    follow = sp.csr_matrix((np.full(2 * faint.size, 0.5), (np.repeat(faint, 2), rng.integers(0, n, 2 * faint.size))),
+                           shape=(n, n))
+    follow.sum_duplicates()  # a repeated neighbour: one entry of 1.0, the row still sums to 1
+    got, q2 = follow_enclosed(views, scene.means, q, 0.5, follow, up=up)
+    enclosed = enclosed_by_selection(views, q > 0.5, scene.means, up=up)
+    assert enclosed.sum() >= 50 and enclosed[faint].any()  # a faint row is replaced
+    anchors = np.flatnonzero((q > 0.5) & (np.diff(follow.indptr) == 0))
+    rows = np.flatnonzero(enclosed)
+    d2 = ((scene.means[rows, None, :].astype(np.float64) - scene.means[anchors][None].astype(np.float64)) ** 2).sum(-1)
+    nearest = anchors[np.argmin(d2, axis=1)]
+    want = sp.diags((~enclosed).astype(np.float64)) @ follow + sp.csr_matrix(
+        (np.ones(rows.size), (rows, nearest)), shape=(n, n))
+    np.testing.assert_array_equal(got.toarray(), want.toarray())
+    np.testing.assert_array_equal(q2[rows], q[nearest])
+    np.testing.assert_array_equal(q2[~enclosed], q[~enclosed])
+

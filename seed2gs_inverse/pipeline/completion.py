@@ -353,7 +353,7 @@ def enclosed_by_selection(stack, selected, means, *, up=None, footprint: float =
     below its base.
     """
     sel = np.asarray(selected)
-    x = np.asarray(means, np.float64)
+    x = np.asarray(means)  # converted to float64 at the rows read: no (N, 3) float64 copy
     if sel.dtype != bool or sel.ndim != 1 or x.shape != (sel.size, 3):
         raise ValidationError(f"enclosed_by_selection: selected must be bool (N,) and means (N, 3), got "
                               f"{sel.dtype} {sel.shape} and {x.shape}")
@@ -361,18 +361,21 @@ def enclosed_by_selection(stack, selected, means, *, up=None, footprint: float =
         raise ValidationError(f"enclosed_by_selection: footprint must be in (0, 1] and base_quantile in [0, 1), "
                               f"got {footprint!r} and {base_quantile!r}")
     out = np.zeros(sel.size, bool)
-    if not sel.any():
+    chosen = np.flatnonzero(sel)
+    if chosen.size == 0:
         return out
-    xs = x[sel]
+    xs = x[chosen].astype(np.float64)
     lo, hi = xs.min(0), xs.max(0)
-    cand = ~sel & np.all((x >= lo) & (x <= hi), axis=1)
+    idx = _in_box(x, lo, hi)
+    idx = idx[~sel[idx]]
+    xi = x[idx].astype(np.float64)
     if up is not None:
         u = np.asarray(up, np.float64).ravel()
         if u.shape != (3,) or not np.all(np.isfinite(u)) or np.linalg.norm(u) == 0:
             raise ValidationError(f"enclosed_by_selection: up must be a nonzero finite 3-vector, got {up!r}")
         u = u / np.linalg.norm(u)
-        cand &= x @ u >= np.quantile(xs @ u, base_quantile)
-    idx = np.flatnonzero(cand)
+        keep = xi @ u >= np.quantile(xs @ u, base_quantile)
+        idx, xi = idx[keep], xi[keep]
     stack = as_stack(stack)
     s = sel.astype(np.float32)
     for i, view in enumerate(stack):
@@ -383,12 +386,12 @@ def enclosed_by_selection(stack, selected, means, *, up=None, footprint: float =
             raise ValidationError(f"enclosed_by_selection: view {i} has no camera")
         h, w = view.image_shape
         fp = np.asarray(view.W @ s).reshape(h, w) >= footprint
-        uv, z = cam.project(x[idx])
+        uv, z = cam.project(xi)
         ok = np.isfinite(uv).all(1) & (z > cam.near)
         px = np.floor(np.where(ok[:, None], uv, -1.0)).astype(np.int64)
         ok &= (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
         ok[ok] = fp[px[ok, 1], px[ok, 0]]
-        idx = idx[ok]
+        idx, xi = idx[ok], xi[ok]
     out[idx] = True
     return out
 
@@ -428,16 +431,33 @@ def follow_enclosed(stack, means, q, tau: float, follow, *, up=None) -> tuple[sp
     follow = check_follow(follow, qq.size)
     above = qq > float(tau)
     enclosed = enclosed_by_selection(stack, above, means, up=up)
-    anchors = np.flatnonzero(above & (np.diff(follow.indptr) == 0))
+    chosen = np.flatnonzero(above)
+    anchors = chosen[follow.indptr[chosen + 1] == follow.indptr[chosen]]  # selected, without a row
     if not enclosed.any() or anchors.size == 0:
         return follow, qq
-    x = np.asarray(means, np.float64)
+    x = np.asarray(means)
     rows = np.flatnonzero(enclosed)
-    _, nb = cKDTree(x[anchors]).query(x[rows], workers=n_threads())
+    _, nb = cKDTree(x[anchors].astype(np.float64)).query(x[rows].astype(np.float64), workers=n_threads())
     cols = anchors[np.asarray(nb).ravel()]
-    kept = sp.diags((~enclosed).astype(np.float64)) @ follow  # an enclosed faint Gaussian's row is replaced
-    out = (kept + sp.csr_matrix((np.ones(rows.size), (rows, cols)), shape=follow.shape)).tocsr()
+    # an enclosed faint Gaussian's row is replaced; built from the entries, with no (N,) temporary
+    old = follow.tocoo()
+    kept = ~enclosed[old.row]
+    out = sp.csr_matrix((np.concatenate([old.data[kept], np.ones(rows.size)]),
+                         (np.concatenate([old.row[kept], rows]), np.concatenate([old.col[kept], cols]))),
+                        shape=follow.shape)
     out.eliminate_zeros()
+    out.sort_indices()
     qq = qq.copy()
     qq[rows] = qq[cols]
     return out, qq
+
+
+def _in_box(means: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Ascending indices of the (N, 3) ``means`` inside the box ``[lo, hi]``.
+
+    A block at a time: no (N, 3) temporary, whatever the scene's size.
+    """
+    block = 1 << 18
+    found = [np.flatnonzero(np.all((means[i:i + block] >= lo) & (means[i:i + block] <= hi), axis=1)) + i
+             for i in range(0, len(means), block)]
+    return np.concatenate(found).astype(np.int64, copy=False) if found else np.zeros(0, np.int64)
