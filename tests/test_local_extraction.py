@@ -19,6 +19,8 @@ from _pipeline_scenes import reference_camera, sphere_scene
 from _solver_scenes import random_views
 from seed2gs_inverse import GaussianScene
 from seed2gs_inverse.errors import ValidationError
+from seed2gs_inverse.graph import check_graph, graph_on_nodes
+from seed2gs_inverse.operators import OperatorStack, ViewOperator
 from seed2gs_inverse.pipeline import extract
 from seed2gs_inverse.pipeline.local import Neighbourhood, neighbourhood
 from seed2gs_inverse.raster import FrozenScene, build_operator
@@ -280,3 +282,20 @@ def test_the_lean_n_long_arrays_are_those_of_the_whole_computation():
     stack = OperatorStack(views)
     stack.columns()  # cached: the adjoint now adds at these alone
     np.testing.assert_array_equal(stack.rmatvec(y), plain)
+
+
+def test_touched_columns_hold_both_ends_of_an_edge_stored_one_way():
+    """check_graph accepts a graph symmetric within its tolerance whose stored pattern is not: (1, 3) = 1e-12 alone.
+
+    The solve on the touched columns must then hold node 3, and the restricted graph must be a valid matrix.
+    """
+    W = sp.csr_matrix(np.array([[0.5, 0.2, 0.0, 0.0, 0.0], [0.0, 0.7, 0.0, 0.0, 0.0]], np.float32))
+    stack = OperatorStack([ViewOperator(W, None, (1, 2))])
+    for entries in ([(0, 1, 1.0), (1, 0, 1.0), (1, 3, 1e-12)], [(0, 1, 1.0), (1, 0, 1.0), (3, 1, 1e-12)]):
+        r, c, v = zip(*entries)
+        graph = check_graph(sp.csr_matrix((v, (r, c)), shape=(5, 5)), 5)
+        cols = solvers.touched_columns(stack, graph)
+        np.testing.assert_array_equal(cols, [0, 1, 3])
+        graph_on_nodes(graph, cols).check_format(full_check=True)
+    q = solvers.solve(stack, [np.array([1.0, 1.0])], "voting", smoothness=1.0, graph=graph).q
+    assert q.shape == (5,) and np.all(np.isfinite(q))

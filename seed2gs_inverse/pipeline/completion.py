@@ -78,8 +78,9 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from .._threads import n_threads
+from .._validation import check_real
 from ..errors import ValidationError
-from ..graph import check_follow, follow_matrix, gaussian_graph
+from ..graph import _BLOCK, check_follow, follow_matrix, gaussian_graph
 from ..solvers.smoothing import harmonic_extension
 from ..operators import as_stack
 from .local import neighbourhood
@@ -357,9 +358,17 @@ def enclosed_by_selection(stack, selected, means, *, up=None, footprint: float =
     if sel.dtype != bool or sel.ndim != 1 or x.shape != (sel.size, 3):
         raise ValidationError(f"enclosed_by_selection: selected must be bool (N,) and means (N, 3), got "
                               f"{sel.dtype} {sel.shape} and {x.shape}")
-    if not (0 < footprint <= 1) or not (0 <= base_quantile < 1):
-        raise ValidationError(f"enclosed_by_selection: footprint must be in (0, 1] and base_quantile in [0, 1), "
-                              f"got {footprint!r} and {base_quantile!r}")
+    check_real("enclosed_by_selection: footprint", footprint, lo=0, hi=1, lo_open=True)
+    check_real("enclosed_by_selection: base_quantile", base_quantile, lo=0, hi=1, hi_open=True)
+    stack = as_stack(stack)
+    if stack.n_gaussians != sel.size:
+        raise ValidationError(f"enclosed_by_selection: the views have {stack.n_gaussians} columns, the selection "
+                              f"{sel.size} Gaussians; pass the views of the same scene")
+    if up is not None:
+        u = np.asarray(up, np.float64).ravel()
+        if u.shape != (3,) or not np.all(np.isfinite(u)) or np.linalg.norm(u) == 0:
+            raise ValidationError(f"enclosed_by_selection: up must be a nonzero finite 3-vector, got {up!r}")
+        u = u / np.linalg.norm(u)
     out = np.zeros(sel.size, bool)
     chosen = np.flatnonzero(sel)
     if chosen.size == 0:
@@ -370,13 +379,8 @@ def enclosed_by_selection(stack, selected, means, *, up=None, footprint: float =
     idx = idx[~sel[idx]]
     xi = x[idx].astype(np.float64)
     if up is not None:
-        u = np.asarray(up, np.float64).ravel()
-        if u.shape != (3,) or not np.all(np.isfinite(u)) or np.linalg.norm(u) == 0:
-            raise ValidationError(f"enclosed_by_selection: up must be a nonzero finite 3-vector, got {up!r}")
-        u = u / np.linalg.norm(u)
         keep = xi @ u >= np.quantile(xs @ u, base_quantile)
         idx, xi = idx[keep], xi[keep]
-    stack = as_stack(stack)
     s = sel.astype(np.float32)
     for i, view in enumerate(stack):
         if idx.size == 0:
@@ -429,7 +433,7 @@ def follow_enclosed(stack, means, q, tau: float, follow, *, up=None) -> tuple[sp
     """
     qq = np.asarray(q, np.float32).ravel()
     follow = check_follow(follow, qq.size)
-    above = qq > float(tau)
+    above = qq > check_real("follow_enclosed: tau", tau)
     enclosed = enclosed_by_selection(stack, above, means, up=up)
     chosen = np.flatnonzero(above)
     anchors = chosen[follow.indptr[chosen + 1] == follow.indptr[chosen]]  # selected, without a row
@@ -457,7 +461,6 @@ def _in_box(means: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
 
     A block at a time: no (N, 3) temporary, whatever the scene's size.
     """
-    block = 1 << 18
-    found = [np.flatnonzero(np.all((means[i:i + block] >= lo) & (means[i:i + block] <= hi), axis=1)) + i
-             for i in range(0, len(means), block)]
+    found = [np.flatnonzero(np.all((means[i:i + _BLOCK] >= lo) & (means[i:i + _BLOCK] <= hi), axis=1)) + i
+             for i in range(0, len(means), _BLOCK)]
     return np.concatenate(found).astype(np.int64, copy=False) if found else np.zeros(0, np.int64)

@@ -280,7 +280,7 @@ def grow_object(scene, seeds, *, center, radius: float, plane=None, blocked=None
 
 def _attach_faint(scene: GaussianScene, idx: np.ndarray, faint: np.ndarray, sel: np.ndarray, cutoff: float,
                   overlap: float) -> int:
-    """Let the faint Gaussians (below ``min_opacity``) follow their nearest node of the growth graph; in place.
+    r"""Let the faint Gaussians (below ``min_opacity``) follow their nearest node of the growth graph; in place.
 
     A Gaussian of the (N,) bool ``faint`` whose nearest node ``j`` among
     ``idx`` lies within the link rule's reach

@@ -34,12 +34,12 @@ import numpy as np
 from .._threads import one_blas_thread
 from .._validation import as_real
 from ..errors import ValidationError
-from ..graph import check_graph
+from ..graph import check_graph, graph_on_nodes
 from . import beta_bernoulli, least_squares, voting, weighted_bce  # noqa: F401  (importing registers them)
 from ._common import (MethodResult, Problem, SolveResult, available_methods, check_options,
                       check_range, get_check, get_method, method_options, prepare,
                       problem_of, register_method, stack_masks)
-from ._local import LOCAL_METHODS, SupportPrior, restrict_graph, restrict_stack, touched_columns
+from ._local import LOCAL_METHODS, SupportPrior, touched_columns
 from ._progress import SolveProgress, reporting
 from .smoothing import RIDGE, harmonic_extension, laplacian_smooth, smooth_checked
 from .weighted_bce import WeightedBCE
@@ -134,9 +134,9 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
     else:
         # The other Gaussians keep the prior whatever the method does (module _local): solve on these.
         prior = SupportPrior(init, n)  # no (N,) float64 prior: the rest's q is spread from its two values
-        problem = problem_of(restrict_stack(stack, cols), mask_list, init, prior.at(cols))
+        problem = problem_of(stack.on_columns(cols), mask_list, init, prior.at(cols))
         local = _solve_prepared(fn, problem, method, min_evidence, progress, smoothness,
-                                None if graph is None or smoothness == 0 else restrict_graph(graph, cols), options)
+                                None if graph is None or smoothness == 0 else graph_on_nodes(graph, cols), options)
         result = _scattered(local, cols, prior, min_evidence, smoothness)
     result.seconds = time.perf_counter() - t0
     return result

@@ -4,7 +4,8 @@ A Gaussian whose column is empty in every view and that has no edge in the
 graph takes no part in the solve: it keeps the prior whatever the method
 does. :func:`~seed2gs_inverse.solvers.solve` therefore runs the methods of
 :data:`LOCAL_METHODS` on the touched columns alone (:func:`touched_columns`,
-:func:`restrict_stack`, :func:`restrict_graph`) and scatters ``q`` back to
+:meth:`~seed2gs_inverse.operators.OperatorStack.on_columns`,
+:func:`~seed2gs_inverse.graph.graph_on_nodes`) and scatters ``q`` back to
 the N Gaussians, so that the solve's vectors have the length of the object's
 neighbourhood, not of the scene. The columns keep their order, so every
 per-Gaussian sum runs over the same terms in the same order: ``q`` is bit
@@ -17,11 +18,10 @@ import numpy as np
 import scipy.sparse as sp
 
 from .._selection import support_mask
-from ..graph import graph_on_nodes
 from ..operators import OperatorStack
 from ._common import prior_from_init
 
-__all__ = ["LOCAL_METHODS", "touched_columns", "restrict_stack", "restrict_graph", "SupportPrior"]
+__all__ = ["LOCAL_METHODS", "touched_columns", "SupportPrior"]
 
 #: Methods whose arithmetic on a Gaussian's column never mixes with another column's (each
 #: Gaussian's value comes from sums over its own column, the pixels' sums from their own rows):
@@ -35,35 +35,23 @@ def touched_columns(stack: OperatorStack, graph: sp.csr_matrix | None = None) ->
     """Ascending indices of the columns with a weight in some view or an edge in ``graph`` (checked, (N, N)).
 
     The views' part is the stack's cached :meth:`~.OperatorStack.columns`;
-    a graph whose edges all join those columns adds nothing (its row
-    pointers at those columns account for every edge).
+    a graph whose edges all join those columns adds nothing. (``check_graph``
+    accepts a graph symmetric within a tolerance, whose stored pattern may
+    not be: both ends of every edge are tested.)
     """
     cols = stack.columns()
     if graph is None or not graph.nnz:
         return cols
-    # symmetric: the rows with entries are the nodes with an edge
     if int((graph.indptr[cols + 1] - graph.indptr[cols]).sum()) == graph.nnz:
-        return cols
+        # every edge starts at one of cols; it adds nothing if every one also ends there
+        at = np.minimum(np.searchsorted(cols, graph.indices), cols.size - 1)
+        if np.array_equal(cols[at], graph.indices):
+            return cols
     mark = np.zeros(stack.n_gaussians, bool)
     mark[cols] = True
     mark[graph.indices] = True
+    mark[np.flatnonzero(np.diff(graph.indptr))] = True  # the rows with an edge, for a pattern not symmetric
     return np.flatnonzero(mark)
-
-
-def restrict_stack(stack: OperatorStack, cols: np.ndarray) -> OperatorStack:
-    """The stack on the columns ``cols`` (ascending, holding every stored column of every view).
-
-    :meth:`~.OperatorStack.on_columns`: each view keeps its rows, data and
-    row pointers, only the column indices are renumbered (the entries of a
-    row keep their order); the stack keeps the last restriction, so a
-    second solve of the same stack does not restrict it again.
-    """
-    return stack.on_columns(cols)
-
-
-def restrict_graph(graph: sp.csr_matrix, cols: np.ndarray) -> sp.csr_matrix:
-    """The graph among ``cols`` (ascending, holding every node with an edge): rows and columns renumbered."""
-    return graph_on_nodes(graph, cols)
 
 
 class SupportPrior:
