@@ -237,20 +237,39 @@ def graph_on_nodes(graph: sp.csr_matrix, nodes) -> sp.csr_matrix:
     graph : (N, N) scipy.sparse.csr_matrix
     nodes : (M,) int array
         Strictly ascending node indices holding both ends of every stored
-        entry (not checked: an entry outside them is renumbered wrongly).
+        entry.
 
     Returns
     -------
     (M, M) csr_matrix
         The same entries, each row's in the same order, with int64
         row pointers; costs the M + 1 row pointers and the entries.
+
+    Raises
+    ------
+    ValidationError
+        ``graph`` is not a square CSR matrix, ``nodes`` not strictly
+        ascending integers in ``[0, N)``, or an entry with an end outside
+        ``nodes``.
     """
-    nodes = np.asarray(nodes, np.int64)
+    if not sp.isspmatrix_csr(graph) or graph.shape[0] != graph.shape[1]:
+        raise ValidationError(f"graph_on_nodes: graph must be a square CSR matrix, got "
+                              f"{type(graph).__name__} {getattr(graph, 'shape', None)}")
+    nodes = np.asarray(nodes)
+    n = graph.shape[0]
+    if nodes.ndim != 1 or (nodes.size and nodes.dtype.kind not in "ui"):
+        raise ValidationError(f"graph_on_nodes: nodes must be a 1-D integer array, got {nodes.dtype} {nodes.shape}")
+    nodes = nodes.astype(np.int64)
+    if nodes.size and (nodes[0] < 0 or nodes[-1] >= n or np.any(nodes[1:] <= nodes[:-1])):
+        raise ValidationError(f"graph_on_nodes: nodes must be strictly ascending indices in [0, {n})")
     start, stop = graph.indptr[nodes], graph.indptr[nodes + 1]
     counts = stop - start
     indptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     take = np.repeat(start - indptr[:-1], counts) + np.arange(indptr[-1])
-    local = np.searchsorted(nodes, graph.indices[take])  # every neighbour is in nodes: its position there
+    ends = graph.indices[take]
+    local = np.searchsorted(nodes, ends)
+    if indptr[-1] != graph.nnz or (ends.size and not np.array_equal(nodes[np.minimum(local, nodes.size - 1)], ends)):
+        raise ValidationError("graph_on_nodes: nodes must hold both ends of every stored entry of the graph")
     return sp.csr_matrix((graph.data[take], local, indptr), shape=(nodes.size, nodes.size))
 
 

@@ -297,5 +297,9 @@ def test_touched_columns_hold_both_ends_of_an_edge_stored_one_way():
         cols = solvers.touched_columns(stack, graph)
         np.testing.assert_array_equal(cols, [0, 1, 3])
         graph_on_nodes(graph, cols).check_format(full_check=True)
+        with pytest.raises(ValidationError, match="both ends"):  # the nodes the old shortcut returned
+            graph_on_nodes(graph, np.array([0, 1]))
+    with pytest.raises(ValidationError, match="ascending"):
+        graph_on_nodes(graph, np.array([3, 1, 0]))
     q = solvers.solve(stack, [np.array([1.0, 1.0])], "voting", smoothness=1.0, graph=graph).q
     assert q.shape == (5,) and np.all(np.isfinite(q))
