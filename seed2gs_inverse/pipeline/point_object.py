@@ -367,16 +367,13 @@ def linked_components(scene: GaussianScene, idx: np.ndarray, ref_nodes: np.ndarr
 #: a chair's seat has its legs and the floor.
 MAX_BELOW_SHARE = 0.1
 
-#: Opacity of the Gaussians that :func:`_below_share` counts (the growth's ``min_opacity``).
-_SOLID = 0.2
-
 
 def _below_share(means: np.ndarray, opacities: np.ndarray, normal: np.ndarray, point: np.ndarray, threshold: float,
-                 center: np.ndarray, radius: float) -> float:
+                 center: np.ndarray, radius: float, min_opacity: float) -> float:
     r"""Share of the solid Gaussians in the column under ``center`` that lie below the plane ``(normal, point)``.
 
-    The column holds the Gaussians of opacity at least :data:`_SOLID`
-    within ``radius`` of ``center`` across the normal and within
+    The column holds the Gaussians of opacity at least ``min_opacity``
+    (the growth's) within ``radius`` of ``center`` across the normal and within
     ``2 radius`` along it; a Gaussian is below when
     :math:`n \cdot (x - p) < -3 \tau` (``threshold`` :math:`\tau`, the
     plane fit's inlier distance). 0 when the column is empty.
@@ -384,14 +381,14 @@ def _below_share(means: np.ndarray, opacities: np.ndarray, normal: np.ndarray, p
     rel = means - center
     along = rel @ normal
     across = np.linalg.norm(rel - np.outer(along, normal), axis=1)
-    col = (across <= radius) & (np.abs(along) <= 2.0 * radius) & (opacities >= _SOLID)
+    col = (across <= radius) & (np.abs(along) <= 2.0 * radius) & (opacities >= min_opacity)
     if not col.any():
         return 0.0
     return float(np.mean((means[col] - point) @ normal < -3.0 * threshold))
 
 
 def _support_plane(scene: GaussianScene, camera: Camera, seeds: np.ndarray, center: np.ndarray, radius: float,
-                   min_band: float) -> tuple[tuple[np.ndarray, np.ndarray, float] | None, dict]:
+                   min_band: float, min_opacity: float) -> tuple[tuple[np.ndarray, np.ndarray, float] | None, dict]:
     """The support plane under the grown object (the ground) for :func:`grow_object`, and what it came from.
 
     The support or scene plane of
@@ -416,7 +413,8 @@ def _support_plane(scene: GaussianScene, camera: Camera, seeds: np.ndarray, cent
         point = np.asarray(p["point"], float)
         if normal @ (center - point) <= 0:
             continue  # the object must be above its support
-        below = _below_share(means, scene.opacities, normal, point, float(p["threshold"]), center, radius)
+        below = _below_share(means, scene.opacities, normal, point, float(p["threshold"]), center, radius,
+                             min_opacity)
         found.append((key, normal, point, max(3.0 * float(p["threshold"]), min_band * radius), below))
     info = {"method": est.method, "confidence": float(est.confidence)}
     if not found:
@@ -611,7 +609,8 @@ def point_object_mask(scene: GaussianScene, camera: Camera, points, labels=None,
             blocked = seed_lift(scene, camera, neg_patch, depth).g0 & ~seeds
         except ValidationError:
             blocked = None
-    plane, plane_info = _support_plane(scene, camera, seeds, lift.center, lift.radius, opt["min_band"])
+    plane, plane_info = _support_plane(scene, camera, seeds, lift.center, lift.radius, opt["min_band"],
+                                       opt["min_opacity"])
     selected, grow_info = _grow_with_expansions(scene, seeds, lift.center, lift.radius, plane, blocked, opt)
     mask = _render_mask(scene, camera, selected, mode)
     fallback = not mask.any()
