@@ -73,6 +73,7 @@ from .._validation import check_vector
 from ..errors import ValidationError
 from ..raster import build_operator, cone_cull
 from ..scene import GaussianScene
+from .point_object import POINT_OBJECT_DEFAULTS
 from .point_object import _support_plane as support_plane
 from .point_object import linked_components
 from .seed_lift import seed_lift
@@ -268,7 +269,8 @@ def box_object_mask(scene: GaussianScene, camera: Camera, mask, depth, box=None,
         return BoxObject(m, none, none, {**info, "cleaned": f"not cleaned: {exc}"})
     cand = lift.candidates
     means = scene.means.astype(np.float64)
-    plane, plane_info = support_plane(scene, camera, cand, lift.center, lift.radius, opt["min_band"])
+    plane, plane_info = support_plane(scene, camera, cand, lift.center, lift.radius, opt["min_band"],
+                                       POINT_OBJECT_DEFAULTS["min_opacity"])
     ground = np.zeros(n, bool)
     if plane is not None and plane_info["confidence"] < WEAK_CONFIDENCE:
         # a weak estimate is no ground: on an object scanned alone the "plane" cuts through its own base
