@@ -26,6 +26,7 @@ from ..errors import ValidationError
 from ..frontend.base import ContactZoneTracker, wants_regularizer
 from ..frontend.model_free import GeometricTracker
 from ..progress import Feedback, Progress, StageTimer
+from ..operators import OperatorStack
 from ..raster import FrozenScene, Renderer, compile_seconds
 from ..scene import GaussianScene
 from .completion import GRAPH_DEFAULTS
@@ -41,7 +42,6 @@ if TYPE_CHECKING:
     import scipy.sparse as sp
 
     from ..frontend.base import Grounder, LabelFiller, Tracker
-    from ..operators import OperatorStack
     from .seed_lift import SeedLift
 
 __all__ = ["Extraction", "extract", "Renderer", "ExtractSettings", "EXTRACT_DEFAULTS", "SOLVER_DEFAULTS", "STAGES",

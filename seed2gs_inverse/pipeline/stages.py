@@ -44,6 +44,7 @@ from ..frontend.base import SupportPlaneTracker
 from ..frontend.prompts import BoxPrompt, PointPrompt, seed_mask_from_prompt
 from ..graph import apply_follow
 from ..operators import OperatorStack, as_stack
+from ..raster import FrozenScene, Renderer
 from ..solvers import solve
 from ..solvers._common import normalize_mask
 from .box_object import box_object_mask
@@ -64,7 +65,6 @@ if TYPE_CHECKING:
     from ..frontend.base import LabelFiller, Tracker
     from ..operators import Rendering, ViewOperator
     from ..progress import Progress
-    from ..raster import FrozenScene, Renderer
     from ..scene import GaussianScene
     from ..solvers import SolveResult
     from .seed_lift import SeedLift
