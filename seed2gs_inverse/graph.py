@@ -318,14 +318,22 @@ def follow_matrix(scene: GaussianScene, k: int = 4, *, subset=None, min_opacity:
     opaque, faint = idx[~faint], idx[faint]
     if faint.size == 0 or opaque.size == 0:
         return sp.csr_matrix((n, n), dtype=np.float64)
-    kk = min(int(k), opaque.size)
-    d, nb = cKDTree(scene.means[opaque].astype(np.float64)).query(
-        scene.means[faint].astype(np.float64), k=kk, workers=n_threads())
-    d, nb = d.reshape(faint.size, kk), nb.reshape(faint.size, kk)
+    return _nearest_rows(scene.means, faint, opaque, int(k))
+
+
+def _nearest_rows(means: np.ndarray, rows: np.ndarray, anchors: np.ndarray, k: int) -> sp.csr_matrix:
+    """(N, N) follow rows: each of ``rows`` averages its ``k`` nearest ``anchors`` by inverse distance.
+
+    ``means`` (N, 3); ``rows`` and ``anchors`` non-empty int indices (checked
+    by the callers). The weights are :func:`follow_matrix`'s (its Returns).
+    """
+    kk = min(k, anchors.size)
+    d, nb = cKDTree(means[anchors].astype(np.float64)).query(
+        means[rows].astype(np.float64), k=kk, workers=n_threads())
+    d, nb = d.reshape(rows.size, kk), nb.reshape(rows.size, kk)
     w = 1.0 / (d + 1e-2 * float(np.median(d)) + 1e-30)
     w /= w.sum(axis=1, keepdims=True)
-    rows = np.repeat(faint, kk)
-    return sp.csr_matrix((w.ravel(), (rows, opaque[nb].ravel())), shape=(n, n))
+    return sp.csr_matrix((w.ravel(), (np.repeat(rows, kk), anchors[nb].ravel())), shape=(len(means),) * 2)
 
 
 def check_follow(follow, n: int | None = None, name: str = "follow") -> sp.csr_matrix:

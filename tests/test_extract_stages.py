@@ -342,7 +342,7 @@ def test_solve_selection_with_the_graph_regulariser(syn, staged):
     assert free.size and np.abs(staged.sel.q[free] - p[free]).max() > 0.1
     with pytest.raises(ValidationError, match="smoothness > 0 needs graph"):
         ex_mod.solve_selection(staged.stack, staged.masks, staged.lift, staged.settings, smoothness=1.0)
-    with pytest.raises(ValidationError, match="seed_connected and settings.follow_faint need the scene"):
+    with pytest.raises(ValidationError, match="seed_connected, follow_faint and follow_weak need the scene"):
         ex_mod.solve_selection(staged.stack, staged.masks, staged.lift, staged.settings)
 
 

@@ -44,7 +44,8 @@ _SETTING_FLAGS = {"method": "--method", "views": "--views", "orbit_scale": "--or
                   "max_view_pixels": "--max-view-pixels", "max_reference_pixels": "--max-reference-pixels",
                   "near_margin": "--near-margin", "threshold": "--threshold", "up": "--up", "option": "--option", "point_mode": "--point-mode",
                   "smoothness": "--smoothness", "completion": "--completion", "keep_islands": "--keep-islands",
-                  "no_support_background": "--no-support-background", "no_follow_faint": "--no-follow-faint"}
+                  "no_support_background": "--no-support-background", "no_follow_faint": "--no-follow-faint",
+                  "no_follow_weak": "--no-follow-weak"}
 _PROMPT_FLAGS = {"mask": "--mask", "box": "--box", "point": "--point", "prompt": "--prompt",
                  "negative": "--negative", "camera": "--camera", "cameras": "--cameras", "look_at": "--look-at",
                  "look_up": "--look-up", "fov": "--fov", "size": "--size"}
@@ -143,6 +144,10 @@ def register(subparsers) -> None:
                         "of its nearest opaque neighbours, and each Gaussian every view shows inside the "
                         "selection's silhouette that of its nearest selected one, so translucent shells and inner "
                         "layers leave with the object instead of staying in the remainder)")
+    p.add_argument("--no-follow-weak", action="store_true",
+                   help="leave unselected Gaussians near the object that dominate no pixel of any view to the "
+                        "solver (by default each takes the membership of its nearest Gaussians that do, so back "
+                        "and inner layers leave with the object instead of staying in the remainder)")
     p.add_argument("--format", choices=("ply", "splat"), default=None, help="object/remainder format (default ply)")
     p.add_argument("--save-operators", action="store_true",
                    help="also write what the solve took into OUTDIR: operators/, masks/ (one view_NNN.npy per "
@@ -407,6 +412,7 @@ def settings_from_args(args):
              "seed_connected": False if getattr(args, "keep_islands", False) else None,
              "support_background": False if getattr(args, "no_support_background", False) else None,
              "follow_faint": False if getattr(args, "no_follow_faint", False) else None,
+             "follow_weak": False if getattr(args, "no_follow_weak", False) else None,
              "solver_options": parse_options(args.option, method) if args.option else None}
     flags = {"n_views": "--views", "orbit_scale": "--orbit-scale", "threshold": "--threshold", "up": "--up",
              "max_view_pixels": "--max-view-pixels", "max_reference_pixels": "--max-reference-pixels",
@@ -475,7 +481,7 @@ def _up_cameras(path, where: str):
 #: Options a recorded report may lack, with the value that replays such a
 #: report as it ran (the option off).
 _ADDED_OPTIONS = {"seed_connected": False, "support_background": False, "follow_faint": False,
-                  "near_margin": None}
+                  "follow_weak": False, "near_margin": None}
 
 
 def _recorded_settings(rep: dict, progress: bool, where: str):

@@ -66,6 +66,16 @@ selection's footprint (:func:`enclosed_by_selection`: the selection's
 visual hull, above its base) takes the membership of its nearest selected
 Gaussian.
 
+**Weak Gaussians follow their strong neighbours** (:func:`follow_weak`). A
+Gaussian whose stored weight never reaches ``max_weight`` in any view never
+dominates a pixel: behind the skin, on the back layers, or a long splat
+crossing the surface. What its pixels say is decided by other Gaussians,
+and past the silhouette it is the background. Left unselected, it takes
+the inverse-distance mean of its ``k`` nearest strong Gaussians' ``q`` in
+the object's region (those with a weight of at least ``max_weight``,
+:func:`strong_columns`): the object's own where it lies among the
+object's, the ground's where it lies among the ground's.
+
 With user-supplied 2D trackers (SAM2) the masks have no unknown pixels where
 the object is visible: the fill is a no-op and the regulariser only decides
 Gaussians no view's pixels reach (Algorithm 1 is unchanged otherwise).
@@ -80,13 +90,14 @@ from scipy.spatial import cKDTree
 from .._threads import n_threads
 from .._validation import check_real
 from ..errors import ValidationError
-from ..graph import _BLOCK, check_follow, follow_matrix, gaussian_graph
+from ..graph import _BLOCK, _nearest_rows, check_follow, follow_matrix, gaussian_graph
 from ..solvers.smoothing import harmonic_extension
 from ..operators import as_stack
 from .local import neighbourhood
 
 __all__ = ["object_graph", "complete_membership", "tracked_membership", "fill_unknown", "faint_follow_matrix",
-           "enclosed_by_selection", "follow_enclosed", "GRAPH_DEFAULTS"]
+           "enclosed_by_selection", "follow_enclosed", "strong_columns", "follow_weak", "GRAPH_DEFAULTS",
+           "WEAK_DEFAULTS"]
 
 #: Graph settings used by extract(): k neighbours, colour and normal sigmas,
 #: and the region (multiples of the lift's radius about its centre).
@@ -443,17 +454,134 @@ def follow_enclosed(stack, means, q, tau: float, follow, *, up=None) -> tuple[sp
     rows = np.flatnonzero(enclosed)
     _, nb = cKDTree(x[anchors].astype(np.float64)).query(x[rows].astype(np.float64), workers=n_threads())
     cols = anchors[np.asarray(nb).ravel()]
-    # an enclosed faint Gaussian's row is replaced; built from the entries, with no (N,) temporary
-    old = follow.tocoo()
-    kept = ~enclosed[old.row]
-    out = sp.csr_matrix((np.concatenate([old.data[kept], np.ones(rows.size)]),
-                         (np.concatenate([old.row[kept], rows]), np.concatenate([old.col[kept], cols]))),
-                        shape=follow.shape)
-    out.eliminate_zeros()
-    out.sort_indices()
+    out = _replace_rows(follow, rows, sp.csr_matrix((np.ones(rows.size), (rows, cols)), shape=follow.shape))
     qq = qq.copy()
     qq[rows] = qq[cols]
     return out, qq
+
+
+#: The weak-evidence rule's settings (:func:`follow_weak`): the largest stored weight below which a
+#: Gaussian never dominates a pixel, and the strong neighbours each such Gaussian follows.
+WEAK_DEFAULTS = {"max_weight": 0.3, "k": 8}
+
+
+def strong_columns(stack, max_weight: float = WEAK_DEFAULTS["max_weight"]) -> np.ndarray:
+    """Ascending indices of the Gaussians with a stored weight of at least ``max_weight`` in some view.
+
+    Parameters
+    ----------
+    stack : OperatorStack or sequence of views
+        Anything :func:`~seed2gs_inverse.operators.as_stack` accepts.
+    max_weight : float in (0, 1]
+
+    Returns
+    -------
+    (M,) int64
+        Read from each view's stored weights: nothing of length N is made.
+
+    Raises
+    ------
+    ValidationError
+        A bad ``max_weight``, or operators :func:`~seed2gs_inverse.operators.as_stack` refuses.
+    """
+    h = check_real("strong_columns: max_weight", max_weight, lo=0, hi=1, lo_open=True)
+    found = [v.W.indices[v.W.data >= h] for v in as_stack(stack)]
+    return np.unique(np.concatenate(found)).astype(np.int64) if found else np.zeros(0, np.int64)
+
+
+def follow_weak(stack, means, q, tau: float, follow, candidates, *,
+                max_weight: float = WEAK_DEFAULTS["max_weight"],
+                k: int = WEAK_DEFAULTS["k"]) -> tuple[sp.csr_matrix, np.ndarray]:
+    r"""``(follow, q)`` with a row for each unselected Gaussian of ``candidates`` that never dominates a pixel.
+
+    Parameters
+    ----------
+    stack : OperatorStack or sequence of views
+        The supervision views.
+    means : (N, 3) array
+    q : (N,) array
+        The membership after ``follow`` was applied.
+    tau : float
+        The selection's threshold.
+    follow : (N, N) sparse or None
+        A follow matrix (:func:`~seed2gs_inverse.graph.check_follow`), e.g.
+        :func:`follow_enclosed`'s; None: none.
+    candidates : int array
+        The Gaussians the rule looks at (the object's region), ascending
+        and unique.
+    max_weight : float in (0, 1]
+        A Gaussian is weak when none of its stored weights in any view
+        reaches this (:func:`strong_columns`), strong otherwise.
+    k : int
+        Strong neighbours per weak Gaussian, >= 1.
+
+    Returns
+    -------
+    (N, N) scipy.sparse.csr_matrix, (N,) float32
+        ``follow`` in which the row of each weak candidate with
+        ``q <= tau`` (any row it had replaced) holds the inverse-distance
+        weights of its ``k`` nearest strong candidates that have no row
+        (:func:`~seed2gs_inverse.graph.follow_matrix`'s weights), and ``q``
+        with those averages; both unchanged (an empty ``follow`` for None)
+        when there is no such row or no such neighbour.
+
+    Raises
+    ------
+    ValidationError
+        A bad ``follow``, ``q``, ``tau``, ``candidates``, ``max_weight`` or ``k``.
+
+    Notes
+    -----
+    A Gaussian whose weight never reaches ``max_weight`` never dominates a
+    pixel of any view: its label comes from pixels that other Gaussians
+    decide, in front of it or beside it. Inner and back layers and the
+    long splats that cross a surface and reach past the silhouette are
+    such Gaussians; the solver gives them what those pixels say, often the
+    background beyond the silhouette, and the remainder keeps them as a
+    see-through copy of the object. Their strong neighbours' labels are
+    their own pixels' and are reliable; a weak Gaussian among the ground's
+    strong Gaussians follows the ground. Only unselected Gaussians follow:
+    the rule adds what was left behind and takes nothing from the
+    selection.
+    """
+    qq = np.asarray(q, np.float32).ravel()
+    n = qq.size
+    follow = sp.csr_matrix((n, n)) if follow is None else check_follow(follow, n)
+    tau = check_real("follow_weak: tau", tau)
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or int(k) < 1:
+        raise ValidationError(f"follow_weak: k must be a positive integer, got {k!r}")
+    idx = np.asarray(candidates)
+    if idx.ndim != 1 or idx.dtype.kind not in "ui" or (idx.size and (idx[0] < 0 or idx[-1] >= n
+                                                                     or np.any(idx[1:] <= idx[:-1]))):
+        raise ValidationError(f"follow_weak: candidates must be ascending unique indices in [0, {n})")
+    idx = idx.astype(np.int64, copy=False)
+    strong = np.isin(idx, strong_columns(stack, max_weight), assume_unique=True)
+    anchors = idx[strong]
+    anchors = anchors[follow.indptr[anchors + 1] == follow.indptr[anchors]]  # their q is the solver's
+    rows = idx[~strong]
+    rows = rows[qq[rows] <= tau]
+    if rows.size == 0 or anchors.size == 0:
+        return follow, qq
+    new = _nearest_rows(np.asarray(means), rows, anchors, int(k))
+    qq = qq.copy()
+    qq[rows] = (new[rows] @ qq.astype(np.float64)).astype(np.float32)
+    return _replace_rows(follow, rows, new), qq
+
+
+def _replace_rows(follow: sp.csr_matrix, rows: np.ndarray, new: sp.csr_matrix) -> sp.csr_matrix:
+    """``follow`` (checked) with its ``rows`` (ascending) replaced by those of ``new``, which holds no others.
+
+    Built from the entries, with no (N,) temporary.
+    """
+    old = follow.tocoo()
+    kept = ~np.isin(old.row, rows)
+    add = new.tocoo()
+    out = sp.csr_matrix((np.concatenate([old.data[kept], add.data]),
+                         (np.concatenate([old.row[kept], add.row]), np.concatenate([old.col[kept], add.col]))),
+                        shape=follow.shape)
+    out.eliminate_zeros()
+    out.sort_indices()
+    return out
 
 
 def _in_box(means: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:

@@ -109,9 +109,9 @@ class Extraction:
         nothing needed it), which the solve's regulariser used when
         ``resolved["smoothness"] > 0``.
     follow : scipy.sparse (N, N) or None
-        The faint and the enclosed Gaussians' rows applied to the solver's ``q``
+        The faint, the enclosed and the weak Gaussians' rows applied to the solver's ``q``
         (:attr:`~seed2gs_inverse.pipeline.stages.Selection.follow`; None
-        without ``settings.follow_faint``).
+        without ``settings.follow_faint`` and ``settings.follow_weak``).
 
     Notes
     -----

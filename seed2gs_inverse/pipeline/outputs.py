@@ -145,7 +145,7 @@ def solve_inputs_of(extraction: Extraction) -> dict:
     ValidationError
         The extraction has no settings, or used the regulariser
         (``resolved["smoothness"] > 0``) without keeping its graph, or
-        ``follow_faint`` without keeping its matrix.
+        ``follow_faint`` or ``follow_weak`` without keeping its matrix.
     """
     s = extraction.settings
     if s is None:
@@ -155,15 +155,17 @@ def solve_inputs_of(extraction: Extraction) -> dict:
     if smoothness > 0 and extraction.graph is None:
         raise ValidationError("save_operators: the extraction used the regulariser (smoothness "
                               f"{smoothness:g}) but holds no graph (Extraction.graph); run extract() again")
-    if s.follow_faint and extraction.follow is None:
-        raise ValidationError("save_operators: the extraction ran with follow_faint but holds no follow matrix "
+    follows = s.follow_faint or s.follow_weak
+    if follows and extraction.follow is None:
+        raise ValidationError("save_operators: the extraction ran with follow_faint or follow_weak but holds no "
+                              "follow matrix "
                               "(Extraction.follow); run extract() again")
     solver_q = np.asarray(extraction.result.q, np.float32)
-    if s.follow_faint:
+    if follows:
         solver_q = apply_follow(solver_q, extraction.follow)
     islands = np.flatnonzero(solver_q != np.asarray(extraction.q, np.float32)) if s.seed_connected else None
     return {"operators": extraction.operators, "masks": extraction.masks, "method": s.method,
             "options": s.solver_kwargs(), "init": extraction.lift.g0, "min_evidence": s.min_evidence,
             "smoothness": smoothness, "graph": extraction.graph if smoothness > 0 else None,
-            "follow": extraction.follow if s.follow_faint else None, "islands": islands,
+            "follow": extraction.follow if follows else None, "islands": islands,
             "threshold": float(extraction.threshold)}

@@ -290,6 +290,17 @@ class ExtractSettings:
         only weight above ``min_weight`` lies where their splats reach past
         the silhouette, on background pixels. False: the solver's
         membership for both.
+    follow_weak : bool
+        Unselected Gaussians near the object (within the graph's
+        ``region``) whose stored weight reaches
+        ``WEAK_DEFAULTS["max_weight"]`` in no view take the inverse-distance
+        mean membership of their nearest Gaussians that do
+        (:func:`~seed2gs_inverse.pipeline.completion.follow_weak`), after
+        the rules of ``follow_faint``. Default True: such a Gaussian never
+        dominates a pixel (inner and back layers, splats crossing the
+        surface), its pixels' labels are other Gaussians', and left out
+        it stays in the remainder as a see-through copy of the object.
+        False: the membership as the rules before leave it.
     support_background : bool
         The model-free tracker labels the support surface (the ground under
         the object) background in every orbit view (default True): pixels
@@ -343,6 +354,7 @@ class ExtractSettings:
     seed_connected: bool = True
     support_background: bool = True
     follow_faint: bool = True
+    follow_weak: bool = True
     near_margin: float | None = 1.0
 
     def __post_init__(self):
@@ -399,7 +411,7 @@ class ExtractSettings:
         if not (self.completion is None or isinstance(self.completion, str)) or self.completion not in COMPLETIONS:
             raise ValidationError(f"completion must be None, 'reference' or 'tracked', got {self.completion!r}")
         set_("graph_options", _graph_options(self.graph_options))
-        for name in ("seed_connected", "support_background", "follow_faint"):
+        for name in ("seed_connected", "support_background", "follow_faint", "follow_weak"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValidationError(f"{name} must be True or False, got {getattr(self, name)!r}")
             set_(name, bool(getattr(self, name)))

@@ -49,7 +49,7 @@ from ..solvers import solve
 from ..solvers._common import normalize_mask
 from .box_object import box_object_mask
 from .completion import (GRAPH_DEFAULTS, complete_membership, faint_follow_matrix, fill_unknown, follow_enclosed,
-                         object_graph, tracked_membership)
+                         follow_weak, object_graph, tracked_membership)
 from .point_object import point_object_mask
 from .islands import seed_connected
 from .local import Neighbourhood, neighbourhood
@@ -147,7 +147,8 @@ class Selection:
         ``result.q``, its faint Gaussians near the object set to their
         opaque neighbours' membership and the Gaussians the selection
         encloses to their nearest selected one's (with
-        ``settings.follow_faint``), and
+        ``settings.follow_faint``), its unselected weak Gaussians to their
+        strong neighbours' (with ``settings.follow_weak``), and
         set to 0 on the ``n_disconnected`` Gaussians of islands apart from
         G0 (with ``settings.seed_connected``).
     threshold : float
@@ -160,7 +161,9 @@ class Selection:
         The faint Gaussians' rows (:func:`~.completion.faint_follow_matrix`)
         and the enclosed Gaussians' rows (:func:`~.completion.enclosed_by_selection`:
         weight 1 on the nearest selected Gaussian whose ``q`` the solver
-        decided), applied to ``result.q`` (with ``settings.follow_faint``).
+        decided), applied to ``result.q`` (with ``settings.follow_faint``),
+        and the weak Gaussians' rows (:func:`~.completion.follow_weak`, with
+        ``settings.follow_weak``).
     """
 
     result: SolveResult
@@ -688,7 +691,7 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     Raises
     ------
     ValidationError
-        ``settings.seed_connected`` or ``settings.follow_faint`` without ``scene``, or a
+        ``settings.seed_connected``, ``settings.follow_faint`` or ``settings.follow_weak`` without ``scene``, or a
         ``local`` that is not a neighbourhood of ``scene``.
 
     Notes
@@ -709,6 +712,12 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     behind it from every side), take the ``q`` of their nearest selected
     Gaussian that has no faint row: their evidence comes from the parts of
     their splats that reach past the silhouette, on background pixels.
+    With ``settings.follow_weak`` (default) the unselected Gaussians of the
+    graph's region whose stored weights stay below
+    :data:`~.completion.WEAK_DEFAULTS` ``["max_weight"]`` in every view then
+    take the inverse-distance mean ``q`` of their nearest Gaussians that
+    reach it and have no row (:func:`~.completion.follow_weak`): they
+    dominate no pixel, so their pixels' labels are other Gaussians'.
     ``tau`` is ``settings.threshold`` or the solver's own. With
     ``settings.seed_connected`` (default) the Gaussians above ``tau`` in
     islands apart from G0 that the masks do not call object
@@ -722,9 +731,9 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
                    progress=progress, smoothness=smoothness, graph=graph, **settings.solver_kwargs())
     q = np.asarray(result.q, dtype=np.float32)
     tau = result.threshold if settings.threshold is None else float(settings.threshold)
-    if (settings.seed_connected or settings.follow_faint) and scene is None:
-        raise ValidationError("solve_selection: settings.seed_connected and settings.follow_faint need the scene "
-                              "(scene=); pass it or set both to False")
+    if (settings.seed_connected or settings.follow_faint or settings.follow_weak) and scene is None:
+        raise ValidationError("solve_selection: settings.seed_connected, follow_faint and follow_weak need the "
+                              "scene (scene=); pass it or set them to False")
     if scene is not None:
         _check_local(scene, local)
     follow = None
@@ -732,6 +741,9 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
         opts = {**GRAPH_DEFAULTS, **settings.graph_options}
         follow, q = _follow_faint(scene, lift, q, opts, local)
         follow, q = follow_enclosed(stack, scene.means, q, tau, follow, up=up)
+    if settings.follow_weak:
+        opts = {**GRAPH_DEFAULTS, **settings.graph_options}
+        follow, q = follow_weak(stack, scene.means, q, tau, follow, _rule_region(scene, lift, opts["region"], local))
     n_removed = 0
     if settings.seed_connected:
         graph_kw = {k: settings.lift_options[k] for k in ("k_neighbors", "link_factor") if k in settings.lift_options}
@@ -770,6 +782,13 @@ def _follow_faint(scene: GaussianScene, lift: SeedLift, q: np.ndarray, opts: dic
     out = np.array(q, dtype=np.float32)
     out[local.index] = apply_follow(out[local.index], follow)
     return local.expand(follow), out
+
+
+def _rule_region(scene: GaussianScene, lift: SeedLift, region: float, local: Neighbourhood | None) -> np.ndarray:
+    """Ascending indices of the Gaussians within ``region`` lift radii of its centre (through ``local``, which holds them)."""
+    if local is None:
+        return neighbourhood(scene, lift.center, region * lift.radius)
+    return local.index[neighbourhood(local.scene, lift.center, region * lift.radius)]
 
 
 def _islands(scene: GaussianScene, lift: SeedLift, above: np.ndarray, stack: OperatorStack, masks: list,
