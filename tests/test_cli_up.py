@@ -1,4 +1,4 @@
-"""`seed2gs extract --up / --cameras / --point-mode / --smoothness / --completion / --keep-islands` / `--no-follow-faint` (issue 10)."""
+"""`seed2gs extract --up / --cameras / --point-mode / --smoothness / --completion / --keep-islands` / `--no-follow-faint` / `--no-follow-weak`."""
 
 import json
 
@@ -134,23 +134,28 @@ def test_no_support_background_reaches_the_settings(files, capsys):
     assert "cannot be combined with --no-support-background" in capsys.readouterr().err
 
 
-def test_no_follow_faint_reaches_the_settings(files, capsys):
+def test_no_follow_faint_and_no_follow_weak_reach_the_settings(files, capsys):
     d, _ = files
-    assert _extract(d, d / "nff", "--no-follow-faint", "--up", "level") == 0, capsys.readouterr().err
+    assert _extract(d, d / "nff", "--no-follow-faint", "--no-follow-weak", "--up", "level") == 0, \
+        capsys.readouterr().err
     rep = json.loads((d / "nff" / "report.json").read_text())
-    assert rep["settings"]["follow_faint"] is False
+    assert rep["settings"]["follow_faint"] is False and rep["settings"]["follow_weak"] is False
     assert _extract(d, d / "ff_default", "--up", "level") == 0, capsys.readouterr().err
-    assert json.loads((d / "ff_default" / "report.json").read_text())["settings"]["follow_faint"] is True
-    # a report written before the option replays with it off, as it ran
-    old = dict(rep, settings={k: v for k, v in rep["settings"].items() if k != "follow_faint"})
+    default = json.loads((d / "ff_default" / "report.json").read_text())["settings"]
+    assert default["follow_faint"] is True and default["follow_weak"] is True
+    # a report written before the options replays with them off, as it ran
+    old = dict(json.loads((d / "ff_default" / "report.json").read_text()),
+               settings={k: v for k, v in default.items() if k not in ("follow_faint", "follow_weak")})
     old_path = d / "old_report.json"
     old_path.write_text(json.dumps(old))
     assert cli.main(["extract", "--from-report", str(old_path), "-o", str(d / "old_rep")]) == 0, \
         capsys.readouterr().err
-    assert json.loads((d / "old_rep" / "report.json").read_text())["settings"]["follow_faint"] is False
-    assert cli.main(["extract", "--from-report", str(d / "nff" / "report.json"), "--no-follow-faint", "-o",
-                     str(d / "nff_rep")]) == 2
-    assert "cannot be combined with --no-follow-faint" in capsys.readouterr().err
+    replayed = json.loads((d / "old_rep" / "report.json").read_text())["settings"]
+    assert replayed["follow_faint"] is False and replayed["follow_weak"] is False
+    for flag in ("--no-follow-faint", "--no-follow-weak"):
+        assert cli.main(["extract", "--from-report", str(d / "nff" / "report.json"), flag, "-o",
+                         str(d / "nff_rep")]) == 2
+        assert f"cannot be combined with {flag}" in capsys.readouterr().err
 
 
 def test_near_margin_reaches_the_settings(files, capsys):

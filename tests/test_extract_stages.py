@@ -32,7 +32,7 @@ from seed2gs_inverse.operators import scene_fingerprint
 from seed2gs_inverse.raster import build_operator, render
 from seed2gs_inverse.pipeline import ExtractSettings, extract, seed_lift
 from seed2gs_inverse.graph import apply_follow
-from seed2gs_inverse.pipeline.completion import enclosed_by_selection, faint_follow_matrix
+from seed2gs_inverse.pipeline.completion import GRAPH_DEFAULTS, enclosed_by_selection, faint_follow_matrix
 from seed2gs_inverse.progress import Progress, StageTimer
 from seed2gs_inverse.solvers import solve
 from seed2gs_inverse.synthetic import make_scene
@@ -324,17 +324,26 @@ def test_solve_selection_with_the_graph_regulariser(syn, staged):
     want = np.clip(want, 0.0, 1.0)
     # CG to a relative residual of 1e-5 (laplacian_smooth's default): within a few 1e-3 of the exact solve
     np.testing.assert_allclose(staged.sel.result.q, want, atol=4e-3)
-    # follow_faint, then seed_connected: q is the regularised q, its faint Gaussians near the object set by
-    # the follow matrix, the Gaussians the selection encloses by one selected Gaussian each (both checked
-    # on their own in test_object_layers.py), and 0 on islands apart from G0
+    # follow_faint, follow_weak, then seed_connected: q is the regularised q, its faint Gaussians near the
+    # object set by the follow matrix, the Gaussians the selection encloses by one selected Gaussian each,
+    # the unselected weak ones near the object by strong ones (all checked on their own in
+    # test_object_layers.py), and 0 on islands apart from G0
     faint = faint_follow_matrix(syn.scene, staged.lift.center, staged.lift.radius)
     followed = apply_follow(staged.sel.result.q, faint)
-    enc = enclosed_by_selection(staged.stack, followed > staged.sel.threshold, syn.scene.means, up=staged.orbits.up)
+    tau = staged.sel.threshold
+    enc = enclosed_by_selection(staged.stack, followed > tau, syn.scene.means, up=staged.orbits.up)
     follow = staged.sel.follow.tocsr()
-    assert (follow[~enc] != faint[~enc]).nnz == 0
     rows = follow[enc]
     assert np.all(np.diff(rows.indptr) == 1) and np.all(rows.data == 1.0)
-    assert np.all(followed[rows.indices] > staged.sel.threshold) and faint[rows.indices].nnz == 0
+    assert np.all(followed[rows.indices] > tau) and faint[rows.indices].nnz == 0
+    followed[enc] = followed[rows.indices]
+    strong = np.max([v.W.toarray().max(axis=0) for v in staged.stack], axis=0) >= 0.3
+    near = (np.linalg.norm(syn.scene.means - staged.lift.center, axis=1)
+            <= GRAPH_DEFAULTS["region"] * staged.lift.radius)
+    weak = near & ~strong & (followed <= tau)
+    assert weak.sum() > 0 and not (weak & enc).any()
+    assert (follow[~enc & ~weak] != faint[~enc & ~weak]).nnz == 0
+    assert np.all(np.diff(follow[weak].indptr) > 0) and np.all(strong[follow[weak].indices])
     island = apply_follow(staged.sel.result.q, follow) != staged.sel.q
     assert island.sum() == staged.sel.n_disconnected and np.all(staged.sel.q[island] == 0)
     # unseen Gaussians on the graph are decided by their neighbours, not reset to G0
