@@ -359,19 +359,33 @@ def test_follow_weak_against_brute_force(on_ground):
     anchors = np.flatnonzero(is_cand & strong & (np.diff(follow.indptr) == 0))
     rows = np.flatnonzero(is_cand & ~strong & (q <= 0.5))
     assert rows.size >= 50 and anchors.size >= 50 and np.isin(faint, rows).any()  # a row of follow is replaced
-    d = np.linalg.norm(scene.means[rows, None, :].astype(np.float64) - scene.means[anchors][None].astype(np.float64),
-                       axis=2)
-    nearest = np.argsort(d, axis=1)[:, :3]
-    dk = np.take_along_axis(d, nearest, axis=1)
-    w = 1.0 / (dk + 1e-2 * np.median(dk))
-    w /= w.sum(axis=1, keepdims=True)
-    want = sp.diags(np.isin(np.arange(n), rows, invert=True).astype(np.float64)) @ follow + sp.csr_matrix(
-        (w.ravel(), (np.repeat(rows, 3), anchors[nearest].ravel())), shape=(n, n))
+
+    def brute(rows):
+        """The rule's matrix and the rows' weights and neighbours, by dense distances."""
+        d = np.linalg.norm(scene.means[rows, None, :].astype(np.float64)
+                           - scene.means[anchors][None].astype(np.float64), axis=2)
+        nearest = np.argsort(d, axis=1)[:, :3]
+        dk = np.take_along_axis(d, nearest, axis=1)
+        w = 1.0 / (dk + 1e-2 * np.median(dk))
+        w /= w.sum(axis=1, keepdims=True)
+        return sp.diags(np.isin(np.arange(n), rows, invert=True).astype(np.float64)) @ follow + sp.csr_matrix(
+            (w.ravel(), (np.repeat(rows, 3), anchors[nearest].ravel())), shape=(n, n)), w, nearest
+
+    want, w, nearest = brute(rows)
     np.testing.assert_allclose(got.toarray(), want.toarray(), rtol=1e-9, atol=0)
     np.testing.assert_allclose(q2[rows], (w * q[anchors[nearest]]).sum(axis=1), rtol=1e-5)
     others = np.setdiff1d(np.arange(n), rows)
     np.testing.assert_array_equal(q2[others], q[others])
     np.testing.assert_array_equal(apply_follow(q, got)[rows], q2[rows])
+    # with the orbit axis, the weak Gaussians below the selection's base (the ground under the ball) keep their rows
+    up = np.asarray(info["up"], np.float64)
+    got_up, q4 = follow_weak(views, scene.means, q, 0.5, follow, candidates, up=up, max_weight=0.3, k=3)
+    below = scene.means[rows].astype(np.float64) @ up < np.quantile(scene.means[q > 0.5].astype(np.float64) @ up, 0.01)
+    assert below.sum() >= 5 and (~below).sum() >= 50
+    np.testing.assert_allclose(got_up.toarray(), brute(rows[~below])[0].toarray(), rtol=1e-9, atol=0)
+    np.testing.assert_array_equal(q4[rows[below]], q[rows[below]])
+    with pytest.raises(ValidationError, match="up"):
+        follow_weak(views, scene.means, q, 0.5, follow, candidates, up=(0.0, 0.0, 0.0))
     # no weak unselected candidate, or None for follow
     same, q3 = follow_weak(views, scene.means, q, 0.5, follow, candidates[:0])
     assert (same != follow).nnz == 0 and np.array_equal(q3, q)

@@ -74,7 +74,9 @@ and past the silhouette it is the background. Left unselected, it takes
 the inverse-distance mean of its ``k`` nearest strong Gaussians' ``q`` in
 the object's region (those with a weight of at least ``max_weight``,
 :func:`strong_columns`): the object's own where it lies among the
-object's, the ground's where it lies among the ground's.
+object's, the ground's where it lies among the ground's. Below the
+selection's base it keeps its own (a large splat of the ground whose
+centre lies under the object).
 
 With user-supplied 2D trackers (SAM2) the masks have no unknown pixels where
 the object is visible: the fill is a no-op and the regulariser only decides
@@ -376,10 +378,7 @@ def enclosed_by_selection(stack, selected, means, *, up=None, footprint: float =
         raise ValidationError(f"enclosed_by_selection: the views have {stack.n_gaussians} columns, the selection "
                               f"{sel.size} Gaussians; pass the views of the same scene")
     if up is not None:
-        u = np.asarray(up, np.float64).ravel()
-        if u.shape != (3,) or not np.all(np.isfinite(u)) or np.linalg.norm(u) == 0:
-            raise ValidationError(f"enclosed_by_selection: up must be a nonzero finite 3-vector, got {up!r}")
-        u = u / np.linalg.norm(u)
+        u = _unit_up(up, "enclosed_by_selection")
     out = np.zeros(sel.size, bool)
     chosen = np.flatnonzero(sel)
     if chosen.size == 0:
@@ -461,8 +460,9 @@ def follow_enclosed(stack, means, q, tau: float, follow, *, up=None) -> tuple[sp
 
 
 #: The weak-evidence rule's settings (:func:`follow_weak`): the largest stored weight below which a
-#: Gaussian never dominates a pixel, and the strong neighbours each such Gaussian follows.
-WEAK_DEFAULTS = {"max_weight": 0.3, "k": 8}
+#: Gaussian never dominates a pixel, the strong neighbours each such Gaussian follows, and how far
+#: (in strong Gaussians' spacings) its nearest one may lie.
+WEAK_DEFAULTS = {"max_weight": 0.3, "k": 8, "reach": 4.0}
 
 
 def strong_columns(stack, max_weight: float = WEAK_DEFAULTS["max_weight"]) -> np.ndarray:
@@ -489,9 +489,9 @@ def strong_columns(stack, max_weight: float = WEAK_DEFAULTS["max_weight"]) -> np
     return np.unique(np.concatenate(found)).astype(np.int64) if found else np.zeros(0, np.int64)
 
 
-def follow_weak(stack, means, q, tau: float, follow, candidates, *,
-                max_weight: float = WEAK_DEFAULTS["max_weight"],
-                k: int = WEAK_DEFAULTS["k"]) -> tuple[sp.csr_matrix, np.ndarray]:
+def follow_weak(stack, means, q, tau: float, follow, candidates, *, up=None,
+                max_weight: float = WEAK_DEFAULTS["max_weight"], k: int = WEAK_DEFAULTS["k"],
+                reach: float = WEAK_DEFAULTS["reach"], base_quantile: float = 0.01) -> tuple[sp.csr_matrix, np.ndarray]:
     r"""``(follow, q)`` with a row for each unselected Gaussian of ``candidates`` that never dominates a pixel.
 
     Parameters
@@ -509,11 +509,22 @@ def follow_weak(stack, means, q, tau: float, follow, candidates, *,
     candidates : int array
         The Gaussians the rule looks at (the object's region), ascending
         and unique.
+    up : (3,) array, optional
+        The orbit axis. Given, a weak Gaussian follows only at or above
+        the selection's base: the ``base_quantile`` of the selected
+        centres' heights along ``up`` (:func:`enclosed_by_selection`'s
+        bound).
     max_weight : float in (0, 1]
         A Gaussian is weak when none of its stored weights in any view
         reaches this (:func:`strong_columns`), strong otherwise.
     k : int
         Strong neighbours per weak Gaussian, >= 1.
+    reach : float
+        A weak Gaussian follows only when its nearest strong neighbour lies
+        within ``reach`` times the strong neighbours' spacing (the median
+        distance from each to its nearest other), > 0.
+    base_quantile : float in [0, 1)
+        See ``up``.
 
     Returns
     -------
@@ -540,7 +551,11 @@ def follow_weak(stack, means, q, tau: float, follow, candidates, *,
     background beyond the silhouette, and the remainder keeps them as a
     see-through copy of the object. Their strong neighbours' labels are
     their own pixels' and are reliable; a weak Gaussian among the ground's
-    strong Gaussians follows the ground. Only unselected Gaussians follow:
+    strong Gaussians follows the ground, and one below the selection's
+    base (a large splat of the ground whose centre lies under the
+    object) keeps its own ``q``, as does one far from every strong
+    Gaussian (a neighbour's part hidden behind the object). Only
+    unselected Gaussians follow:
     the rule adds what was left behind and takes nothing from the
     selection.
     """
@@ -548,6 +563,7 @@ def follow_weak(stack, means, q, tau: float, follow, candidates, *,
     n = qq.size
     follow = sp.csr_matrix((n, n)) if follow is None else check_follow(follow, n)
     tau = check_real("follow_weak: tau", tau)
+    reach = check_real("follow_weak: reach", reach, lo=0, lo_open=True)
     if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or int(k) < 1:
         raise ValidationError(f"follow_weak: k must be a positive integer, got {k!r}")
     idx = np.asarray(candidates)
@@ -560,12 +576,41 @@ def follow_weak(stack, means, q, tau: float, follow, candidates, *,
     anchors = anchors[follow.indptr[anchors + 1] == follow.indptr[anchors]]  # their q is the solver's
     rows = idx[~strong]
     rows = rows[qq[rows] <= tau]
+    x = np.asarray(means)
+    if up is not None and rows.size:
+        rows = rows[_at_or_above_base(x, qq > tau, rows, up, base_quantile, "follow_weak")]
+    if rows.size and anchors.size > 1:
+        tree = cKDTree(x[anchors].astype(np.float64))
+        spacing = float(np.median(tree.query(x[anchors].astype(np.float64), k=2, workers=n_threads())[0][:, 1]))
+        rows = rows[tree.query(x[rows].astype(np.float64), workers=n_threads())[0] <= reach * spacing]
     if rows.size == 0 or anchors.size == 0:
         return follow, qq
-    new = _nearest_rows(np.asarray(means), rows, anchors, int(k))
+    new = _nearest_rows(x, rows, anchors, int(k))
     qq = qq.copy()
     qq[rows] = (new[rows] @ qq.astype(np.float64)).astype(np.float32)
     return _replace_rows(follow, rows, new), qq
+
+
+def _unit_up(up, where: str) -> np.ndarray:
+    """``up`` as a float64 unit 3-vector; a ValidationError naming ``where`` unless it is a nonzero finite 3-vector."""
+    u = np.asarray(up, np.float64).ravel()
+    if u.shape != (3,) or not np.all(np.isfinite(u)) or np.linalg.norm(u) == 0:
+        raise ValidationError(f"{where}: up must be a nonzero finite 3-vector, got {up!r}")
+    return u / np.linalg.norm(u)
+
+
+def _at_or_above_base(means: np.ndarray, selected: np.ndarray, rows: np.ndarray, up, base_quantile: float,
+                      where: str) -> np.ndarray:
+    """Bool over ``rows``: centres at or above the ``base_quantile`` of the selected centres' heights along ``up``.
+
+    All True when nothing is selected.
+    """
+    u = _unit_up(up, where)
+    check_real(f"{where}: base_quantile", base_quantile, lo=0, hi=1, hi_open=True)
+    chosen = np.flatnonzero(selected)
+    if chosen.size == 0:
+        return np.ones(rows.size, bool)
+    return means[rows].astype(np.float64) @ u >= np.quantile(means[chosen].astype(np.float64) @ u, base_quantile)
 
 
 def _replace_rows(follow: sp.csr_matrix, rows: np.ndarray, new: sp.csr_matrix) -> sp.csr_matrix:

@@ -294,7 +294,8 @@ class ExtractSettings:
         Unselected Gaussians near the object (within the graph's
         ``region``) whose stored weight reaches
         ``WEAK_DEFAULTS["max_weight"]`` in no view take the inverse-distance
-        mean membership of their nearest Gaussians that do
+        mean membership of their nearest Gaussians that do, at or above the
+        selection's base along the orbit axis
         (:func:`~seed2gs_inverse.pipeline.completion.follow_weak`), after
         the rules of ``follow_faint``. Default True: such a Gaussian never
         dominates a pixel (inner and back layers, splats crossing the

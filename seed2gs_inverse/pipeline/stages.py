@@ -680,9 +680,9 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
         G0 and the graph's region): the faint Gaussians' rule and the
         islands then run on its Gaussians alone, with the same result.
     up : (3,) array, optional
-        The orbit axis: the enclosed Gaussians' rule keeps out what lies
-        below the selection's base (the ground under it). None: no such
-        bound.
+        The orbit axis: the enclosed and the weak Gaussians' rules keep out
+        what lies below the selection's base (the ground under it). None:
+        no such bound.
 
     Returns
     -------
@@ -716,8 +716,9 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     graph's region whose stored weights stay below
     :data:`~.completion.WEAK_DEFAULTS` ``["max_weight"]`` in every view then
     take the inverse-distance mean ``q`` of their nearest Gaussians that
-    reach it and have no row (:func:`~.completion.follow_weak`): they
-    dominate no pixel, so their pixels' labels are other Gaussians'.
+    reach it and have no row, at or above the selection's base along ``up``
+    (:func:`~.completion.follow_weak`): they dominate no pixel, so their
+    pixels' labels are other Gaussians'.
     ``tau`` is ``settings.threshold`` or the solver's own. With
     ``settings.seed_connected`` (default) the Gaussians above ``tau`` in
     islands apart from G0 that the masks do not call object
@@ -743,7 +744,8 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
         follow, q = follow_enclosed(stack, scene.means, q, tau, follow, up=up)
     if settings.follow_weak:
         opts = {**GRAPH_DEFAULTS, **settings.graph_options}
-        follow, q = follow_weak(stack, scene.means, q, tau, follow, _rule_region(scene, lift, opts["region"], local))
+        follow, q = follow_weak(stack, scene.means, q, tau, follow, _rule_region(scene, lift, opts["region"], local),
+                                up=up)
     n_removed = 0
     if settings.seed_connected:
         graph_kw = {k: settings.lift_options[k] for k in ("k_neighbors", "link_factor") if k in settings.lift_options}
