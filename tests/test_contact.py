@@ -76,8 +76,12 @@ def test_the_base_at_the_contact_is_kept(seed, base_like_ground):
 
 
 def test_without_the_contact_zone_the_base_is_lost():
-    """The check can fail: copied ground labels, trusted at the contact, eat the base around the orbit."""
-    ious, low_share, _ = _scores(11, False, tracker=GeometricTracker(contact_zone=(0.0, 0.0)))
+    """The check can fail: copied ground labels, trusted at the contact, eat the base around the orbit.
+
+    The weak Gaussians' rule (``follow_weak``) brings much of such a base back
+    after the solve; it is off here, so that the test sees the tracker alone.
+    """
+    ious, low_share, _ = _scores(11, False, tracker=GeometricTracker(contact_zone=(0.0, 0.0)), follow_weak=False)
     assert low_share < 0.65 and ious.min() < 0.9
 
 
