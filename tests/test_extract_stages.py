@@ -285,7 +285,7 @@ def _evidence(syn, labelled):
 def test_solve_selection_equals_the_old_evidence_reset(syn, staged):
     """q: the solver's q with Gaussians of evidence e = sum_c W(c)^T k(c) < 0.05 reset to G0 (the old loop)."""
     masks = [m for _, m in staged.labelled]
-    off = staged.settings.replace(seed_connected=False, follow_faint=False)  # the solver's q as it is
+    off = staged.settings.replace(seed_connected=False, follow_faint=False, follow_weak=False)  # the solver's q
     sel = ex_mod.solve_selection(staged.stack, masks, staged.lift, off)  # smoothness 0: off
     raw = solve(staged.stack, masks, method="weighted_bce", init=staged.lift.g0,
                 **SOLVER_DEFAULTS["weighted_bce"])
@@ -392,7 +392,7 @@ def test_extract_runs_the_stages(syn, setup, staged):
 #: to the options of the code that produced the file (up="level", no graph regulariser, exact
 #: operators with min_weight=0, 30 L-BFGS-B iterations), so that it still proves the stage
 #: refactor left q unchanged. Later rules are switched off: the tracker's empty pixels vote in its fill
-#: and faint Gaussians keep the solver's q.
+#: and faint and weak Gaussians keep the solver's q.
 _PINNED_RUN = """
 import sys
 import numpy as np
@@ -407,7 +407,8 @@ truth = syn.labels == label
 seed = (build_operator(syn.scene, cam).W @ truth.astype(np.float32)).reshape(cam.image_shape) > 0.5
 kw = {"solver_options": {"max_iter": 30}} if name == "weighted_bce" else {"method": "voting"}
 ex = extract(syn.scene, cam, seed, tracker=GeometricTracker(fill_from_empty=True), n_views=6, progress=False,
-             up="level", smoothness=0.0, min_weight=0.0, follow_faint=False, near_margin=None, **kw)
+             up="level", smoothness=0.0, min_weight=0.0, follow_faint=False, follow_weak=False,
+             near_margin=None, **kw)
 np.savez(out, q=ex.q, n_weak=ex.resolved["n_weak_evidence"])
 """
 

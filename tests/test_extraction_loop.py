@@ -96,6 +96,7 @@ def test_solve_from_the_extraction_reproduces_q_exactly(run, capsys, tmp_path):
 
 def test_islands_the_run_removed_are_removed_again(run, tmp_path):
     """The islands rule runs after the solve: its zeros are saved and applied, or kept with keep_islands."""
+    from seed2gs_inverse.graph import apply_follow
     from seed2gs_inverse.pipeline import extract, save_extraction
 
     syn, seed = run["syn"], run["seed"]
@@ -110,7 +111,8 @@ def test_islands_the_run_removed_are_removed_again(run, tmp_path):
     np.testing.assert_array_equal(np.load(tmp_path / "out" / "islands.npy"), chosen)
     inputs = load_solve_inputs(tmp_path / "out")
     assert inputs.method == "voting" and np.array_equal(inputs.solve().q, q)
-    assert np.array_equal(inputs.solve(keep_islands=True).q, solver_q)
+    # kept islands: the solver's q with the follow rules (faint, enclosed, weak) applied
+    assert np.array_equal(inputs.solve(keep_islands=True).q, apply_follow(solver_q, ex.follow))
     # without the rule, nothing is saved as islands
     plain = dataclasses.replace(ex, settings=ex.settings.replace(seed_connected=False))
     save_extraction(plain, tmp_path / "plain", save_operators=True, figure=False)
