@@ -29,10 +29,11 @@ DEFAULTS_BEFORE = {
 # the model-free tracker labels the support surface background. New options
 # come after the old ones. Faint Gaussians near the object follow their opaque neighbours
 # (benchmarks/bench_scanned.py); the orbit views cut what stands in front of the object
-# (near_margin, measured on bench_extract.py and tests/test_occluded_views.py).
+# (near_margin, measured on bench_extract.py and tests/test_occluded_views.py); Gaussians that
+# dominate no pixel follow their strong neighbours (follow_weak, measured on bench_extract.py).
 DEFAULTS = {**DEFAULTS_BEFORE, "up": "auto", "min_weight": 0.01, "point_mode": "object", "smoothness": None,
             "completion": None, "graph_options": None, "seed_connected": True, "support_background": True,
-            "follow_faint": True, "near_margin": 1.0}
+            "follow_faint": True, "near_margin": 1.0, "follow_weak": True}
 
 
 def test_defaults_are_those_of_the_old_extract_but_issue_10s():

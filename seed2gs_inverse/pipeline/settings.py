@@ -355,8 +355,8 @@ class ExtractSettings:
     seed_connected: bool = True
     support_background: bool = True
     follow_faint: bool = True
-    follow_weak: bool = True
     near_margin: float | None = 1.0
+    follow_weak: bool = True
 
     def __post_init__(self):
         set_ = object.__setattr__.__get__(self)
