@@ -354,6 +354,13 @@ def enclosed_by_selection(stack, selected, means, *, up=None, footprint: float =
     below its base.
     """
     sel = np.asarray(selected)
+    out = np.zeros(sel.shape, bool)
+    out[_enclosed(stack, sel, means, up=up, footprint=footprint, base_quantile=base_quantile)] = True
+    return out
+
+
+def _enclosed(stack, sel, means, *, up=None, footprint: float = 0.5, base_quantile: float = 0.01) -> np.ndarray:
+    """Ascending indices of :func:`enclosed_by_selection` (same arguments and checks)."""
     x = np.asarray(means)  # converted to float64 at the rows read: no (N, 3) float64 copy
     if sel.dtype != bool or sel.ndim != 1 or x.shape != (sel.size, 3):
         raise ValidationError(f"enclosed_by_selection: selected must be bool (N,) and means (N, 3), got "
@@ -368,21 +375,21 @@ def enclosed_by_selection(stack, selected, means, *, up=None, footprint: float =
         u = np.asarray(up, np.float64).ravel()
         if u.shape != (3,) or not np.all(np.isfinite(u)) or np.linalg.norm(u) == 0:
             raise ValidationError(f"enclosed_by_selection: up must be a nonzero finite 3-vector, got {up!r}")
-        u = u / np.linalg.norm(u)
-    out = np.zeros(sel.size, bool)
+        up = u / np.linalg.norm(u)
     chosen = np.flatnonzero(sel)
     if chosen.size == 0:
-        return out
+        return chosen
     xs = x[chosen].astype(np.float64)
-    lo, hi = xs.min(0), xs.max(0)
-    idx = _in_box(x, lo, hi)
+    idx = _in_box(x, xs.min(0), xs.max(0))
     idx = idx[~sel[idx]]
     xi = x[idx].astype(np.float64)
     if up is not None:
-        keep = xi @ u >= np.quantile(xs @ u, base_quantile)
+        keep = xi @ up >= np.quantile(xs @ up, base_quantile)
         idx, xi = idx[keep], xi[keep]
-    s = sel.astype(np.float32)
-    for i, view in enumerate(stack):
+    # the footprints on the stack's compact columns: the same sums, with no (N,) weight vector
+    cols, compact = stack.compact()
+    s = sel[cols].astype(np.float32)
+    for i, view in enumerate(compact):
         if idx.size == 0:
             break
         cam = view.camera
@@ -396,8 +403,7 @@ def enclosed_by_selection(stack, selected, means, *, up=None, footprint: float =
         ok &= (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
         ok[ok] = fp[px[ok, 1], px[ok, 0]]
         idx, xi = idx[ok], xi[ok]
-    out[idx] = True
-    return out
+    return idx
 
 
 def follow_enclosed(stack, means, q, tau: float, follow, *, up=None) -> tuple[sp.csr_matrix, np.ndarray]:
@@ -433,27 +439,43 @@ def follow_enclosed(stack, means, q, tau: float, follow, *, up=None) -> tuple[sp
     """
     qq = np.asarray(q, np.float32).ravel()
     follow = check_follow(follow, qq.size)
-    above = qq > check_real("follow_enclosed: tau", tau)
-    enclosed = enclosed_by_selection(stack, above, means, up=up)
-    chosen = np.flatnonzero(above)
-    anchors = chosen[follow.indptr[chosen + 1] == follow.indptr[chosen]]  # selected, without a row
-    if not enclosed.any() or anchors.size == 0:
+    rows, cols = _enclosed_rows(stack, means, qq, tau, lambda i: follow.indptr[i + 1] > follow.indptr[i], up=up)
+    if rows.size == 0:
         return follow, qq
+    qq = qq.copy()
+    qq[rows] = qq[cols]
+    return _with_unit_rows(follow, rows, cols), qq
+
+
+def _enclosed_rows(stack, means, q: np.ndarray, tau: float, has_row, *, up=None) -> tuple[np.ndarray, np.ndarray]:
+    """``(rows, anchors)`` of :func:`follow_enclosed`: each enclosed Gaussian and the one whose ``q`` it takes.
+
+    ``q`` is (N,) float32 (checked by the caller); ``has_row(i)`` tells, for
+    indices ``i``, which Gaussians already follow others (a follow matrix's
+    non-empty rows): they are no anchors. Both empty when nothing is
+    enclosed or no selected Gaussian is free to be an anchor.
+    """
+    above = q > check_real("follow_enclosed: tau", tau)
+    rows = _enclosed(stack, above, means, up=up)
+    chosen = np.flatnonzero(above)
+    anchors = chosen[~has_row(chosen)]
+    if rows.size == 0 or anchors.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
     x = np.asarray(means)
-    rows = np.flatnonzero(enclosed)
     _, nb = cKDTree(x[anchors].astype(np.float64)).query(x[rows].astype(np.float64), workers=n_threads())
-    cols = anchors[np.asarray(nb).ravel()]
-    # an enclosed faint Gaussian's row is replaced; built from the entries, with no (N,) temporary
+    return rows, anchors[np.asarray(nb).ravel()]
+
+
+def _with_unit_rows(follow: sp.csr_matrix, rows: np.ndarray, cols: np.ndarray) -> sp.csr_matrix:
+    """``follow`` (CSR) with rows ``rows`` replaced by weight 1 on ``cols`` (built from the entries: no (N,) temporary)."""
     old = follow.tocoo()
-    kept = ~enclosed[old.row]
+    kept = ~np.isin(old.row, rows)
     out = sp.csr_matrix((np.concatenate([old.data[kept], np.ones(rows.size)]),
                          (np.concatenate([old.row[kept], rows]), np.concatenate([old.col[kept], cols]))),
                         shape=follow.shape)
     out.eliminate_zeros()
     out.sort_indices()
-    qq = qq.copy()
-    qq[rows] = qq[cols]
-    return out, qq
+    return out
 
 
 def _in_box(means: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
