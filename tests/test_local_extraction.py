@@ -101,6 +101,13 @@ def test_neighbourhood_is_the_ball_and_checks_its_arguments():
     np.testing.assert_array_equal(big[nb.index][:, nb.index].toarray(), m.toarray())
     assert big.nnz == m.nnz
     np.testing.assert_array_equal(nb.scatter(np.ones(len(nb)), 0)[nb.index], 1)
+    probe = np.r_[nb.index[::3], np.setdiff1d(np.arange(len(scene)), nb.index)[:50], len(scene) + 5]
+    at, inside = nb.find(probe)
+    where = {int(g): j for j, g in enumerate(nb.index)}
+    np.testing.assert_array_equal(inside, [int(g) in where for g in probe])
+    np.testing.assert_array_equal(at, [where.get(int(g), 0) for g in probe])
+    at, inside = Neighbourhood.of(scene, []).find(probe)
+    assert not inside.any() and not at.any()
     assert nb.scatter(np.ones(len(nb)), 0).sum() == len(nb)
 
 

@@ -10,6 +10,8 @@ while the pixel-majority score and the compositing weight of the full
 scene cannot see them.
 """
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -19,8 +21,11 @@ from _pipeline_scenes import reference_camera, sphere_scene, surface
 from seed2gs_inverse import GaussianScene, ValidationError, build_operator, extract, render
 from seed2gs_inverse.frontend.model_free import GeometricTracker
 from seed2gs_inverse.graph import apply_follow, check_follow
-from seed2gs_inverse.pipeline.completion import (enclosed_by_selection, faint_follow_matrix,
+from seed2gs_inverse.operators import OperatorStack
+from seed2gs_inverse.pipeline.completion import (GRAPH_DEFAULTS, enclosed_by_selection, faint_follow_matrix,
                                                  follow_enclosed, follow_weak, strong_columns)
+from seed2gs_inverse.pipeline.local import Neighbourhood, neighbourhood
+from seed2gs_inverse.pipeline.stages import _follow_rules
 from seed2gs_inverse.pipeline.outputs import save_extraction
 from seed2gs_inverse.solvers.inputs import load_solve_inputs
 from seed2gs_inverse.synthetic.ground import make_ground_scene
@@ -327,6 +332,38 @@ def test_follow_enclosed_replaces_the_enclosed_rows(on_ground):
     np.testing.assert_array_equal(q2[rows], q[nearest])
     np.testing.assert_array_equal(q2[~enclosed], q[~enclosed])
 
+
+
+@pytest.mark.parametrize("reach", [1.0, 0.25])
+def test_the_follow_rules_on_a_neighbourhood_are_those_on_the_scene(on_ground, reach):
+    """Faint rows built among a neighbourhood, enclosed rows added, the (N, N) matrix made once: the same result.
+
+    ``reach`` scales the lift's radius: at 1 the neighbourhood (the faint
+    rule's region) holds every enclosed Gaussian; at 0.25 it leaves some
+    out, and their rows are added to the expanded matrix instead.
+    """
+    scene, truth, info = on_ground
+    stack = OperatorStack([build_operator(scene, v) for v in _views(info)])
+    up = np.asarray(info["up"], np.float64)
+    rng = np.random.default_rng(4)
+    q = np.where(truth, 0.9, 0.1).astype(np.float32)
+    q[np.flatnonzero(truth)[rng.random(int(truth.sum())) < 0.3]] = 0.2
+    q[rng.random(len(q)) < 0.05] = 0.6
+    q0 = q.copy()
+    lift = SimpleNamespace(center=np.asarray(info["center"], np.float64), radius=reach * info["radius"])
+    region = GRAPH_DEFAULTS["region"] * lift.radius
+    local = Neighbourhood.of(scene, neighbourhood(scene, lift.center, region))
+    whole_f, whole_q = _follow_rules(scene, lift, stack, q, 0.5, GRAPH_DEFAULTS, None, up)
+    got_f, got_q = _follow_rules(scene, lift, stack, q, 0.5, GRAPH_DEFAULTS, local, up)
+    enclosed = enclosed_by_selection(stack, apply_follow(q, faint_follow_matrix(scene, lift.center, lift.radius))
+                                     > 0.5, scene.means, up=up)
+    outside = np.setdiff1d(np.flatnonzero(enclosed), local.index)
+    assert enclosed.sum() >= 50 and (outside.size > 0) == (reach < 1)
+    np.testing.assert_array_equal(got_q, whole_q)
+    np.testing.assert_array_equal(q, q0)  # changed in a copy
+    for field in ("data", "indices", "indptr"):
+        np.testing.assert_array_equal(getattr(got_f, field), getattr(whole_f, field))
+    assert got_f.shape == whole_f.shape and got_f.has_sorted_indices
 
 
 def test_strong_columns_against_the_dense_maximum(on_ground):

@@ -575,7 +575,14 @@ def test_columns_and_on_columns_against_the_dense_matrix(rng):
     np.testing.assert_array_equal(local.matvec(q[cols]), s.matvec(q))  # bit for bit: the rows keep their order
     np.testing.assert_array_equal(local.rmatvec(r), s.rmatvec(r)[cols])
     assert s.on_columns(cols.copy()) is local  # the last restriction is kept
+    got_cols, got = s.compact()  # the last restriction, with its columns
+    assert got is local and np.array_equal(got_cols, cols)
     assert s.on_columns(np.arange(60)) is not local
+    fresh = OperatorStack(list(s.views))  # nothing restricted yet: the stored columns
+    cols2, small = fresh.compact()
+    np.testing.assert_array_equal(cols2, seen)
+    np.testing.assert_array_equal(small.matvec(q[cols2]), s.matvec(q))
+    assert fresh.compact()[1] is small
     for bad, match in [(seen[1:], "every column"), (cols[::-1], "ascending"), (np.r_[cols, 60], "ascending"),
                        (cols.astype(float), "integer"), (cols[None], "1-D")]:
         with pytest.raises(ValidationError, match=match):

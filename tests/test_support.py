@@ -189,3 +189,24 @@ def test_support_level_from_hand_placed_splats():
     assert s.level == pytest.approx(level, abs=1e-6) and s.spread == pytest.approx(spread, rel=1e-5)
     np.testing.assert_allclose(s.point, o + (level + max(0.05 * R, 2 * spread)) * up, atol=1e-6)
     assert support_surface(scene, g0, o, R, up, min_splats=n_good + 1) is None
+
+
+@pytest.mark.parametrize("spread, found", [(0.05, True), (0.5, False)])
+def test_a_band_reaching_the_object_centre_is_no_support(spread, found):
+    """Level splats around the object at a median height 0.8 R below its centre: with a spread of 0.05 R the
+    band stops 0.7 R below the centre; spread over 0.5 R (roofs and treetops around a house seen from above)
+    the band 2 s would reach past the centre and take in the object's lower half: no support."""
+    from seed2gs_inverse.scene import GaussianScene
+
+    rng = np.random.default_rng(5)
+    n, o, up = 200, np.zeros(3), np.array([0.0, 0.0, 1.0])
+    ang, rad = rng.uniform(0, 2 * np.pi, n), rng.uniform(1.1, 1.9, n)
+    hs = -0.8 + rng.uniform(-1.0, 1.0, n) * spread / 0.74  # a uniform on [-w, w]: normalised MAD 0.74 w
+    hs = np.clip(hs, -1.95, 1.95)
+    scene = GaussianScene(np.c_[rad * np.cos(ang), rad * np.sin(ang), hs], np.tile([1.0, 0, 0, 0], (n, 1)),
+                          np.tile(np.log([0.05, 0.04, 0.002]), (n, 1)), np.full(n, 3.0), np.zeros((n, 1, 3)))
+    s = support_surface(scene, np.zeros(n, bool), o, 1.0, up)
+    if found:
+        assert s is not None and s.level == pytest.approx(-0.8, abs=0.02) and (s.point - o) @ up < 0
+    else:
+        assert s is None

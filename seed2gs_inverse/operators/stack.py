@@ -214,6 +214,18 @@ class OperatorStack(LinearOperator):
         self._restricted = (kept, out)
         return out
 
+    def compact(self) -> tuple[np.ndarray, "OperatorStack"]:
+        """``(columns, stack)``: this stack on columns that hold every stored weight (shares :meth:`on_columns`' cache).
+
+        The last stack :meth:`on_columns` made, with its columns, when there
+        is one; otherwise ``on_columns(columns())``. Either way a product
+        ``W x`` of this stack equals the compact one's ``W' x[columns]``
+        exactly: each row's entries and their order are the same.
+        """
+        if self._restricted is None:
+            self.on_columns(self.columns())
+        return self._restricted
+
     def subset(self, indices) -> "OperatorStack":
         """A stack of the views ``indices`` (integers, negative from the end, or a bool mask of length
         ``len(self)``), with the same fingerprint."""

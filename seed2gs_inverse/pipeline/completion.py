@@ -367,6 +367,13 @@ def enclosed_by_selection(stack, selected, means, *, up=None, footprint: float =
     below its base.
     """
     sel = np.asarray(selected)
+    out = np.zeros(sel.shape, bool)
+    out[_enclosed(stack, sel, means, up=up, footprint=footprint, base_quantile=base_quantile)] = True
+    return out
+
+
+def _enclosed(stack, sel, means, *, up=None, footprint: float = 0.5, base_quantile: float = 0.01) -> np.ndarray:
+    """Ascending indices of :func:`enclosed_by_selection` (same arguments and checks)."""
     x = np.asarray(means)  # converted to float64 at the rows read: no (N, 3) float64 copy
     if sel.dtype != bool or sel.ndim != 1 or x.shape != (sel.size, 3):
         raise ValidationError(f"enclosed_by_selection: selected must be bool (N,) and means (N, 3), got "
@@ -378,21 +385,21 @@ def enclosed_by_selection(stack, selected, means, *, up=None, footprint: float =
         raise ValidationError(f"enclosed_by_selection: the views have {stack.n_gaussians} columns, the selection "
                               f"{sel.size} Gaussians; pass the views of the same scene")
     if up is not None:
-        u = _unit_up(up, "enclosed_by_selection")
-    out = np.zeros(sel.size, bool)
+        up = _unit_up(up, "enclosed_by_selection")
     chosen = np.flatnonzero(sel)
     if chosen.size == 0:
-        return out
+        return chosen
     xs = x[chosen].astype(np.float64)
-    lo, hi = xs.min(0), xs.max(0)
-    idx = _in_box(x, lo, hi)
+    idx = _in_box(x, xs.min(0), xs.max(0))
     idx = idx[~sel[idx]]
     xi = x[idx].astype(np.float64)
     if up is not None:
-        keep = xi @ u >= np.quantile(xs @ u, base_quantile)
+        keep = xi @ up >= np.quantile(xs @ up, base_quantile)
         idx, xi = idx[keep], xi[keep]
-    s = sel.astype(np.float32)
-    for i, view in enumerate(stack):
+    # the footprints on the stack's compact columns: the same sums, with no (N,) weight vector
+    cols, compact = stack.compact()
+    s = sel[cols].astype(np.float32)
+    for i, view in enumerate(compact):
         if idx.size == 0:
             break
         cam = view.camera
@@ -406,8 +413,7 @@ def enclosed_by_selection(stack, selected, means, *, up=None, footprint: float =
         ok &= (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
         ok[ok] = fp[px[ok, 1], px[ok, 0]]
         idx, xi = idx[ok], xi[ok]
-    out[idx] = True
-    return out
+    return idx
 
 
 def follow_enclosed(stack, means, q, tau: float, follow, *, up=None) -> tuple[sp.csr_matrix, np.ndarray]:
@@ -443,20 +449,36 @@ def follow_enclosed(stack, means, q, tau: float, follow, *, up=None) -> tuple[sp
     """
     qq = np.asarray(q, np.float32).ravel()
     follow = check_follow(follow, qq.size)
-    above = qq > check_real("follow_enclosed: tau", tau)
-    enclosed = enclosed_by_selection(stack, above, means, up=up)
-    chosen = np.flatnonzero(above)
-    anchors = chosen[follow.indptr[chosen + 1] == follow.indptr[chosen]]  # selected, without a row
-    if not enclosed.any() or anchors.size == 0:
+    rows, cols = _enclosed_rows(stack, means, qq, tau, lambda i: follow.indptr[i + 1] > follow.indptr[i], up=up)
+    if rows.size == 0:
         return follow, qq
-    x = np.asarray(means)
-    rows = np.flatnonzero(enclosed)
-    _, nb = cKDTree(x[anchors].astype(np.float64)).query(x[rows].astype(np.float64), workers=n_threads())
-    cols = anchors[np.asarray(nb).ravel()]
-    out = _replace_rows(follow, rows, sp.csr_matrix((np.ones(rows.size), (rows, cols)), shape=follow.shape))
     qq = qq.copy()
     qq[rows] = qq[cols]
-    return out, qq
+    return _with_unit_rows(follow, rows, cols), qq
+
+
+def _enclosed_rows(stack, means, q: np.ndarray, tau: float, has_row, *, up=None) -> tuple[np.ndarray, np.ndarray]:
+    """``(rows, anchors)`` of :func:`follow_enclosed`: each enclosed Gaussian and the one whose ``q`` it takes.
+
+    ``q`` is (N,) float32 (checked by the caller); ``has_row(i)`` tells, for
+    indices ``i``, which Gaussians already follow others (a follow matrix's
+    non-empty rows): they are no anchors. Both empty when nothing is
+    enclosed or no selected Gaussian is free to be an anchor.
+    """
+    above = q > check_real("follow_enclosed: tau", tau)
+    rows = _enclosed(stack, above, means, up=up)
+    chosen = np.flatnonzero(above)
+    anchors = chosen[~has_row(chosen)]
+    if rows.size == 0 or anchors.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    x = np.asarray(means)
+    _, nb = cKDTree(x[anchors].astype(np.float64)).query(x[rows].astype(np.float64), workers=n_threads())
+    return rows, anchors[np.asarray(nb).ravel()]
+
+
+def _with_unit_rows(follow: sp.csr_matrix, rows: np.ndarray, cols: np.ndarray) -> sp.csr_matrix:
+    """``follow`` (CSR) with rows ``rows`` replaced by weight 1 on ``cols`` (built from the entries: no (N,) temporary)."""
+    return _replace_rows(follow, rows, rows, cols, np.ones(rows.size))
 
 
 #: The weak-evidence rule's settings (:func:`follow_weak`): the largest stored weight below which a
@@ -588,7 +610,8 @@ def follow_weak(stack, means, q, tau: float, follow, candidates, *, up=None,
     new = _nearest_rows(x, rows, anchors, int(k))
     qq = qq.copy()
     qq[rows] = (new[rows] @ qq.astype(np.float64)).astype(np.float32)
-    return _replace_rows(follow, rows, new), qq
+    add = new.tocoo()
+    return _replace_rows(follow, rows, add.row, add.col, add.data), qq
 
 
 def _unit_up(up, where: str) -> np.ndarray:
@@ -613,16 +636,16 @@ def _at_or_above_base(means: np.ndarray, selected: np.ndarray, rows: np.ndarray,
     return means[rows].astype(np.float64) @ u >= np.quantile(means[chosen].astype(np.float64) @ u, base_quantile)
 
 
-def _replace_rows(follow: sp.csr_matrix, rows: np.ndarray, new: sp.csr_matrix) -> sp.csr_matrix:
-    """``follow`` (checked) with its ``rows`` (ascending) replaced by those of ``new``, which holds no others.
+def _replace_rows(follow: sp.csr_matrix, rows: np.ndarray, new_rows: np.ndarray, new_cols: np.ndarray,
+                  data: np.ndarray) -> sp.csr_matrix:
+    """``follow`` (CSR) with its ``rows`` replaced by the entries ``(new_rows, new_cols, data)`` (on those rows only).
 
     Built from the entries, with no (N,) temporary.
     """
     old = follow.tocoo()
     kept = ~np.isin(old.row, rows)
-    add = new.tocoo()
-    out = sp.csr_matrix((np.concatenate([old.data[kept], add.data]),
-                         (np.concatenate([old.row[kept], add.row]), np.concatenate([old.col[kept], add.col]))),
+    out = sp.csr_matrix((np.concatenate([old.data[kept], data]),
+                         (np.concatenate([old.row[kept], new_rows]), np.concatenate([old.col[kept], new_cols]))),
                         shape=follow.shape)
     out.eliminate_zeros()
     out.sort_indices()

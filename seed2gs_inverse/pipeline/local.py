@@ -133,6 +133,14 @@ class Neighbourhood:
         """``values`` (N, ...) of the parent scene restricted to the neighbourhood (M, ...)."""
         return np.asarray(values)[self.index]
 
+    def find(self, indices) -> tuple[np.ndarray, np.ndarray]:
+        """``(at, inside)`` for scene indices ``indices``: whether each is in the neighbourhood, and its position there (0 if not)."""
+        i = np.asarray(indices, dtype=np.int64)
+        at = np.searchsorted(self.index, i)
+        inside = at < self.index.size
+        inside[inside] = self.index[at[inside]] == i[inside]
+        return np.where(inside, at, 0), inside
+
     def scatter(self, values, fill=0) -> np.ndarray:
         """(N,) array: ``values`` (M,) at the neighbourhood's Gaussians, ``fill`` elsewhere (same dtype)."""
         v = np.asarray(values)

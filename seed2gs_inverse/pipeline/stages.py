@@ -48,8 +48,8 @@ from ..raster import FrozenScene, Renderer
 from ..solvers import solve
 from ..solvers._common import normalize_mask
 from .box_object import box_object_mask
-from .completion import (GRAPH_DEFAULTS, complete_membership, faint_follow_matrix, fill_unknown, follow_enclosed,
-                         follow_weak, object_graph, tracked_membership)
+from .completion import (GRAPH_DEFAULTS, _enclosed_rows, _with_unit_rows, complete_membership, faint_follow_matrix,
+                         fill_unknown, follow_enclosed, follow_weak, object_graph, tracked_membership)
 from .point_object import point_object_mask
 from .islands import seed_connected
 from .local import Neighbourhood, neighbourhood
@@ -740,8 +740,7 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     follow = None
     if settings.follow_faint:
         opts = {**GRAPH_DEFAULTS, **settings.graph_options}
-        follow, q = _follow_faint(scene, lift, q, opts, local)
-        follow, q = follow_enclosed(stack, scene.means, q, tau, follow, up=up)
+        follow, q = _follow_rules(scene, lift, stack, q, tau, opts, local, up)
     if settings.follow_weak:
         opts = {**GRAPH_DEFAULTS, **settings.graph_options}
         follow, q = follow_weak(stack, scene.means, q, tau, follow, _rule_region(scene, lift, opts["region"], local),
@@ -768,22 +767,37 @@ def _check_local(scene: GaussianScene, local) -> None:
                               + (f" of {local.n}" if isinstance(local, Neighbourhood) else ""))
 
 
-def _follow_faint(scene: GaussianScene, lift: SeedLift, q: np.ndarray, opts: dict,
-                  local: Neighbourhood | None) -> tuple[sp.csr_matrix, np.ndarray]:
-    """``(follow (N, N), q after it)``: :func:`~.completion.faint_follow_matrix` applied to ``q``.
+def _follow_rules(scene: GaussianScene, lift: SeedLift, stack: OperatorStack, q: np.ndarray, tau: float,
+                  opts: dict, local: Neighbourhood | None, up) -> tuple[sp.csr_matrix, np.ndarray]:
+    """``(follow (N, N), q after it)``: the faint Gaussians' rows, then the enclosed ones', applied to ``q``.
 
-    With ``local`` (holding the rule's region) the matrix is built among the
-    neighbourhood's Gaussians and applied to their ``q``; the rest of ``q``
-    has no row in it and is unchanged.
+    :func:`~.completion.faint_follow_matrix` applied to ``q``, then
+    :func:`~.completion.follow_enclosed`. With ``local`` (holding the faint
+    rule's region) the faint rows are built among the neighbourhood's
+    Gaussians, ``q`` is changed in one copy of it, and the (N, N) matrix
+    is made once, at the end: the same matrix and ``q``.
     """
     kw = {"region": opts["region"], "min_opacity": opts["min_opacity"]}
     if local is None:
         follow = faint_follow_matrix(scene, lift.center, lift.radius, **kw)
-        return follow, apply_follow(q, follow)
+        return follow_enclosed(stack, scene.means, apply_follow(q, follow), tau, follow, up=up)
     follow = faint_follow_matrix(local.scene, lift.center, lift.radius, **kw)
-    out = np.array(q, dtype=np.float32)
+    out = np.array(q, dtype=np.float32)  # q's own copy: result.q keeps the solver's values
     out[local.index] = apply_follow(out[local.index], follow)
-    return local.expand(follow), out
+    faint = np.append(np.diff(follow.indptr) > 0, False)  # find() gives outsiders position 0: it must exist
+
+    def has_row(i: np.ndarray) -> np.ndarray:
+        at, inside = local.find(i)
+        return inside & faint[at]
+
+    rows, cols = _enclosed_rows(stack, scene.means, out, tau, has_row, up=up)
+    if rows.size == 0:
+        return local.expand(follow), out
+    out[rows] = out[cols]
+    (at_r, in_r), (at_c, in_c) = local.find(rows), local.find(cols)
+    if in_r.all() and in_c.all():
+        return local.expand(_with_unit_rows(follow, at_r, at_c)), out
+    return _with_unit_rows(local.expand(follow), rows, cols), out
 
 
 def _rule_region(scene: GaussianScene, lift: SeedLift, region: float, local: Neighbourhood | None) -> np.ndarray:

@@ -44,8 +44,10 @@ there the object's base and the support meet within the z-test's reach of
 each other, often in like colours (a shadowed base on gravel), so the
 tracker does not copy background labels onto surfaces that do not face
 along the axis (``GeometricTracker(contact_zone=)``). Fewer than
-``min_splats`` such Gaussians, or a level :math:`\hat h \ge 0` (not below
-the object's centre: an axis pointing down): no support surface (None),
+``min_splats`` such Gaussians, a level :math:`\hat h \ge 0` (not below
+the object's centre: an axis pointing down) or a band top :math:`t \ge 0`
+(a spread so wide that the band would take in the object's lower half): no
+support surface (None),
 and the tracker labels no pixel as support.
 """
 
@@ -186,5 +188,10 @@ def support_surface(scene: GaussianScene, support, center, radius: float, axis, 
         return None
     spread = 1.4826 * float(np.median(np.abs(level_h - level)))
     top = level + max(margin * radius, 2.0 * spread)
+    if top >= 0:
+        # A band that reaches the object's centre is no surface it rests on (the annulus of a large
+        # object seen from above holds roofs and treetops around it, spread over its own height):
+        # the tracker would label the object's lower half background.
+        return None
     return SupportSurface(u, o + top * u, level, spread, int(level_h.size), float(contact * radius),
                           float(contact_reach * radius))

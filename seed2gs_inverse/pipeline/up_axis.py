@@ -104,7 +104,8 @@ The local support plane wins when it has at least ``min_inliers`` inliers,
 unless the scene plane disagrees with it by more than ``agree_deg`` and,
 taken as the answer (checked against the local plane), has the higher
 confidence :math:`c` below (method ``"scene-plane"``; the disagreement
-stays one of its checks, so such an answer is usually weak and warns): a
+stays one of its checks, weighed by the local plane's share of its points,
+so such an answer is weak and warns when that plane is well supported): a
 local "plane" can be a flat patch of the object's own unseen side, denser
 than the ground (a patch on an animal's back, far off the vertical, against
 a lawn that holds a much larger share of the scene). When the scene plane
@@ -124,13 +125,20 @@ a plane is
 .. math::
 
     c = \min\!\left(1, \frac{f}{f_0}\right) \cdot
-        \frac{1}{K} \sum_{k=1}^{K} \exp\!\left(-(\theta_k / 8^\circ)^2\right),
+        \frac{\sum_{k=1}^{K} w_k \exp\!\left(-(\theta_k / 8^\circ)^2\right)}{\sum_{k=1}^{K} w_k},
 
 with :math:`f` the plane's inlier fraction of its point set
-(:math:`f_0 = 0.15`) and :math:`\theta_k` the angles between the chosen
-axis and each available check: the no-roll plane of the reference
-(:math:`\arcsin |u \cdot r|`, always), the other plane and the training
-cameras' axis when there are. Camera-only answers have confidence 0.8 times
+(:math:`f_0 = 0.15`; for the agreeing pair ``"support-plane+scene-plane"``
+the larger of the two fractions: both found the surface, and the local
+ball, small and dense, puts a thinner band :math:`\tau` through an
+undulating ground than the subsampled scene ball) and :math:`\theta_k` the
+angles between the chosen axis and each available check: the no-roll
+plane of the reference (:math:`\arcsin |u \cdot r|`, always), the other
+plane and the training cameras' axis when there are. Each check weighs
+:math:`w_k = 1`, except the other plane's, which weighs its own
+:math:`\min(1, f_k / f_0)`: a "plane" holding a few percent of its points
+(a flat patch of the object's unseen side) is no evidence that the ground
+found in the wider ball is wrong. Camera-only answers have confidence 0.8 times
 the cameras' quality. Below :data:`WEAK_CONFIDENCE` the pipeline warns and
 names ``--up``.
 
@@ -944,36 +952,49 @@ def _screen_planes(local: PlaneFit | None, glob: PlaneFit | None, means: np.ndar
     return local, glob
 
 
-def _check_angles(axis: np.ndarray, other: PlaneFit | None, prior: _Prior) -> list[float]:
-    """:math:`\\theta_k` in degrees: the angle to the other plane, to the cameras' axis, and off the no-roll plane."""
-    th = []
+def _credibility(plane: PlaneFit) -> float:
+    """:math:`\\min(1, f / f_0)`: how much a plane's inlier share :math:`f` counts, as an answer or as a check."""
+    return min(1.0, plane.fraction / _FRACTION_FULL)
+
+
+def _check_angles(axis: np.ndarray, other: PlaneFit | None, prior: _Prior) -> tuple[list[float], list[float]]:
+    """:math:`\\theta_k` in degrees and their weights :math:`w_k`: the angle to the other plane (weight its
+    :func:`_credibility`), to the cameras' axis and off the no-roll plane (weight 1 each)."""
+    th, wt = [], []
     if other is not None:
         th.append(angle_deg(axis, other.normal))
+        wt.append(_credibility(other))
     if prior.cam_axis is not None:
         th.append(angle_deg(axis, prior.cam_axis))
+        wt.append(1.0)
     th.append(float(np.degrees(np.arcsin(min(1.0, abs(axis @ prior.r))))))
-    return th
+    wt.append(1.0)
+    return th, wt
 
 
 def _plane_answer(chosen: PlaneFit, method: str, other: PlaneFit | None, prior: _Prior, agree_deg: float,
-                  trust: float) -> tuple[np.ndarray, str, float, list[float]]:
-    """``(axis, method, confidence, check angles)`` with ``chosen`` deciding and ``other`` as a check.
+                  trust: float) -> tuple[np.ndarray, str, float, list[float], list[float]]:
+    """``(axis, method, confidence, check angles, check weights)`` with ``chosen`` deciding and ``other`` as a check.
 
     When ``other`` agrees within ``agree_deg`` the axis is the two normals'
     inlier-weighted mean (method ``"support-plane+scene-plane"``): the same
     surface seen wider, whose many more inliers pin its direction down (a
-    local patch of uneven ground is tilted by its slope). The confidence is
-    :math:`c` of the module docstring times ``trust`` (:func:`_plane_trust`).
+    local patch of uneven ground is tilted by its slope); its inlier share
+    is then the larger of the two (each fit found the surface; the small,
+    dense local ball's band catches less of an undulating ground). The
+    confidence is :math:`c` of the module docstring times ``trust``
+    (:func:`_plane_trust`).
     """
     axis = chosen.normal / np.linalg.norm(chosen.normal)
+    credibility = _credibility(chosen)
     if other is not None and angle_deg(axis, other.normal) <= agree_deg:
         axis = chosen.n_inliers * axis + other.n_inliers * other.normal
         axis /= np.linalg.norm(axis)
         method = "support-plane+scene-plane"
-    th = _check_angles(axis, other, prior)
-    agree = float(np.mean(np.exp(-(np.asarray(th) / _CHECK_DEG) ** 2)))
-    conf = min(1.0, chosen.fraction / _FRACTION_FULL) * agree
-    return axis, method, conf * trust, th
+        credibility = max(credibility, _credibility(other))
+    th, wt = _check_angles(axis, other, prior)
+    agree = float(np.average(np.exp(-(np.asarray(th) / _CHECK_DEG) ** 2), weights=wt))
+    return axis, method, credibility * agree * trust, th, wt
 
 
 def _plane_trust(planes: _Planes) -> float:
@@ -984,7 +1005,7 @@ def _plane_trust(planes: _Planes) -> float:
 
 
 def _decide_plane(local: PlaneFit | None, glob: PlaneFit | None, prior: _Prior, agree_deg: float,
-                  trust: float) -> tuple[np.ndarray, str, float, list[float]] | None:
+                  trust: float) -> tuple[np.ndarray, str, float, list[float], list[float]] | None:
     """The plane answer (:func:`_plane_answer`), or None without a plane.
 
     The local plane decides, checked against the scene plane; when the two
@@ -1086,8 +1107,9 @@ def estimate_up_axis(scene: GaussianScene | FrozenScene, reference: Camera, supp
     best = _decide_plane(local, glob, prior, opt["agree_deg"], _plane_trust(planes))
     if best is None:
         return _fallback_axis(scene, region, reference, a, cam_axis, cam_quality, details)
-    axis, method, conf, th = best
+    axis, method, conf, th, wt = best
     details["check_angles_deg"] = th
+    details["check_weights"] = wt
     if planes.steep_rival is not None:
         details["steep_rival_share"] = planes.steep_rival
     suffix = ("; roll prior dropped" if planes.roll_dropped
