@@ -327,13 +327,19 @@ def _nearest_rows(means: np.ndarray, rows: np.ndarray, anchors: np.ndarray, k: i
     ``means`` (N, 3); ``rows`` and ``anchors`` non-empty int indices (checked
     by the callers). The weights are :func:`follow_matrix`'s (its Returns).
     """
+    r, c, w = _nearest_entries(means, rows, anchors, k)
+    return sp.csr_matrix((w, (r, c)), shape=(len(means),) * 2)
+
+
+def _nearest_entries(means: np.ndarray, rows: np.ndarray, anchors: np.ndarray, k: int) -> tuple:
+    """``(row, col, weight)``: the entries of :func:`_nearest_rows` (scene indices; ``k`` per row, nearest first)."""
     kk = min(k, anchors.size)
     d, nb = cKDTree(means[anchors].astype(np.float64)).query(
         means[rows].astype(np.float64), k=kk, workers=n_threads())
     d, nb = d.reshape(rows.size, kk), nb.reshape(rows.size, kk)
     w = 1.0 / (d + 1e-2 * float(np.median(d)) + 1e-30)
     w /= w.sum(axis=1, keepdims=True)
-    return sp.csr_matrix((w.ravel(), (np.repeat(rows, kk), anchors[nb].ravel())), shape=(len(means),) * 2)
+    return np.repeat(rows, kk), anchors[nb].ravel(), w.ravel()
 
 
 def check_follow(follow, n: int | None = None, name: str = "follow") -> sp.csr_matrix:

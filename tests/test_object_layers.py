@@ -25,6 +25,7 @@ from seed2gs_inverse.operators import OperatorStack
 from seed2gs_inverse.pipeline.completion import (GRAPH_DEFAULTS, enclosed_by_selection, faint_follow_matrix,
                                                  follow_enclosed, follow_weak, strong_columns)
 from seed2gs_inverse.pipeline.local import Neighbourhood, neighbourhood
+from seed2gs_inverse.pipeline.settings import ExtractSettings
 from seed2gs_inverse.pipeline.stages import _follow_rules
 from seed2gs_inverse.pipeline.outputs import save_extraction
 from seed2gs_inverse.solvers.inputs import load_solve_inputs
@@ -334,13 +335,16 @@ def test_follow_enclosed_replaces_the_enclosed_rows(on_ground):
 
 
 
-@pytest.mark.parametrize("reach", [1.0, 0.25])
-def test_the_follow_rules_on_a_neighbourhood_are_those_on_the_scene(on_ground, reach):
-    """Faint rows built among a neighbourhood, enclosed rows added, the (N, N) matrix made once: the same result.
+@pytest.mark.parametrize("reach, faint, weak", [(1.0, True, True), (0.25, True, True), (1.0, True, False),
+                                                (1.0, False, True)])
+def test_the_follow_rules_on_a_neighbourhood_are_those_on_the_scene(on_ground, reach, faint, weak):
+    """Rows built among a neighbourhood, the (N, N) matrix made once: the result of the rules on the whole scene.
 
-    ``reach`` scales the lift's radius: at 1 the neighbourhood (the faint
-    rule's region) holds every enclosed Gaussian; at 0.25 it leaves some
-    out, and their rows are added to the expanded matrix instead.
+    ``reach`` scales the lift's radius: at 1 the neighbourhood (the rules'
+    region) holds every enclosed Gaussian; at 0.25 it leaves some out, and
+    the rows go on in the expanded matrix instead. ``faint`` and ``weak``
+    are the settings' ``follow_faint`` (the faint and enclosed rules) and
+    ``follow_weak``.
     """
     scene, truth, info = on_ground
     stack = OperatorStack([build_operator(scene, v) for v in _views(info)])
@@ -351,19 +355,25 @@ def test_the_follow_rules_on_a_neighbourhood_are_those_on_the_scene(on_ground, r
     q[rng.random(len(q)) < 0.05] = 0.6
     q0 = q.copy()
     lift = SimpleNamespace(center=np.asarray(info["center"], np.float64), radius=reach * info["radius"])
+    settings = ExtractSettings(follow_faint=faint, follow_weak=weak)
     region = GRAPH_DEFAULTS["region"] * lift.radius
     local = Neighbourhood.of(scene, neighbourhood(scene, lift.center, region))
-    whole_f, whole_q = _follow_rules(scene, lift, stack, q, 0.5, GRAPH_DEFAULTS, None, up)
-    got_f, got_q = _follow_rules(scene, lift, stack, q, 0.5, GRAPH_DEFAULTS, local, up)
+    whole_f, whole_q = _follow_rules(scene, lift, stack, q, 0.5, settings, None, up)
+    got_f, got_q = _follow_rules(scene, lift, stack, q, 0.5, settings, local, up)
     enclosed = enclosed_by_selection(stack, apply_follow(q, faint_follow_matrix(scene, lift.center, lift.radius))
                                      > 0.5, scene.means, up=up)
     outside = np.setdiff1d(np.flatnonzero(enclosed), local.index)
     assert enclosed.sum() >= 50 and (outside.size > 0) == (reach < 1)
+    weak_rows = np.diff(got_f.indptr) > 0
+    if weak and not faint:
+        assert weak_rows.sum() >= 20  # the weak rule has rows of its own
     np.testing.assert_array_equal(got_q, whole_q)
+    assert not np.array_equal(got_q, q0)
     np.testing.assert_array_equal(q, q0)  # changed in a copy
     for field in ("data", "indices", "indptr"):
         np.testing.assert_array_equal(getattr(got_f, field), getattr(whole_f, field))
     assert got_f.shape == whole_f.shape and got_f.has_sorted_indices
+    np.testing.assert_array_equal(apply_follow(q, got_f), got_q)  # what a replay of the saved rows gives
 
 
 def test_strong_columns_against_the_dense_maximum(on_ground):

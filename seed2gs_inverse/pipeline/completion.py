@@ -92,7 +92,7 @@ from scipy.spatial import cKDTree
 from .._threads import n_threads
 from .._validation import check_real
 from ..errors import ValidationError
-from ..graph import _BLOCK, _nearest_rows, check_follow, follow_matrix, gaussian_graph
+from ..graph import _BLOCK, _nearest_entries, check_follow, follow_matrix, gaussian_graph
 from ..solvers.smoothing import harmonic_extension
 from ..operators import as_stack
 from .local import neighbourhood
@@ -454,7 +454,7 @@ def follow_enclosed(stack, means, q, tau: float, follow, *, up=None) -> tuple[sp
         return follow, qq
     qq = qq.copy()
     qq[rows] = qq[cols]
-    return _with_unit_rows(follow, rows, cols), qq
+    return _replace_rows(follow, rows, rows, cols, np.ones(rows.size)), qq
 
 
 def _enclosed_rows(stack, means, q: np.ndarray, tau: float, has_row, *, up=None) -> tuple[np.ndarray, np.ndarray]:
@@ -474,11 +474,6 @@ def _enclosed_rows(stack, means, q: np.ndarray, tau: float, has_row, *, up=None)
     x = np.asarray(means)
     _, nb = cKDTree(x[anchors].astype(np.float64)).query(x[rows].astype(np.float64), workers=n_threads())
     return rows, anchors[np.asarray(nb).ravel()]
-
-
-def _with_unit_rows(follow: sp.csr_matrix, rows: np.ndarray, cols: np.ndarray) -> sp.csr_matrix:
-    """``follow`` (CSR) with rows ``rows`` replaced by weight 1 on ``cols`` (built from the entries: no (N,) temporary)."""
-    return _replace_rows(follow, rows, rows, cols, np.ones(rows.size))
 
 
 #: The weak-evidence rule's settings (:func:`follow_weak`): the largest stored weight below which a
@@ -584,34 +579,52 @@ def follow_weak(stack, means, q, tau: float, follow, candidates, *, up=None,
     qq = np.asarray(q, np.float32).ravel()
     n = qq.size
     follow = sp.csr_matrix((n, n)) if follow is None else check_follow(follow, n)
-    tau = check_real("follow_weak: tau", tau)
-    reach = check_real("follow_weak: reach", reach, lo=0, lo_open=True)
-    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or int(k) < 1:
-        raise ValidationError(f"follow_weak: k must be a positive integer, got {k!r}")
     idx = np.asarray(candidates)
     if idx.ndim != 1 or idx.dtype.kind not in "ui" or (idx.size and (idx[0] < 0 or idx[-1] >= n
                                                                      or np.any(idx[1:] <= idx[:-1]))):
         raise ValidationError(f"follow_weak: candidates must be ascending unique indices in [0, {n})")
-    idx = idx.astype(np.int64, copy=False)
-    strong = np.isin(idx, strong_columns(stack, max_weight), assume_unique=True)
-    anchors = idx[strong]
-    anchors = anchors[follow.indptr[anchors + 1] == follow.indptr[anchors]]  # their q is the solver's
-    rows = idx[~strong]
-    rows = rows[qq[rows] <= tau]
+    rows, entries = _weak_entries(stack, means, qq, tau, lambda i: follow.indptr[i + 1] > follow.indptr[i],
+                                  idx.astype(np.int64, copy=False), up=up, max_weight=max_weight, k=k, reach=reach,
+                                  base_quantile=base_quantile)
+    if rows.size == 0:
+        return follow, qq
+    out = _replace_rows(follow, rows, *entries)
+    qq = qq.copy()
+    qq[rows] = (out[rows] @ qq.astype(np.float64)).astype(np.float32)  # as apply_follow computes it
+    return out, qq
+
+
+def _weak_entries(stack, means, q: np.ndarray, tau: float, has_row, candidates: np.ndarray, *, up=None,
+                  max_weight: float = WEAK_DEFAULTS["max_weight"], k: int = WEAK_DEFAULTS["k"],
+                  reach: float = WEAK_DEFAULTS["reach"], base_quantile: float = 0.01) -> tuple:
+    """``(rows, (row, col, weight))`` of :func:`follow_weak`: the weak rows and their entries (scene indices).
+
+    ``q`` is (N,) float32 and ``candidates`` ascending unique int64 indices
+    (checked by the caller); ``has_row(i)`` tells, for indices ``i``, which
+    Gaussians already follow others: they are no anchors. ``rows`` is empty
+    when there is no weak row or no anchor. The other arguments are
+    checked here, as :func:`follow_weak` documents them.
+    """
+    tau = check_real("follow_weak: tau", tau)
+    reach = check_real("follow_weak: reach", reach, lo=0, lo_open=True)
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or int(k) < 1:
+        raise ValidationError(f"follow_weak: k must be a positive integer, got {k!r}")
+    none = np.zeros(0, np.int64)
+    strong = np.isin(candidates, strong_columns(stack, max_weight), assume_unique=True)
+    anchors = candidates[strong]
+    anchors = anchors[~has_row(anchors)]  # their q is the solver's
+    rows = candidates[~strong]
+    rows = rows[q[rows] <= tau]
     x = np.asarray(means)
     if up is not None and rows.size:
-        rows = rows[_at_or_above_base(x, qq > tau, rows, up, base_quantile, "follow_weak")]
+        rows = rows[_at_or_above_base(x, q > tau, rows, up, base_quantile, "follow_weak")]
     if rows.size and anchors.size > 1:
         tree = cKDTree(x[anchors].astype(np.float64))
         spacing = float(np.median(tree.query(x[anchors].astype(np.float64), k=2, workers=n_threads())[0][:, 1]))
         rows = rows[tree.query(x[rows].astype(np.float64), workers=n_threads())[0] <= reach * spacing]
     if rows.size == 0 or anchors.size == 0:
-        return follow, qq
-    new = _nearest_rows(x, rows, anchors, int(k))
-    qq = qq.copy()
-    qq[rows] = (new[rows] @ qq.astype(np.float64)).astype(np.float32)
-    add = new.tocoo()
-    return _replace_rows(follow, rows, add.row, add.col, add.data), qq
+        return none, (none, none, np.zeros(0))
+    return rows, _nearest_entries(x, rows, anchors, int(k))
 
 
 def _unit_up(up, where: str) -> np.ndarray:

@@ -38,6 +38,7 @@ from typing import TYPE_CHECKING, Any, Sequence
 
 import cv2
 import numpy as np
+import scipy.sparse as sp
 
 from ..errors import ValidationError
 from ..frontend.base import SupportPlaneTracker
@@ -48,8 +49,9 @@ from ..raster import FrozenScene, Renderer
 from ..solvers import solve
 from ..solvers._common import normalize_mask
 from .box_object import box_object_mask
-from .completion import (GRAPH_DEFAULTS, _enclosed_rows, _with_unit_rows, complete_membership, faint_follow_matrix,
-                         fill_unknown, follow_enclosed, follow_weak, object_graph, tracked_membership)
+from .completion import (GRAPH_DEFAULTS, _enclosed_rows, _replace_rows, _weak_entries, complete_membership,
+                         faint_follow_matrix, fill_unknown, follow_enclosed, follow_weak, object_graph,
+                         tracked_membership)
 from .point_object import point_object_mask
 from .islands import seed_connected
 from .local import Neighbourhood, neighbourhood
@@ -59,8 +61,6 @@ from .up_axis import WEAK_CONFIDENCE, camera_list, estimate_up, estimate_up_axis
 from .vaas import ClipFrame, run_vaas
 
 if TYPE_CHECKING:
-    import scipy.sparse as sp
-
     from ..camera import Camera
     from ..frontend.base import LabelFiller, Tracker
     from ..operators import Rendering, ViewOperator
@@ -738,13 +738,8 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     if scene is not None:
         _check_local(scene, local)
     follow = None
-    if settings.follow_faint:
-        opts = {**GRAPH_DEFAULTS, **settings.graph_options}
-        follow, q = _follow_rules(scene, lift, stack, q, tau, opts, local, up)
-    if settings.follow_weak:
-        opts = {**GRAPH_DEFAULTS, **settings.graph_options}
-        follow, q = follow_weak(stack, scene.means, q, tau, follow, _rule_region(scene, lift, opts["region"], local),
-                                up=up)
+    if settings.follow_faint or settings.follow_weak:
+        follow, q = _follow_rules(scene, lift, stack, q, tau, settings, local, up)
     n_removed = 0
     if settings.seed_connected:
         graph_kw = {k: settings.lift_options[k] for k in ("k_neighbors", "link_factor") if k in settings.lift_options}
@@ -768,43 +763,90 @@ def _check_local(scene: GaussianScene, local) -> None:
 
 
 def _follow_rules(scene: GaussianScene, lift: SeedLift, stack: OperatorStack, q: np.ndarray, tau: float,
-                  opts: dict, local: Neighbourhood | None, up) -> tuple[sp.csr_matrix, np.ndarray]:
-    """``(follow (N, N), q after it)``: the faint Gaussians' rows, then the enclosed ones', applied to ``q``.
+                  settings: ExtractSettings, local: Neighbourhood | None, up) -> tuple[sp.csr_matrix, np.ndarray]:
+    """``(follow (N, N), q after it)``: the follow rules of ``settings``, in order, applied to ``q``.
 
-    :func:`~.completion.faint_follow_matrix` applied to ``q``, then
-    :func:`~.completion.follow_enclosed`. With ``local`` (holding the faint
-    rule's region) the faint rows are built among the neighbourhood's
-    Gaussians, ``q`` is changed in one copy of it, and the (N, N) matrix
-    is made once, at the end: the same matrix and ``q``.
+    With ``settings.follow_faint``: :func:`~.completion.faint_follow_matrix`
+    applied to ``q``, then :func:`~.completion.follow_enclosed`; with
+    ``settings.follow_weak``, then :func:`~.completion.follow_weak` over the
+    Gaussians within the graph's region. With ``local`` (holding that
+    region) the rows are built among the neighbourhood's Gaussians while
+    every row and column lies in it, ``q`` is changed in one copy of it, and
+    the (N, N) matrix is made once, at the end: the same matrix and ``q``.
     """
+    opts = {**GRAPH_DEFAULTS, **settings.graph_options}
+    region = opts["region"] * lift.radius
     kw = {"region": opts["region"], "min_opacity": opts["min_opacity"]}
     if local is None:
-        follow = faint_follow_matrix(scene, lift.center, lift.radius, **kw)
-        return follow_enclosed(stack, scene.means, apply_follow(q, follow), tau, follow, up=up)
-    follow = faint_follow_matrix(local.scene, lift.center, lift.radius, **kw)
+        n = len(scene)
+        follow = sp.csr_matrix((n, n))
+        if settings.follow_faint:
+            follow = faint_follow_matrix(scene, lift.center, lift.radius, **kw)
+            follow, q = follow_enclosed(stack, scene.means, apply_follow(q, follow), tau, follow, up=up)
+        if settings.follow_weak:
+            candidates = neighbourhood(scene, lift.center, region)
+            follow, q = follow_weak(stack, scene.means, q, tau, follow, candidates, up=up)
+        return follow, q
+    m = len(local)
+    rules = _LocalRows(local, faint_follow_matrix(local.scene, lift.center, lift.radius, **kw)
+                       if settings.follow_faint else sp.csr_matrix((m, m)))
     out = np.array(q, dtype=np.float32)  # q's own copy: result.q keeps the solver's values
-    out[local.index] = apply_follow(out[local.index], follow)
-    faint = np.append(np.diff(follow.indptr) > 0, False)  # find() gives outsiders position 0: it must exist
-
-    def has_row(i: np.ndarray) -> np.ndarray:
-        at, inside = local.find(i)
-        return inside & faint[at]
-
-    rows, cols = _enclosed_rows(stack, scene.means, out, tau, has_row, up=up)
-    if rows.size == 0:
-        return local.expand(follow), out
-    out[rows] = out[cols]
-    (at_r, in_r), (at_c, in_c) = local.find(rows), local.find(cols)
-    if in_r.all() and in_c.all():
-        return local.expand(_with_unit_rows(follow, at_r, at_c)), out
-    return _with_unit_rows(local.expand(follow), rows, cols), out
+    out[local.index] = apply_follow(out[local.index], rules.follow)
+    if settings.follow_faint:
+        rows, cols = _enclosed_rows(stack, scene.means, out, tau, rules.has_row, up=up)
+        out[rows] = out[cols]
+        rules.replace(rows, rows, cols, np.ones(rows.size))
+    if settings.follow_weak:
+        candidates = local.index[neighbourhood(local.scene, lift.center, region)]
+        rows, entries = _weak_entries(stack, scene.means, out, tau, rules.has_row, candidates, up=up)
+        rules.replace(rows, *entries)
+        out[rows] = rules.averages(rows, out)
+    return rules.expanded(), out
 
 
-def _rule_region(scene: GaussianScene, lift: SeedLift, region: float, local: Neighbourhood | None) -> np.ndarray:
-    """Ascending indices of the Gaussians within ``region`` lift radii of its centre (through ``local``, which holds them)."""
-    if local is None:
-        return neighbourhood(scene, lift.center, region * lift.radius)
-    return local.index[neighbourhood(local.scene, lift.center, region * lift.radius)]
+class _LocalRows:
+    """A follow matrix kept on a neighbourhood's Gaussians while its rows and columns lie there, else (N, N).
+
+    Every index given and returned is the scene's; :meth:`expanded` is the
+    (N, N) matrix.
+    """
+
+    def __init__(self, local: Neighbourhood, follow: sp.csr_matrix):
+        self.local, self.follow, self.on_local = local, follow, True
+
+    def has_row(self, i: np.ndarray) -> np.ndarray:
+        """Bool over scene indices ``i``: which have a row."""
+        if not self.on_local:
+            return self.follow.indptr[i + 1] > self.follow.indptr[i]
+        at, inside = self.local.find(i)
+        if not len(self.local):
+            return inside
+        return inside & (self.follow.indptr[at + 1] > self.follow.indptr[at])
+
+    def replace(self, rows: np.ndarray, new_rows: np.ndarray, new_cols: np.ndarray, data: np.ndarray) -> None:
+        """Replace ``rows`` by the entries ``(new_rows, new_cols, data)`` (:func:`~.completion._replace_rows`)."""
+        if rows.size == 0:
+            return
+        if self.on_local:
+            (at_r, in_r), (at_n, _), (at_c, in_c) = (self.local.find(v) for v in (rows, new_rows, new_cols))
+            if in_r.all() and in_c.all():
+                self.follow = _replace_rows(self.follow, at_r, at_n, at_c, data)
+                return
+            self.follow, self.on_local = self.local.expand(self.follow), False
+        self.follow = _replace_rows(self.follow, rows, new_rows, new_cols, data)
+
+    def averages(self, rows: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """float32 ``(F q)`` at ``rows``, as :func:`~seed2gs_inverse.graph.apply_follow` computes it."""
+        if rows.size == 0:
+            return np.zeros(0, np.float32)
+        if self.on_local:
+            at, _ = self.local.find(rows)
+            return (self.follow[at] @ q[self.local.index].astype(np.float64)).astype(np.float32)
+        return (self.follow[rows] @ q.astype(np.float64)).astype(np.float32)
+
+    def expanded(self) -> sp.csr_matrix:
+        """The (N, N) follow matrix."""
+        return self.local.expand(self.follow) if self.on_local else self.follow
 
 
 def _islands(scene: GaussianScene, lift: SeedLift, above: np.ndarray, stack: OperatorStack, masks: list,
