@@ -573,3 +573,25 @@ def test_up_cameras_may_be_any_iterable_once():
     assert generated.up["details"]["cameras"]["n"] == listed.up["details"]["cameras"]["n"] == 8
     with pytest.raises(ValidationError, match="got one Camera"):
         extract(scene, cam, seed, n_views=6, up_cameras=cams[0], progress=False)
+
+
+@pytest.mark.parametrize("confidence, roll_dropped, kept", [(0.005, False, False), (0.3, False, True),
+                                                           (0.005, True, True)])
+def test_a_plane_less_confident_than_no_plane_gives_way(monkeypatch, confidence, roll_dropped, kept):
+    """A plane answer below the answer without a plane (here the image-up's 0.1 or the normals' 0.2) gives
+    way to it, as a scanned guitar's flat body, 78 degrees off the vertical at confidence 0.004, did not;
+    a plane found with the roll prior dropped is kept (the answers without a plane assume that prior)."""
+    import seed2gs_inverse.pipeline.up_axis as up_axis
+
+    scene, labels, info, cam, _ = _sphere_problem()
+    wrong = np.array([1.0, 0.0, 0.0])
+    monkeypatch.setattr(up_axis, "_decide_plane", lambda *a, **k: (wrong, "support-plane", confidence, [70.0], [1.0]))
+    search = up_axis._search_planes
+    monkeypatch.setattr(up_axis, "_search_planes", lambda *a, **k: search(*a, **k)._replace(roll_dropped=roll_dropped))
+    est = estimate_up_axis(scene, cam, support=labels)
+    if kept:
+        assert np.allclose(est.axis, wrong) and "rejected_plane" not in est.details
+    else:
+        assert est.method in ("image-up", "normals") and est.confidence > confidence
+        assert est.details["rejected_plane"]["confidence"] == confidence
+        assert angle_deg(est.axis, info["up"]) < 25.0

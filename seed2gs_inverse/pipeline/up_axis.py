@@ -139,8 +139,14 @@ plane and the training cameras' axis when there are. Each check weighs
 :math:`\min(1, f_k / f_0)`: a "plane" holding a few percent of its points
 (a flat patch of the object's unseen side) is no evidence that the ground
 found in the wider ball is wrong. Camera-only answers have confidence 0.8 times
-the cameras' quality. Below :data:`WEAK_CONFIDENCE` the pipeline warns and
-names ``--up``.
+the cameras' quality. A plane answer less confident than the answer
+without a plane (the cameras', the normals' 0.2 or the image-up's 0.1) gives
+way to it, unless the plane was found with the roll prior dropped (the
+answers without a plane assume that prior); the plane is kept in
+``details["rejected_plane"]``. A scanned object alone, with no ground, is
+the case: a flat part of it is a "plane" that agrees with nothing, far off
+the vertical. Below :data:`WEAK_CONFIDENCE` the
+pipeline warns and names ``--up``.
 
 The steps of :func:`estimate_up_axis` are separate private functions, in
 the order it calls them: :func:`_object_frame` (o, R),
@@ -1027,6 +1033,11 @@ def _decide_plane(local: PlaneFit | None, glob: PlaneFit | None, prior: _Prior, 
     return None
 
 
+#: The confidence of the normals' answer, the most confident :func:`_fallback_axis` gives without
+#: capture cameras.
+_NORMALS_CONFIDENCE = 0.2
+
+
 def _fallback_axis(scene: GaussianScene, region: np.ndarray | None, reference: Camera, a: np.ndarray,
                    cam_axis: np.ndarray | None, cam_quality: float, details: dict) -> UpEstimate:
     """The answer without a plane: the cameras' axis, else the normals (:func:`estimate_up`), else the image-up.
@@ -1042,7 +1053,7 @@ def _fallback_axis(scene: GaussianScene, region: np.ndarray | None, reference: C
     axis /= np.linalg.norm(axis)
     if angle_deg(axis, a) < 1e-9 or angle_deg(axis, a) > _NORMALS_MAX_PITCH_DEG:
         return UpEstimate(a.copy(), "image-up", 0.1, details)
-    return UpEstimate(axis, "normals", 0.2, details)
+    return UpEstimate(axis, "normals", _NORMALS_CONFIDENCE, details)
 
 
 def estimate_up_axis(scene: GaussianScene | FrozenScene, reference: Camera, support=None, center=None,
@@ -1114,4 +1125,14 @@ def estimate_up_axis(scene: GaussianScene | FrozenScene, reference: Camera, supp
         details["steep_rival_share"] = planes.steep_rival
     suffix = ("; roll prior dropped" if planes.roll_dropped
               else "; steep reference" if planes.steep_rival is not None else "")
-    return UpEstimate(axis, method + suffix, float(np.clip(conf, 0, 1)), details)
+    answer = UpEstimate(axis, method + suffix, float(np.clip(conf, 0, 1)), details)
+    if planes.roll_dropped or (answer.confidence >= _NORMALS_CONFIDENCE and cam_axis is None):
+        # the answers without a plane assume the no-roll prior this plane had to drop; or none of them
+        # can be more confident
+        return answer
+    fallback = _fallback_axis(scene, region, reference, a, cam_axis, cam_quality, dict(details))
+    if fallback.confidence <= answer.confidence:
+        return answer
+    fallback.details["rejected_plane"] = {"axis": answer.axis.tolist(), "method": answer.method,
+                                          "confidence": answer.confidence}
+    return fallback
