@@ -44,7 +44,7 @@ which ``bench_extract.py`` prints too).
 
 Usage::
 
-    python benchmarks/bench_speed.py [--repeat 3] [--views 24] [--competing-load] [--set KEY=VALUE ...]
+    python benchmarks/bench_speed.py [--repeat 3] [--views N] [--competing-load] [--set KEY=VALUE ...]
 """
 
 from __future__ import annotations
@@ -63,7 +63,7 @@ from _common import (DATA, extract_kwargs, firepit_unicorn_problem, load_average
 
 from seed2gs_inverse import Camera
 from seed2gs_inverse.metrics import boundary_iou, iou, membership_scores
-from seed2gs_inverse.pipeline import extract
+from seed2gs_inverse.pipeline import ExtractSettings, extract
 from seed2gs_inverse.raster import build_operator
 from seed2gs_inverse.solvers import solve
 
@@ -194,7 +194,8 @@ def _print_row(k, r):
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--repeat", type=int, default=3)
-    p.add_argument("--views", type=int, default=24)
+    p.add_argument("--views", type=int, default=ExtractSettings().n_views,
+                   help="views per VAAS clip (default: extract's)")
     p.add_argument("--method", default="weighted_bce")
     p.add_argument("--no-accuracy", action="store_true", help="skip the held-out scores")
     p.add_argument("--competing-load", action="store_true", help="run two busy-loop processes meanwhile")
