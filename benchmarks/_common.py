@@ -56,13 +56,13 @@ def load_average() -> float:
         return float("nan")
 
 
-def median_time(fn, repeat: int) -> float:
-    """Median wall seconds of ``repeat`` calls of ``fn()``."""
+def median_time(fn, repeat: int, clock=time.perf_counter) -> float:
+    """Median seconds of ``repeat`` calls of ``fn()`` on ``clock`` (wall by default; ``time.process_time``: CPU)."""
     times = []
     for _ in range(repeat):
-        t0 = time.perf_counter()
+        t0 = clock()
         fn()
-        times.append(time.perf_counter() - t0)
+        times.append(clock() - t0)
     return float(np.median(times))
 
 
@@ -85,11 +85,15 @@ def same_run_baselines(scene, camera, stack=None, repeat: int = 3) -> dict:
     Returns
     -------
     dict
-        ``render_s``, ``load``; with ``stack`` also ``forward_s``,
+        ``render_s``, ``render_cpu_s`` (the render's process CPU seconds:
+        what it costs apart from the time other processes take the cores
+        from it), ``load``; with ``stack`` also ``forward_s``,
         ``adjoint_s``, ``two_passes_s``, ``nnz``.
     """
     render(scene, camera)  # warm-up (kernel compilation when the cache is cold)
-    out = {"render_s": median_time(lambda: render(scene, camera), repeat), "load": load_average()}
+    out = {"render_s": median_time(lambda: render(scene, camera), repeat),
+           "render_cpu_s": median_time(lambda: render(scene, camera), repeat, clock=time.process_time),
+           "load": load_average()}
     if stack is not None:
         rng = np.random.default_rng(0)
         q = rng.random(stack.shape[1]).astype(np.float32)

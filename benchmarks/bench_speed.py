@@ -9,6 +9,10 @@ same run and on the same machine state:
   pass ``A q`` and one transposed pass ``A^T r`` over the extraction's own
   operator stack (what every solver iteration costs at least);
 * per-stage seconds of the extraction and the ratio extraction / render;
+  the same ratio in process CPU seconds (``time.process_time``) is printed
+  beside it: on a shared machine other processes take the cores from both
+  at different moments, which moves the wall ratio far more than the CPU
+  one (with ``NUMBA_NUM_THREADS=1`` the two agree on a quiet machine);
 * the solve: weighted_bce ms per iteration (all of the method's own
   seconds over its iterations: the set-up, i.e. the objective, the start
   and the first view weights, included) and per function evaluation
@@ -40,7 +44,7 @@ which ``bench_extract.py`` prints too).
 
 Usage::
 
-    python benchmarks/bench_speed.py [--repeat 3] [--views 24] [--competing-load] [--set KEY=VALUE ...]
+    python benchmarks/bench_speed.py [--repeat 3] [--views N] [--competing-load] [--set KEY=VALUE ...]
 """
 
 from __future__ import annotations
@@ -59,7 +63,7 @@ from _common import (DATA, extract_kwargs, firepit_unicorn_problem, load_average
 
 from seed2gs_inverse import Camera
 from seed2gs_inverse.metrics import boundary_iou, iou, membership_scores
-from seed2gs_inverse.pipeline import extract
+from seed2gs_inverse.pipeline import ExtractSettings, extract
 from seed2gs_inverse.raster import build_operator
 from seed2gs_inverse.solvers import solve
 
@@ -116,9 +120,9 @@ def run_once(scene, truth, cam, seed, up, views: int, method: str, accuracy: boo
     """
     load0 = load_average()
     reset_ok = reset_peak()
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     ex = extract(scene, cam, seed, n_views=views, method=method, progress=False, **(options or {}))
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     peak = _peak_rss_gb(reset_ok)
     stack, masks = ex.operators, ex.masks
     base = same_run_baselines(scene, cam, stack)
@@ -130,7 +134,8 @@ def run_once(scene, truth, cam, seed, up, views: int, method: str, accuracy: boo
     votes = [solve(stack, masks, method="voting") for _ in range(15)]
     vote = votes[0]
     vote_s = float(np.median([v.info["seconds_method"] for v in votes]))
-    row = {"wall_s": wall, "stages": dict(ex.seconds), "render_s": base["render_s"], "two_passes_s": two,
+    row = {"wall_s": wall, "cpu_s": cpu, "render_cpu_s": base["render_cpu_s"],
+           "stages": dict(ex.seconds), "render_s": base["render_s"], "two_passes_s": two,
            "forward_s": base["forward_s"], "adjoint_s": adj, "nnz": base["nnz"], "n_views": len(stack),
            "iterations": int(res.iterations), "nfev": nfev, "solve_s": float(res.seconds),
            "method_s": float(res.info["seconds_method"]), "smoothing_s": float(res.info["seconds_smoothing"]),
@@ -170,7 +175,9 @@ def _print_row(k, r):
     acc = (f" | held-out mIoU {r['miou']:.3f} mBIoU {r['mbiou']:.3f} 3D IoU {r['iou3d']:.3f}"
            if "miou" in r else "")
     print(f"run {k}: extraction {r['wall_s']:.2f} s = {r['wall_s'] / r['render_s']:.1f} renders "
-          f"(render {r['render_s']:.3f} s) | " + ", ".join(f"{a} {b:.2f}" for a, b in st.items()))
+          f"(render {r['render_s']:.3f} s); CPU {r['cpu_s']:.2f} s = "
+          f"{r['cpu_s'] / r['render_cpu_s']:.1f} renders' CPU ({r['render_cpu_s']:.3f} s) | "
+          + ", ".join(f"{a} {b:.2f}" for a, b in st.items()))
     print(f"  stack {r['n_views']} views, nnz {r['nnz'] / 1e6:.1f} M: A q {1e3 * r['forward_s']:.1f} ms, "
           f"A^T r {1e3 * r['adjoint_s']:.1f} ms | weighted_bce {r['iterations']} it, {r['nfev']} evals, "
           f"{r['method_s']:.2f} s (+ regulariser {r['smoothing_s']:.2f} s), {r['ms_per_iter']:.1f} ms/it = "
@@ -187,7 +194,8 @@ def _print_row(k, r):
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--repeat", type=int, default=3)
-    p.add_argument("--views", type=int, default=24)
+    p.add_argument("--views", type=int, default=ExtractSettings().n_views,
+                   help="views per VAAS clip (default: extract's)")
     p.add_argument("--method", default="weighted_bce")
     p.add_argument("--no-accuracy", action="store_true", help="skip the held-out scores")
     p.add_argument("--competing-load", action="store_true", help="run two busy-loop processes meanwhile")
@@ -218,7 +226,8 @@ def main(argv=None) -> int:
     med = {k: float(np.median([r[k] for r in rows])) for k in rows[0] if isinstance(rows[0][k], (int, float))}
     stages = {k: float(np.median([r["stages"][k] for r in rows])) for k in rows[0]["stages"]}
     print(f"\nmedian of {len(rows)}: extraction {med['wall_s']:.2f} s = {med['wall_s'] / med['render_s']:.1f} x "
-          f"one 960x540 render ({med['render_s']:.3f} s) [aim <= 12x on a quiet machine]; per stage: "
+          f"one 960x540 render ({med['render_s']:.3f} s) [aim <= 12x on a quiet machine]; CPU {med['cpu_s']:.2f} s "
+          f"= {med['cpu_s'] / med['render_cpu_s']:.1f} x the render's ({med['render_cpu_s']:.3f} s); per stage: "
           + ", ".join(f"{a} {b:.2f}" for a, b in stages.items()))
     spread = [r["iter_over_two"] for r in rows]
     print(f"  weighted_bce {med['ms_per_iter']:.1f} ms/it = {med['iter_over_two']:.2f} x two passes "
