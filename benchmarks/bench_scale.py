@@ -141,7 +141,12 @@ def _run(label, scene, truth, cam, seed, views, base_sel, render_s):
             "load": (load0, load_average()), "sel": sel}
 
 
-def _print(r):
+#: The issue's aims for a tiled scene against the 0.6 M one: extraction time and own peak memory.
+SCALE_AIM = 1.3
+
+
+def _print(r, base=None):
+    """Print row ``r``; with ``base`` (the 0.6 M row) also its time and own peak as multiples of the base's."""
     st = ", ".join(f"{k} {v:.2f}" for k, v in r["stages"].items())
     peak = "-" if r["peak_gb"] is None else f"{r['peak_gb']:.2f} GB"
     same = {None: "-", True: "yes", False: "NO"}[r["same"]]
@@ -150,6 +155,10 @@ def _print(r):
           f"{r['wall']:6.2f} s = {r['wall'] / r['render_s']:5.1f} renders (render {r['render_s']:.3f} s) | {st} | "
           f"peak {peak} | selected {r['selected']} ({r['true_pos']} of the object), same as 0.6 M: {same} | "
           f"load {r['load'][0]:.1f} -> {r['load'][1]:.1f}")
+    if base is not None and base is not r:
+        mem = ("-" if r["peak_gb"] is None or not base["peak_gb"] else f"{r['peak_gb'] / base['peak_gb']:.2f}x")
+        print(f"{'':>10} | against 0.6 M: extraction {r['wall'] / base['wall']:.2f}x, own peak {mem} "
+              f"[aims <= {SCALE_AIM}x each]")
     sys.stdout.flush()
 
 
@@ -189,7 +198,7 @@ def main(argv=None) -> int:
     print(f"machine: load average {load_average():.1f}, {_available_gb():.1f} GB available; base scene "
           f"{len(scene)} Gaussians ({int(truth.sum())} of the unicorn)")
     extract(scene, cam, seed, n_views=a.views, progress=False)  # warm-up: every kernel compiled
-    base_sel = None
+    base_sel, base_row = None, None
     bytes_per = sum(arr.nbytes for arr in (scene.means, scene.quats, scene.log_scales, scene.opacity_logits,
                                            scene.sh)) / len(scene)
     for size in sorted(sizes):
@@ -207,8 +216,8 @@ def main(argv=None) -> int:
             r = _run(f"size {size:g}", frozen, t_truth, cam, seed, a.views, base_sel, render_s)
             r["freeze"] = freeze_s if k == 0 else None
             if base_sel is None and len(tiled) == len(scene):
-                base_sel = r["sel"]
-            _print(r)
+                base_sel, base_row = r["sel"], r
+            _print(r, base_row)
         del tiled, frozen
     for name in objects:
         o_scene, o_truth = _object_variant(scene, truth, name)
