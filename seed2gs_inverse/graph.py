@@ -137,7 +137,7 @@ def gaussian_graph(scene: GaussianScene, k: int = 10, *, subset=None, sigma_colo
     n = len(scene)
     idx = support_indices(subset, n, "subset")  # integer 0/1 labels are refused
     if min_opacity > 0 and idx.size:
-        idx = idx[scene.opacities[idx] >= min_opacity]
+        idx = idx[scene.opacities_at(idx) >= min_opacity]
     m = idx.size
     kk = min(int(k), m - 1)
     if kk < 1:
@@ -174,7 +174,7 @@ def gaussian_graph(scene: GaussianScene, k: int = 10, *, subset=None, sigma_colo
         dc /= 2.0 * float(sigma_color) ** 2
         logw -= dc
     if sigma_normal is not None:
-        s = np.sort(scene.scales[idx].astype(np.float64), axis=1)
+        s = np.sort(scene.scales_at(idx).astype(np.float64), axis=1)
         flat = np.clip(1.0 - s[:, 0] / np.maximum(s[:, 1], 1e-30), 0.0, 1.0)
         rot = quat_to_rotmat(scene.quats[idx])
         axis = np.argmin(scene.log_scales[idx], axis=1)
@@ -314,7 +314,7 @@ def follow_matrix(scene: GaussianScene, k: int = 4, *, subset=None, min_opacity:
         raise ValidationError(f"min_opacity must be in (0, 1), got {min_opacity!r}")
     n = len(scene)
     idx = support_indices(subset, n, "subset")
-    faint = scene.opacities[idx] < min_opacity
+    faint = scene.opacities_at(idx) < min_opacity
     opaque, faint = idx[~faint], idx[faint]
     if faint.size == 0 or opaque.size == 0:
         return sp.csr_matrix((n, n), dtype=np.float64)

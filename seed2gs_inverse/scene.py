@@ -226,17 +226,25 @@ class GaussianScene:
     @property
     def opacities(self) -> np.ndarray:
         """Activated opacity ``sigmoid(opacity_logits)``, (N,) float32."""
+        return self.opacities_at(slice(None))
+
+    def opacities_at(self, rows) -> np.ndarray:
+        """:attr:`opacities` at ``rows`` (any numpy index), computed at those rows alone: the same values."""
         # expit: no overflow warning for the -1e4 logits of pruned splats. Imported here because
         # scipy.special takes longer to import than the whole package, and every
         # ``import seed2gs_inverse`` (each CLI start) loads this module.
         from scipy.special import expit
 
-        return expit(self.opacity_logits.astype(np.float64)).astype(np.float32)
+        return expit(self.opacity_logits[rows].astype(np.float64)).astype(np.float32)
 
     @property
     def scales(self) -> np.ndarray:
         """Per-axis standard deviations ``exp(log_scales)``, (N, 3) float32."""
-        return np.exp(self.log_scales.astype(np.float64)).astype(np.float32)
+        return self.scales_at(slice(None))
+
+    def scales_at(self, rows) -> np.ndarray:
+        """:attr:`scales` at ``rows`` (any numpy index), computed at those rows alone: the same values."""
+        return np.exp(self.log_scales[rows].astype(np.float64)).astype(np.float32)
 
     @property
     def rotations(self) -> np.ndarray:

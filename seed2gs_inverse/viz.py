@@ -217,7 +217,7 @@ def membership_plot(scene: GaussianScene, q=None, mode: str = "points", threshol
         else:
             pts, faces, v = _ellipsoid_mesh(scene.means[idx].astype(np.float64),
                                             quat_to_rotmat(scene.quats[idx]),
-                                            glyph_sigma * scene.scales[idx].astype(np.float64))
+                                            glyph_sigma * scene.scales_at(idx).astype(np.float64))
             mesh = pv.PolyData(pts, faces)
             color_kw["scalars"] = np.repeat(color_kw["scalars"], v, axis=0)
             pl.add_mesh(mesh, smooth_shading=False, **color_kw)

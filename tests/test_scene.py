@@ -34,6 +34,17 @@ def test_activations_known_values():
     np.testing.assert_allclose(s.opacities, [0.5, 0.75, 0.25], rtol=1e-6)
     np.testing.assert_allclose(s.scales, [[1, 2, 4]] * 3, rtol=1e-6)
     np.testing.assert_allclose(s.rotations, [[1, 0, 0, 0], [0, 0, 0, 1], [0.5] * 4], atol=1e-7)
+    # at chosen rows (indices or a mask): the known values there, computed there alone
+    np.testing.assert_allclose(s.opacities_at([2, 0]), [0.25, 0.5], rtol=1e-6)
+    np.testing.assert_allclose(s.scales_at(np.array([False, True, False])), [[1, 2, 4]], rtol=1e-6)
+    assert s.opacities_at([1]).dtype == np.float32 and s.scales_at([1]).shape == (1, 3)
+
+
+def test_activations_at_rows_are_the_activations_rows(rng):
+    s = random_scene(rng, n=200)
+    rows = rng.choice(200, 50, replace=False)
+    np.testing.assert_array_equal(s.opacities_at(rows), s.opacities[rows])
+    np.testing.assert_array_equal(s.scales_at(rows), s.scales[rows])
 
 
 def test_covariance_matches_scipy_rotation(rng):

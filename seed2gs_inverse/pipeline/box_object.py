@@ -298,7 +298,7 @@ def box_object_mask(scene: GaussianScene, camera: Camera, mask, depth, box=None,
     owner = _owners(W, m, label, ncomp + 1)
     pixels = np.bincount(owner[owner >= 0], minlength=ncomp + 1)
     main = int(np.argmax(pixels[:ncomp]))
-    sigma = scene.scales[idx].max(axis=1).astype(np.float64)
+    sigma = scene.scales_at(idx).max(axis=1).astype(np.float64)
     pts = means[idx]
     if plane is not None:
         # across the ground only: what stands under or over the main part is the same object
@@ -380,7 +380,7 @@ def _attach_unlifted(scene: GaussianScene, W: sp.csr_matrix, mask: np.ndarray, l
         return kept, dropped
     means = scene.means.astype(np.float64)
     dist, near = cKDTree(means[src]).query(means[extra], k=1)
-    reach = np.maximum(link, 3.0 * scene.scales[extra].max(axis=1).astype(np.float64))
+    reach = np.maximum(link, 3.0 * scene.scales_at(extra).max(axis=1).astype(np.float64))
     ok = dist <= reach
     kept, dropped = kept.copy(), dropped.copy()
     kept[extra[ok]] = kept[src[near[ok]]]

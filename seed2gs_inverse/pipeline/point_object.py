@@ -352,7 +352,7 @@ def linked_components(scene: GaussianScene, idx: np.ndarray, ref_nodes: np.ndarr
     # 1-sigma ellipsoids reach each other (sigma = largest std): trained
     # splats are denser on well-seen surfaces (a table top) than on grazing
     # ones (its skirt), and bigger where sparser.
-    sig = scene.scales[idx].max(axis=1).astype(np.float64)
+    sig = scene.scales_at(idx).max(axis=1).astype(np.float64)
     reach = np.maximum(cutoff, overlap * (sig[:, None] + sig[nbr]))
     keep = dist <= reach
     rows = np.repeat(np.arange(len(idx)), k)[keep.ravel()]
@@ -529,7 +529,7 @@ def _render_mask(scene: GaussianScene, camera: Camera, selected: np.ndarray, mod
     if not selected.any():
         return mask
     uv, z = camera.project(scene.means[selected])
-    sig = 3.0 * scene.scales[selected].max(axis=1).astype(np.float64)
+    sig = 3.0 * scene.scales_at(selected).max(axis=1).astype(np.float64)
     ok = np.isfinite(uv).all(axis=1) & (z > camera.near)
     if ok.any():
         rad = sig[ok] * max(camera.fx, camera.fy) / z[ok]

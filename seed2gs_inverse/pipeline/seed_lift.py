@@ -423,7 +423,7 @@ def seed_lift(scene: GaussianScene | FrozenScene, camera: Camera, mask, depth, W
     means = scene.means[index].astype(np.float64)
     uv, z = camera.project(means)
     # GaussianScene.scales of these Gaussians alone (the property activates all N)
-    sigma = np.exp(scene.log_scales[index].astype(np.float64)).astype(np.float32).max(axis=1).astype(np.float64)
+    sigma = scene.scales_at(index).max(axis=1).astype(np.float64)
     eps = eps_rel * np.abs(z) + eps_sigma * sigma
     depth_ok, centre_in_mask = _centre_tests(camera, uv, z, eps, m, d)
     contrib = None if W is None else _contribution(W, m, z, d)

@@ -164,7 +164,6 @@ from typing import Callable, Iterable, NamedTuple
 
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.special import expit
 
 from ..camera import Camera
 from ..errors import ValidationError
@@ -625,7 +624,7 @@ def flat_normals(scene: GaussianScene, idx: np.ndarray, flatness: float = 0.3) -
         Smallest scale below ``flatness`` times the middle one.
     """
     # GaussianScene.scales of these Gaussians alone (the property activates all N)
-    s = np.exp(scene.log_scales[idx].astype(np.float64)).astype(np.float32).astype(np.float64)
+    s = scene.scales_at(idx).astype(np.float64)
     order = np.argsort(s, axis=1)
     smin = np.take_along_axis(s, order[:, :1], 1)[:, 0]
     smid = np.take_along_axis(s, order[:, 1:2], 1)[:, 0]
@@ -764,7 +763,7 @@ def _plane_point_sets(scene: GaussianScene, frozen: FrozenScene | None, g0: np.n
     """
     def usable(idx: np.ndarray) -> np.ndarray:
         # GaussianScene.opacities of these Gaussians alone (the property activates all N)
-        keep = expit(scene.opacity_logits[idx].astype(np.float64)).astype(np.float32) >= opt["min_opacity"]
+        keep = scene.opacities_at(idx) >= opt["min_opacity"]
         if g0 is not None:
             keep &= ~g0[idx]
         idx = idx[keep]
