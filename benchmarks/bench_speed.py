@@ -34,9 +34,10 @@ same run and on the same machine state:
 * the load average at the start and at the end.
 
 Medians over ``--repeat`` runs are printed last (weighted_bce's ratio with its range over the
-runs). ``--competing-load`` starts two busy-loop processes for the duration
-(the operators stage under load); they are stopped by their process ids at
-the end.
+runs). ``--competing-load`` runs ``--repeat`` more extractions beside two
+busy-loop processes (stopped by their process ids at the end), prints the
+medians of those, and each stage's slow-down against the quiet runs beside a
+render's (the aim: the operators stage slows no more than a render).
 
 The scene, the baselines and the ``--set`` options come from ``_common.py``
 (:func:`~_common.same_run_baselines` is the baseline measurement on its own,
@@ -191,6 +192,20 @@ def _print_row(k, r):
     sys.stdout.flush()
 
 
+def _print_slowdown(quiet: list, loaded: list) -> None:
+    """Print the medians' ratios, loaded over quiet: a render, the extraction and each stage."""
+    def med(rows, key, stage=False):
+        return float(np.median([r["stages"][key] if stage else r[key] for r in rows]))
+
+    render = med(loaded, "render_s") / med(quiet, "render_s")
+    ops = med(loaded, "operators", True) / max(med(quiet, "operators", True), 1e-9)
+    stages = ", ".join(f"{k} {med(loaded, k, True) / max(med(quiet, k, True), 1e-9):.2f}x"
+                       for k in quiet[0]["stages"] if med(quiet, k, True) >= 0.05)
+    print(f"\nunder the competing load (medians, loaded over quiet): a 960x540 render {render:.2f}x, extraction "
+          f"{med(loaded, 'wall_s') / med(quiet, 'wall_s'):.2f}x; stages: {stages} [aim: operators <= the render's "
+          f"slow-down: {'met' if ops <= render else 'not met'}]")
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--repeat", type=int, default=3)
@@ -198,7 +213,7 @@ def main(argv=None) -> int:
                    help="views per VAAS clip (default: extract's)")
     p.add_argument("--method", default="weighted_bce")
     p.add_argument("--no-accuracy", action="store_true", help="skip the held-out scores")
-    p.add_argument("--competing-load", action="store_true", help="run two busy-loop processes meanwhile")
+    p.add_argument("--competing-load", action="store_true", help="also run beside two busy-loop processes and print the slow-downs")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="extract() keyword as in bench_extract.py, e.g. --set min_weight=0 (repeatable)")
     args = p.parse_args(argv)
@@ -209,20 +224,29 @@ def main(argv=None) -> int:
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
           f"NUMBA_NUM_THREADS={os.environ.get('NUMBA_NUM_THREADS', 'default')}, load average {load_average():.1f}")
     print(f"extract options: {options or 'defaults'}")
-    busy = _busy_load(2) if args.competing_load else []
-    try:
-        scene, truth, cam, seed, up, first = firepit_unicorn_problem(args.views)
-        print(f"first render of the process (includes kernel compilation when the cache is cold): {first:.2f} s; "
-              f"{'with' if busy else 'without'} a competing 2-process busy loop")
-        rows = []
-        for k in range(args.repeat):
-            rows.append(run_once(scene, truth, cam, seed, up, args.views, args.method, not args.no_accuracy,
-                                 extract_kwargs(options)))
-            _print_row(k, rows[-1])
-    finally:
-        for b in busy:
-            b.kill()
-            b.wait()
+    scene, truth, cam, seed, up, first = firepit_unicorn_problem(args.views)
+    print(f"first render of the process (includes kernel compilation when the cache is cold): {first:.2f} s")
+
+    def runs(loaded: bool) -> list:
+        busy = _busy_load(2) if loaded else []
+        print(f"{'with' if busy else 'without'} a competing 2-process busy loop")
+        out = []
+        try:
+            for k in range(args.repeat):
+                out.append(run_once(scene, truth, cam, seed, up, args.views, args.method, not args.no_accuracy,
+                                    extract_kwargs(options)))
+                _print_row(k, out[-1])
+        finally:
+            for b in busy:
+                b.kill()
+                b.wait()
+        return out
+
+    # --competing-load: the quiet runs first, then the loaded ones, and how much each stage slowed
+    quiet = runs(False)
+    rows = runs(True) if args.competing_load else quiet
+    if args.competing_load:
+        _print_slowdown(quiet, rows)
     med = {k: float(np.median([r[k] for r in rows])) for k in rows[0] if isinstance(rows[0][k], (int, float))}
     stages = {k: float(np.median([r["stages"][k] for r in rows])) for k in rows[0]["stages"]}
     print(f"\nmedian of {len(rows)}: extraction {med['wall_s']:.2f} s = {med['wall_s'] / med['render_s']:.1f} x "
