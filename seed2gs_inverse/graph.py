@@ -318,21 +318,17 @@ def follow_matrix(scene: GaussianScene, k: int = 4, *, subset=None, min_opacity:
     opaque, faint = idx[~faint], idx[faint]
     if faint.size == 0 or opaque.size == 0:
         return sp.csr_matrix((n, n), dtype=np.float64)
-    return _nearest_rows(scene.means, faint, opaque, int(k))
-
-
-def _nearest_rows(means: np.ndarray, rows: np.ndarray, anchors: np.ndarray, k: int) -> sp.csr_matrix:
-    """(N, N) follow rows: each of ``rows`` averages its ``k`` nearest ``anchors`` by inverse distance.
-
-    ``means`` (N, 3); ``rows`` and ``anchors`` non-empty int indices (checked
-    by the callers). The weights are :func:`follow_matrix`'s (its Returns).
-    """
-    r, c, w = _nearest_entries(means, rows, anchors, k)
-    return sp.csr_matrix((w, (r, c)), shape=(len(means),) * 2)
+    r, c, w = _nearest_entries(scene.means, faint, opaque, int(k))
+    return sp.csr_matrix((w, (r, c)), shape=(n, n))
 
 
 def _nearest_entries(means: np.ndarray, rows: np.ndarray, anchors: np.ndarray, k: int) -> tuple:
-    """``(row, col, weight)``: the entries of :func:`_nearest_rows` (scene indices; ``k`` per row, nearest first)."""
+    """``(row, col, weight)``: each of ``rows`` averages its ``k`` nearest ``anchors`` by inverse distance.
+
+    ``means`` (N, 3); ``rows`` and ``anchors`` non-empty int indices (checked
+    by the callers); scene indices, ``k`` entries per row, nearest first. The
+    weights are :func:`follow_matrix`'s (its Returns).
+    """
     kk = min(k, anchors.size)
     d, nb = cKDTree(means[anchors].astype(np.float64)).query(
         means[rows].astype(np.float64), k=kk, workers=n_threads())
@@ -377,8 +373,17 @@ def apply_follow(q, follow) -> np.ndarray:
     rows = np.flatnonzero(np.diff(f.indptr) > 0)
     out = q.copy()
     if rows.size:
-        out[rows] = (f[rows] @ q.astype(np.float64)).astype(np.float32)
+        out[rows] = _followed(f, rows, q)
     return out
+
+
+def _followed(follow: sp.csr_matrix, rows: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """float32 ``(follow @ q)`` at ``rows``, summed in float64: the one computation of every follow rule's values.
+
+    A rule that sets ``q`` at its rows this way is reproduced exactly by
+    :func:`apply_follow` on the matrix it saved.
+    """
+    return (follow[rows] @ np.asarray(q).astype(np.float64)).astype(np.float32)
 
 
 def graph_laplacian(graph) -> sp.csr_matrix:

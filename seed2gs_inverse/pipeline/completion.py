@@ -92,7 +92,7 @@ from scipy.spatial import cKDTree
 from .._threads import n_threads
 from .._validation import check_real
 from ..errors import ValidationError
-from ..graph import _BLOCK, _nearest_entries, check_follow, follow_matrix, gaussian_graph
+from ..graph import _BLOCK, _followed, _nearest_entries, check_follow, follow_matrix, gaussian_graph
 from ..solvers.smoothing import harmonic_extension
 from ..operators import as_stack
 from .local import neighbourhood
@@ -590,7 +590,7 @@ def follow_weak(stack, means, q, tau: float, follow, candidates, *, up=None,
         return follow, qq
     out = _replace_rows(follow, rows, *entries)
     qq = qq.copy()
-    qq[rows] = (out[rows] @ qq.astype(np.float64)).astype(np.float32)  # as apply_follow computes it
+    qq[rows] = _followed(out, rows, qq)
     return out, qq
 
 

@@ -158,8 +158,7 @@ def solve_inputs_of(extraction: Extraction) -> dict:
     follows = s.follow_faint or s.follow_weak
     if follows and extraction.follow is None:
         raise ValidationError("save_operators: the extraction ran with follow_faint or follow_weak but holds no "
-                              "follow matrix "
-                              "(Extraction.follow); run extract() again")
+                              "follow matrix (Extraction.follow); run extract() again")
     solver_q = np.asarray(extraction.result.q, np.float32)
     if follows:
         solver_q = apply_follow(solver_q, extraction.follow)

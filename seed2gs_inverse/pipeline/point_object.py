@@ -403,7 +403,7 @@ def _support_plane(scene: GaussianScene, camera: Camera, seeds: np.ndarray, cent
     ground. The info then says so (``passed_over``).
     """
     est = estimate_up_axis(scene, camera, support=seeds, center=center, radius=radius)
-    means = scene.means.astype(np.float64)
+    means, opacities = scene.means.astype(np.float64), scene.opacities  # once for both planes
     found = []
     for key in ("support_plane", "scene_plane"):
         p = est.details.get(key)
@@ -413,8 +413,7 @@ def _support_plane(scene: GaussianScene, camera: Camera, seeds: np.ndarray, cent
         point = np.asarray(p["point"], float)
         if normal @ (center - point) <= 0:
             continue  # the object must be above its support
-        below = _below_share(means, scene.opacities, normal, point, float(p["threshold"]), center, radius,
-                             min_opacity)
+        below = _below_share(means, opacities, normal, point, float(p["threshold"]), center, radius, min_opacity)
         found.append((key, normal, point, max(3.0 * float(p["threshold"]), min_band * radius), below))
     info = {"method": est.method, "confidence": float(est.confidence)}
     if not found:

@@ -43,7 +43,7 @@ import scipy.sparse as sp
 from ..errors import ValidationError
 from ..frontend.base import SupportPlaneTracker
 from ..frontend.prompts import BoxPrompt, PointPrompt, seed_mask_from_prompt
-from ..graph import apply_follow
+from ..graph import _followed, apply_follow
 from ..operators import OperatorStack, as_stack
 from ..raster import FrozenScene, Renderer
 from ..solvers import solve
@@ -841,8 +841,8 @@ class _LocalRows:
             return np.zeros(0, np.float32)
         if self.on_local:
             at, _ = self.local.find(rows)
-            return (self.follow[at] @ q[self.local.index].astype(np.float64)).astype(np.float32)
-        return (self.follow[rows] @ q.astype(np.float64)).astype(np.float32)
+            return _followed(self.follow, at, q[self.local.index])
+        return _followed(self.follow, rows, q)
 
     def expanded(self) -> sp.csr_matrix:
         """The (N, N) follow matrix."""
