@@ -623,7 +623,6 @@ def flat_normals(scene: GaussianScene, idx: np.ndarray, flatness: float = 0.3) -
     flat : (M,) bool
         Smallest scale below ``flatness`` times the middle one.
     """
-    # GaussianScene.scales of these Gaussians alone (the property activates all N)
     s = scene.scales_at(idx).astype(np.float64)
     order = np.argsort(s, axis=1)
     smin = np.take_along_axis(s, order[:, :1], 1)[:, 0]
