@@ -422,7 +422,6 @@ def seed_lift(scene: GaussianScene | FrozenScene, camera: Camera, mask, depth, W
     # Everything below is over the examined Gaussians K, in the scene's order.
     means = scene.means[index].astype(np.float64)
     uv, z = camera.project(means)
-    # GaussianScene.scales of these Gaussians alone (the property activates all N)
     sigma = scene.scales_at(index).max(axis=1).astype(np.float64)
     eps = eps_rel * np.abs(z) + eps_sigma * sigma
     depth_ok, centre_in_mask = _centre_tests(camera, uv, z, eps, m, d)

@@ -761,7 +761,6 @@ def _plane_point_sets(scene: GaussianScene, frozen: FrozenScene | None, g0: np.n
     inside the ball only.
     """
     def usable(idx: np.ndarray) -> np.ndarray:
-        # GaussianScene.opacities of these Gaussians alone (the property activates all N)
         keep = scene.opacities_at(idx) >= opt["min_opacity"]
         if g0 is not None:
             keep &= ~g0[idx]
