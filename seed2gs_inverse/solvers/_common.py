@@ -400,21 +400,32 @@ def prior_from_init(init, n: int) -> np.ndarray:
     elsewhere; an integer index array -> support given by indices; a float
     (N,) array in [0, 1] -> used as is.
     """
+    support, values = prior_parts(init, n)
+    return values if support is None else support.astype(np.float64)
+
+
+def prior_parts(init, n: int) -> tuple:
+    """``(support, values)`` of :func:`prior_from_init`'s ``init``: exactly one of them is None.
+
+    A support set (``None``, a bool mask or indices) gives its (N,) bool
+    mask and None; a float prior gives None and the (N,) float64 values.
+    The checks and messages are :func:`prior_from_init`'s.
+    """
     if init is None:
-        return np.zeros(n)
+        return np.zeros(n, bool), None
     a = np.asarray(init)
     if a.ndim == 0:  # init=1 would be read as "Gaussian 1", not "everything foreground"
         hint = f"; for one Gaussian's index give [{init!r}]" if a.dtype.kind in "ui" else ""
         raise ValidationError(f"init must be an array (a support mask, indices or a prior q of shape ({n},)), "
                               f"got the single value {init!r}{hint}")
     if a.dtype == bool or a.dtype.kind in "ui":
-        return support_mask(a.reshape(-1) if a.dtype != bool else a, n, "init").astype(np.float64)
+        return support_mask(a.reshape(-1) if a.dtype != bool else a, n, "init"), None
     if a.dtype.kind == "f":
         if a.shape != (n,):
             raise ValidationError(f"init: a prior q must have shape ({n},), got {a.shape}")
         if not np.all(np.isfinite(a)) or a.min() < 0 or a.max() > 1:
             raise ValidationError("init: prior q must be finite and lie in [0, 1]")
-        return a.astype(np.float64)
+        return None, a.astype(np.float64)
     raise ValidationError(f"init must be None, a bool support mask, indices or a float prior, got dtype {a.dtype}")
 
 

@@ -17,9 +17,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from .._selection import support_mask
 from ..operators import OperatorStack
-from ._common import prior_from_init
+from ._common import prior_parts
 
 __all__ = ["LOCAL_METHODS", "touched_columns", "SupportPrior"]
 
@@ -70,14 +69,8 @@ class SupportPrior:
     """
 
     def __init__(self, init, n: int):
-        a = None if init is None else np.asarray(init)
         self.n = int(n)
-        if a is None:
-            self.support, self.values = np.zeros(self.n, bool), None
-        elif a.ndim >= 1 and (a.dtype == bool or a.dtype.kind in "ui"):
-            self.support, self.values = support_mask(a.reshape(-1) if a.dtype != bool else a, self.n, "init"), None
-        else:
-            self.support, self.values = None, prior_from_init(init, self.n)
+        self.support, self.values = prior_parts(init, self.n)
 
     def at(self, cols: np.ndarray) -> np.ndarray:
         """The prior at ``cols``, float64."""
