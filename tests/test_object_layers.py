@@ -443,12 +443,42 @@ def test_follow_weak_against_brute_force(on_ground):
     assert near.sum() >= 20 and (~near).sum() >= 20
     got_near, _ = follow_weak(views, scene.means, q, 0.5, follow, candidates, max_weight=0.3, k=3, reach=1.0)
     np.testing.assert_allclose(got_near.toarray(), brute(rows[near])[0].toarray(), rtol=1e-9, atol=0)
+    # with the scales, the reach grows by extent times each row's largest standard deviation
+    sigma = scene.scales[rows].astype(np.float64).max(axis=1)
+    reached = dr <= 1.0 * np.median(da.min(axis=1)) + 2.0 * sigma
+    assert (reached & ~near).sum() >= 5 and (~reached).sum() >= 5
+    got_reached, _ = follow_weak(views, scene.means, q, 0.5, follow, candidates, scales=scene.scales, max_weight=0.3,
+                                 k=3, reach=1.0, extent=2.0, inside=0.0)
+    np.testing.assert_allclose(got_reached.toarray(), brute(rows[reached])[0].toarray(), rtol=1e-9, atol=0)
+    # ... and only for rows whose centre at least the share ``inside`` of the views show on a pixel with
+    # W(c) 1_S >= 0.5 (dense footprints, centres projected by hand)
+    shown = np.zeros(rows.size)
+    for v in views:
+        cam = v.camera
+        foot = (v.W.toarray() @ (q > 0.5).astype(np.float64)).reshape(v.image_shape) >= 0.5
+        xc = cam.rotation @ scene.means[rows].astype(np.float64).T + cam.translation[:, None]
+        u, w = np.floor(cam.fx * xc[0] / xc[2] + cam.cx), np.floor(cam.fy * xc[1] / xc[2] + cam.cy)
+        ok = (xc[2] > cam.near) & (u >= 0) & (u < v.image_shape[1]) & (w >= 0) & (w < v.image_shape[0])
+        shown[ok] += foot[w[ok].astype(int), u[ok].astype(int)]
+    mostly = shown / len(views) >= 0.5
+    assert (reached & ~near & mostly).sum() >= 3 and (reached & ~near & ~mostly).sum() >= 3
+    got_inside, _ = follow_weak(views, scene.means, q, 0.5, follow, candidates, scales=scene.scales, max_weight=0.3,
+                                k=3, reach=1.0, extent=2.0, inside=0.5)
+    np.testing.assert_allclose(got_inside.toarray(), brute(rows[near | (reached & mostly)])[0].toarray(), rtol=1e-9,
+                               atol=0)
+    got_zero, _ = follow_weak(views, scene.means, q, 0.5, follow, candidates, scales=scene.scales, max_weight=0.3,
+                              k=3, reach=1.0, extent=0.0)
+    np.testing.assert_allclose(got_zero.toarray(), got_near.toarray(), rtol=0, atol=0)
+    for bad in (scene.scales[:-1], -scene.scales, np.full_like(scene.scales, np.nan)):
+        with pytest.raises(ValidationError, match="scales"):
+            follow_weak(views, scene.means, q, 0.5, follow, candidates, scales=bad)
     # no weak unselected candidate, or None for follow
     same, q3 = follow_weak(views, scene.means, q, 0.5, follow, candidates[:0])
     assert (same != follow).nnz == 0 and np.array_equal(q3, q)
     empty, _ = follow_weak(views, scene.means, q, 0.5, None, candidates, k=3, reach=far)
     np.testing.assert_array_equal(np.flatnonzero(np.diff(check_follow(empty, n).indptr)), rows)
-    for bad, match in (({"k": 0}, "k must"), ({"max_weight": 1.5}, "max_weight"), ({"reach": 0.0}, "reach")):
+    for bad, match in (({"k": 0}, "k must"), ({"max_weight": 1.5}, "max_weight"), ({"reach": 0.0}, "reach"),
+                       ({"extent": -1.0}, "extent"), ({"inside": 1.5}, "inside")):
         with pytest.raises(ValidationError, match=match):
             follow_weak(views, scene.means, q, 0.5, follow, candidates, **bad)
     with pytest.raises(ValidationError, match="candidates"):

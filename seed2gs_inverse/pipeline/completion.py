@@ -402,18 +402,39 @@ def _enclosed(stack, sel, means, *, up=None, footprint: float = 0.5, base_quanti
     for i, view in enumerate(compact):
         if idx.size == 0:
             break
-        cam = view.camera
-        if cam is None:
-            raise ValidationError(f"enclosed_by_selection: view {i} has no camera")
-        h, w = view.image_shape
-        fp = np.asarray(view.W @ s).reshape(h, w) >= footprint
-        uv, z = cam.project(xi)
-        ok = np.isfinite(uv).all(1) & (z > cam.near)
-        px = np.floor(np.where(ok[:, None], uv, -1.0)).astype(np.int64)
-        ok &= (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
-        ok[ok] = fp[px[ok, 1], px[ok, 0]]
+        ok = _in_footprint(view, s, xi, footprint, f"enclosed_by_selection: view {i}")
         idx, xi = idx[ok], xi[ok]
     return idx
+
+
+def _in_footprint(view, s: np.ndarray, x: np.ndarray, footprint: float, label: str) -> np.ndarray:
+    """Bool (M,): the centres ``x`` (M, 3) that ``view`` shows on a pixel where ``W s >= footprint``.
+
+    ``s`` is the selection as float32 over the view's columns; a centre
+    behind the near plane or outside the image is not in it. ``label``
+    names the view in the error a view without a camera raises.
+    """
+    cam = view.camera
+    if cam is None:
+        raise ValidationError(f"{label} has no camera")
+    h, w = view.image_shape
+    fp = np.asarray(view.W @ s).reshape(h, w) >= footprint
+    uv, z = cam.project(x)
+    ok = np.isfinite(uv).all(1) & (z > cam.near)
+    px = np.floor(np.where(ok[:, None], uv, -1.0)).astype(np.int64)
+    ok &= (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
+    ok[ok] = fp[px[ok, 1], px[ok, 0]]
+    return ok
+
+
+def _share_in_footprint(stack, selected: np.ndarray, x: np.ndarray, footprint: float) -> np.ndarray:
+    """Float (M,): the share of ``stack``'s views that show each centre ``x`` (M, 3) in the selection's footprint."""
+    cols, compact = stack.compact()
+    s = selected[cols].astype(np.float32)
+    count = np.zeros(len(x), np.int64)
+    for i, view in enumerate(compact):
+        count += _in_footprint(view, s, x, footprint, f"follow_weak: view {i}")
+    return count / max(len(compact), 1)
 
 
 def follow_enclosed(stack, means, q, tau: float, follow, *, up=None) -> tuple[sp.csr_matrix, np.ndarray]:
@@ -478,8 +499,10 @@ def _enclosed_rows(stack, means, q: np.ndarray, tau: float, has_row, *, up=None)
 
 #: The weak-evidence rule's settings (:func:`follow_weak`): the largest stored weight below which a
 #: Gaussian never dominates a pixel, the strong neighbours each such Gaussian follows, and how far
-#: (in strong Gaussians' spacings) its nearest one may lie.
-WEAK_DEFAULTS = {"max_weight": 0.3, "k": 8, "reach": 4.0}
+#: its nearest one may lie: ``reach`` strong Gaussians' spacings, or up to ``extent`` of its own largest
+#: standard deviations more where at least the share ``inside`` of the views show its centre in the
+#: selection's footprint.
+WEAK_DEFAULTS = {"max_weight": 0.3, "k": 8, "reach": 4.0, "extent": 2.0, "inside": 2 / 3}
 
 
 def strong_columns(stack, max_weight: float = WEAK_DEFAULTS["max_weight"]) -> np.ndarray:
@@ -506,9 +529,10 @@ def strong_columns(stack, max_weight: float = WEAK_DEFAULTS["max_weight"]) -> np
     return np.unique(np.concatenate(found)).astype(np.int64) if found else np.zeros(0, np.int64)
 
 
-def follow_weak(stack, means, q, tau: float, follow, candidates, *, up=None,
+def follow_weak(stack, means, q, tau: float, follow, candidates, *, up=None, scales=None,
                 max_weight: float = WEAK_DEFAULTS["max_weight"], k: int = WEAK_DEFAULTS["k"],
-                reach: float = WEAK_DEFAULTS["reach"], base_quantile: float = 0.01) -> tuple[sp.csr_matrix, np.ndarray]:
+                reach: float = WEAK_DEFAULTS["reach"], extent: float = WEAK_DEFAULTS["extent"],
+                inside: float = WEAK_DEFAULTS["inside"], base_quantile: float = 0.01) -> tuple[sp.csr_matrix, np.ndarray]:
     r"""``(follow, q)`` with a row for each unselected Gaussian of ``candidates`` that never dominates a pixel.
 
     Parameters
@@ -531,6 +555,10 @@ def follow_weak(stack, means, q, tau: float, follow, candidates, *, up=None,
         the selection's base: the ``base_quantile`` of the selected
         centres' heights along ``up`` (:func:`enclosed_by_selection`'s
         bound).
+    scales : (N, 3) array, optional
+        Per-axis standard deviations (:attr:`~seed2gs_inverse.GaussianScene.scales`).
+        Given, a weak Gaussian's reach grows by ``extent`` times its
+        largest one; None: by nothing.
     max_weight : float in (0, 1]
         A Gaussian is weak when none of its stored weights in any view
         reaches this (:func:`strong_columns`), strong otherwise.
@@ -539,7 +567,15 @@ def follow_weak(stack, means, q, tau: float, follow, candidates, *, up=None,
     reach : float
         A weak Gaussian follows only when its nearest strong neighbour lies
         within ``reach`` times the strong neighbours' spacing (the median
-        distance from each to its nearest other), > 0.
+        distance from each to its nearest other), > 0; or, with ``scales``,
+        within that plus ``extent`` times its own largest standard
+        deviation when at least the share ``inside`` of the views show its
+        centre in the selection's footprint (:func:`enclosed_by_selection`'s
+        test, ``W(c) 1_S >= 0.5``).
+    extent : float
+        See ``reach``; >= 0.
+    inside : float in [0, 1]
+        See ``reach``.
     base_quantile : float in [0, 1)
         See ``up``.
 
@@ -556,7 +592,9 @@ def follow_weak(stack, means, q, tau: float, follow, candidates, *, up=None,
     Raises
     ------
     ValidationError
-        A bad ``follow``, ``q``, ``tau``, ``candidates``, ``max_weight`` or ``k``.
+        A bad ``follow``, ``q``, ``tau``, ``candidates``, ``scales``,
+        ``max_weight``, ``k``, ``reach``, ``extent`` or ``inside``, or a
+        view without a camera where ``inside`` is tested.
 
     Notes
     -----
@@ -571,7 +609,14 @@ def follow_weak(stack, means, q, tau: float, follow, candidates, *, up=None,
     strong Gaussians follows the ground, and one below the selection's
     base (a large splat of the ground whose centre lies under the
     object) keeps its own ``q``, as does one far from every strong
-    Gaussian (a neighbour's part hidden behind the object). Only
+    Gaussian (a neighbour's part hidden behind the object). A large splat
+    centred deep inside the object lies several spacings from its skin
+    and still spreads its alpha over the object's footprint: where most
+    views show its centre inside the selection, its largest standard
+    deviation :math:`\sigma_{\max}` counts towards the bound
+    :math:`r\,s + e\,\sigma_{\max}` (``reach`` :math:`r`, the spacing
+    :math:`s`, ``extent`` :math:`e`). A large splat of the surface beside
+    the object shows beside it in most views and keeps its ``q``. Only
     unselected Gaussians follow:
     the rule adds what was left behind and takes nothing from the
     selection.
@@ -583,9 +628,10 @@ def follow_weak(stack, means, q, tau: float, follow, candidates, *, up=None,
     if idx.ndim != 1 or idx.dtype.kind not in "ui" or (idx.size and (idx[0] < 0 or idx[-1] >= n
                                                                      or np.any(idx[1:] <= idx[:-1]))):
         raise ValidationError(f"follow_weak: candidates must be ascending unique indices in [0, {n})")
+    sizes = None if scales is None else _largest_scale(scales, n)
     rows, entries = _weak_entries(stack, means, qq, tau, lambda i: follow.indptr[i + 1] > follow.indptr[i],
-                                  idx.astype(np.int64, copy=False), up=up, max_weight=max_weight, k=k, reach=reach,
-                                  base_quantile=base_quantile)
+                                  idx.astype(np.int64, copy=False), up=up, sizes=sizes, max_weight=max_weight, k=k,
+                                  reach=reach, extent=extent, inside=inside, base_quantile=base_quantile)
     if rows.size == 0:
         return follow, qq
     out = _replace_rows(follow, rows, *entries)
@@ -594,22 +640,28 @@ def follow_weak(stack, means, q, tau: float, follow, candidates, *, up=None,
     return out, qq
 
 
-def _weak_entries(stack, means, q: np.ndarray, tau: float, has_row, candidates: np.ndarray, *, up=None,
+def _weak_entries(stack, means, q: np.ndarray, tau: float, has_row, candidates: np.ndarray, *, up=None, sizes=None,
                   max_weight: float = WEAK_DEFAULTS["max_weight"], k: int = WEAK_DEFAULTS["k"],
-                  reach: float = WEAK_DEFAULTS["reach"], base_quantile: float = 0.01) -> tuple:
+                  reach: float = WEAK_DEFAULTS["reach"], extent: float = WEAK_DEFAULTS["extent"],
+                  inside: float = WEAK_DEFAULTS["inside"], base_quantile: float = 0.01) -> tuple:
     """``(rows, (row, col, weight))`` of :func:`follow_weak`: the weak rows and their entries (scene indices).
 
     ``q`` is (N,) float32 and ``candidates`` ascending unique int64 indices
     (checked by the caller); ``has_row(i)`` tells, for indices ``i``, which
-    Gaussians already follow others: they are no anchors. ``rows`` is empty
+    Gaussians already follow others: they are no anchors. ``sizes(i)``
+    gives the largest standard deviations (float64) at indices ``i``; None:
+    zeros. ``rows`` is empty
     when there is no weak row or no anchor. The other arguments are
     checked here, as :func:`follow_weak` documents them.
     """
     tau = check_real("follow_weak: tau", tau)
     reach = check_real("follow_weak: reach", reach, lo=0, lo_open=True)
+    extent = check_real("follow_weak: extent", extent, lo=0)
+    inside = check_real("follow_weak: inside", inside, lo=0, hi=1)
     if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or int(k) < 1:
         raise ValidationError(f"follow_weak: k must be a positive integer, got {k!r}")
     none = np.zeros(0, np.int64)
+    stack = as_stack(stack)
     strong = np.isin(candidates, strong_columns(stack, max_weight), assume_unique=True)
     anchors = candidates[strong]
     anchors = anchors[~has_row(anchors)]  # their q is the solver's
@@ -621,10 +673,30 @@ def _weak_entries(stack, means, q: np.ndarray, tau: float, has_row, candidates: 
     if rows.size and anchors.size > 1:
         tree = cKDTree(x[anchors].astype(np.float64))
         spacing = float(np.median(tree.query(x[anchors].astype(np.float64), k=2, workers=n_threads())[0][:, 1]))
-        rows = rows[tree.query(x[rows].astype(np.float64), workers=n_threads())[0] <= reach * spacing]
+        xr = x[rows].astype(np.float64)
+        d = tree.query(xr, workers=n_threads())[0]
+        near = d <= reach * spacing
+        if sizes is not None:
+            # reached by the splat's extent only: kept where most views show it inside the selection
+            far = np.flatnonzero(~near & (d <= reach * spacing + extent * sizes(rows)))
+            if far.size:
+                near[far] = _share_in_footprint(stack, q > tau, xr[far], 0.5) >= inside
+        rows = rows[near]
     if rows.size == 0 or anchors.size == 0:
         return none, (none, none, np.zeros(0))
     return rows, _nearest_entries(x, rows, anchors, int(k))
+
+
+def _largest_scale(scales, n: int):
+    """A function of scene indices giving ``scales``' largest standard deviation at each, float64.
+
+    ``scales`` must be (n, 3) finite non-negative floats (:func:`follow_weak`'s check).
+    """
+    sc = np.asarray(scales)
+    if sc.shape != (n, 3) or sc.dtype.kind != "f" or not np.all(np.isfinite(sc)) or np.any(sc < 0):
+        raise ValidationError(f"follow_weak: scales must be finite non-negative floats of shape ({n}, 3), got "
+                              f"{sc.dtype} {sc.shape}")
+    return lambda rows: sc[rows].max(axis=1).astype(np.float64)
 
 
 def _unit_up(up, where: str) -> np.ndarray:

@@ -717,7 +717,8 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     :data:`~.completion.WEAK_DEFAULTS` ``["max_weight"]`` in every view then
     take the inverse-distance mean ``q`` of their nearest Gaussians that
     reach it and have no row, at or above the selection's base along ``up``
-    (:func:`~.completion.follow_weak`): they dominate no pixel, so their
+    and within reach of those (:func:`~.completion.follow_weak`, with the
+    scene's scales): they dominate no pixel, so their
     pixels' labels are other Gaussians'.
     ``tau`` is ``settings.threshold`` or the solver's own. With
     ``settings.seed_connected`` (default) the Gaussians above ``tau`` in
@@ -785,7 +786,8 @@ def _follow_rules(scene: GaussianScene, lift: SeedLift, stack: OperatorStack, q:
             follow, q = follow_enclosed(stack, scene.means, apply_follow(q, follow), tau, follow, up=up)
         if settings.follow_weak:
             candidates = neighbourhood(scene, lift.center, region)
-            follow, q = follow_weak(stack, scene.means, q, tau, follow, candidates, up=up)
+            follow, q = follow_weak(stack, scene.means, q, tau, follow, candidates, up=up,
+                                   scales=scene.scales)
         return follow, q
     m = len(local)
     rules = _LocalRows(local, faint_follow_matrix(local.scene, lift.center, lift.radius, **kw)
@@ -798,7 +800,8 @@ def _follow_rules(scene: GaussianScene, lift: SeedLift, stack: OperatorStack, q:
         rules.replace(rows, rows, cols, np.ones(rows.size))
     if settings.follow_weak:
         candidates = local.index[neighbourhood(local.scene, lift.center, region)]
-        rows, entries = _weak_entries(stack, scene.means, out, tau, rules.has_row, candidates, up=up)
+        rows, entries = _weak_entries(stack, scene.means, out, tau, rules.has_row, candidates, up=up,
+                                      sizes=lambda i: scene.scales_at(i).max(axis=1).astype(np.float64))
         rules.replace(rows, *entries)
         out[rows] = rules.averages(rows, out)
     return rules.expanded(), out
