@@ -5,7 +5,7 @@ the box's content by colour alone. What the box also covers and what looks
 alike (the stones of a fire pit behind a white table, the ground seen
 between a chair's slats) ends in the seed, is lifted to G0 and propagated
 to every orbit view. The box is about one object, and in 3D the object is
-apart from those. The seed is cleaned in four steps:
+apart from those. The seed is cleaned in five steps:
 
 1. **Lift.** The GrabCut pixels are lifted to Gaussians with the seed
    lift's centre rule (:func:`~seed2gs_inverse.pipeline.seed_lift.seed_lift`
@@ -52,6 +52,17 @@ apart from those. The seed is cleaned in four steps:
    The seed pixels whose weight lies more on the dropped Gaussians than on
    the kept ones leave the seed; pixels neither renders to stay as GrabCut
    gave them.
+5. **Take back.** GrabCut also leaves out parts of the object that look
+   like what is around them: the shadowed foot of a stone wall beside the
+   gravel, the part of the object seen between an occluder's arm and its
+   back. In 3D they are linked to the main component through the wider
+   graph of step 3 (the ground's band left out, so the ground links
+   nothing). Every pixel of the box where the main component's wider
+   component holds more than half of the compositing weight is in the
+   seed, whatever GrabCut or step 4 said of it. Only with a ground plane
+   (step 2): without one the ground stays in the wider graph and links the
+   object to everything around it (the gardens and the street around a
+   house seen from above).
 
 A thin object keeps its parts: its slats, legs and arms are linked in 3D
 through the frame that holds them, and a part split off by an occluder lies
@@ -96,13 +107,15 @@ class BoxObject:
     Attributes
     ----------
     mask : (H, W) bool
-        The cleaned seed (the GrabCut seed less the dropped pixels).
+        The cleaned seed: the GrabCut seed less the dropped pixels, plus the
+        box's pixels that the main object holds (module docstring, step 5).
     kept : (N,) bool
         The lifted Gaussians of the main object.
     dropped : (N,) bool
         The lifted Gaussians of the other components and of the ground away from the object.
     info : dict
         JSON-ready: ``cleaned`` (True, or why not), ``n_dropped_pixels``,
+        ``n_added_pixels`` (taken back from outside the GrabCut seed),
         ``n_seed_pixels`` (before), the component counts and the plane used.
     """
 
@@ -160,42 +173,76 @@ def _rendered_at(W: sp.csr_matrix, pixels: np.ndarray, label: np.ndarray, n_labe
     return (weight > 0.5).any(axis=0)
 
 
-def _cut_beyond_seed(scene: GaussianScene, W: sp.csr_matrix, box: tuple[int, int, int, int], ring: np.ndarray,
-                     label: np.ndarray, ncomp: int, main: int, plane, opt: dict) -> np.ndarray:
-    """(ncomp,) bool: the seed's components that the box's edge cuts where the seed does not reach it.
+def _wide_components(scene: GaussianScene, W: sp.csr_matrix, box: tuple[int, int, int, int], shape: tuple[int, int],
+                     label: np.ndarray, ncomp: int, plane, opt: dict) -> tuple[np.ndarray, int]:
+    """``(wide_label (N,), n_wide)``: the wider graph's components (-1 outside it).
 
-    GrabCut often stops short of the box's edge on the part of a neighbour
-    that crosses it (the dark top of a white table behind the object: only
-    its white side is in the seed). Every Gaussian that renders inside the
-    box (less the ground's band) joins the seed's lifted Gaussians in a
-    wider graph with the same link rule; a component is cut when its wider
-    component renders at the box's ``ring`` with weight above 1/2 and does
-    not hold the ``main`` component (what links to the main part is kept
-    as before).
+    Every Gaussian that renders inside the box (less the ground's band)
+    joins the seed's lifted Gaussians (less the ground's label ``ncomp``),
+    linked by the same rule as the seed's components.
     """
-    h, w = ring.shape
+    h, w = shape
     x0, y0, x1, y1 = box
     inside = np.zeros((h, w), bool)
     inside[y0:y1, x0:x1] = True
-    lifted = label >= 0
-    lifted[label == ncomp] = False  # the ground's label
+    lifted = (label >= 0) & (label != ncomp)
     wide = (np.asarray(W.T @ inside.ravel().astype(np.float64)).ravel() > 0) | lifted
     if plane is not None:
         pn, pp, band = plane
         wide &= ((scene.means.astype(np.float64) - pp) @ pn >= band) | lifted
+    wide_label = np.full(len(label), -1, np.int64)
     idx = np.flatnonzero(wide)
     if len(idx) < 2:
-        return np.zeros(ncomp, bool)
+        return wide_label, 0
     wlab, nwide, _ = linked_components(scene, idx, lifted[idx], k_neighbors=opt["k_neighbors"],
                                        link_factor=opt["link_factor"], overlap=opt["overlap"])
-    wide_label = np.full(len(label), -1, np.int64)
     wide_label[idx] = wlab
-    at_edge = _rendered_at(W, ring, wide_label, nwide)
-    at_edge[np.unique(wide_label[label == main])] = False
+    return wide_label, int(nwide)
+
+
+def _cut_beyond_seed(W: sp.csr_matrix, ring: np.ndarray, label: np.ndarray, ncomp: int, main: int,
+                     wide_label: np.ndarray, n_wide: int) -> np.ndarray:
+    """(ncomp,) bool: the seed's components that the box's edge cuts where the seed does not reach it.
+
+    GrabCut often stops short of the box's edge on the part of a neighbour
+    that crosses it (the dark top of a white table behind the object: only
+    its white side is in the seed). A component is cut when its component
+    in the wider graph (``wide_label``, :func:`_wide_components`) renders
+    at the box's ``ring`` with weight above 1/2 and does not hold the
+    ``main`` component (what links to the main part is kept as before).
+    """
     cut = np.zeros(ncomp, bool)
-    li = np.flatnonzero(lifted)
+    if n_wide == 0:
+        return cut
+    at_edge = _rendered_at(W, ring, wide_label, n_wide)
+    at_edge[np.unique(wide_label[label == main])] = False
+    li = np.flatnonzero((label >= 0) & (label < ncomp))
     np.logical_or.at(cut, label[li], at_edge[wide_label[li]])
     return cut
+
+
+def _main_in_box(W: sp.csr_matrix, box: tuple[int, int, int, int], shape: tuple[int, int], label: np.ndarray,
+                 main: int, wide_label: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the box's pixels where the main component's wider component holds over half the weight.
+
+    GrabCut separates by colour alone, so it leaves out parts of the object
+    that look like what is around them (stones of a wall's shadowed foot
+    beside the gravel, a part seen through a gap between an occluder's
+    parts). In 3D those parts are linked to the main component through the
+    wider graph (:func:`_wide_components`, without the ground's band), and
+    what renders them in the box belongs to the seed.
+    """
+    h, w = shape
+    out = np.zeros((h, w), bool)
+    ids = np.unique(wide_label[label == main])
+    ids = ids[ids >= 0]
+    if len(ids) == 0:
+        return out
+    onmain = np.isin(wide_label, ids).astype(np.float64)
+    x0, y0, x1, y1 = box
+    weight = np.asarray(W @ onmain).ravel().reshape(h, w)
+    out[y0:y1, x0:x1] = weight[y0:y1, x0:x1] > 0.5
+    return out
 
 
 def _check_box_inputs(scene, camera, mask, depth, options: dict) -> tuple[dict, np.ndarray, np.ndarray]:
@@ -309,7 +356,8 @@ def box_object_mask(scene: GaussianScene, camera: Camera, mask, depth, box=None,
     # where it renders there with most of the alpha.
     ring = _box_ring(pbox, m.shape, _BORDER)
     cut = np.bincount(owner[ring & (owner >= 0) & (owner < ncomp)], minlength=ncomp + 1)[:ncomp] > 0
-    cut |= _cut_beyond_seed(scene, W, pbox, ring, label, ncomp, main, plane, opt)
+    wide_label, n_wide = _wide_components(scene, W, pbox, m.shape, label, ncomp, plane, opt)
+    cut |= _cut_beyond_seed(W, ring, label, ncomp, main, wide_label, n_wide)
     keep_comp |= ~cut
     kept = np.zeros(n, bool)
     kept[idx[keep_comp[labels]]] = True
@@ -322,15 +370,20 @@ def box_object_mask(scene: GaussianScene, camera: Camera, mask, depth, box=None,
     kept, dropped = _attach_unlifted(scene, W, m, cand, kept, dropped, link)
     # A seed pixel leaves when most of its weight is on dropped Gaussians rather than kept ones;
     # pixels that neither renders to stay as GrabCut gave them.
+    # step 5: where the main object, followed over every Gaussian that renders in the box, holds most of
+    # the weight, the pixel is the object's; not without a ground plane, whose band would link it to all around
+    main_px = (_main_in_box(W, pbox, m.shape, label, main, wide_label) if plane is not None
+               else np.zeros(m.shape, bool))
     owner = _owners(W, m, np.where(kept, 0, np.where(dropped, 1, -1)), 2)
-    drop_px = owner == 1
+    drop_px = (owner == 1) & ~main_px
     info.update(n_lifted=int(cand.sum()), n_components=int(ncomp), kept_components=int(keep_comp.sum()),
                 main_pixels=int(pixels[main]), n_kept=int(kept.sum()), n_dropped_gaussians=int(dropped.sum()),
                 gap=float(opt["gap"] * radius))
-    cleaned = m & ~drop_px
+    added = main_px & ~m
+    cleaned = (m & ~drop_px) | added
     if not cleaned.any():
         return BoxObject(m, kept, dropped, {**info, "cleaned": "not cleaned: it would leave nothing"})
-    info.update(n_dropped_pixels=int(drop_px.sum()), cleaned=True)
+    info.update(n_dropped_pixels=int(drop_px.sum()), n_added_pixels=int(added.sum()), cleaned=True)
     return BoxObject(cleaned, kept, dropped, info)
 
 

@@ -296,9 +296,10 @@ def seed_from_prompt(prompt: Any, reference: Rendering, grounder=None, *, point_
     ``scene`` and ``camera``, a
     :class:`~seed2gs_inverse.frontend.prompts.BoxPrompt`'s GrabCut seed is
     cleaned to the box's main object: the pixels of other objects and of the
-    ground away from it leave the seed
+    ground away from it leave the seed, those of the main object join it
     (:func:`~seed2gs_inverse.pipeline.box_object.box_object_mask`;
-    ``prompt_info`` gains ``n_dropped_pixels`` and the cleaning's facts).
+    ``prompt_info`` gains ``n_dropped_pixels``, ``n_added_pixels`` (the
+    pixels of the main object GrabCut left out) and the cleaning's facts).
 
     Raises
     ------
