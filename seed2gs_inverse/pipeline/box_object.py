@@ -368,12 +368,12 @@ def box_object_mask(scene: GaussianScene, camera: Camera, mask, depth, box=None,
         kept[g_idx[dist <= link]] = True
     dropped = cand & ~kept
     kept, dropped = _attach_unlifted(scene, W, m, cand, kept, dropped, link)
-    # A seed pixel leaves when most of its weight is on dropped Gaussians rather than kept ones;
-    # pixels that neither renders to stay as GrabCut gave them.
-    # step 5: where the main object, followed over every Gaussian that renders in the box, holds most of
-    # the weight, the pixel is the object's; not without a ground plane, whose band would link it to all around
+    # Step 5: where the main object, followed over every Gaussian that renders in the box, holds most of
+    # the weight, the pixel is the object's; not without a ground plane, whose band would link it to all around.
     main_px = (_main_in_box(W, pbox, m.shape, label, main, wide_label) if plane is not None
                else np.zeros(m.shape, bool))
+    # Any other seed pixel leaves when most of its weight is on dropped Gaussians rather than kept ones;
+    # pixels that neither renders to stay as GrabCut gave them.
     owner = _owners(W, m, np.where(kept, 0, np.where(dropped, 1, -1)), 2)
     drop_px = (owner == 1) & ~main_px
     info.update(n_lifted=int(cand.sum()), n_components=int(ncomp), kept_components=int(keep_comp.sum()),
