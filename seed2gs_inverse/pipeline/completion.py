@@ -628,10 +628,11 @@ def follow_weak(stack, means, q, tau: float, follow, candidates, *, up=None, sca
     if idx.ndim != 1 or idx.dtype.kind not in "ui" or (idx.size and (idx[0] < 0 or idx[-1] >= n
                                                                      or np.any(idx[1:] <= idx[:-1]))):
         raise ValidationError(f"follow_weak: candidates must be ascending unique indices in [0, {n})")
-    sizes = None if scales is None else _largest_scale(scales, n)
+    scales_at = None if scales is None else _scales_at(scales, n)
     rows, entries = _weak_entries(stack, means, qq, tau, lambda i: follow.indptr[i + 1] > follow.indptr[i],
-                                  idx.astype(np.int64, copy=False), up=up, sizes=sizes, max_weight=max_weight, k=k,
-                                  reach=reach, extent=extent, inside=inside, base_quantile=base_quantile)
+                                  idx.astype(np.int64, copy=False), up=up, scales_at=scales_at,
+                                  max_weight=max_weight, k=k, reach=reach, extent=extent, inside=inside,
+                                  base_quantile=base_quantile)
     if rows.size == 0:
         return follow, qq
     out = _replace_rows(follow, rows, *entries)
@@ -640,7 +641,7 @@ def follow_weak(stack, means, q, tau: float, follow, candidates, *, up=None, sca
     return out, qq
 
 
-def _weak_entries(stack, means, q: np.ndarray, tau: float, has_row, candidates: np.ndarray, *, up=None, sizes=None,
+def _weak_entries(stack, means, q: np.ndarray, tau: float, has_row, candidates: np.ndarray, *, up=None, scales_at=None,
                   max_weight: float = WEAK_DEFAULTS["max_weight"], k: int = WEAK_DEFAULTS["k"],
                   reach: float = WEAK_DEFAULTS["reach"], extent: float = WEAK_DEFAULTS["extent"],
                   inside: float = WEAK_DEFAULTS["inside"], base_quantile: float = 0.01) -> tuple:
@@ -648,9 +649,10 @@ def _weak_entries(stack, means, q: np.ndarray, tau: float, has_row, candidates: 
 
     ``q`` is (N,) float32 and ``candidates`` ascending unique int64 indices
     (checked by the caller); ``has_row(i)`` tells, for indices ``i``, which
-    Gaussians already follow others: they are no anchors. ``sizes(i)``
-    gives the largest standard deviations (float64) at indices ``i``; None:
-    zeros. ``rows`` is empty
+    Gaussians already follow others: they are no anchors. ``scales_at(i)``
+    gives the (M, 3) per-axis standard deviations at indices ``i``
+    (:meth:`~seed2gs_inverse.GaussianScene.scales_at`); None: no extent.
+    ``rows`` is empty
     when there is no weak row or no anchor. The other arguments are
     checked here, as :func:`follow_weak` documents them.
     """
@@ -668,35 +670,38 @@ def _weak_entries(stack, means, q: np.ndarray, tau: float, has_row, candidates: 
     rows = candidates[~strong]
     rows = rows[q[rows] <= tau]
     x = np.asarray(means)
+    selected = q > tau
     if up is not None and rows.size:
-        rows = rows[_at_or_above_base(x, q > tau, rows, up, base_quantile, "follow_weak")]
+        rows = rows[_at_or_above_base(x, selected, rows, up, base_quantile, "follow_weak")]
     if rows.size and anchors.size > 1:
-        tree = cKDTree(x[anchors].astype(np.float64))
-        spacing = float(np.median(tree.query(x[anchors].astype(np.float64), k=2, workers=n_threads())[0][:, 1]))
+        xa = x[anchors].astype(np.float64)
+        tree = cKDTree(xa)
+        spacing = float(np.median(tree.query(xa, k=2, workers=n_threads())[0][:, 1]))
         xr = x[rows].astype(np.float64)
         d = tree.query(xr, workers=n_threads())[0]
         near = d <= reach * spacing
-        if sizes is not None:
+        if scales_at is not None:
             # reached by the splat's extent only: kept where most views show it inside the selection
-            far = np.flatnonzero(~near & (d <= reach * spacing + extent * sizes(rows)))
+            sigma = scales_at(rows).max(axis=1).astype(np.float64)
+            far = np.flatnonzero(~near & (d <= reach * spacing + extent * sigma))
             if far.size:
-                near[far] = _share_in_footprint(stack, q > tau, xr[far], 0.5) >= inside
+                near[far] = _share_in_footprint(stack, selected, xr[far], 0.5) >= inside
         rows = rows[near]
     if rows.size == 0 or anchors.size == 0:
         return none, (none, none, np.zeros(0))
     return rows, _nearest_entries(x, rows, anchors, int(k))
 
 
-def _largest_scale(scales, n: int):
-    """A function of scene indices giving ``scales``' largest standard deviation at each, float64.
+def _scales_at(scales, n: int):
+    """``scales`` checked as :func:`follow_weak` takes them: a function of scene indices giving their rows.
 
-    ``scales`` must be (n, 3) finite non-negative floats (:func:`follow_weak`'s check).
+    ``scales`` must be (n, 3) finite non-negative floats.
     """
     sc = np.asarray(scales)
     if sc.shape != (n, 3) or sc.dtype.kind != "f" or not np.all(np.isfinite(sc)) or np.any(sc < 0):
         raise ValidationError(f"follow_weak: scales must be finite non-negative floats of shape ({n}, 3), got "
                               f"{sc.dtype} {sc.shape}")
-    return lambda rows: sc[rows].max(axis=1).astype(np.float64)
+    return lambda rows: sc[rows]
 
 
 def _unit_up(up, where: str) -> np.ndarray:

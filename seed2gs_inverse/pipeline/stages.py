@@ -802,7 +802,7 @@ def _follow_rules(scene: GaussianScene, lift: SeedLift, stack: OperatorStack, q:
     if settings.follow_weak:
         candidates = local.index[neighbourhood(local.scene, lift.center, region)]
         rows, entries = _weak_entries(stack, scene.means, out, tau, rules.has_row, candidates, up=up,
-                                      sizes=lambda i: scene.scales_at(i).max(axis=1).astype(np.float64))
+                                      scales_at=scene.scales_at)
         rules.replace(rows, *entries)
         out[rows] = rules.averages(rows, out)
     return rules.expanded(), out
