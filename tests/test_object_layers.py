@@ -259,22 +259,29 @@ def test_stuffing_that_reaches_past_the_silhouette_follows_the_object(stuffed, t
     assert _left_behind(scene, truth, raw | ~stuffing & ex.selected, _views(info)) > 0.2
 
 
-def _enclosed_brute_force(views, selected, means, up, footprint=0.5, base_quantile=0.01):
+def _footprint_image(op, selected, footprint=0.5):
+    """Bool image: the pixels where the selection holds ``footprint`` of max(alpha, 0.2), from the dense weights."""
+    dense = op.W.toarray().astype(np.float64)
+    held, alpha = dense[:, selected].sum(axis=1), dense.sum(axis=1)
+    return (held >= footprint * np.maximum(alpha, 0.2)).reshape(op.image_shape)
+
+
+def _enclosed_brute_force(views, selected, means, up=None, footprint=0.5, base_quantile=0.01):
     """Per Gaussian and per view, by plain loops: the reference of enclosed_by_selection."""
     xs = means[selected]
     lo, hi = xs.min(0), xs.max(0)
-    base = np.quantile(xs @ up, base_quantile)
+    base = -np.inf if up is None else np.quantile(xs @ up, base_quantile)
     out = np.zeros(len(means), bool)
-    images = [(op.W @ selected.astype(np.float32)).reshape(op.image_shape) for op in views]
+    images = [_footprint_image(op, selected, footprint) for op in views]
     for i, x in enumerate(means):
-        if selected[i] or np.any(x < lo) or np.any(x > hi) or x @ up < base:
+        if selected[i] or np.any(x < lo) or np.any(x > hi) or (up is not None and x @ up < base):
             continue
         inside = True
         for op, img in zip(views, images):
             uv, z = op.camera.project(x[None])
             u, v = np.floor(uv[0]) if np.isfinite(uv).all() else (-1, -1)
             if not (z[0] > op.camera.near and 0 <= u < img.shape[1] and 0 <= v < img.shape[0]
-                    and img[int(v), int(u)] >= footprint):
+                    and img[int(v), int(u)]):
                 inside = False
                 break
         out[i] = inside
@@ -304,6 +311,42 @@ def test_enclosed_by_selection_against_brute_force(on_ground):
         enclosed_by_selection(views, selected, means, up=(0.0, 0.0, 0.0))
     with pytest.raises(ValidationError, match="selected"):
         enclosed_by_selection(views, selected.astype(int), means)
+
+
+def test_a_translucent_object_against_nothing_encloses_its_inside():
+    """A scan that renders less than half the alpha: what lies inside it is enclosed, what lies beside it is not.
+
+    The footprint is the selection's share of each pixel's alpha, not its
+    own alpha: against empty space the skin holds all of a pixel's alpha
+    while rendering less than half of it. Empty pixels are in no footprint.
+    """
+    _, _, info = sphere_scene(seed=3, n_sphere=300, n_ground=100)
+    center, radius = info["center"], info["radius"]
+    dirs, th = _fibonacci(400)
+    colour = np.where((np.floor(th) % 2 == 0)[:, None], [0.9, 0.2, 0.1], [0.9, 0.7, 0.1])
+    skin = surface(center + radius * dirs, dirs, radius * 2.2 / np.sqrt(400), colour, opacity=0.12)
+    rng = np.random.default_rng(0)
+    at = rng.normal(size=(60, 3))
+    at *= 0.6 * radius * rng.random((60, 1)) ** (1 / 3) / np.linalg.norm(at, axis=1, keepdims=True)
+    inner = surface(center + at, at, 0.02 * radius, np.full((60, 3), 0.5), opacity=0.05)
+    corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
+    beside = surface(center + 0.85 * radius * corners, corners, 0.02 * radius, np.full((8, 3), 0.5), opacity=0.05)
+    scene = GaussianScene.concat([skin, inner, beside])
+    selected = np.r_[np.ones(len(skin), bool), np.zeros(68, bool)]
+    inside = np.r_[np.zeros(len(skin), bool), np.ones(60, bool), np.zeros(8, bool)]
+    views = [build_operator(scene, v) for v in _views(info)]
+    means = scene.means.astype(np.float64)
+    got = enclosed_by_selection(views, selected, means)
+    np.testing.assert_array_equal(got, _enclosed_brute_force(views, selected, means))
+    assert got[inside].all() and not got[~inside].any()
+    # the precondition: the skin renders less than half the alpha under most inner centres in some view, so
+    # a footprint of W(c) 1_S >= 0.5 would leave them out
+    low = np.zeros(60, bool)
+    for op in views:
+        held = (op.W @ selected.astype(np.float32)).reshape(op.image_shape)
+        uv, _ = op.camera.project(means[inside])
+        low |= held[np.floor(uv[:, 1]).astype(int), np.floor(uv[:, 0]).astype(int)] < 0.5
+    assert low.mean() > 0.5, low.mean()
 
 
 def test_follow_enclosed_replaces_the_enclosed_rows(on_ground):
@@ -451,11 +494,11 @@ def test_follow_weak_against_brute_force(on_ground):
                                  k=3, reach=1.0, extent=2.0, inside=0.0)
     np.testing.assert_allclose(got_reached.toarray(), brute(rows[reached])[0].toarray(), rtol=1e-9, atol=0)
     # ... and only for rows whose centre at least the share ``inside`` of the views show on a pixel with
-    # W(c) 1_S >= 0.5 (dense footprints, centres projected by hand)
+    # W(c) 1_S >= 0.5 max(W(c) 1, 0.2) (dense footprints, centres projected by hand)
     shown = np.zeros(rows.size)
     for v in views:
         cam = v.camera
-        foot = (v.W.toarray() @ (q > 0.5).astype(np.float64)).reshape(v.image_shape) >= 0.5
+        foot = _footprint_image(v, q > 0.5)
         xc = cam.rotation @ scene.means[rows].astype(np.float64).T + cam.translation[:, None]
         u, w = np.floor(cam.fx * xc[0] / xc[2] + cam.cx), np.floor(cam.fy * xc[1] / xc[2] + cam.cy)
         ok = (xc[2] > cam.near) & (u >= 0) & (u < v.image_shape[1]) & (w >= 0) & (w < v.image_shape[0])

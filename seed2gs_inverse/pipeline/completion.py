@@ -99,7 +99,7 @@ from .local import neighbourhood
 
 __all__ = ["object_graph", "complete_membership", "tracked_membership", "fill_unknown", "faint_follow_matrix",
            "enclosed_by_selection", "follow_enclosed", "strong_columns", "follow_weak", "GRAPH_DEFAULTS",
-           "WEAK_DEFAULTS"]
+           "WEAK_DEFAULTS", "FOOTPRINT_MIN_ALPHA"]
 
 #: Graph settings used by extract(): k neighbours, colour and normal sigmas,
 #: and the region (multiples of the lift's radius about its centre).
@@ -336,8 +336,9 @@ def enclosed_by_selection(stack, selected, means, *, up=None, footprint: float =
         selection's base: the ``base_quantile`` of the selected centres'
         heights along ``up``.
     footprint : float in (0, 1]
-        A pixel is in the selection's footprint where ``W(c) 1_S`` is at
-        least this.
+        A pixel is in the selection's footprint where the selection holds
+        at least this share of its alpha: ``W(c) 1_S >= footprint *
+        max(W(c) 1, FOOTPRINT_MIN_ALPHA)``.
     base_quantile : float in [0, 1)
         See ``up``.
 
@@ -357,8 +358,17 @@ def enclosed_by_selection(stack, selected, means, *, up=None, footprint: float =
     The candidates are the unselected Gaussians in the selection's
     axis-aligned bounding box. A candidate is enclosed when, in every view
     ``c``, its centre projects in front of the camera's near plane, inside
-    the image, onto a pixel ``u`` with :math:`(W(c) 1_S)(u) \ge`
-    ``footprint``: it lies in the selection's visual hull over the views.
+    the image, onto a pixel ``u`` where the selection holds the share
+    :math:`f` (``footprint``) of the alpha,
+
+    .. math:: (W(c) 1_S)(u) \ge f \max\big((W(c) 1)(u),\ \alpha_0\big),
+
+    with :math:`\alpha_0` = ``FOOTPRINT_MIN_ALPHA``: it lies in the
+    selection's visual hull over the views. The share, not the selection's
+    own alpha, decides, so that a translucent object seen against nothing
+    (a scan without its surroundings) has a footprint where it renders
+    less than ``footprint``; :math:`\alpha_0` keeps out the nearly empty
+    pixels around it.
     Such a Gaussian sits inside the object or behind it from every side,
     where it never dominates a pixel; what evidence it gets comes from the
     parts of its footprint that reach past the silhouette (a long or
@@ -407,18 +417,26 @@ def _enclosed(stack, sel, means, *, up=None, footprint: float = 0.5, base_quanti
     return idx
 
 
-def _in_footprint(view, s: np.ndarray, x: np.ndarray, footprint: float, label: str) -> np.ndarray:
-    """Bool (M,): the centres ``x`` (M, 3) that ``view`` shows on a pixel where ``W s >= footprint``.
+#: The alpha below which a pixel counts as this much in the selection's footprint test
+#: (:func:`enclosed_by_selection`): a nearly empty pixel is in no footprint.
+FOOTPRINT_MIN_ALPHA = 0.2
 
-    ``s`` is the selection as float32 over the view's columns; a centre
-    behind the near plane or outside the image is not in it. ``label``
-    names the view in the error a view without a camera raises.
+
+def _in_footprint(view, s: np.ndarray, x: np.ndarray, footprint: float, label: str) -> np.ndarray:
+    """Bool (M,): the centres ``x`` (M, 3) that ``view`` shows on a pixel of the selection's footprint.
+
+    ``s`` is the selection as float32 over the view's columns; a pixel is
+    in the footprint where ``W s >= footprint * max(W 1, FOOTPRINT_MIN_ALPHA)``
+    (:func:`enclosed_by_selection`). A centre behind the near plane or
+    outside the image is not in it. ``label`` names the view in the error a
+    view without a camera raises.
     """
     cam = view.camera
     if cam is None:
         raise ValidationError(f"{label} has no camera")
     h, w = view.image_shape
-    fp = np.asarray(view.W @ s).reshape(h, w) >= footprint
+    held, alpha = np.asarray(view.W @ np.stack([s, np.ones_like(s)], axis=1)).T  # one pass for both
+    fp = (held >= footprint * np.maximum(alpha, FOOTPRINT_MIN_ALPHA)).reshape(h, w)
     uv, z = cam.project(x)
     ok = np.isfinite(uv).all(1) & (z > cam.near)
     px = np.floor(np.where(ok[:, None], uv, -1.0)).astype(np.int64)
@@ -571,7 +589,7 @@ def follow_weak(stack, means, q, tau: float, follow, candidates, *, up=None, sca
         within that plus ``extent`` times its own largest standard
         deviation when at least the share ``inside`` of the views show its
         centre in the selection's footprint (:func:`enclosed_by_selection`'s
-        test, ``W(c) 1_S >= 0.5``).
+        test with ``footprint=0.5``).
     extent : float
         See ``reach``; >= 0.
     inside : float in [0, 1]
