@@ -297,33 +297,36 @@ def warp_labels(dst, src, src_labels: np.ndarray, *, alpha_min: float = 0.5,
     # gathered float32 widens exactly, so no image-long float64 copy is needed)
     sdep = np.asarray(src.depth).reshape(-1)
     salp = np.asarray(src.alpha).reshape(-1)
-    # z-test against the depths of the 2x2 pixel centres around p' (their
-    # range brackets the surface at p'); a nearest-pixel test fails in bands
-    # on oblique surfaces, where depth changes by a lot within one pixel.
-    # A source pixel that is no surface leaves the bracket as it is (min with
-    # +inf, max with -inf): decided once per source pixel, then gathered.
-    surface = (salp >= alpha_min) & (sdep > 0)
-    dlo, dhi = np.where(surface, sdep, np.inf), np.where(surface, sdep, -np.inf)
-    fx = np.floor(uv[i, 0] - 0.5).astype(np.int64)
-    fy = np.floor(uv[i, 1] - 0.5).astype(np.int64)
-    lo = np.full(i.size, np.inf)
-    hi = np.full(i.size, -np.inf)
+    zi = z[i]
+    tol = depth_tol * zi
+    at = py[i] * sw + px[i]
+    surface = salp[at] >= alpha_min
+    near = np.abs(zi - sdep[at]) <= tol
+    seen = surface & near
+    # Where the nearest pixel is a surface at another depth: z-test against
+    # the depths of the 2x2 pixel centres around p' (their range brackets the
+    # surface at p'); a nearest-pixel test fails in bands on oblique
+    # surfaces, where depth changes by a lot within one pixel.
+    b = np.flatnonzero(surface & ~near)
+    fx = np.floor(uv[i[b], 0] - 0.5).astype(np.int64)
+    fy = np.floor(uv[i[b], 1] - 0.5).astype(np.int64)
+    lo = np.full(b.size, np.inf)
+    hi = np.full(b.size, -np.inf)
     cols = [np.clip(fx + ox, 0, sw - 1) for ox in (0, 1)]
     for oy in (0, 1):
         row = np.clip(fy + oy, 0, sh - 1) * sw
         for qx in cols:
             q = row + qx
-            np.minimum(lo, dlo[q], out=lo)
-            np.maximum(hi, dhi[q], out=hi)
-    zi = z[i]
-    tol = depth_tol * zi
+            dq = sdep[q]
+            good = (salp[q] >= alpha_min) & (dq > 0)
+            # a pixel that is no surface leaves the bracket as it is (min with +inf, max with -inf)
+            np.minimum(lo, np.where(good, dq, np.inf), out=lo)
+            np.maximum(hi, np.where(good, dq, -np.inf), out=hi)
     # The bracket only stands in for the surface where it is smooth: across a
     # silhouette it spans foreground to background and would accept points
     # hidden behind the foreground.
-    smooth = (hi - lo) <= max_step * zi
-    at = py[i] * sw + px[i]
-    near = np.abs(zi - sdep[at]) <= tol
-    seen = (salp[at] >= alpha_min) & (near | (smooth & (zi >= lo - tol) & (zi <= hi + tol)))
+    zb, tb = zi[b], tol[b]
+    seen[b] = ((hi - lo) <= max_step * zb) & (zb >= lo - tb) & (zb <= hi + tb)
     if color_tol is not None:
         # compared only where the z-test kept the pixel, one channel at a time (every channel within
         # color_tol is the largest within it), in float64 (exact: the images are float32 or float64)
