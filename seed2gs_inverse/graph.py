@@ -217,9 +217,12 @@ def check_graph(graph, n: int | None = None, name: str = "graph") -> sp.csr_matr
                               "build it from the same scene")
     if g.nnz and (not np.all(np.isfinite(g.data)) or g.data.min() < 0):
         raise ValidationError(f"{name} weights must be finite and non-negative")
-    # tested among the nodes with an entry: the same entries, without the transpose's and the
-    # difference's (N + 1,) row pointers (the data are >= 0: their largest is abs(g).max())
-    sub = graph_on_nodes(g, np.union1d(np.flatnonzero(g.indptr[1:] != g.indptr[:-1]), g.indices))
+    # tested among the nodes with an entry (marked, not sorted out of the entries: ascending and
+    # unique all the same): the same entries, without the transpose's and the difference's (N + 1,)
+    # row pointers (the data are >= 0: their largest is abs(g).max())
+    nodes = g.indptr[1:] != g.indptr[:-1]
+    nodes[g.indices] = True
+    sub = graph_on_nodes(g, np.flatnonzero(nodes))
     asym = abs(sub - sub.T)
     if asym.nnz and asym.max() > 1e-9 * max(float(g.data.max(initial=0.0)), 1e-300):
         raise ValidationError(f"{name} must be symmetric (w_ij = w_ji); symmetrise it with g.maximum(g.T)")

@@ -27,7 +27,7 @@ import numpy as np
 from .errors import ValidationError
 from .sh import rotate_sh, sh_degree_from_coeffs
 
-__all__ = ["GaussianScene", "quat_to_rotmat", "rotmat_to_quat", "quat_multiply"]
+__all__ = ["GaussianScene", "quat_to_rotmat", "rotation_columns", "rotmat_to_quat", "quat_multiply"]
 
 
 def _as_float32(name: str, value, shape_tail: tuple, n: int | None) -> np.ndarray:
@@ -56,16 +56,66 @@ def _read_only(arr: np.ndarray) -> np.ndarray:
     return view
 
 
+# The entries of the rotation matrix of a unit w-first quaternion, row after row: one place for both
+# the whole matrices and the columns alone (the same products, so the same values).
+_ROTATION_ENTRIES = (
+    lambda w, x, y, z: 1 - 2 * (y * y + z * z), lambda w, x, y, z: 2 * (x * y - w * z),
+    lambda w, x, y, z: 2 * (x * z + w * y),
+    lambda w, x, y, z: 2 * (x * y + w * z), lambda w, x, y, z: 1 - 2 * (x * x + z * z),
+    lambda w, x, y, z: 2 * (y * z - w * x),
+    lambda w, x, y, z: 2 * (x * z - w * y), lambda w, x, y, z: 2 * (y * z + w * x),
+    lambda w, x, y, z: 1 - 2 * (x * x + y * y),
+)
+
+
+def _unit_quats(quats) -> np.ndarray:
+    """float64 quaternions normalised along the last axis."""
+    q = np.asarray(quats, dtype=np.float64)
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
 def quat_to_rotmat(quats: np.ndarray) -> np.ndarray:
     """Rotation matrices (N, 3, 3) float64 from w-first quaternions (normalised here)."""
-    q = np.asarray(quats, dtype=np.float64)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], axis=-1).reshape(q.shape[:-1] + (3, 3))
+    q = _unit_quats(quats)
+    wxyz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack([entry(*wxyz) for entry in _ROTATION_ENTRIES], axis=-1).reshape(q.shape[:-1] + (3, 3))
+
+
+def rotation_columns(quats: np.ndarray, columns: np.ndarray) -> np.ndarray:
+    """Column ``columns[i]`` of the rotation matrix of each quaternion ``quats[i]``, (M, 3) float64.
+
+    Parameters
+    ----------
+    quats : (M, 4) array
+        w-first quaternions (normalised here).
+    columns : (M,) int array
+        Each one 0, 1 or 2.
+
+    Returns
+    -------
+    (M, 3) float64
+        ``quat_to_rotmat(quats)[i, :, columns[i]]``, the same values, each
+        computed for its column alone (no (M, 3, 3) matrices).
+
+    Raises
+    ------
+    ValidationError
+        ``quats`` is not (M, 4), or ``columns`` not M integers in 0..2.
+    """
+    q = _unit_quats(quats)
+    cols = np.asarray(columns)
+    if q.ndim != 2 or q.shape[1] != 4:
+        raise ValidationError(f"rotation_columns: quats must be an (M, 4) array, got shape {q.shape}")
+    if cols.shape != (len(q),) or (cols.size and (cols.dtype.kind not in "iu" or cols.min() < 0 or cols.max() > 2)):
+        raise ValidationError(f"rotation_columns: columns must be {len(q)} integers in 0..2 (one per "
+                              f"quaternion), got {cols.dtype} of shape {cols.shape}")
+    out = np.empty((len(q), 3))
+    for k in range(3):
+        at = np.flatnonzero(cols == k)
+        wxyz = tuple(q[at, j] for j in range(4))
+        for r in range(3):
+            out[at, r] = _ROTATION_ENTRIES[3 * r + k](*wxyz)
+    return out
 
 
 def rotmat_to_quat(rot: np.ndarray) -> np.ndarray:

@@ -269,3 +269,29 @@ def test_subset_of_an_empty_list_is_an_empty_scene():
     assert len(scene.subset([])) == 0 and len(scene.subset(np.array([], np.int64))) == 0
     with pytest.raises(ValidationError):
         scene.subset([0.5])
+
+
+def test_rotation_columns_are_the_rotation_matrices_columns(rng):
+    """Each column against scipy's rotation (w-first to scalar-last), and bit for bit against quat_to_rotmat."""
+    from seed2gs_inverse.scene import quat_to_rotmat, rotation_columns
+
+    q = (rng.normal(size=(500, 4)) * 3).astype(np.float32)  # not normalised: normalised inside
+    cols = rng.integers(0, 3, size=500)
+    got = rotation_columns(q, cols)
+    ref = Rotation.from_quat(q[:, [1, 2, 3, 0]].astype(np.float64)).as_matrix()
+    np.testing.assert_allclose(got, ref[np.arange(500), :, cols], atol=1e-12)
+    np.testing.assert_array_equal(got, quat_to_rotmat(q)[np.arange(500), :, cols])
+    assert rotation_columns(q[:0], cols[:0]).shape == (0, 3)
+
+
+@pytest.mark.parametrize("quats, cols, what", [
+    (np.ones((3, 4)), np.array([0, 1, 3]), "columns"),
+    (np.ones((3, 4)), np.array([0, 1]), "columns"),
+    (np.ones((3, 4)), np.array([0.0, 1.0, 2.0]), "columns"),
+    (np.ones((3, 3)), np.array([0, 1, 2]), "quats"),
+])
+def test_rotation_columns_refuses_bad_input(quats, cols, what):
+    from seed2gs_inverse.scene import rotation_columns
+
+    with pytest.raises(ValidationError, match=what):
+        rotation_columns(quats, cols)

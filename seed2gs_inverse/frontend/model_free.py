@@ -288,21 +288,30 @@ def warp_labels(dst, src, src_labels: np.ndarray, *, alpha_min: float = 0.5,
         return out
     world = _world_points(cam, d, valid)
     uv, z = scam.project(world)
-    ok = np.isfinite(uv).all(axis=1) & (z > scam.near)
+    ok = np.isfinite(uv[:, 0]) & np.isfinite(uv[:, 1]) & (z > scam.near)
     px = np.floor(np.where(ok, uv[:, 0], -1)).astype(np.int64)
     py = np.floor(np.where(ok, uv[:, 1], -1)).astype(np.int64)
     ok &= (px >= 0) & (px < sw) & (py >= 0) & (py < sh)
     i = np.nonzero(ok)[0]
-    # the source images flat: every lookup below is one gather at a flat pixel index
-    sdep = np.asarray(src.depth, np.float64).reshape(-1)
+    # the source images flat, as stored: every lookup below is one gather at a flat pixel index (a
+    # gathered float32 widens exactly, so no image-long float64 copy is needed)
+    sdep = np.asarray(src.depth).reshape(-1)
     salp = np.asarray(src.alpha).reshape(-1)
-    # z-test against the depths of the 2x2 pixel centres around p' (their
-    # range brackets the surface at p'); a nearest-pixel test fails in bands
-    # on oblique surfaces, where depth changes by a lot within one pixel.
-    fx = np.floor(uv[i, 0] - 0.5).astype(np.int64)
-    fy = np.floor(uv[i, 1] - 0.5).astype(np.int64)
-    lo = np.full(i.size, np.inf)
-    hi = np.full(i.size, -np.inf)
+    zi = z[i]
+    tol = depth_tol * zi
+    at = py[i] * sw + px[i]
+    surface = salp[at] >= alpha_min
+    near = np.abs(zi - sdep[at]) <= tol
+    seen = surface & near
+    # Where the nearest pixel is a surface at another depth: z-test against
+    # the depths of the 2x2 pixel centres around p' (their range brackets the
+    # surface at p'); a nearest-pixel test fails in bands on oblique
+    # surfaces, where depth changes by a lot within one pixel.
+    b = np.flatnonzero(surface & ~near)
+    fx = np.floor(uv[i[b], 0] - 0.5).astype(np.int64)
+    fy = np.floor(uv[i[b], 1] - 0.5).astype(np.int64)
+    lo = np.full(b.size, np.inf)
+    hi = np.full(b.size, -np.inf)
     cols = [np.clip(fx + ox, 0, sw - 1) for ox in (0, 1)]
     for oy in (0, 1):
         row = np.clip(fy + oy, 0, sh - 1) * sw
@@ -313,20 +322,21 @@ def warp_labels(dst, src, src_labels: np.ndarray, *, alpha_min: float = 0.5,
             # a pixel that is no surface leaves the bracket as it is (min with +inf, max with -inf)
             np.minimum(lo, np.where(good, dq, np.inf), out=lo)
             np.maximum(hi, np.where(good, dq, -np.inf), out=hi)
-    zi = z[i]
-    tol = depth_tol * zi
     # The bracket only stands in for the surface where it is smooth: across a
     # silhouette it spans foreground to background and would accept points
     # hidden behind the foreground.
-    smooth = (hi - lo) <= max_step * zi
-    at = py[i] * sw + px[i]
-    near = np.abs(zi - sdep[at]) <= tol
-    seen = (salp[at] >= alpha_min) & (near | (smooth & (zi >= lo - tol) & (zi <= hi + tol)))
+    zb, tb = zi[b], tol[b]
+    seen[b] = ((hi - lo) <= max_step * zb) & (zb >= lo - tb) & (zb <= hi + tb)
     if color_tol is not None:
-        # float64 of the compared pixels only (exact: the images are float32 or float64)
-        c_dst = np.asarray(dst.rgb)[valid][i].astype(np.float64)
-        c_src = np.asarray(src.rgb).reshape(-1, 3)[at].astype(np.float64)
-        seen &= np.abs(c_dst - c_src).max(axis=1) <= color_tol
+        # compared only where the z-test kept the pixel, one channel at a time (every channel within
+        # color_tol is the largest within it), in float64 (exact: the images are float32 or float64)
+        j = np.flatnonzero(seen)
+        c_dst, c_src = np.asarray(dst.rgb).reshape(-1), np.asarray(src.rgb).reshape(-1)
+        p_dst, p_src = 3 * np.flatnonzero(valid)[i[j]], 3 * at[j]
+        close = np.ones(j.size, bool)
+        for c in range(3):
+            close &= np.abs(c_dst[p_dst + c].astype(np.float64) - c_src[p_src + c]) <= color_tol
+        seen[j] = close
     vals = np.full(len(z), np.nan)
     vals[i[seen]] = np.asarray(src_labels, np.float64).reshape(-1)[at[seen]]
     out[valid] = vals

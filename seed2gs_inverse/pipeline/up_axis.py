@@ -168,7 +168,7 @@ from scipy.spatial import cKDTree
 from ..camera import Camera
 from ..errors import ValidationError
 from ..raster import FrozenScene
-from ..scene import GaussianScene, quat_to_rotmat
+from ..scene import GaussianScene, rotation_columns
 from .local import neighbourhood
 
 __all__ = ["UpEstimate", "PlaneFit", "estimate_up_axis", "estimate_up", "fit_plane", "cameras_up", "roll_basis",
@@ -439,8 +439,7 @@ def estimate_up(scene: GaussianScene, reference: Camera, weights=None, flatness:
     sel = np.nonzero(w > 0)[0]
     if sel.size == 0:
         return a
-    rot = quat_to_rotmat(scene.quats[sel])
-    normals = np.take_along_axis(rot, order[sel, 0][:, None, None].repeat(3, axis=1), 2)[:, :, 0]
+    normals = rotation_columns(scene.quats[sel], order[sel, 0])
     p = np.stack([normals @ a, normals @ b], 1)
     m = (p * w[sel, None]).T @ p
     evals, evecs = np.linalg.eigh(m)
@@ -627,9 +626,7 @@ def flat_normals(scene: GaussianScene, idx: np.ndarray, flatness: float = 0.3) -
     order = np.argsort(s, axis=1)
     smin = np.take_along_axis(s, order[:, :1], 1)[:, 0]
     smid = np.take_along_axis(s, order[:, 1:2], 1)[:, 0]
-    rot = quat_to_rotmat(scene.quats[idx])
-    n = rot[np.arange(len(idx)), :, order[:, 0]]
-    return n, smin < flatness * smid
+    return rotation_columns(scene.quats[idx], order[:, 0]), smin < flatness * smid
 
 
 class _Prior(NamedTuple):
