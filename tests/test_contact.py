@@ -10,7 +10,7 @@ around (views the pipeline never rendered):
   the ground surface. Its underside is never visible (it rests on the
   ground), so the check is over the part that a held-out view sees: the
   lowest-fifth Gaussians whose compositing weight summed over the held-out
-  views exceeds 0.05 (a twentieth of one opaque pixel, extract's
+  views exceeds 0.05 (a twentieth of one opaque pixel, well below extract's
   ``min_evidence``), and the share of that weight on selected Gaussians must
   reach 0.75 (the base's fuzzy rim, blended with the ground at the contact
   line, is not all object in any view).

@@ -19,7 +19,7 @@ DEFAULTS_BEFORE = {
     "method": "weighted_bce", "n_views": 24, "a_max_deg": 60.0, "gamma": 1.0, "skip_deg": 5.0,
     "profile": "linear", "max_elevation_deg": 85.0, "orbit_scale": 0.5, "max_view_pixels": 40_000,
     "max_reference_pixels": 1_000_000, "roi_margin": 2.0, "zoom_margin": 2.0, "up": "level",
-    "min_weight": 0.0, "cull": True, "cull_far": 4.0, "min_evidence": 0.05, "threshold": None,
+    "min_weight": 0.0, "cull": True, "cull_far": 4.0, "min_evidence": 1.0, "threshold": None,
     "lift_options": None, "solver_options": None, "mode": "classic", "progress": None}
 
 # Issue 10 (measured on benchmarks/bench_up_axis.py and bench_extract.py):

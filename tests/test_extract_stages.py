@@ -283,13 +283,13 @@ def _evidence(syn, labelled):
 
 
 def test_solve_selection_equals_the_old_evidence_reset(syn, staged):
-    """q: the solver's q with Gaussians of evidence e = sum_c W(c)^T k(c) < 0.05 reset to G0 (the old loop)."""
+    """q: the solver's q, Gaussians of evidence e = sum_c W(c)^T k(c) < min_evidence reset to G0 (the old loop)."""
     masks = [m for _, m in staged.labelled]
     off = staged.settings.replace(seed_connected=False, follow_faint=False, follow_weak=False)  # the solver's q
     sel = ex_mod.solve_selection(staged.stack, masks, staged.lift, off)  # smoothness 0: off
     raw = solve(staged.stack, masks, method="weighted_bce", init=staged.lift.g0,
                 **SOLVER_DEFAULTS["weighted_bce"])
-    weak = _evidence(syn, staged.labelled) < 0.05
+    weak = _evidence(syn, staged.labelled) < off.min_evidence
     assert 0 < weak.sum() < len(weak)
     want = np.asarray(raw.q, np.float32).copy()
     want[weak] = staged.lift.g0[weak]
@@ -311,7 +311,7 @@ def test_solve_selection_with_the_graph_regulariser(syn, staged):
     raw = solve(staged.stack, staged.masks, method="weighted_bce", init=staged.lift.g0,
                 **SOLVER_DEFAULTS["weighted_bce"])
     e = _evidence(syn, staged.labelled)
-    e[e < 0.05] = 0.0
+    e[e < staged.settings.min_evidence] = 0.0
     p = staged.lift.g0.astype(np.float64)
     G = staged.graph.tocsr()
     nodes = np.flatnonzero(np.asarray(G.sum(axis=1)).ravel() > 0)  # the graph's nodes; the rest decouple
@@ -322,8 +322,9 @@ def test_solve_selection_with_the_graph_regulariser(syn, staged):
     want = (e * qh + eps * p) / (e + eps)
     want[nodes] = np.linalg.solve(np.diag(e[nodes] + eps) + lam * L, e[nodes] * qh[nodes] + eps * p[nodes])
     want = np.clip(want, 0.0, 1.0)
-    # CG to a relative residual of 1e-5 (laplacian_smooth's default): within a few 1e-3 of the exact solve
-    np.testing.assert_allclose(staged.sel.result.q, want, atol=4e-3)
+    # CG to a relative residual of 1e-5 (laplacian_smooth's default): within about 1e-2 of the exact solve
+    # (the most where fewest Gaussians carry evidence, as min_evidence leaves them)
+    np.testing.assert_allclose(staged.sel.result.q, want, atol=2e-2)
     # follow_faint, follow_weak, then seed_connected: q is the regularised q, its faint Gaussians near the
     # object set by the follow matrix, the Gaussians the selection encloses by one selected Gaussian each,
     # the unselected weak ones near the object by strong ones (all checked on their own in
@@ -392,7 +393,7 @@ def test_extract_runs_the_stages(syn, setup, staged):
 #: to the options of the code that produced the file (up="level", no graph regulariser, exact
 #: operators with min_weight=0, 30 L-BFGS-B iterations), so that it still proves the stage
 #: refactor left q unchanged. Later rules are switched off: the tracker's empty pixels vote in its fill
-#: and faint and weak Gaussians keep the solver's q.
+#: and faint and weak Gaussians keep the solver's q, and the evidence threshold is the old 0.05.
 _PINNED_RUN = """
 import sys
 import numpy as np
@@ -408,7 +409,7 @@ seed = (build_operator(syn.scene, cam).W @ truth.astype(np.float32)).reshape(cam
 kw = {"solver_options": {"max_iter": 30}} if name == "weighted_bce" else {"method": "voting"}
 ex = extract(syn.scene, cam, seed, tracker=GeometricTracker(fill_from_empty=True), n_views=6, progress=False,
              up="level", smoothness=0.0, min_weight=0.0, follow_faint=False, follow_weak=False,
-             near_margin=None, **kw)
+             near_margin=None, min_evidence=0.05, **kw)
 np.savez(out, q=ex.q, n_weak=ex.resolved["n_weak_evidence"])
 """
 

@@ -559,6 +559,11 @@ def test_the_base_in_contact_leaves_with_the_object():
 
 
 def test_without_the_weak_rule_the_base_stays_behind():
-    """The check above can fail: the solver's own q leaves the base in the remainder."""
-    share, _, _ = _left_behind_on_ground(11, follow_weak=False)
+    """The check above can fail: the solver's own q leaves the base in the remainder.
+
+    With the old evidence threshold (0.05): at the default of one pixel's
+    weight the regulariser already decides most of the base's weak
+    Gaussians from the body (the remainder keeps 2.8 % here).
+    """
+    share, _, _ = _left_behind_on_ground(11, follow_weak=False, min_evidence=0.05)
     assert share > 0.05

@@ -26,8 +26,8 @@ def test_back_surface_is_unseen_by_the_seed(plush_scene):
     """Precondition: most of what the view from behind shows gets (almost) no weight in the seed.
 
     "Almost": 3DGS surfaces are fuzzy, so back Gaussians leak a little weight
-    through the front; below 0.05 (extract's ``min_evidence``, a twentieth
-    of one opaque pixel) a Gaussian carries no evidence.
+    through the front; below 0.05 (a twentieth of one opaque pixel, well
+    below extract's ``min_evidence``) a Gaussian carries no evidence.
     """
     gs, truth, ref, seed, behind = plush_scene
     seed_w = build_operator(gs.scene, ref).W.T @ seed.ravel().astype(np.float32)

@@ -207,13 +207,17 @@ class ExtractSettings:
         around an object (tests/test_occluded_views.py). None: no near cut.
     min_evidence : float
         A Gaussian whose summed compositing weight over the *decided*
-        (non-NaN) pixels of all views is below this (>= 0, default 0.05, a
-        twentieth of one opaque pixel) has no real evidence: its ``q`` is
+        (non-NaN) pixels of all views is below this (>= 0, default 1, the
+        weight of one opaque pixel) has no real evidence: its ``q`` is
         reset to the prior (1 in G0, else 0), or with the regulariser
         (``smoothness`` > 0) it is decided by its neighbours; without this,
         an unregularised fit can drive such Gaussians to 1 on a trace of
-        weight. Passed to :func:`~seed2gs_inverse.solvers.solve` as its
-        ``min_evidence``.
+        weight. A part of the object that the tracker leaves unknown
+        (hidden in the reference, revealed in the orbit views) otherwise
+        follows the few Gaussians that a trace of background weight fixed
+        at 0 (pixels where an occluder or the ground dominates and the part
+        shows only faintly), not the body. Passed to
+        :func:`~seed2gs_inverse.solvers.solve` as its ``min_evidence``.
     threshold : float or None
         ``tau`` of Eq. 9, in [0, 1); None (default): the solver's own (0.5).
     lift_options : mapping (read-only)
@@ -342,7 +346,7 @@ class ExtractSettings:
     min_weight: float = 0.01
     cull: bool = True
     cull_far: float | None = 4.0
-    min_evidence: float = 0.05
+    min_evidence: float = 1.0
     threshold: float | None = None
     lift_options: Mapping = field(default_factory=dict)
     solver_options: Mapping = field(default_factory=dict)
