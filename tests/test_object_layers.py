@@ -419,6 +419,31 @@ def test_the_follow_rules_on_a_neighbourhood_are_those_on_the_scene(on_ground, r
     np.testing.assert_array_equal(apply_follow(q, got_f), got_q)  # what a replay of the saved rows gives
 
 
+def test_the_enclosed_rule_runs_again_on_the_selection_the_weak_rule_grew(on_ground):
+    """The pipeline's rules are the public ones in order: faint, enclosed, weak, then enclosed once more.
+
+    The second enclosed pass finds Gaussians that only the grown selection
+    encloses (the precondition: it has rows to add here).
+    """
+    scene, truth, info = on_ground
+    stack = OperatorStack([build_operator(scene, v) for v in _views(info)])
+    up = np.asarray(info["up"], np.float64)
+    rng = np.random.default_rng(4)
+    q = np.where(truth, 0.9, 0.1).astype(np.float32)
+    q[np.flatnonzero(truth)[rng.random(int(truth.sum())) < 0.5]] = 0.2
+    lift = SimpleNamespace(center=np.asarray(info["center"], np.float64), radius=info["radius"])
+    got_f, got_q = _follow_rules(scene, lift, stack, q, 0.5, ExtractSettings(), None, up)
+    faint = faint_follow_matrix(scene, lift.center, lift.radius)
+    f1, q1 = follow_enclosed(stack, scene.means, apply_follow(q, faint), 0.5, faint, up=up)
+    candidates = neighbourhood(scene, lift.center, GRAPH_DEFAULTS["region"] * lift.radius)
+    f2, q2 = follow_weak(stack, scene.means, q1, 0.5, f1, candidates, up=up, scales=scene.scales)
+    f3, q3 = follow_enclosed(stack, scene.means, q2, 0.5, f2, up=up)
+    again = enclosed_by_selection(stack, q2 > 0.5, scene.means, up=up)
+    assert again.sum() >= 5 and np.any(q3 != q2)
+    np.testing.assert_array_equal(got_q, q3)
+    assert (got_f != f3).nnz == 0
+
+
 def test_strong_columns_against_the_dense_maximum(on_ground):
     scene, _, info = on_ground
     views = [build_operator(scene, v) for v in _views(info)]

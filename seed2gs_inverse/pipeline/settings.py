@@ -301,7 +301,8 @@ class ExtractSettings:
         mean membership of their nearest Gaussians that do, at or above the
         selection's base along the orbit axis
         (:func:`~seed2gs_inverse.pipeline.completion.follow_weak`), after
-        the rules of ``follow_faint``. Default True: such a Gaussian never
+        the rules of ``follow_faint``, whose enclosed rule then runs once
+        more on the selection this one grew. Default True: such a Gaussian never
         dominates a pixel (inner and back layers, splats crossing the
         surface), its pixels' labels are other Gaussians', and left out
         it stays in the remainder as a see-through copy of the object.

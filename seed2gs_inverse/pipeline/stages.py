@@ -720,7 +720,8 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     reach it and have no row, at or above the selection's base along ``up``
     and within reach of those (:func:`~.completion.follow_weak`, with the
     scene's scales): they dominate no pixel, so their
-    pixels' labels are other Gaussians'.
+    pixels' labels are other Gaussians'. With both rules the enclosed
+    rule then runs once more, on the selection the weak rule grew.
     ``tau`` is ``settings.threshold`` or the solver's own. With
     ``settings.seed_connected`` (default) the Gaussians above ``tau`` in
     islands apart from G0 that the masks do not call object
@@ -771,7 +772,8 @@ def _follow_rules(scene: GaussianScene, lift: SeedLift, stack: OperatorStack, q:
     With ``settings.follow_faint``: :func:`~.completion.faint_follow_matrix`
     applied to ``q``, then :func:`~.completion.follow_enclosed`; with
     ``settings.follow_weak``, then :func:`~.completion.follow_weak` over the
-    Gaussians within the graph's region. With ``local`` (holding that
+    Gaussians within the graph's region (and, with both, the enclosed rule
+    again). With ``local`` (holding that
     region) the rows are built among the neighbourhood's Gaussians while
     every row and column lies in it, ``q`` is changed in one copy of it, and
     the (N, N) matrix is made once, at the end: the same matrix and ``q``.
@@ -789,22 +791,30 @@ def _follow_rules(scene: GaussianScene, lift: SeedLift, stack: OperatorStack, q:
             candidates = neighbourhood(scene, lift.center, region)
             follow, q = follow_weak(stack, scene.means, q, tau, follow, candidates, up=up,
                                    scales=scene.scales)
+            if settings.follow_faint:  # the selection the weak rule grew encloses more
+                follow, q = follow_enclosed(stack, scene.means, q, tau, follow, up=up)
         return follow, q
     m = len(local)
     rules = _LocalRows(local, faint_follow_matrix(local.scene, lift.center, lift.radius, **kw)
                        if settings.follow_faint else sp.csr_matrix((m, m)))
     out = np.array(q, dtype=np.float32)  # q's own copy: result.q keeps the solver's values
     out[local.index] = apply_follow(out[local.index], rules.follow)
-    if settings.follow_faint:
+
+    def enclose():
         rows, cols = _enclosed_rows(stack, scene.means, out, tau, rules.has_row, up=up)
         out[rows] = out[cols]
         rules.replace(rows, rows, cols, np.ones(rows.size))
+
+    if settings.follow_faint:
+        enclose()
     if settings.follow_weak:
         candidates = local.index[neighbourhood(local.scene, lift.center, region)]
         rows, entries = _weak_entries(stack, scene.means, out, tau, rules.has_row, candidates, up=up,
                                       scales_at=scene.scales_at)
         rules.replace(rows, *entries)
         out[rows] = rules.averages(rows, out)
+        if settings.follow_faint:  # the selection the weak rule grew encloses more
+            enclose()
     return rules.expanded(), out
 
 
