@@ -377,6 +377,14 @@ def test_follow_enclosed_replaces_the_enclosed_rows(on_ground):
     np.testing.assert_array_equal(q2[~enclosed], q[~enclosed])
 
 
+def _rules_case(on_ground, holes):
+    """The views, the up axis and a membership: 0.9 on the ball, 0.1 elsewhere, 0.2 on the share ``holes`` of the ball."""
+    scene, truth, info = on_ground
+    stack = OperatorStack([build_operator(scene, v) for v in _views(info)])
+    q = np.where(truth, 0.9, 0.1).astype(np.float32)
+    q[np.flatnonzero(truth)[np.random.default_rng(4).random(int(truth.sum())) < holes]] = 0.2
+    return stack, np.asarray(info["up"], np.float64), q
+
 
 @pytest.mark.parametrize("reach, faint, weak", [(1.0, True, True), (0.25, True, True), (1.0, True, False),
                                                 (1.0, False, True)])
@@ -390,12 +398,8 @@ def test_the_follow_rules_on_a_neighbourhood_are_those_on_the_scene(on_ground, r
     ``follow_weak``.
     """
     scene, truth, info = on_ground
-    stack = OperatorStack([build_operator(scene, v) for v in _views(info)])
-    up = np.asarray(info["up"], np.float64)
-    rng = np.random.default_rng(4)
-    q = np.where(truth, 0.9, 0.1).astype(np.float32)
-    q[np.flatnonzero(truth)[rng.random(int(truth.sum())) < 0.3]] = 0.2
-    q[rng.random(len(q)) < 0.05] = 0.6
+    stack, up, q = _rules_case(on_ground, 0.3)
+    q[np.random.default_rng(4).random(len(q)) < 0.05] = 0.6
     q0 = q.copy()
     lift = SimpleNamespace(center=np.asarray(info["center"], np.float64), radius=reach * info["radius"])
     settings = ExtractSettings(follow_faint=faint, follow_weak=weak)
@@ -426,11 +430,7 @@ def test_the_enclosed_rule_runs_again_on_the_selection_the_weak_rule_grew(on_gro
     encloses (the precondition: it has rows to add here).
     """
     scene, truth, info = on_ground
-    stack = OperatorStack([build_operator(scene, v) for v in _views(info)])
-    up = np.asarray(info["up"], np.float64)
-    rng = np.random.default_rng(4)
-    q = np.where(truth, 0.9, 0.1).astype(np.float32)
-    q[np.flatnonzero(truth)[rng.random(int(truth.sum())) < 0.5]] = 0.2
+    stack, up, q = _rules_case(on_ground, 0.5)
     lift = SimpleNamespace(center=np.asarray(info["center"], np.float64), radius=info["radius"])
     got_f, got_q = _follow_rules(scene, lift, stack, q, 0.5, ExtractSettings(), None, up)
     faint = faint_follow_matrix(scene, lift.center, lift.radius)
