@@ -327,8 +327,8 @@ def test_solve_selection_with_the_graph_regulariser(syn, staged):
     np.testing.assert_allclose(staged.sel.result.q, want, atol=2e-2)
     # follow_faint, follow_weak, then seed_connected: q is the regularised q, its faint Gaussians near the
     # object set by the follow matrix, the Gaussians the selection encloses by one selected Gaussian each,
-    # the unselected weak ones near the object by strong ones (all checked on their own in
-    # test_object_layers.py), and 0 on islands apart from G0
+    # the unselected weak ones near the object by strong ones, then what the grown selection encloses
+    # (all checked on their own in test_object_layers.py), and 0 on islands apart from G0
     faint = faint_follow_matrix(syn.scene, staged.lift.center, staged.lift.radius)
     followed = apply_follow(staged.sel.result.q, faint)
     tau = staged.sel.threshold
@@ -344,6 +344,15 @@ def test_solve_selection_with_the_graph_regulariser(syn, staged):
     weak = near & ~strong & (followed <= tau)  # the rule's candidates (its base and reach bounds keep some out)
     changed = np.flatnonzero(np.asarray(abs(follow - faint).sum(axis=1)).ravel() > 0)
     changed = changed[~enc[changed]]
+    # then the enclosed rule again: one weight of 1 each, exactly the Gaussians that the selection the
+    # weak rule grew encloses (they were unselected before it: the final selection without them)
+    one = (np.diff(follow.indptr)[changed] == 1) & (follow[changed].max(axis=1).toarray().ravel() == 1.0)
+    again = np.zeros(len(followed), bool)
+    again[changed[one]] = True
+    grown = (apply_follow(staged.sel.result.q, follow) > tau) & ~again
+    np.testing.assert_array_equal(enclosed_by_selection(staged.stack, grown, syn.scene.means, up=staged.orbits.up),
+                                  again)
+    changed = changed[~one]
     assert changed.size > 0 and weak[changed].all() and np.all(strong[follow[changed].indices])
     island = apply_follow(staged.sel.result.q, follow) != staged.sel.q
     assert island.sum() == staged.sel.n_disconnected and np.all(staged.sel.q[island] == 0)
