@@ -417,8 +417,9 @@ def _enclosed(stack, sel, means, *, up=None, footprint: float = 0.5, base_quanti
     return idx
 
 
-#: The alpha below which a pixel counts as this much in the selection's footprint test
-#: (:func:`enclosed_by_selection`): a nearly empty pixel is in no footprint.
+#: The least alpha a pixel counts with in the selection's footprint test
+#: (:func:`enclosed_by_selection`): the selection must hold its share of at least this much,
+#: so that a nearly empty pixel is in no footprint.
 FOOTPRINT_MIN_ALPHA = 0.2
 
 
