@@ -409,10 +409,10 @@ def _enclosed(stack, sel, means, *, up=None, footprint: float = 0.5, base_quanti
     # the footprints on the stack's compact columns: the same sums, with no (N,) weight vector
     cols, compact = stack.compact()
     s = sel[cols].astype(np.float32)
-    for i, view in enumerate(compact):
+    for i, (view, alpha) in enumerate(_with_alpha(compact)):
         if idx.size == 0:
             break
-        ok = _in_footprint(view, s, xi, footprint, f"enclosed_by_selection: view {i}")
+        ok = _in_footprint(view, alpha, s, xi, footprint, f"enclosed_by_selection: view {i}")
         idx, xi = idx[ok], xi[ok]
     return idx
 
@@ -423,11 +423,24 @@ def _enclosed(stack, sel, means, *, up=None, footprint: float = 0.5, base_quanti
 FOOTPRINT_MIN_ALPHA = 0.2
 
 
-def _in_footprint(view, s: np.ndarray, x: np.ndarray, footprint: float, label: str) -> np.ndarray:
+def _with_alpha(stack):
+    """``(view, alpha)`` pairs: each view of ``stack`` with its (H*W,) rendered alpha ``W 1``.
+
+    Read from the stack's row sums (:meth:`~seed2gs_inverse.operators.OperatorStack.row_sums`),
+    cached on the stack: computed once for every footprint test, or not at all
+    where the solver already read them from the same compact stack.
+    """
+    alpha, offsets = stack.row_sums(), stack.row_offsets()
+    return ((view, alpha[offsets[i]:offsets[i + 1]]) for i, view in enumerate(stack))
+
+
+def _in_footprint(view, alpha: np.ndarray, s: np.ndarray, x: np.ndarray, footprint: float,
+                  label: str) -> np.ndarray:
     """Bool (M,): the centres ``x`` (M, 3) that ``view`` shows on a pixel of the selection's footprint.
 
-    ``s`` is the selection as float32 over the view's columns; a pixel is
-    in the footprint where ``W s >= footprint * max(W 1, FOOTPRINT_MIN_ALPHA)``
+    ``alpha`` is the view's (H*W,) rendered alpha ``W 1`` and ``s`` the
+    selection as float32 over the view's columns; a pixel is in the
+    footprint where ``W s >= footprint * max(W 1, FOOTPRINT_MIN_ALPHA)``
     (:func:`enclosed_by_selection`). A centre behind the near plane or
     outside the image is not in it. ``label`` names the view in the error a
     view without a camera raises.
@@ -436,7 +449,7 @@ def _in_footprint(view, s: np.ndarray, x: np.ndarray, footprint: float, label: s
     if cam is None:
         raise ValidationError(f"{label} has no camera")
     h, w = view.image_shape
-    held, alpha = np.asarray(view.W @ np.stack([s, np.ones_like(s)], axis=1)).T  # one pass for both
+    held = np.asarray(view.W @ s).ravel()
     fp = (held >= footprint * np.maximum(alpha, FOOTPRINT_MIN_ALPHA)).reshape(h, w)
     uv, z = cam.project(x)
     ok = np.isfinite(uv).all(1) & (z > cam.near)
@@ -451,8 +464,8 @@ def _share_in_footprint(stack, selected: np.ndarray, x: np.ndarray, footprint: f
     cols, compact = stack.compact()
     s = selected[cols].astype(np.float32)
     count = np.zeros(len(x), np.int64)
-    for i, view in enumerate(compact):
-        count += _in_footprint(view, s, x, footprint, f"follow_weak: view {i}")
+    for i, (view, alpha) in enumerate(_with_alpha(compact)):
+        count += _in_footprint(view, alpha, s, x, footprint, f"follow_weak: view {i}")
     return count / max(len(compact), 1)
 
 
