@@ -30,10 +30,11 @@ DEFAULTS_BEFORE = {
 # come after the old ones. Faint Gaussians near the object follow their opaque neighbours
 # (benchmarks/bench_scanned.py); the orbit views cut what stands in front of the object
 # (near_margin, measured on bench_extract.py and tests/test_occluded_views.py); Gaussians that
-# dominate no pixel follow their strong neighbours (follow_weak, measured on bench_extract.py).
+# dominate no pixel follow their strong neighbours (follow_weak, measured on bench_extract.py); a
+# Gaussian whose masks mostly call it background is not selected (min_vote, bench_extract.py).
 DEFAULTS = {**DEFAULTS_BEFORE, "up": "auto", "min_weight": 0.01, "point_mode": "object", "smoothness": None,
             "completion": None, "graph_options": None, "seed_connected": True, "support_background": True,
-            "follow_faint": True, "near_margin": 1.0, "follow_weak": True}
+            "follow_faint": True, "near_margin": 1.0, "follow_weak": True, "min_vote": 0.2}
 
 
 def test_defaults_are_those_of_the_old_extract_but_issue_10s():
@@ -99,6 +100,9 @@ def test_defaults_are_those_of_the_old_extract_but_issue_10s():
     ("near_margin", float("nan"), "near_margin must be finite"),
     ("min_evidence", float("nan"), "min_evidence must be finite"),
     ("min_evidence", -0.1, "min_evidence must be >= 0"),
+    ("min_vote", -0.1, "min_vote must be >= 0"),
+    ("min_vote", 1.5, "min_vote must be <= 1"),
+    ("min_vote", float("nan"), "min_vote must be finite"),
     ("threshold", float("inf"), "threshold must be finite"),
     ("threshold", float("nan"), "threshold must be finite"),  # selected nothing (issue 12 item 6)
     ("threshold", 2.0, r"threshold must be in \[0, 1\)"),
@@ -212,8 +216,9 @@ def test_extract_settings_and_overrides(tiny):
     rep = json.loads(json.dumps(ex.report()))
     assert ExtractSettings.from_dict(rep["settings"]) == ex.settings
     assert set(rep["resolved"]) == {"view_scale", "reference_scale", "up", "up_method", "up_confidence",
-                                    "threshold", "solver_options", "n_weak_evidence", "n_disconnected", "smoothness", "tracker",
-                                    "grounder", "support", "warnings", "caps"}
+                                    "threshold", "solver_options", "n_weak_evidence", "n_vote_capped",
+                                    "n_disconnected", "smoothness", "tracker", "grounder", "support", "warnings",
+                                    "caps"}
     assert rep["resolved"]["caps"] == {}  # 64x48 at scale 0.5: no cap reached
     assert rep["resolved"]["warnings"] == []  # a sound extraction: nothing to warn about
     assert rep["resolved"]["smoothness"] == 1.0  # None: on with the model-free tracker
@@ -221,6 +226,7 @@ def test_extract_settings_and_overrides(tiny):
     assert rep["resolved"]["tracker"] == "GeometricTracker" and rep["resolved"]["grounder"] is None
     assert rep["resolved"]["threshold"] == ex.threshold and rep["resolved"]["reference_scale"] == 1.0
     assert rep["resolved"]["n_weak_evidence"] == ex.result.info["n_weak_evidence"]
+    assert rep["resolved"]["n_vote_capped"] == ex.result.info["n_vote_capped"]
 
 
 @pytest.mark.parametrize("name, value", [

@@ -282,6 +282,18 @@ def _evidence(syn, labelled):
     return evidence
 
 
+def _against(syn, labelled, min_evidence, min_vote):
+    """(N,) bool: evidence e >= min_evidence (> 0) and the dense vote sum_c W(c)^T (k y)(c) / e below min_vote."""
+    e = np.zeros(len(syn.scene))
+    a1 = np.zeros(len(syn.scene))
+    for (f, m) in labelled:
+        W = f.operator.W.toarray().astype(np.float64)
+        y = np.asarray(m, np.float64).ravel()
+        e += W.T @ ~np.isnan(y)
+        a1 += W.T @ np.nan_to_num(y)
+    return (e > 0) & (e >= min_evidence) & (a1 < min_vote * e)
+
+
 def test_solve_selection_equals_the_old_evidence_reset(syn, staged):
     """q: the solver's q, Gaussians of evidence e = sum_c W(c)^T k(c) < min_evidence reset to G0 (the old loop)."""
     masks = [m for _, m in staged.labelled]
@@ -293,6 +305,8 @@ def test_solve_selection_equals_the_old_evidence_reset(syn, staged):
     assert 0 < weak.sum() < len(weak)
     want = np.asarray(raw.q, np.float32).copy()
     want[weak] = staged.lift.g0[weak]
+    against = _against(syn, staged.labelled, off.min_evidence, off.min_vote)
+    want[against] = np.minimum(want, staged.lift.g0)[against]  # min_vote: no higher than the prior
     np.testing.assert_array_equal(sel.q, want)
     assert sel.n_weak_evidence == int(weak.sum())
     assert sel.threshold == 0.5 and np.array_equal(sel.selected, sel.q > 0.5)
@@ -322,6 +336,8 @@ def test_solve_selection_with_the_graph_regulariser(syn, staged):
     want = (e * qh + eps * p) / (e + eps)
     want[nodes] = np.linalg.solve(np.diag(e[nodes] + eps) + lam * L, e[nodes] * qh[nodes] + eps * p[nodes])
     want = np.clip(want, 0.0, 1.0)
+    against = _against(syn, staged.labelled, staged.settings.min_evidence, staged.settings.min_vote)
+    want[against] = np.minimum(want, p)[against]  # min_vote, after the regulariser
     # CG to a relative residual of 1e-5 (laplacian_smooth's default): within about 1e-2 of the exact solve
     # (the most where fewest Gaussians carry evidence, as min_evidence leaves them)
     np.testing.assert_allclose(staged.sel.result.q, want, atol=2e-2)
@@ -402,7 +418,8 @@ def test_extract_runs_the_stages(syn, setup, staged):
 #: to the options of the code that produced the file (up="level", no graph regulariser, exact
 #: operators with min_weight=0, 30 L-BFGS-B iterations), so that it still proves the stage
 #: refactor left q unchanged. Later rules are switched off: the tracker's empty pixels vote in its fill
-#: and faint and weak Gaussians keep the solver's q, and the evidence threshold is the old 0.05.
+#: and faint and weak Gaussians keep the solver's q, the evidence threshold is the old 0.05, and no
+#: Gaussian is held at its prior against its masks' vote (min_vote 0).
 _PINNED_RUN = """
 import sys
 import numpy as np
@@ -418,7 +435,7 @@ seed = (build_operator(syn.scene, cam).W @ truth.astype(np.float32)).reshape(cam
 kw = {"solver_options": {"max_iter": 30}} if name == "weighted_bce" else {"method": "voting"}
 ex = extract(syn.scene, cam, seed, tracker=GeometricTracker(fill_from_empty=True), n_views=6, progress=False,
              up="level", smoothness=0.0, min_weight=0.0, follow_faint=False, follow_weak=False,
-             near_margin=None, min_evidence=0.05, **kw)
+             near_margin=None, min_evidence=0.05, min_vote=0.0, **kw)
 np.savez(out, q=ex.q, n_weak=ex.resolved["n_weak_evidence"])
 """
 

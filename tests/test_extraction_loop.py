@@ -156,6 +156,14 @@ def test_solve_from_extraction_bad_inputs_are_named(run, capsys, tmp_path):
     (bad / "solve.json").write_text(json.dumps({**rec, "fingerprint": "0" * 16}))
     with pytest.raises(ValidationError, match="another scene"):
         load_solve_inputs(bad, operators=out / "operators", masks=out / "masks")
+    (bad / "solve.json").write_text(json.dumps({**rec, "min_vote": 1.5}))
+    with pytest.raises(FormatError, match=r"'min_vote' must be a number in \[0, 1\]"):
+        load_solve_inputs(bad, operators=out / "operators", masks=out / "masks")
+    # a folder written before min_vote existed: those runs solved without it
+    (bad / "follow.npz").write_bytes((out / "follow.npz").read_bytes())
+    (bad / "solve.json").write_text(json.dumps({k: v for k, v in rec.items() if k != "min_vote"}))
+    assert rec["min_vote"] == 0.2 and load_solve_inputs(bad, operators=out / "operators",
+                                                         masks=out / "masks").min_vote == 0.0
     (bad / "solve.json").write_text(json.dumps({**rec, "masks": "../masks"}))
     with pytest.raises(FormatError, match="'masks' must be a file name inside the folder"):
         load_solve_inputs(bad)

@@ -741,6 +741,51 @@ def test_min_evidence_is_validated(bad):
         solve(mats, masks, method="voting", min_evidence=bad)
 
 
+@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("min_evidence", [0.0, 0.3])
+def test_min_vote_holds_gaussians_against_their_masks_at_the_prior(rng, method, min_evidence):
+    """q_i = min(q_i, q0_i) where the dense vote (A^T y)_i / k_i < min_vote and k_i >= min_evidence, k_i > 0."""
+    mats, masks = _random_problem(rng)
+    prior = 0.5 * rng.random(40)
+    dense = [(W.toarray().astype(np.float64), m.ravel().astype(np.float64)) for W, m in zip(mats, masks)]
+    k = sum(D.T @ ~np.isnan(y) for D, y in dense)
+    a1 = sum(D.T @ np.nan_to_num(y) for D, y in dense)
+    vote = np.where(k > 0, a1 / np.where(k > 0, k, 1.0), 1.0)
+    votes = np.unique(vote[k > 0])
+    thr = float(0.5 * (votes[votes.size // 2] + votes[votes.size // 2 + 1]))  # between two votes
+    base = solve(mats, masks, method=method, init=prior, min_evidence=min_evidence)
+    r = solve(mats, masks, method=method, init=prior, min_evidence=min_evidence, min_vote=thr)
+    against = (k > 0) & (k >= min_evidence) & (vote < thr)
+    capped = against & (base.q > prior)
+    assert capped.sum() > 0 and (against & ~capped).sum() > 0  # the rule acts, and leaves q below q0 alone
+    want = np.where(capped, prior.astype(np.float32), base.q)
+    np.testing.assert_array_equal(r.q, want)
+    assert r.info["n_vote_capped"] == int(capped.sum()) and r.info["min_vote"] == thr
+    assert base.info["n_vote_capped"] == 0  # default 0: off
+
+
+def test_min_vote_keeps_a_faint_splat_on_a_few_object_pixels_out():
+    """Known values: a splat of weight 0.1 on 10 object pixels and 60 background pixels (vote 1/7) that
+    nothing else fills. BCE's -log(0.1 q) has the gradient -1/q of any weight, so the fit takes it
+    (q -> 1 against its own pixels); min_vote 0.2 holds it at its prior 0. The object splat stays."""
+    rows = np.r_[np.arange(70), np.arange(70, 100)]
+    cols = np.r_[np.zeros(70, int), np.ones(30, int)]  # Gaussian 0: the faint splat; 1: the object
+    W = sp.csr_matrix((np.r_[np.full(70, 0.1), np.full(30, 0.9)], (rows, cols)), shape=(100, 2), dtype=np.float32)
+    y = np.r_[np.ones(10), np.zeros(60), np.ones(30)].astype(np.float32).reshape(10, 10)
+    init = np.array([False, True])
+    fit = solve([W], [y], method="weighted_bce", init=init)
+    held = solve([W], [y], method="weighted_bce", init=init, min_vote=0.2)
+    assert fit.q[0] > 0.9 and fit.q[1] > 0.9
+    assert held.q[0] == 0.0 and held.q[1] == fit.q[1] and held.info["n_vote_capped"] == 1
+
+
+@pytest.mark.parametrize("bad", [-0.1, 1.5, float("nan"), "0.2", True, None])
+def test_min_vote_is_validated(bad):
+    mats, masks = _random_problem(np.random.default_rng(0))
+    with pytest.raises(ValidationError, match="min_vote"):
+        solve(mats, masks, method="voting", min_vote=bad)
+
+
 def test_methods_return_a_method_result(blob):
     stack, labels, masks = blob
     problem = prepare(stack, masks)

@@ -481,7 +481,7 @@ def _up_cameras(path, where: str):
 #: Options a recorded report may lack, with the value that replays such a
 #: report as it ran (the option off).
 _ADDED_OPTIONS = {"seed_connected": False, "support_background": False, "follow_faint": False,
-                  "follow_weak": False, "near_margin": None}
+                  "follow_weak": False, "near_margin": None, "min_vote": 0.0}
 
 
 def _recorded_settings(rep: dict, progress: bool, where: str):

@@ -50,7 +50,7 @@ def register(subparsers) -> None:
     p.add_argument("--init", metavar="FILE.npy", help="prior: bool support set, indices or float q")
     p.add_argument("--from-extraction", metavar="OUT",
                    help="solve as the extraction in OUT did (extract --save-operators): its prior (init.npy), "
-                        "min_evidence, smoothness and graph (graph.npz), its method and options unless "
+                        "min_evidence, min_vote, smoothness and graph (graph.npz), its method and options unless "
                         "--method/--option say otherwise (solve.json), its faint Gaussians' rule (follow.npz) and its islands "
                         "set to 0 (islands.npy)")
     p.add_argument("--keep-islands", action="store_true",
@@ -140,7 +140,8 @@ def _solve_as_extracted(args):
     method = args.method or inputs.method
     options = parse_options(args.option, method)
     where = f"--from-extraction {args.from_extraction}"
-    said = (f" (as {where}: prior, min_evidence {inputs.min_evidence:g}, smoothness {inputs.smoothness:g}"
+    said = (f" (as {where}: prior, min_evidence {inputs.min_evidence:g}, min_vote {inputs.min_vote:g}, "
+            f"smoothness {inputs.smoothness:g}"
             + (", graph" if inputs.graph is not None else "") + ")")
     _say_solving(inputs.operators, method, said)
     with SolveBar(method, progress_enabled(args.no_progress)) as bar:

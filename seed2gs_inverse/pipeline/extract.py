@@ -52,7 +52,7 @@ __all__ = ["Extraction", "extract", "Renderer", "ExtractSettings", "EXTRACT_DEFA
 #: Defaults of :func:`extract` beyond the VAAS ones (those of :class:`ExtractSettings`).
 EXTRACT_DEFAULTS = {k: getattr(ExtractSettings, k) for k in (
     "orbit_scale", "max_view_pixels", "max_reference_pixels", "roi_margin", "zoom_margin", "min_weight",
-    "cull_far", "min_evidence", "threshold", "smoothness", "completion")}
+    "cull_far", "min_evidence", "min_vote", "threshold", "smoothness", "completion")}
 
 
 def _settings(settings: ExtractSettings | str | None, overrides: dict) -> ExtractSettings:
@@ -160,7 +160,8 @@ def _resolved(s: ExtractSettings, ref: ReferenceView, orbits: OrbitViews, sel: S
             "up_confidence": orbits.up_info.get("confidence"), "threshold": float(sel.threshold),
             "solver_options": {k: v for k, v in s.solver_kwargs().items()
                                if isinstance(v, (int, float, str, bool))},
-            "n_weak_evidence": sel.n_weak_evidence, "n_disconnected": sel.n_disconnected,
+            "n_weak_evidence": sel.n_weak_evidence, "n_vote_capped": int(sel.result.info.get("n_vote_capped", 0)),
+            "n_disconnected": sel.n_disconnected,
             "support": support_info,
             "smoothness": smoothness, "tracker": type(tracker).__name__,
             "grounder": None if grounder is None else type(grounder).__name__,

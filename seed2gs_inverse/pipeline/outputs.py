@@ -133,7 +133,7 @@ def solve_inputs_of(extraction: Extraction) -> dict:
 
     The run's operators and masks, its method with the options it solved
     with (:meth:`~seed2gs_inverse.pipeline.settings.ExtractSettings.solver_kwargs`),
-    the prior G0, ``min_evidence``, the smoothness used and its graph, the
+    the prior G0, ``min_evidence``, ``min_vote``, the smoothness used and its graph, the
     threshold, the faint Gaussians' ``follow`` matrix applied after the
     solve (``follow_faint``), and as ``islands`` the Gaussians whose ``q``
     the run then set to 0 (those where ``extraction.q`` differs from the
@@ -165,6 +165,7 @@ def solve_inputs_of(extraction: Extraction) -> dict:
     islands = np.flatnonzero(solver_q != np.asarray(extraction.q, np.float32)) if s.seed_connected else None
     return {"operators": extraction.operators, "masks": extraction.masks, "method": s.method,
             "options": s.solver_kwargs(), "init": extraction.lift.g0, "min_evidence": s.min_evidence,
+            "min_vote": s.min_vote,
             "smoothness": smoothness, "graph": extraction.graph if smoothness > 0 else None,
             "follow": extraction.follow if follows else None, "islands": islands,
             "threshold": float(extraction.threshold)}

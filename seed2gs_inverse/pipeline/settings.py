@@ -218,6 +218,15 @@ class ExtractSettings:
         at 0 (pixels where an occluder or the ground dominates and the part
         shows only faintly), not the body. Passed to
         :func:`~seed2gs_inverse.solvers.solve` as its ``min_evidence``.
+    min_vote : float
+        A Gaussian outside G0 with evidence (``min_evidence``) whose masks
+        call it object on less than this share of its decided weight (in
+        [0, 1], default 0.2) ends at 0, whatever the fit gave it. The
+        per-pixel loss otherwise selects large splats of the ground under an
+        object's base: the base's few object pixels, which the object alone
+        cannot fill, outweigh their many background pixels. Passed to
+        :func:`~seed2gs_inverse.solvers.solve` as its ``min_vote``
+        (``info["n_vote_capped"]`` counts them). 0: off.
     threshold : float or None
         ``tau`` of Eq. 9, in [0, 1); None (default): the solver's own (0.5).
     lift_options : mapping (read-only)
@@ -362,6 +371,7 @@ class ExtractSettings:
     follow_faint: bool = True
     near_margin: float | None = 1.0
     follow_weak: bool = True
+    min_vote: float = 0.2
 
     def __post_init__(self):
         set_ = object.__setattr__.__get__(self)
@@ -391,6 +401,7 @@ class ExtractSettings:
         set_("cull", bool(self.cull))
         set_("cull_far", check_real("cull_far", self.cull_far, lo=0.0, lo_open=True, optional=True))
         set_("min_evidence", check_real("min_evidence", self.min_evidence, lo=0.0))
+        set_("min_vote", check_real("min_vote", self.min_vote, lo=0.0, hi=1.0))
         # q lies in [0, 1]: tau outside [0, 1) (or NaN) would select nothing, silently.
         set_("threshold", check_real("threshold", self.threshold, lo=0.0, optional=True))
         if self.threshold is not None and not self.threshold < 1.0:

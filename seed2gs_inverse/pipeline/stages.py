@@ -698,12 +698,14 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     Notes
     -----
     ``solve(stack, masks, method, init=G0, min_evidence=settings.min_evidence,
-    smoothness=smoothness, graph=graph, **settings.solver_kwargs())``:
+    min_vote=settings.min_vote, smoothness=smoothness, graph=graph, **settings.solver_kwargs())``:
     Gaussians seen (almost) only on unknown pixels carry no evidence (an
     unregularised fit could drive their logits anywhere on a trace of
     weight), so the solver gives them the prior (G0 membership), or, with
     ``smoothness > 0``, the harmonic extension of their neighbours on the
-    graph. With ``settings.follow_faint`` (default) the Gaussians of the
+    graph; a Gaussian outside G0 whose masks call it object on less than
+    ``settings.min_vote`` of its known weight ends at 0. With
+    ``settings.follow_faint`` (default) the Gaussians of the
     graph's region below its ``min_opacity`` then take the membership of
     their nearest opaque neighbours
     (:func:`~.completion.faint_follow_matrix`): their own evidence is a trace.
@@ -732,7 +734,7 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     masks = list(masks)  # read twice (the solve, the islands' votes): a generator too
     stack = as_stack(stack, masks)
     result = solve(stack, masks, method=settings.method, init=lift.g0, min_evidence=settings.min_evidence,
-                   progress=progress, smoothness=smoothness, graph=graph, **settings.solver_kwargs())
+                   min_vote=settings.min_vote, progress=progress, smoothness=smoothness, graph=graph, **settings.solver_kwargs())
     q = np.asarray(result.q, dtype=np.float32)
     tau = result.threshold if settings.threshold is None else float(settings.threshold)
     if (settings.seed_connected or settings.follow_faint or settings.follow_weak) and scene is None:

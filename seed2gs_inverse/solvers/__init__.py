@@ -5,7 +5,7 @@ Every method solves the same problem: given fixed per-view operators
 ``W(c) q ~ Y(c)`` in every view. One call, interchangeable methods::
 
     result = solve(operators, masks, method="weighted_bce", init=None, min_evidence=0.0,
-                   smoothness=0.0, graph=None, **options)
+                   min_vote=0.0, smoothness=0.0, graph=None, **options)
 
 Methods (one module each, equations in their docstrings):
 
@@ -17,7 +17,9 @@ Methods (one module each, equations in their docstrings):
 Common to every method: ``min_evidence`` (Gaussians without real evidence
 keep the prior) or, with ``smoothness > 0`` and a Gaussian ``graph``, the
 graph-Laplacian regulariser of :mod:`.smoothing` (they take the harmonic
-extension of their neighbours instead).
+extension of their neighbours instead), and ``min_vote`` (a Gaussian whose
+masks call it object on less than that share of its known weight does not
+end above its prior).
 
 New methods register themselves with :func:`register_method` and return a
 :class:`MethodResult`; :func:`method_options` lists a method's options.
@@ -59,7 +61,7 @@ COUNT_LIMITS = {"max_iter": 100_000, "inner_iters": 100_000, "maxcor": 1_000, "p
 
 
 def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidence: float = 0.0,
-          progress=None, smoothness: float = 0.0, graph=None, **options) -> SolveResult:
+          progress=None, smoothness: float = 0.0, graph=None, min_vote: float = 0.0, **options) -> SolveResult:
     """Recover per-Gaussian foreground probabilities ``q`` from per-view masks.
 
     Parameters
@@ -100,6 +102,16 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
         Symmetric non-negative Gaussian affinities
         (:func:`seed2gs_inverse.graph.gaussian_graph`); needed when
         ``smoothness > 0``.
+    min_vote : float in [0, 1], default 0
+        Common to every method: a Gaussian with evidence (``k_i >=
+        min_evidence``, ``k_i > 0``) whose masks call it object on less than
+        this share of its known weight, ``v_i = (A^T y)_i / k_i < min_vote``
+        (``y`` 0 at unknown pixels: the closed-form vote), ends no higher
+        than its prior: ``q_i = min(q_i, q0_i)``, after the regulariser. A
+        per-pixel fit can raise such a Gaussian on the few object pixels it
+        shares with an object that cannot fill them (a large splat of the
+        ground under an object's base), against most of its own pixels.
+        ``info["n_vote_capped"]`` counts the Gaussians it lowered. ``0``: off.
     progress : callable, optional
         ``progress(SolveProgress(iteration, total, loss))`` after every
         iteration of the iterative methods (L-BFGS iterations of
@@ -117,11 +129,11 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
     Raises
     ------
     ValidationError
-        Bad operators, masks, init, min_evidence, options, or a ``graph``
+        Bad operators, masks, init, min_evidence, min_vote, options, or a ``graph``
         that does not fit (messages name the view or argument), all before
         the method runs.
     """
-    fn = _check_request(operators, method, min_evidence, progress, options, smoothness, graph)
+    fn = _check_request(operators, method, min_evidence, progress, options, smoothness, graph, min_vote)
     t0 = time.perf_counter()
     stack, mask_list = stack_masks(operators, masks)
     n = stack.n_gaussians
@@ -130,13 +142,14 @@ def solve(operators, masks, method: str = "weighted_bce", init=None, min_evidenc
     cols = touched_columns(stack, graph if smoothness > 0 else None) if method in LOCAL_METHODS else None
     if cols is None or cols.size in (0, n):
         problem = problem_of(stack, mask_list, init)
-        result = _solve_prepared(fn, problem, method, min_evidence, progress, smoothness, graph, options)
+        result = _solve_prepared(fn, problem, method, min_evidence, progress, smoothness, graph, options, min_vote)
     else:
         # The other Gaussians keep the prior whatever the method does (module _local): solve on these.
         prior = SupportPrior(init, n)  # no (N,) float64 prior: the rest's q is spread from its two values
         problem = problem_of(stack.on_columns(cols), mask_list, init, prior.at(cols))
         local = _solve_prepared(fn, problem, method, min_evidence, progress, smoothness,
-                                None if graph is None or smoothness == 0 else graph_on_nodes(graph, cols), options)
+                                None if graph is None or smoothness == 0 else graph_on_nodes(graph, cols), options,
+                                min_vote)
         result = _scattered(local, cols, prior, min_evidence, smoothness)
     result.seconds = time.perf_counter() - t0
     return result
@@ -168,7 +181,7 @@ def _scattered(local: SolveResult, cols: np.ndarray, prior: SupportPrior, min_ev
 
 
 def _solve_prepared(fn, problem: Problem, method: str, min_evidence: float, progress, smoothness: float, graph,
-                    options: dict) -> SolveResult:
+                    options: dict, min_vote: float = 0.0) -> SolveResult:
     """:func:`solve` on a prepared problem (``graph`` checked, of the problem's columns, when ``smoothness > 0``)."""
     t0 = time.perf_counter()
     # Solvers call BLAS on vectors of length N every iteration; a multi-threaded
@@ -208,11 +221,18 @@ def _solve_prepared(fn, problem: Problem, method: str, min_evidence: float, prog
                                graph, float(smoothness), problem.prior).astype(np.float32)
     else:
         q[weak] = problem.prior[weak].astype(np.float32)
+    n_capped = 0
+    if min_vote > 0:
+        # against its masks: the vote (A^T y) / k below min_vote, on a Gaussian with evidence
+        against = ~weak & ~unobserved & (problem.AT @ problem.y < min_vote * problem.known_weight)
+        capped = against & (q > problem.prior)
+        q[capped] = problem.prior[capped].astype(np.float32)
+        n_capped = int(capped.sum())
     t_smooth = time.perf_counter() - t_smooth
     weights = np.ones(problem.n_views) if out.view_weights is None else np.asarray(out.view_weights, np.float64)
     info = dict(out.info)
     info.update(min_evidence=float(min_evidence), n_weak_evidence=int(weak.sum()), smoothness=float(smoothness),
-                seconds_method=t_method, seconds_smoothing=t_smooth)
+                min_vote=float(min_vote), n_vote_capped=n_capped, seconds_method=t_method, seconds_smoothing=t_smooth)
     return SolveResult(q=q, method=method, iterations=int(out.iterations), history=list(out.history),
                        view_weights=weights, unobserved=unobserved, seconds=time.perf_counter() - t0,
                        threshold=float(out.threshold), info=info)
@@ -266,17 +286,18 @@ def _check_kind(method: str, name: str, value, default) -> None:
         raise ValidationError(f"{where} must be a string, got {value!r}")
 
 
-def _check_request(operators, method, min_evidence, progress, options, smoothness=0.0, graph=None):
+def _check_request(operators, method, min_evidence, progress, options, smoothness=0.0, graph=None, min_vote=0.0):
     """Validate what :func:`solve` can check before preparing the problem; returns the method.
 
     Catches, with a ValidationError naming the argument or view: a method
     name that is not a string, unknown options, count options outside
-    :data:`COUNT_LIMITS`, a bad ``min_evidence``, ``smoothness`` (or one
+    :data:`COUNT_LIMITS`, a bad ``min_evidence``, ``min_vote``, ``smoothness`` (or one
     without ``graph``) or ``progress``, operators
     without columns (no Gaussians). (Weights outside [0, 1] are refused when the operators are made.)
     """
     fn = check_method_options(method, options)
     check_range("min_evidence", min_evidence, "a finite number >= 0", lo=0.0)
+    check_range("min_vote", min_vote, "a number in [0, 1]", lo=0.0, hi=1.0)
     check_range("smoothness", smoothness, "a finite number >= 0", lo=0.0)
     if smoothness > 0 and graph is None:
         raise ValidationError("smoothness > 0 needs graph=: the Gaussians' affinity matrix "

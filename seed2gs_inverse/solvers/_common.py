@@ -220,7 +220,8 @@ class SolveResult:
     info : dict
         Method-specific extras (e.g. the chosen view order), plus what
         ``solve`` adds for every method: ``min_evidence``,
-        ``n_weak_evidence``, ``smoothness``, and the wall-clock split of
+        ``n_weak_evidence``, ``smoothness``, ``min_vote``,
+        ``n_vote_capped``, and the wall-clock split of
         ``seconds`` into ``seconds_method`` (the method itself) and
         ``seconds_smoothing`` (the graph regulariser, or resetting the
         Gaussians without evidence to the prior).

@@ -9,7 +9,7 @@ the run's solve took, so that solving again reproduces its ``q``::
                          "n_gaussians": N, "n_views": V, "fingerprint": "...",
                          "operators": "operators", "masks": "masks",
                          "method": "...", "options": {...},
-                         "min_evidence": ..., "smoothness": ..., "threshold": ...,
+                         "min_evidence": ..., "min_vote": ..., "smoothness": ..., "threshold": ...,
                          "init": "init.npy", "graph": "graph.npz" | null,
                          "follow": "follow.npz" | null, "islands": "islands.npy" | null}
     DIR/operators/      the OperatorStack (OperatorStack.save)
@@ -91,6 +91,9 @@ class SolveInputs:
         The threshold the run selected with (``q > threshold``).
     directory : Path or None
         Where the inputs were read from.
+    min_vote : float
+        ``solve``'s ``min_vote`` (0 in files written before it existed:
+        those runs solved without it).
     """
 
     operators: OperatorStack
@@ -105,6 +108,7 @@ class SolveInputs:
     islands: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     threshold: float | None = None
     directory: Path | None = None
+    min_vote: float = 0.0
 
     def solve(self, method: str | None = None, *, keep_islands: bool = False, progress=None,
               **options) -> SolveResult:
@@ -116,7 +120,7 @@ class SolveInputs:
             Default: the run's :attr:`method`, with :attr:`options` updated
             by ``options``. Another method takes ``options`` alone (the
             run's options belong to its method). Every method gets the
-            run's ``init``, ``min_evidence``, ``smoothness`` and ``graph``.
+            run's ``init``, ``min_evidence``, ``min_vote``, ``smoothness`` and ``graph``.
         keep_islands : bool
             False (default): apply :attr:`follow` and set :attr:`islands` to
             0, as the run did, so the run's own method gives the run's ``q``
@@ -142,7 +146,7 @@ class SolveInputs:
         m = self.method if method is None else method
         opts = {**self.options, **options} if m == self.method else dict(options)
         result = solve(self.operators, self.masks, method=m, init=self.init, min_evidence=self.min_evidence,
-                       smoothness=self.smoothness, graph=self.graph, progress=progress, **opts)
+                       min_vote=self.min_vote, smoothness=self.smoothness, graph=self.graph, progress=progress, **opts)
         # the run's post-solve rules, in its order
         q = np.array(result.q, dtype=np.float32)
         if self.follow is not None:
@@ -168,7 +172,7 @@ def _plain(value):
 
 def write_solve_inputs(directory, operators: OperatorStack, masks, *, method: str, options: dict | None = None,
                        init=None, min_evidence: float = 0.0, smoothness: float = 0.0, graph=None, follow=None,
-                       islands=None, threshold: float | None = None) -> dict:
+                       islands=None, threshold: float | None = None, min_vote: float = 0.0) -> dict:
     """Write a solve's inputs into the existing folder ``directory`` (layout: the module docstring).
 
     Parameters
@@ -198,6 +202,8 @@ def write_solve_inputs(directory, operators: OperatorStack, masks, *, method: st
         Gaussians set to 0 after the solve and ``follow``; None: no post-solve rule ran.
     threshold : float, optional
         The selection threshold of the run, in [0, 1).
+    min_vote : float
+        ``solve``'s ``min_vote``, in [0, 1].
 
     Returns
     -------
@@ -224,6 +230,7 @@ def write_solve_inputs(directory, operators: OperatorStack, masks, *, method: st
     options = _plain(dict(options or {}))
     check_method_options(method, options)
     min_evidence = check_real("min_evidence", min_evidence, lo=0.0)
+    min_vote = check_real("min_vote", min_vote, lo=0.0, hi=1.0)
     smoothness = check_real("smoothness", smoothness, lo=0.0)
     threshold = check_real("threshold", threshold, lo=0.0, hi=1.0, hi_open=True, optional=True)
     if smoothness > 0 and graph is None:
@@ -255,7 +262,7 @@ def write_solve_inputs(directory, operators: OperatorStack, masks, *, method: st
     settings = {"format": FORMAT_NAME, "version": FORMAT_VERSION, "n_gaussians": int(n),
                 "n_views": len(operators), "fingerprint": operators.fingerprint,
                 "operators": FILES["operators"], "masks": FILES["masks"], "method": method, "options": options,
-                "min_evidence": min_evidence, "smoothness": smoothness, "threshold": threshold,
+                "min_evidence": min_evidence, "min_vote": min_vote, "smoothness": smoothness, "threshold": threshold,
                 "init": written.get("init"), "graph": written.get("graph"), "follow": written.get("follow"),
                 "islands": written.get("islands")}
     with open(d / SETTINGS_FILE, "w", encoding="utf-8") as fh:
@@ -368,6 +375,7 @@ def load_solve_inputs(directory, operators=None, masks=None) -> SolveInputs:
         raise FormatError(f"{path}: {exc}") from None
     min_evidence = float(_field(path, rec, "min_evidence", _is_real, "a finite number >= 0"))
     smoothness = float(_field(path, rec, "smoothness", _is_real, "a finite number >= 0"))
+    min_vote = _field(path, rec, "min_vote", lambda v: _is_real(v) and v <= 1, "a number in [0, 1]", required=False)
     threshold = _field(path, rec, "threshold", lambda v: _is_real(v) and v < 1, "a number in [0, 1)",
                        required=False)
     names = {key: _field(path, rec, key, _is_name, "a file name inside the folder", required=key not in
@@ -399,4 +407,5 @@ def load_solve_inputs(directory, operators=None, masks=None) -> SolveInputs:
         arr = _npy(d / names["islands"], "the islands solve.json names")
         islands = index_list(arr, n, str(d / names["islands"]))
     return SolveInputs(stack, ys, method, dict(options), init, min_evidence, smoothness, graph, follow, islands,
-                       None if threshold is None else float(threshold), d)
+                       None if threshold is None else float(threshold), d,
+                       min_vote=0.0 if min_vote is None else float(min_vote))
