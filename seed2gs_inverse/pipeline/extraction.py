@@ -91,8 +91,8 @@ class Extraction:
         ``tracker``, ``grounder`` (class names), ``n_weak_evidence``
         (Gaussians without real evidence: reset to the prior by
         ``min_evidence``, or decided by the regulariser), ``n_vote_capped``
-        (lowered to the prior against their masks' vote, ``min_vote``), ``n_disconnected``
-        (above the threshold in islands apart from G0, set to 0), ``support``
+        (lowered to the prior against their masks' vote, ``min_vote``),
+        ``n_disconnected`` (above the threshold in islands apart from G0, set to 0), ``support``
         (the support surface the tracker labelled background,
         :func:`~seed2gs_inverse.pipeline.stages.support_band`), ``smoothness``
         (the regulariser's lambda used, after ``None`` was resolved),

@@ -698,7 +698,8 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     Notes
     -----
     ``solve(stack, masks, method, init=G0, min_evidence=settings.min_evidence,
-    min_vote=settings.min_vote, smoothness=smoothness, graph=graph, **settings.solver_kwargs())``:
+    min_vote=settings.min_vote, smoothness=smoothness, graph=graph,
+    **settings.solver_kwargs())``:
     Gaussians seen (almost) only on unknown pixels carry no evidence (an
     unregularised fit could drive their logits anywhere on a trace of
     weight), so the solver gives them the prior (G0 membership), or, with
@@ -734,7 +735,8 @@ def solve_selection(stack, masks, lift: SeedLift, settings: ExtractSettings, pro
     masks = list(masks)  # read twice (the solve, the islands' votes): a generator too
     stack = as_stack(stack, masks)
     result = solve(stack, masks, method=settings.method, init=lift.g0, min_evidence=settings.min_evidence,
-                   min_vote=settings.min_vote, progress=progress, smoothness=smoothness, graph=graph, **settings.solver_kwargs())
+                   min_vote=settings.min_vote, progress=progress, smoothness=smoothness, graph=graph,
+                   **settings.solver_kwargs())
     q = np.asarray(result.q, dtype=np.float32)
     tau = result.threshold if settings.threshold is None else float(settings.threshold)
     if (settings.seed_connected or settings.follow_faint or settings.follow_weak) and scene is None:

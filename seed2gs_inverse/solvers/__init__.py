@@ -221,6 +221,7 @@ def _solve_prepared(fn, problem: Problem, method: str, min_evidence: float, prog
                                graph, float(smoothness), problem.prior).astype(np.float32)
     else:
         q[weak] = problem.prior[weak].astype(np.float32)
+    t_smooth = time.perf_counter() - t_smooth
     n_capped = 0
     if min_vote > 0:
         # against its masks: the vote (A^T y) / k below min_vote, on a Gaussian with evidence
@@ -228,7 +229,6 @@ def _solve_prepared(fn, problem: Problem, method: str, min_evidence: float, prog
         capped = against & (q > problem.prior)
         q[capped] = problem.prior[capped].astype(np.float32)
         n_capped = int(capped.sum())
-    t_smooth = time.perf_counter() - t_smooth
     weights = np.ones(problem.n_views) if out.view_weights is None else np.asarray(out.view_weights, np.float64)
     info = dict(out.info)
     info.update(min_evidence=float(min_evidence), n_weak_evidence=int(weak.sum()), smoothness=float(smoothness),
@@ -291,8 +291,8 @@ def _check_request(operators, method, min_evidence, progress, options, smoothnes
 
     Catches, with a ValidationError naming the argument or view: a method
     name that is not a string, unknown options, count options outside
-    :data:`COUNT_LIMITS`, a bad ``min_evidence``, ``min_vote``, ``smoothness`` (or one
-    without ``graph``) or ``progress``, operators
+    :data:`COUNT_LIMITS`, a bad ``min_evidence``, ``min_vote``,
+    ``smoothness`` (or one without ``graph``) or ``progress``, operators
     without columns (no Gaussians). (Weights outside [0, 1] are refused when the operators are made.)
     """
     fn = check_method_options(method, options)
