@@ -69,7 +69,7 @@ __all__ = ["SupportSurface", "support_surface", "SUPPORT_DEFAULTS"]
 
 #: Keywords of :func:`support_surface` that extract() passes (chosen on benchmarks/bench_extract.py).
 SUPPORT_DEFAULTS = {"inner": 1.0, "outer": 2.0, "min_alignment": 0.9, "min_opacity": 0.3, "min_splats": 20,
-                    "margin": 0.05, "contact": 0.5, "contact_reach": 1.5}
+                    "margin": 0.05, "contact": 0.75, "contact_reach": 1.5}
 
 
 @dataclass(frozen=True)
