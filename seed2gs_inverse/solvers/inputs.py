@@ -146,7 +146,8 @@ class SolveInputs:
         m = self.method if method is None else method
         opts = {**self.options, **options} if m == self.method else dict(options)
         result = solve(self.operators, self.masks, method=m, init=self.init, min_evidence=self.min_evidence,
-                       min_vote=self.min_vote, smoothness=self.smoothness, graph=self.graph, progress=progress, **opts)
+                       min_vote=self.min_vote, smoothness=self.smoothness, graph=self.graph, progress=progress,
+                       **opts)
         # the run's post-solve rules, in its order
         q = np.array(result.q, dtype=np.float32)
         if self.follow is not None:
@@ -375,7 +376,9 @@ def load_solve_inputs(directory, operators=None, masks=None) -> SolveInputs:
         raise FormatError(f"{path}: {exc}") from None
     min_evidence = float(_field(path, rec, "min_evidence", _is_real, "a finite number >= 0"))
     smoothness = float(_field(path, rec, "smoothness", _is_real, "a finite number >= 0"))
-    min_vote = _field(path, rec, "min_vote", lambda v: _is_real(v) and v <= 1, "a number in [0, 1]", required=False)
+    # 0 for a folder written before min_vote existed: that run solved without it
+    min_vote = float(_field(path, rec, "min_vote", lambda v: _is_real(v) and v <= 1, "a number in [0, 1]",
+                            default=0.0, required=False))
     threshold = _field(path, rec, "threshold", lambda v: _is_real(v) and v < 1, "a number in [0, 1)",
                        required=False)
     names = {key: _field(path, rec, key, _is_name, "a file name inside the folder", required=key not in
@@ -407,5 +410,4 @@ def load_solve_inputs(directory, operators=None, masks=None) -> SolveInputs:
         arr = _npy(d / names["islands"], "the islands solve.json names")
         islands = index_list(arr, n, str(d / names["islands"]))
     return SolveInputs(stack, ys, method, dict(options), init, min_evidence, smoothness, graph, follow, islands,
-                       None if threshold is None else float(threshold), d,
-                       min_vote=0.0 if min_vote is None else float(min_vote))
+                       None if threshold is None else float(threshold), d, min_vote=min_vote)
