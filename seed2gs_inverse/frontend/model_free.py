@@ -76,6 +76,17 @@ footprint, cut off from the object by level ground or standing in front of
 it) takes its held-back 0 after all. Level ground in the zone faces along
 ``n`` and keeps its copied 0; a 1 is copied as everywhere else.
 
+**A seed accurate to a few pixels (``seed_band``).** A mask drawn by hand or
+made by a segmenter misses its object's edge by a few pixels. Short of it,
+the seed labels the object's own rim background; copied into the next
+frames, those labels lie on the object, at its depth and in its colour,
+beside its newly revealed surfaces, and the fill spreads them over the far
+side, frame after frame. Past it, the ground around the object is labelled
+1 and copied on the same way. With ``seed_band`` :math:`b`, the seed's pixels within
+:math:`b` pixels of its edge (a :math:`(2b+1)^2` window about them holds both
+labels) are unknown in frame 0: no frame copies a label from them, and the
+solve reads none there.
+
 Frames are labelled in the order of :meth:`GeometricTracker._order`: always
 the frame nearest to one already labelled, so a closed orbit is walked from
 both sides of the reference.
@@ -426,6 +437,13 @@ class GeometricTracker:
         :func:`~seed2gs_inverse.pipeline.extract.extract` sets it with the
         support plane (:meth:`~seed2gs_inverse.pipeline.support.SupportSurface.contact_zone`);
         a zero height or radius: no contact zone.
+    seed_band : int
+        The seed mask's pixels within this many pixels of its 0/1 edge are
+        unknown (NaN) in frame 0, as the first source and as frame 0's mask
+        (module docstring), >= 0. Default 0: the seed as given, for a mask
+        exact to the pixel (one cut from the scene, as box and point prompts
+        are). A mask drawn by hand or made by a segmenter is a few pixels off
+        its object's edge: 3 (benchmarks/bench_extract.py ``--mask-error``).
 
     Raises
     ------
@@ -442,7 +460,7 @@ class GeometricTracker:
                  min_support: float = 0.02, max_sources: int = 4, boundary_band: int = 0,
                  color_tol: float | None = 0.15, fill_depth_jump: float = 0.03, refill: bool = False,
                  fill_passes: int = 1, support_plane=None, support_alignment: float = 0.8,
-                 fill_from_empty: bool = False, contact_zone=None):
+                 fill_from_empty: bool = False, contact_zone=None, seed_band: int = 0):
         # NaN fails every range check: it is refused like any other value out of range.
         self.alpha_min = check_real("alpha_min", alpha_min, lo=0, hi=1, lo_open=True, hi_open=True)
         self.depth_tol = check_real("depth_tol", depth_tol, lo=0, lo_open=True)
@@ -451,12 +469,14 @@ class GeometricTracker:
         self.fill_sigma_color = check_real("fill_sigma_color", fill_sigma_color, lo=0, lo_open=True)
         self.min_support = check_real("min_support", min_support, lo=0, hi=1, hi_open=True)
         self.color_tol = check_real("color_tol", color_tol, lo=0, optional=True)
-        for name, v, lo in (("max_sources", max_sources, 1), ("boundary_band", boundary_band, 0)):
+        for name, v, lo in (("max_sources", max_sources, 1), ("boundary_band", boundary_band, 0),
+                            ("seed_band", seed_band, 0)):
             if (isinstance(v, bool) or not isinstance(v, numbers.Real) or not float(v).is_integer()
                     or v < lo):  # 3.0 is 3; 2.5 is refused, not truncated, and a negative band too
                 raise ValidationError(f"{name} must be a whole number >= {lo}, got {v!r}")
         self.max_sources = int(max_sources)
         self.boundary_band = int(boundary_band)
+        self.seed_band = int(seed_band)
         self.fill_depth_jump = check_real("fill_depth_jump", fill_depth_jump, lo=0, lo_open=True)
         if isinstance(fill_passes, bool) or int(fill_passes) != fill_passes or fill_passes < 1:
             raise ValidationError(f"fill_passes must be an integer >= 1, got {fill_passes!r}")
@@ -499,7 +519,9 @@ class GeometricTracker:
                 raise ValidationError(f"tracker: reference {j} mask has shape {m.shape}, its frame is "
                                       f"{f.camera.image_shape}")
             pool.append((f, m))
-        seed = np.where(np.isnan(seed), np.nan, (seed > 0.5).astype(np.float64))
+        # A drawn or segmenter-made mask is accurate to a few pixels only: its edge band is no
+        # evidence (a 0 on the object's own rim, copied on, is filled over its revealed far side).
+        seed = _core(np.where(np.isnan(seed), np.nan, (seed > 0.5).astype(np.float64)), self.seed_band)
         self._filled = {i: e for i, e in self._filled.items() if e[0]() is not None}
         # Labels as warped: 0 / 1 where observed, 0.25 / 0.75 where a fill
         # decided them (their provenance travels with the copy).
