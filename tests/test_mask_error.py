@@ -1,13 +1,14 @@
 """A seed mask a few pixels off its object's edge (``GeometricTracker(seed_band=)``).
 
 A drawn or segmenter-made mask is accurate to a few pixels only. Shrunk by
-2 px, its rim labels the object's own rim background; copied into the orbit
-views, those 0s sit next to the object's newly revealed surfaces, in their
-colour and at their depth, and the fill spreads them over the far side. The
-seed band leaves the seed's labels within ``seed_band`` pixels of its edge
-out of what the tracker copies.
+2 px, it labels the object's own rim background; copied into the orbit
+views, those labels sit next to the object's newly revealed surfaces, in
+their colour and at their depth, and the fill spreads them over the far
+side. The seed band leaves the seed's labels within ``seed_band`` pixels of
+its edge out of what the tracker copies.
 
-The check is end to end: a plush standing on a textured ground
+Two checks: frame 1's labels against a brute-force band, and end to end, a
+plush standing on a textured ground
 (``synthetic.ground``), its true mask shrunk by 2 px, scored on held-out
 views at 10 degrees of elevation all around (views the pipeline never
 rendered) against the exact truth.
