@@ -1,4 +1,4 @@
-"""`seed2gs extract --up / --cameras / --point-mode / --smoothness / --completion / --keep-islands` / `--no-follow-faint` / `--no-follow-weak`."""
+"""`seed2gs extract --up / --cameras / --point-mode / --smoothness / --completion / --keep-islands` / `--no-follow-faint` / `--no-follow-weak` / `--mask-tolerance`."""
 
 import json
 
@@ -172,3 +172,21 @@ def test_near_margin_reaches_the_settings(files, capsys):
     assert cli.main(["extract", "--from-report", str(d / "nm" / "report.json"), "--near-margin", "1", "-o",
                      str(d / "nm_rep")]) == 2
     assert "cannot be combined with --near-margin" in capsys.readouterr().err
+
+
+def test_mask_tolerance_reaches_the_tracker_and_the_replay(files, capsys):
+    d, _ = files
+    assert _extract(d, d / "mt", "--mask-tolerance", "5", "--up", "level") == 0, capsys.readouterr().err
+    rep = json.loads((d / "mt" / "report.json").read_text())
+    assert rep["settings"]["mask_tolerance"] == 5 and rep["resolved"]["seed_band"] == 5
+    assert cli.main(["extract", "--from-report", str(d / "mt" / "report.json"), "-o", str(d / "mt_rep")]) == 0, \
+        capsys.readouterr().err
+    replayed = json.loads((d / "mt_rep" / "report.json").read_text())
+    assert replayed["settings"]["mask_tolerance"] == 5 and replayed["resolved"]["seed_band"] == 5
+    assert cli.main(["extract", "--from-report", str(d / "mt" / "report.json"), "--mask-tolerance", "0", "-o",
+                     str(d / "mt_rep2")]) == 2
+    assert "cannot be combined with --mask-tolerance" in capsys.readouterr().err
+    assert _extract(d, d / "mt_bad", "--mask-tolerance", "-1") == 2
+    err = capsys.readouterr().err
+    assert "--mask-tolerance must be" in err, err
+    assert not (d / "mt_bad").exists()

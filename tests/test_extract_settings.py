@@ -31,10 +31,12 @@ DEFAULTS_BEFORE = {
 # (benchmarks/bench_scanned.py); the orbit views cut what stands in front of the object
 # (near_margin, measured on bench_extract.py and tests/test_occluded_views.py); Gaussians that
 # dominate no pixel follow their strong neighbours (follow_weak, measured on bench_extract.py); a
-# Gaussian whose masks mostly call it background is not selected (min_vote, bench_extract.py).
+# Gaussian whose masks mostly call it background is not selected (min_vote, bench_extract.py); a mask
+# prompt may miss its object's edge by 3 px (mask_tolerance, bench_extract.py --mask-error).
 DEFAULTS = {**DEFAULTS_BEFORE, "up": "auto", "min_weight": 0.01, "point_mode": "object", "smoothness": None,
             "completion": None, "graph_options": None, "seed_connected": True, "support_background": True,
-            "follow_faint": True, "near_margin": 1.0, "follow_weak": True, "min_vote": 0.2}
+            "follow_faint": True, "near_margin": 1.0, "follow_weak": True, "min_vote": 0.2,
+            "mask_tolerance": 3}
 
 
 def test_defaults_are_those_of_the_old_extract_but_issue_10s():
@@ -217,8 +219,8 @@ def test_extract_settings_and_overrides(tiny):
     assert ExtractSettings.from_dict(rep["settings"]) == ex.settings
     assert set(rep["resolved"]) == {"view_scale", "reference_scale", "up", "up_method", "up_confidence",
                                     "threshold", "solver_options", "n_weak_evidence", "n_vote_capped",
-                                    "n_disconnected", "smoothness", "tracker", "grounder", "support", "warnings",
-                                    "caps"}
+                                    "n_disconnected", "smoothness", "tracker", "seed_band", "grounder", "support",
+                                    "warnings", "caps"}
     assert rep["resolved"]["caps"] == {}  # 64x48 at scale 0.5: no cap reached
     assert rep["resolved"]["warnings"] == []  # a sound extraction: nothing to warn about
     assert rep["resolved"]["smoothness"] == 1.0  # None: on with the model-free tracker

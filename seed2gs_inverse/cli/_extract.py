@@ -45,7 +45,7 @@ _SETTING_FLAGS = {"method": "--method", "views": "--views", "orbit_scale": "--or
                   "near_margin": "--near-margin", "threshold": "--threshold", "up": "--up", "option": "--option", "point_mode": "--point-mode",
                   "smoothness": "--smoothness", "completion": "--completion", "keep_islands": "--keep-islands",
                   "no_support_background": "--no-support-background", "no_follow_faint": "--no-follow-faint",
-                  "no_follow_weak": "--no-follow-weak"}
+                  "no_follow_weak": "--no-follow-weak", "mask_tolerance": "--mask-tolerance"}
 _PROMPT_FLAGS = {"mask": "--mask", "box": "--box", "point": "--point", "prompt": "--prompt",
                  "negative": "--negative", "camera": "--camera", "cameras": "--cameras", "look_at": "--look-at",
                  "look_up": "--look-up", "fov": "--fov", "size": "--size"}
@@ -126,6 +126,11 @@ def register(subparsers) -> None:
     p.add_argument("--point-mode", choices=("object", "region"), default=None,
                    help="--point: grow the click to the whole object in 3D (object, the default) or keep "
                         "its colour region (region)")
+    p.add_argument("--mask-tolerance", type=int, default=None, metavar="PX",
+                   help=f"how many pixels a --mask (or a --prompt's mask) may miss its object's edge by, "
+                        f"{LIMITS['mask_tolerance'][0]}..{LIMITS['mask_tolerance'][1]} (default 3): the tracker "
+                        f"copies no label from that near an edge of the mask that the scene does not show "
+                        f"(no depth step, no colour step at the ground); 0 trusts the mask to the pixel")
     p.add_argument("--smoothness", type=float, default=None, metavar="LAMBDA",
                    help="graph-Laplacian regulariser of the solve: Gaussians no labelled view saw take their "
                         "neighbours' membership (0: off; default 1 with the model-free tracker, 0 with SAM2)")
@@ -409,6 +414,7 @@ def settings_from_args(args):
              "max_reference_pixels": getattr(args, "max_reference_pixels", None),
              "threshold": args.threshold, "up": _up(args.up), "point_mode": args.point_mode,
              "smoothness": args.smoothness, "completion": args.completion,
+             "mask_tolerance": getattr(args, "mask_tolerance", None),
              "seed_connected": False if getattr(args, "keep_islands", False) else None,
              "support_background": False if getattr(args, "no_support_background", False) else None,
              "follow_faint": False if getattr(args, "no_follow_faint", False) else None,
@@ -417,7 +423,8 @@ def settings_from_args(args):
     flags = {"n_views": "--views", "orbit_scale": "--orbit-scale", "threshold": "--threshold", "up": "--up",
              "max_view_pixels": "--max-view-pixels", "max_reference_pixels": "--max-reference-pixels",
              "method": "--method", "solver_options": "--option", "point_mode": "--point-mode",
-             "smoothness": "--smoothness", "completion": "--completion", "near_margin": "--near-margin"}
+             "smoothness": "--smoothness", "completion": "--completion", "near_margin": "--near-margin",
+             "mask_tolerance": "--mask-tolerance"}
     kw = {k: v for k, v in given.items() if v is not None}
     near = getattr(args, "near_margin", None)
     if near is not None:
@@ -507,6 +514,11 @@ def _recorded_settings(rep: dict, progress: bool, where: str):
     return settings
 
 
+def _is_given(value) -> bool:
+    """Whether a parsed flag was given: 0 is (``0 == False``, so not a test against a tuple of unset values)."""
+    return value is not None and value is not False and value != []
+
+
 def _from_report(args):
     """(scene path, camera, camera spec, prompt, settings, models path, format, run) of a recorded run.
 
@@ -515,7 +527,7 @@ def _from_report(args):
     ValidationError naming the key).
     """
     given = [flag for name, flag in {**_SETTING_FLAGS, **_PROMPT_FLAGS}.items()
-             if getattr(args, name, None) not in (None, [], False)]
+             if _is_given(getattr(args, name, None))]
     if given:
         raise ValidationError(f"--from-report repeats a recorded run; it cannot be combined with {', '.join(given)}")
     rep = _read_report(args.from_report)

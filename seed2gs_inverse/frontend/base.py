@@ -16,6 +16,9 @@ through this module, never by the tracker's class:
 * :class:`ContactZoneTracker`: it can distrust the background labels it
   copies onto the object's base just above that surface (``contact_zone``,
   ``with_contact_zone``);
+* :class:`SeedBandTracker`: it can leave the seed's labels near an edge
+  the scene does not back out of what it copies (``seed_band``,
+  ``with_seed_band``);
 * :class:`LabelFiller`: it can decide the unknown pixels of one labelled
   frame from the frame's image (``fill_labels``).
 """
@@ -28,7 +31,7 @@ from typing import Any, Protocol, Sequence, runtime_checkable
 import numpy as np
 
 __all__ = ["Candidate", "Detection", "Grounder", "Tracker", "SupportPlaneTracker", "ContactZoneTracker",
-           "LabelFiller", "wants_regularizer"]
+           "SeedBandTracker", "LabelFiller", "wants_regularizer"]
 
 
 @dataclass
@@ -144,6 +147,23 @@ class ContactZoneTracker(Protocol):
     contact_zone: Any
 
     def with_contact_zone(self, height: float, radius: float) -> Tracker:
+        ...
+
+
+@runtime_checkable
+class SeedBandTracker(Protocol):
+    """A tracker that copies no seed label from near the seed's edge where the scene does not back it.
+
+    ``seed_band`` is the band's width in pixels of frame 0, or None when
+    unset; ``with_seed_band(band)`` returns a copy of the tracker with that
+    width (the tracker itself is left as it is). The pipeline sets it from
+    ``ExtractSettings.mask_tolerance`` for a mask or text prompt, and to 0
+    for a box or point prompt, unless the tracker has a width of its own.
+    """
+
+    seed_band: Any
+
+    def with_seed_band(self, band: int) -> Tracker:
         ...
 
 

@@ -82,10 +82,26 @@ the seed labels the object's own rim background; copied into the next
 frames, those labels lie on the object, at its depth and in its colour,
 beside its newly revealed surfaces, and the fill spreads them over the far
 side, frame after frame. Past it, the ground around the object is labelled
-1 and copied on the same way. With ``seed_band`` :math:`b`, the seed's pixels within
-:math:`b` pixels of its edge (a :math:`(2b+1)^2` window about them holds both
-labels) are unknown in frame 0: no frame copies a label from them, and the
-solve reads none there.
+1 and copied on the same way. So the seed's edge is checked against frame
+0: for 4-adjacent pixels :math:`p` (labelled 1) and :math:`q` (labelled 0)
+it is *backed* where one of them is empty space (alpha below
+``alpha_min``) and the other not, or where the depth :math:`D` steps,
+
+.. math::
+
+    |\log D(p) - \log D(q)| > \log(1 + \text{fill\_depth\_jump})
+
+(the object's silhouette), or, with a contact zone, where :math:`q`'s
+surface point lies in its slab (within :math:`h_c` above the support band
+and :math:`\rho` of its axis, whatever way it faces) and the one-sided mean
+colours differ, :math:`\|\bar c_1(p) - \bar c_0(q)\|_\infty >`
+``color_tol`` (the base against the support; :math:`\bar c_l` is the mean
+over the pixels labelled :math:`l` in the 3x3 window). There the
+mask's edge is the scene's: a mask that follows it is right, and a band at
+the contact would lose the base. With ``seed_band`` :math:`b`, the seed's
+pixels within :math:`b` pixels of an edge pixel that is in no backed pair
+(and whose :math:`(2b+1)^2` window holds both labels) are unknown in frame
+0: no frame copies a label from them, and the solve reads none there.
 
 Frames are labelled in the order of :meth:`GeometricTracker._order`: always
 the frame nearest to one already labelled, so a closed orbit is walked from
@@ -245,6 +261,14 @@ def _keep_apart(lab: np.ndarray, held: np.ndarray, depth: np.ndarray, jump: floa
     lab[give] = held[give]
 
 
+def _whole(name: str, value, lo: int) -> int:
+    """``value`` as an int >= ``lo``: 3.0 is 3; 2.5, True and a value below ``lo`` are refused, not truncated."""
+    if (isinstance(value, bool) or not isinstance(value, numbers.Real) or not float(value).is_integer()
+            or value < lo):
+        raise ValidationError(f"{name} must be a whole number >= {lo}, got {value!r}")
+    return int(value)
+
+
 def _core(labels: np.ndarray, band: int) -> np.ndarray:
     """Labels with a band of ``band`` px on each side of every 0/1 boundary set to NaN."""
     if band <= 0:
@@ -255,6 +279,49 @@ def _core(labels: np.ndarray, band: int) -> np.ndarray:
     out = labels.copy()
     out[fg & bg] = np.nan
     return out
+
+
+def _side_mean(rgb: np.ndarray, side: np.ndarray) -> np.ndarray:
+    """(H, W, 3): the mean colour of the ``side`` pixels in the 3x3 window about each pixel (0 where there are none)."""
+    k = np.ones((3, 3), np.float32)
+    count = cv2.filter2D(side.astype(np.float32), -1, k, borderType=cv2.BORDER_CONSTANT)
+    total = cv2.filter2D(np.asarray(rgb, np.float32) * side[..., None], -1, k, borderType=cv2.BORDER_CONSTANT)
+    return total / np.maximum(count, 1.0)[..., None]
+
+
+def _unbacked_band(labels: np.ndarray, depth: np.ndarray, empty: np.ndarray, rgb: np.ndarray, band: int,
+                   jump: float, color_tol: float | None, slab: np.ndarray | None) -> np.ndarray:
+    """(H, W) bool: the pixels within ``band`` px of the labels' 0/1 edge where frame 0 does not back it.
+
+    See the module docstring (``seed_band``): a pair of 4-adjacent pixels
+    across the edge is backed where one of them is ``empty`` space and the
+    other not, by a relative depth step above ``jump``, or in the contact
+    ``slab`` (None: none) by a one-sided mean colour difference above
+    ``color_tol`` (None: no such rule).
+    """
+    fg, bg = labels == 1, labels == 0
+    log_depth = np.log(np.maximum(np.asarray(depth, np.float64), 1e-12))
+    step = np.log1p(jump)
+    by_colour = slab is not None and color_tol is not None
+    if by_colour:
+        inner, outer = _side_mean(rgb, fg), _side_mean(rgb, bg)
+    backed = np.zeros(labels.shape, bool)
+    loose = np.zeros(labels.shape, bool)
+    h, w = labels.shape
+    for dy, dx in ((0, 1), (1, 0), (0, -1), (-1, 0)):
+        # p: a pixel labelled 1; q: its neighbour at (dy, dx), labelled 0
+        p = (slice(max(-dy, 0), h - max(dy, 0)), slice(max(-dx, 0), w - max(dx, 0)))
+        q = (slice(max(dy, 0), h - max(-dy, 0)), slice(max(dx, 0), w - max(-dx, 0)))
+        pair = fg[p] & bg[q]
+        ok = (np.abs(log_depth[p] - log_depth[q]) > step) | (empty[p] != empty[q])
+        if by_colour:
+            ok |= slab[q] & (np.abs(inner[p] - outer[q]).max(axis=-1) > color_tol)
+        for side in (p, q):
+            backed[side] |= pair & ok
+            loose[side] |= pair & ~ok
+    k = np.ones((2 * band + 1, 2 * band + 1), np.uint8)
+    near = cv2.dilate((loose & ~backed).astype(np.uint8), k) > 0
+    return near & (cv2.dilate(fg.astype(np.uint8), k) > 0) & (cv2.dilate(bg.astype(np.uint8), k) > 0)
 
 
 def warp_labels(dst, src, src_labels: np.ndarray, *, alpha_min: float = 0.5,
@@ -437,13 +504,15 @@ class GeometricTracker:
         :func:`~seed2gs_inverse.pipeline.extract.extract` sets it with the
         support plane (:meth:`~seed2gs_inverse.pipeline.support.SupportSurface.contact_zone`);
         a zero height or radius: no contact zone.
-    seed_band : int
-        The seed mask's pixels within this many pixels of its 0/1 edge are
-        unknown (NaN) in frame 0, as the first source and as frame 0's mask
-        (module docstring), >= 0. Default 0: the seed as given, for a mask
-        exact to the pixel (one cut from the scene, as box and point prompts
-        are). A mask drawn by hand or made by a segmenter is a few pixels off
-        its object's edge: 3 (benchmarks/bench_extract.py ``--mask-error``).
+    seed_band : int or None
+        The seed mask's pixels within this many pixels of an edge that frame
+        0 does not back are unknown (NaN) in frame 0, as the first source
+        and as frame 0's mask (module docstring), >= 0; 0: the seed as
+        given. None (default): unset, which tracks as 0, and
+        :func:`~seed2gs_inverse.pipeline.extract.extract` sets it from
+        ``ExtractSettings.mask_tolerance`` for a mask or text prompt (a
+        mask drawn or made by a segmenter, a few pixels off its object's
+        edge) and to 0 for a box or point prompt (a seed cut from the scene).
 
     Raises
     ------
@@ -460,7 +529,7 @@ class GeometricTracker:
                  min_support: float = 0.02, max_sources: int = 4, boundary_band: int = 0,
                  color_tol: float | None = 0.15, fill_depth_jump: float = 0.03, refill: bool = False,
                  fill_passes: int = 1, support_plane=None, support_alignment: float = 0.8,
-                 fill_from_empty: bool = False, contact_zone=None, seed_band: int = 0):
+                 fill_from_empty: bool = False, contact_zone=None, seed_band: int | None = None):
         # NaN fails every range check: it is refused like any other value out of range.
         self.alpha_min = check_real("alpha_min", alpha_min, lo=0, hi=1, lo_open=True, hi_open=True)
         self.depth_tol = check_real("depth_tol", depth_tol, lo=0, lo_open=True)
@@ -469,14 +538,9 @@ class GeometricTracker:
         self.fill_sigma_color = check_real("fill_sigma_color", fill_sigma_color, lo=0, lo_open=True)
         self.min_support = check_real("min_support", min_support, lo=0, hi=1, hi_open=True)
         self.color_tol = check_real("color_tol", color_tol, lo=0, optional=True)
-        for name, v, lo in (("max_sources", max_sources, 1), ("boundary_band", boundary_band, 0),
-                            ("seed_band", seed_band, 0)):
-            if (isinstance(v, bool) or not isinstance(v, numbers.Real) or not float(v).is_integer()
-                    or v < lo):  # 3.0 is 3; 2.5 is refused, not truncated, and a negative band too
-                raise ValidationError(f"{name} must be a whole number >= {lo}, got {v!r}")
-        self.max_sources = int(max_sources)
-        self.boundary_band = int(boundary_band)
-        self.seed_band = int(seed_band)
+        self.max_sources = _whole("max_sources", max_sources, 1)
+        self.boundary_band = _whole("boundary_band", boundary_band, 0)
+        self.seed_band = None if seed_band is None else _whole("seed_band", seed_band, 0)
         self.fill_depth_jump = check_real("fill_depth_jump", fill_depth_jump, lo=0, lo_open=True)
         if isinstance(fill_passes, bool) or int(fill_passes) != fill_passes or fill_passes < 1:
             raise ValidationError(f"fill_passes must be an integer >= 1, got {fill_passes!r}")
@@ -521,7 +585,11 @@ class GeometricTracker:
             pool.append((f, m))
         # A drawn or segmenter-made mask is accurate to a few pixels only: its edge band is no
         # evidence (a 0 on the object's own rim, copied on, is filled over its revealed far side).
-        seed = _core(np.where(np.isnan(seed), np.nan, (seed > 0.5).astype(np.float64)), self.seed_band)
+        seed = np.where(np.isnan(seed), np.nan, (seed > 0.5).astype(np.float64))
+        if self.seed_band:
+            f0 = frames[0]
+            seed[_unbacked_band(seed, f0.depth, np.asarray(f0.alpha) < self.alpha_min, f0.rgb, self.seed_band,
+                                self.fill_depth_jump, self.color_tol, self._support_pixels(f0)[2])] = np.nan
         self._filled = {i: e for i, e in self._filled.items() if e[0]() is not None}
         # Labels as warped: 0 / 1 where observed, 0.25 / 0.75 where a fill
         # decided them (their provenance travels with the copy).
@@ -541,7 +609,7 @@ class GeometricTracker:
             order = np.argsort(dist, kind="stable")[: max(self.max_sources - 1, 0)]
             lab = np.full(f.camera.image_shape, np.nan)
             seen_as_object = None  # the seed frame's 1 labels: never overruled by the support rule
-            on, contact = self._support_pixels(f)
+            on, contact, _ = self._support_pixels(f)
             held = None if contact is None else np.full(lab.shape, np.nan)  # the 0s not copied at the contact
             for src, src_mask in [(frames[0], seed)] + [cands[i] for i in order]:
                 src_mask = _core(src_mask, self.boundary_band)
@@ -594,17 +662,23 @@ class GeometricTracker:
         return masks
 
     def _support_pixels(self, frame):
-        """``(on, contact)``: the frame's support pixels and its contact zone, (H, W) bool or None without a plane."""
+        """``(on, contact, slab)``: the frame's support pixels, its contact zone and the zone's slab.
+
+        Each (H, W) bool, or None without a plane (all three) or without a
+        contact zone (the last two); the contact zone is the slab's pixels
+        that do not face along the plane's normal (module docstring).
+        """
         if self.support_plane is None:
-            return None, None
+            return None, None, None
         normal, point = self.support_plane
         world, height, facing, rendered = _support_geometry(frame, normal, point, self.support_alignment)
         on = rendered & (height <= 0.0) & facing
         if self.contact_zone is None or min(self.contact_zone) <= 0:
-            return on, None
+            return on, None, None
         h_c, rho = self.contact_zone
         across = np.linalg.norm((world - point) - height[..., None] * normal, axis=-1)
-        return on, rendered & (height <= h_c) & (across <= rho) & ~facing
+        slab = rendered & (height <= h_c) & (across <= rho)
+        return on, slab & ~facing, slab
 
     @staticmethod
     def _plane(plane):
@@ -624,6 +698,13 @@ class GeometricTracker:
         """A copy of this tracker with ``support_plane=(normal, point)`` (this one is left as it is)."""
         out = copy.copy(self)
         out.support_plane = self._plane((normal, point))
+        out._filled = {}
+        return out
+
+    def with_seed_band(self, band: int) -> "GeometricTracker":
+        """A copy of this tracker with ``seed_band=band`` (this one is left as it is)."""
+        out = copy.copy(self)
+        out.seed_band = _whole("seed_band", band, 0)
         out._filled = {}
         return out
 

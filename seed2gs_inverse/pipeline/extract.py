@@ -17,13 +17,14 @@ All options live in one frozen :class:`~seed2gs_inverse.pipeline.settings.Extrac
 
 from __future__ import annotations
 
+import math
 import warnings
 from typing import TYPE_CHECKING, Any, Sequence
 
 from .._threads import one_blas_thread, run_both
 from ..camera import Camera
 from ..errors import ValidationError
-from ..frontend.base import ContactZoneTracker, wants_regularizer
+from ..frontend.base import ContactZoneTracker, SeedBandTracker, wants_regularizer
 from ..frontend.model_free import GeometricTracker
 from ..progress import Feedback, Progress, StageTimer
 from ..operators import OperatorStack
@@ -123,6 +124,19 @@ def _neighbourhood(scene: GaussianScene | FrozenScene, lift: SeedLift, orbits: O
     return object_neighbourhood(scene, lift, [stack, *others], reach)
 
 
+def _with_seed_band(tracker: Tracker, prompt_info: dict, settings: ExtractSettings, ref: ReferenceView) -> Tracker:
+    """The tracker with its seed band set from ``mask_tolerance``, unless it has one or takes none.
+
+    Mask and text prompts give masks drawn or made by a segmenter; box and
+    point seeds are cut from the scene (band 0). The tolerance is in pixels
+    of the reference camera, the band in those of the seed frame (``ref``).
+    """
+    if not isinstance(tracker, SeedBandTracker) or tracker.seed_band is not None:
+        return tracker
+    tolerance = settings.mask_tolerance if prompt_info.get("kind") in ("mask", "text") else 0
+    return tracker.with_seed_band(math.ceil(tolerance * ref.scale))
+
+
 def _supervision(scene: GaussianScene, lift: SeedLift, ref: ReferenceView, orbits: OrbitViews,
                  settings: ExtractSettings, tracker: Tracker, filler: LabelFiller | None, smoothness: float,
                  bar: Progress, local: Neighbourhood | None) -> tuple[list, list, sp.csr_matrix | None, dict, Tracker]:
@@ -164,6 +178,7 @@ def _resolved(s: ExtractSettings, ref: ReferenceView, orbits: OrbitViews, sel: S
             "n_disconnected": sel.n_disconnected,
             "support": support_info,
             "smoothness": smoothness, "tracker": type(tracker).__name__,
+            "seed_band": getattr(tracker, "seed_band", None),
             "grounder": None if grounder is None else type(grounder).__name__,
             # the orbit axis's warning was given when it was chosen; the report keeps it with the others
             "warnings": [w for w in [orbits.up_info.get("warning")] if w] + notes}
@@ -245,6 +260,7 @@ def extract(scene: GaussianScene | FrozenScene, camera: Camera, prompt: Any, gro
                                                  camera=camera, mode=s.mode)
         with timer("operators", last=False), feedback.bar("reference view", steps=False):
             ref = reference_view(renderer, camera, seed, s.max_reference_pixels)
+        tracker = _with_seed_band(tracker, prompt_info, s, ref)
         with timer("lift"), feedback.bar("lift", steps=False):
             lift = lift_seed(scene, ref, s.lift_options)
         before = renderer.operator_seconds

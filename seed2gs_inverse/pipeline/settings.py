@@ -46,7 +46,7 @@ _LIFT_RANGES = {"eps_rel": dict(lo=0.0), "eps_sigma": dict(lo=0.0), "min_members
 
 #: Bounds of the count options: far beyond any useful value, but an absurd
 #: one (``n_views=10**7``) is refused up front instead of running for hours.
-LIMITS = {"n_views": (2, 360), "max_view_pixels": (64, 2 ** 24), "max_reference_pixels": (64, 2 ** 26),
+LIMITS = {"n_views": (2, 360), "mask_tolerance": (0, 64), "max_view_pixels": (64, 2 ** 24), "max_reference_pixels": (64, 2 ** 26),
           "k_neighbors": (1, 256), "graph_k": (1, 256)}
 
 
@@ -227,6 +227,17 @@ class ExtractSettings:
         cannot fill, outweigh their many background pixels. Passed to
         :func:`~seed2gs_inverse.solvers.solve` as its ``min_vote``
         (``info["n_vote_capped"]`` counts them). 0: off.
+    mask_tolerance : int
+        How far, in pixels of the reference camera, a mask prompt (or the
+        grounder's mask for a text prompt) may miss its object's edge, in
+        0..64 (default 3, chosen on benchmarks/bench_extract.py
+        ``--mask-error``). The model-free tracker copies no seed label from
+        within that distance of an edge that the reference view does not
+        back with a depth step or, at the contact, a colour step
+        (``GeometricTracker(seed_band=)``, at the reference's resolution);
+        0: the mask is trusted to the pixel. Box and point seeds are cut
+        from the scene and trusted as they are; a tracker with a
+        ``seed_band`` of its own keeps it.
     threshold : float or None
         ``tau`` of Eq. 9, in [0, 1); None (default): the solver's own (0.5).
     lift_options : mapping (read-only)
@@ -372,6 +383,7 @@ class ExtractSettings:
     near_margin: float | None = 1.0
     follow_weak: bool = True
     min_vote: float = 0.2
+    mask_tolerance: int = 3
 
     def __post_init__(self):
         set_ = object.__setattr__.__get__(self)
@@ -402,6 +414,8 @@ class ExtractSettings:
         set_("cull_far", check_real("cull_far", self.cull_far, lo=0.0, lo_open=True, optional=True))
         set_("min_evidence", check_real("min_evidence", self.min_evidence, lo=0.0))
         set_("min_vote", check_real("min_vote", self.min_vote, lo=0.0, hi=1.0))
+        lo, hi = LIMITS["mask_tolerance"]
+        set_("mask_tolerance", check_int("mask_tolerance", self.mask_tolerance, lo=lo, hi=hi))
         # q lies in [0, 1]: tau outside [0, 1) (or NaN) would select nothing, silently.
         set_("threshold", check_real("threshold", self.threshold, lo=0.0, optional=True))
         if self.threshold is not None and not self.threshold < 1.0:
