@@ -59,7 +59,7 @@ around it (4 px margin; GrabCut inside, as ``--box`` does) or one click at
 the seed pixel farthest from its edge. ``--mask-error PX`` grows (PX > 0)
 or shrinks (PX < 0) every case's true seed mask by that many pixels before
 the prompt is made from it: a drawn or grounded mask is rarely exact at its
-edge. Under each case, ``low20`` is the
+edge (``--set mask_tolerance=0`` trusts the masks to the pixel). Under each case, ``low20`` is the
 share of the object's lowest fifth (along the true up) that the selection
 holds; ``ghost`` the object's unselected part rendered alone, its alpha
 summed over the held-out views over that of the whole object rendered

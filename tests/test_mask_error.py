@@ -133,6 +133,21 @@ def test_an_edge_the_scene_backs_is_kept(pair):
     assert n_unknown["exact"] == 0 and 0 < n_unknown["exact, no zone"] < n_unknown["short"], n_unknown
 
 
+def test_a_thin_seed_is_narrowed_not_erased():
+    """A bar 5 px wide on a flat wall: bands of 3 and 2 px would take most of it, 1 px less than half."""
+    _, _, info = sphere_scene()
+    cam = reference_camera(info, 40, 30)
+    h, w = cam.image_shape
+    frame = ClipFrame(np.full((h, w, 3), 0.5, np.float32), np.full((h, w), 2.0, np.float32),
+                      np.ones((h, w), np.float32), cam, "flat", 0)
+    seed = np.zeros((h, w), bool)
+    seed[5:25, 18:23] = True
+    got = GeometricTracker(fill=False, seed_band=3).track([frame], seed)[0]
+    empty = np.zeros((h, w), bool)
+    np.testing.assert_array_equal(got, _reference_band(seed, frame.depth, empty, frame.rgb, 1, 0.03, None, None))
+    assert np.count_nonzero(got == 1) == 3 * 18  # the bar's three inner columns, less its ends
+
+
 @pytest.mark.parametrize("value", [-1, 2.5, True, "3"])
 def test_seed_band_is_validated(value):
     with pytest.raises(ValidationError, match="seed_band"):

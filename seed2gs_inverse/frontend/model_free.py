@@ -101,7 +101,10 @@ mask's edge is the scene's: a mask that follows it is right, and a band at
 the contact would lose the base. With ``seed_band`` :math:`b`, the seed's
 pixels within :math:`b` pixels of an edge pixel that is in no backed pair
 (and whose :math:`(2b+1)^2` window holds both labels) are unknown in frame
-0: no frame copies a label from them, and the solve reads none there.
+0: no frame copies a label from them, and the solve reads none there. A
+band that would take more than half of the seed's object pixels (a thin
+object, a pole or a cable) is narrowed, :math:`b - 1` and so on, until it
+does not: the seed is not erased.
 
 Frames are labelled in the order of :meth:`GeometricTracker._order`: always
 the frame nearest to one already labelled, so a closed orbit is walked from
@@ -587,9 +590,7 @@ class GeometricTracker:
         # evidence (a 0 on the object's own rim, copied on, is filled over its revealed far side).
         seed = np.where(np.isnan(seed), np.nan, (seed > 0.5).astype(np.float64))
         if self.seed_band:
-            f0 = frames[0]
-            seed[_unbacked_band(seed, f0.depth, np.asarray(f0.alpha) < self.alpha_min, f0.rgb, self.seed_band,
-                                self.fill_depth_jump, self.color_tol, self._support_pixels(f0)[2])] = np.nan
+            seed[self._seed_band_pixels(frames[0], seed)] = np.nan
         self._filled = {i: e for i, e in self._filled.items() if e[0]() is not None}
         # Labels as warped: 0 / 1 where observed, 0.25 / 0.75 where a fill
         # decided them (their provenance travels with the copy).
@@ -660,6 +661,18 @@ class GeometricTracker:
                     pass
             done.append(k)
         return masks
+
+    def _seed_band_pixels(self, frame, seed: np.ndarray) -> np.ndarray:
+        """(H, W) bool: the seed's band in ``frame`` (module docstring), narrowed to keep half its object pixels."""
+        empty = np.asarray(frame.alpha) < self.alpha_min
+        slab = self._support_pixels(frame)[2]
+        n_object = np.count_nonzero(seed == 1)
+        for band in range(self.seed_band, 0, -1):
+            out = _unbacked_band(seed, frame.depth, empty, frame.rgb, band, self.fill_depth_jump, self.color_tol,
+                                 slab)
+            if np.count_nonzero(out & (seed == 1)) <= n_object / 2:
+                return out
+        return np.zeros(seed.shape, bool)
 
     def _support_pixels(self, frame):
         """``(on, contact, slab)``: the frame's support pixels, its contact zone and the zone's slab.
