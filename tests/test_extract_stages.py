@@ -78,7 +78,8 @@ def staged(syn, setup):
     bar = Counter()
     orbits = ex_mod.orbit_views(r, cam, ref, lift, s, bar)
     surface, support_info = ex_mod.support_band(syn.scene, lift, orbits, s, GeometricTracker())
-    tracker = GeometricTracker()
+    # a mask prompt: the seed band of mask_tolerance, in the reference's pixels
+    tracker = GeometricTracker(seed_band=int(np.ceil(s.mask_tolerance * ref.scale)))
     if surface is not None:
         tracker = tracker.with_support_plane(surface.axis, surface.point).with_contact_zone(*surface.contact_zone())
     labelled = ex_mod.track_clips(tracker, orbits, ref.seed)
@@ -419,7 +420,8 @@ def test_extract_runs_the_stages(syn, setup, staged):
 #: operators with min_weight=0, 30 L-BFGS-B iterations), so that it still proves the stage
 #: refactor left q unchanged. Later rules are switched off: the tracker's empty pixels vote in its fill
 #: and faint and weak Gaussians keep the solver's q, the evidence threshold is the old 0.05, and no
-#: Gaussian is held at its prior against its masks' vote (min_vote 0).
+#: Gaussian is held at its prior against its masks' vote (min_vote 0); the seed mask is trusted to
+#: the pixel (mask_tolerance 0).
 _PINNED_RUN = """
 import sys
 import numpy as np
@@ -435,7 +437,7 @@ seed = (build_operator(syn.scene, cam).W @ truth.astype(np.float32)).reshape(cam
 kw = {"solver_options": {"max_iter": 30}} if name == "weighted_bce" else {"method": "voting"}
 ex = extract(syn.scene, cam, seed, tracker=GeometricTracker(fill_from_empty=True), n_views=6, progress=False,
              up="level", smoothness=0.0, min_weight=0.0, follow_faint=False, follow_weak=False,
-             near_margin=None, min_evidence=0.05, min_vote=0.0, **kw)
+             near_margin=None, min_evidence=0.05, min_vote=0.0, mask_tolerance=0, **kw)
 np.savez(out, q=ex.q, n_weak=ex.resolved["n_weak_evidence"])
 """
 

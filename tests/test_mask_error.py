@@ -31,8 +31,9 @@ from seed2gs_inverse.synthetic.ground import make_ground_scene
 from _pipeline_scenes import reference_camera, sphere_scene
 
 
-def _reference_band(seed, depth, empty, rgb, band, jump, color_tol, slab) -> np.ndarray:
-    """Brute force, pixel by pixel: the seed with NaN on its band about the edge pixels no pair backs."""
+def _reference_band(seed, depth, empty, rgb, band, jump, color_tol, slab, keep_medial=True) -> np.ndarray:
+    """Brute force, pixel by pixel: the seed with NaN on its band about the edge pixels no pair backs (and,
+    with ``keep_medial``, not on its medial pixels)."""
     h, w = seed.shape
     log_depth = np.log(np.maximum(np.asarray(depth, np.float64), 1e-12))
 
@@ -50,11 +51,18 @@ def _reference_band(seed, depth, empty, rgb, band, jump, color_tol, slab) -> np.
                 ok = ok or np.abs(side_mean(y, x, 1) - side_mean(qy, qx, 0)).max() > color_tol
             for yy, xx in ((y, x), (qy, qx)):
                 (backed if ok else loose)[yy, xx] = True
+    # Chebyshev distance of each object pixel to the nearest pixel in the image not labelled 1, capped
+    others = np.argwhere(seed != 1)
+    inside = np.zeros((h, w), int)
+    for y, x in zip(*np.nonzero(seed == 1)):
+        inside[y, x] = min(np.abs(others - (y, x)).max(axis=1).min() if len(others) else band + 1, band + 1)
     out = seed.astype(np.float64)
     for y in range(h):
         for x in range(w):
             win = (slice(max(y - band, 0), y + band + 1), slice(max(x - band, 0), x + band + 1))
-            if (seed[win] == 1).any() and (seed[win] == 0).any() and (loose & ~backed)[win].any():
+            medial = (keep_medial and seed[y, x] == 1
+                      and inside[y, x] >= inside[max(y - 1, 0):y + 2, max(x - 1, 0):x + 2].max())
+            if (seed[win] == 1).any() and (seed[win] == 0).any() and (loose & ~backed)[win].any() and not medial:
                 out[y, x] = np.nan
     return out
 
@@ -76,7 +84,7 @@ def test_the_band_follows_the_formulas(band, color_tol, with_slab):
     empty = (yy < 9) & (xx > 20)  # the disc's top right stands against empty space
     got = seed.astype(np.float64)
     got[_unbacked_band(got, depth, empty, rgb, band, 0.03, color_tol, slab)] = np.nan
-    want = _reference_band(seed, depth, empty, rgb, band, 0.03, color_tol, slab)
+    want = _reference_band(seed, depth, empty, rgb, band, 0.03, color_tol, slab, keep_medial=False)
     np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
     np.testing.assert_array_equal(got[~np.isnan(got)], want[~np.isnan(want)])
     # the case is not trivial: part of the edge is kept, part banded
@@ -133,19 +141,35 @@ def test_an_edge_the_scene_backs_is_kept(pair):
     assert n_unknown["exact"] == 0 and 0 < n_unknown["exact, no zone"] < n_unknown["short"], n_unknown
 
 
-def test_a_thin_seed_is_narrowed_not_erased():
-    """A bar 5 px wide on a flat wall: bands of 3 and 2 px would take most of it, 1 px less than half."""
+def _flat_wall(h: int, w: int):
     _, _, info = sphere_scene()
-    cam = reference_camera(info, 40, 30)
-    h, w = cam.image_shape
-    frame = ClipFrame(np.full((h, w, 3), 0.5, np.float32), np.full((h, w), 2.0, np.float32),
-                      np.ones((h, w), np.float32), cam, "flat", 0)
-    seed = np.zeros((h, w), bool)
+    cam = reference_camera(info, w, h)
+    return ClipFrame(np.full((h, w, 3), 0.5, np.float32), np.full((h, w), 2.0, np.float32),
+                     np.ones((h, w), np.float32), cam, "flat", 0)
+
+
+def test_a_thin_part_is_narrowed_not_erased():
+    """A block and a bar 5 px wide on a flat wall: a 3 px band would take the whole bar; its middle stays."""
+    frame = _flat_wall(40, 56)
+    seed = np.zeros((40, 56), bool)
+    seed[2:32, 2:32] = True
+    seed[12:32, 34:39] = True
+    got = GeometricTracker(fill=False, seed_band=3).track([frame], seed)[0]
+    empty = np.zeros(seed.shape, bool)
+    np.testing.assert_array_equal(got, _reference_band(seed, frame.depth, empty, frame.rgb, 3, 0.03, None, None))
+    bar = got[:, 33:]
+    np.testing.assert_array_equal(np.argwhere(bar == 1), [(y, 3) for y in range(14, 30)])  # 3 px from its edge
+
+
+def test_a_thin_seed_is_narrowed_not_erased():
+    """The bar alone: a 3 px band would leave its middle column only, so the band narrows to 1 px."""
+    frame = _flat_wall(30, 40)
+    seed = np.zeros((30, 40), bool)
     seed[5:25, 18:23] = True
     got = GeometricTracker(fill=False, seed_band=3).track([frame], seed)[0]
-    empty = np.zeros((h, w), bool)
+    empty = np.zeros(seed.shape, bool)
     np.testing.assert_array_equal(got, _reference_band(seed, frame.depth, empty, frame.rgb, 1, 0.03, None, None))
-    assert np.count_nonzero(got == 1) == 3 * 18  # the bar's three inner columns, less its ends
+    assert np.count_nonzero(got == 1) == 3 * 18  # the three inner columns, less the ends
 
 
 @pytest.mark.parametrize("value", [-1, 2.5, True, "3"])

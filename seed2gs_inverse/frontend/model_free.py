@@ -101,10 +101,13 @@ mask's edge is the scene's: a mask that follows it is right, and a band at
 the contact would lose the base. With ``seed_band`` :math:`b`, the seed's
 pixels within :math:`b` pixels of an edge pixel that is in no backed pair
 (and whose :math:`(2b+1)^2` window holds both labels) are unknown in frame
-0: no frame copies a label from them, and the solve reads none there. A
-band that would take more than half of the seed's object pixels (a thin
-object, a pole or a cable) is narrowed, :math:`b - 1` and so on, until it
-does not: the seed is not erased.
+0: no frame copies a label from them, and the solve reads none there. The
+seed's medial pixels keep their label (a pixel labelled 1 whose Chebyshev
+distance to the nearest pixel not labelled 1 is no less than its
+neighbours'): a part thinner than the band, a leg or a pole, is narrowed
+to its middle, not erased. A band that would still take more than half of
+the seed's object pixels (a thin object seen whole: a rod, a cable) is
+narrowed, :math:`b - 1` and so on, until it does not.
 
 Frames are labelled in the order of :meth:`GeometricTracker._order`: always
 the frame nearest to one already labelled, so a closed orbit is walked from
@@ -325,6 +328,17 @@ def _unbacked_band(labels: np.ndarray, depth: np.ndarray, empty: np.ndarray, rgb
     k = np.ones((2 * band + 1, 2 * band + 1), np.uint8)
     near = cv2.dilate((loose & ~backed).astype(np.uint8), k) > 0
     return near & (cv2.dilate(fg.astype(np.uint8), k) > 0) & (cv2.dilate(bg.astype(np.uint8), k) > 0)
+
+
+def _medial(fg: np.ndarray, reach: int) -> np.ndarray:
+    """(H, W) bool: the ``fg`` pixels whose Chebyshev distance to the nearest other pixel, capped at ``reach``,
+    is no less than their neighbours' (pixels outside the image do not count as other)."""
+    inside = np.zeros(fg.shape, np.float32)
+    core = fg.astype(np.uint8)
+    for _ in range(reach):
+        inside += core
+        core = cv2.erode(core, np.ones((3, 3), np.uint8))  # the default border: outside counts as fg
+    return fg & (inside >= cv2.dilate(inside, np.ones((3, 3), np.uint8)))
 
 
 def warp_labels(dst, src, src_labels: np.ndarray, *, alpha_min: float = 0.5,
@@ -663,7 +677,7 @@ class GeometricTracker:
         return masks
 
     def _seed_band_pixels(self, frame, seed: np.ndarray) -> np.ndarray:
-        """(H, W) bool: the seed's band in ``frame`` (module docstring), narrowed to keep half its object pixels."""
+        """(H, W) bool: the seed's band in ``frame``, narrowed to keep half its object pixels (module docstring)."""
         empty = np.asarray(frame.alpha) < self.alpha_min
         slab = self._support_pixels(frame)[2]
         n_object = np.count_nonzero(seed == 1)
@@ -671,7 +685,7 @@ class GeometricTracker:
             out = _unbacked_band(seed, frame.depth, empty, frame.rgb, band, self.fill_depth_jump, self.color_tol,
                                  slab)
             if np.count_nonzero(out & (seed == 1)) <= n_object / 2:
-                return out
+                return out & ~_medial(seed == 1, band + 1)
         return np.zeros(seed.shape, bool)
 
     def _support_pixels(self, frame):
