@@ -600,8 +600,9 @@ class GeometricTracker:
                 raise ValidationError(f"tracker: reference {j} mask has shape {m.shape}, its frame is "
                                       f"{f.camera.image_shape}")
             pool.append((f, m))
-        # A drawn or segmenter-made mask is accurate to a few pixels only: its edge band is no
-        # evidence (a 0 on the object's own rim, copied on, is filled over its revealed far side).
+        # A drawn or segmenter-made mask is accurate to a few pixels only: where the scene does not
+        # back its edge, the band is no evidence (a 0 on the object's own rim, copied on, is filled
+        # over its revealed far side).
         seed = np.where(np.isnan(seed), np.nan, (seed > 0.5).astype(np.float64))
         if self.seed_band:
             seed[self._seed_band_pixels(frames[0], seed)] = np.nan
