@@ -129,7 +129,7 @@ def register(subparsers) -> None:
     p.add_argument("--mask-tolerance", type=int, default=None, metavar="PX",
                    help=f"how many pixels a --mask (or a --prompt's mask) may miss its object's edge by, "
                         f"{LIMITS['mask_tolerance'][0]}..{LIMITS['mask_tolerance'][1]} (default 3): the tracker "
-                        f"copies no label from that near an edge of the mask that the scene does not show "
+                        f"copies no label from within PX of an edge of the mask that the scene does not show "
                         f"(no depth step, no colour step at the ground); 0 trusts the mask to the pixel")
     p.add_argument("--smoothness", type=float, default=None, metavar="LAMBDA",
                    help="graph-Laplacian regulariser of the solve: Gaussians no labelled view saw take their "
@@ -515,7 +515,7 @@ def _recorded_settings(rep: dict, progress: bool, where: str):
 
 
 def _is_given(value) -> bool:
-    """Whether a parsed flag was given: 0 is (``0 == False``, so not a test against a tuple of unset values)."""
+    """Whether a parsed flag was given: None, False and [] mean not; 0 is a value (though ``0 == False``)."""
     return value is not None and value is not False and value != []
 
 
