@@ -22,7 +22,7 @@ from scipy import ndimage
 
 from seed2gs_inverse import ExtractSettings, build_operator, extract
 from seed2gs_inverse.errors import ValidationError
-from seed2gs_inverse.frontend.model_free import GeometricTracker, _unbacked_band, warp_labels
+from seed2gs_inverse.frontend.model_free import GeometricTracker, _near_edge, _unbacked_edge, warp_labels
 from seed2gs_inverse.frontend.prompts import BoxPrompt
 from seed2gs_inverse.metrics import iou
 from seed2gs_inverse.pipeline.vaas import ClipFrame, flat_orbit
@@ -83,7 +83,7 @@ def test_the_band_follows_the_formulas(band, color_tol, with_slab):
     slab = (yy > 26) if with_slab else None
     empty = (yy < 9) & (xx > 20)  # the disc's top right stands against empty space
     got = seed.astype(np.float64)
-    got[_unbacked_band(got, depth, empty, rgb, band, 0.03, color_tol, slab)] = np.nan
+    got[_near_edge(_unbacked_edge(got, depth, empty, rgb, 0.03, color_tol, slab), got, band)] = np.nan
     want = _reference_band(seed, depth, empty, rgb, band, 0.03, color_tol, slab, keep_medial=False)
     np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
     np.testing.assert_array_equal(got[~np.isnan(got)], want[~np.isnan(want)])

@@ -275,15 +275,18 @@ def _whole(name: str, value, lo: int) -> int:
     return int(value)
 
 
+def _mixed(labels: np.ndarray, band: int) -> np.ndarray:
+    """(H, W) bool: the pixels whose (2 ``band`` + 1)^2 window holds both a 0 and a 1 label."""
+    k = np.ones((2 * band + 1, 2 * band + 1), np.uint8)
+    return (cv2.dilate((labels == 1).astype(np.uint8), k) > 0) & (cv2.dilate((labels == 0).astype(np.uint8), k) > 0)
+
+
 def _core(labels: np.ndarray, band: int) -> np.ndarray:
     """Labels with a band of ``band`` px on each side of every 0/1 boundary set to NaN."""
     if band <= 0:
         return labels
-    k = np.ones((2 * band + 1, 2 * band + 1), np.uint8)
-    fg = cv2.dilate((labels == 1).astype(np.uint8), k) > 0
-    bg = cv2.dilate((labels == 0).astype(np.uint8), k) > 0
     out = labels.copy()
-    out[fg & bg] = np.nan
+    out[_mixed(labels, band)] = np.nan
     return out
 
 
@@ -295,15 +298,15 @@ def _side_mean(rgb: np.ndarray, side: np.ndarray) -> np.ndarray:
     return total / np.maximum(count, 1.0)[..., None]
 
 
-def _unbacked_band(labels: np.ndarray, depth: np.ndarray, empty: np.ndarray, rgb: np.ndarray, band: int,
-                   jump: float, color_tol: float | None, slab: np.ndarray | None) -> np.ndarray:
-    """(H, W) bool: the pixels within ``band`` px of the labels' 0/1 edge where frame 0 does not back it.
+def _unbacked_edge(labels: np.ndarray, depth: np.ndarray, empty: np.ndarray, rgb: np.ndarray, jump: float,
+                   color_tol: float | None, slab: np.ndarray | None) -> np.ndarray:
+    """(H, W) bool: the pixels on the labels' 0/1 edge that frame 0 does not back.
 
     See the module docstring (``seed_band``): a pair of 4-adjacent pixels
     across the edge is backed where one of them is ``empty`` space and the
     other not, by a relative depth step above ``jump``, or in the contact
     ``slab`` (None: none) by a one-sided mean colour difference above
-    ``color_tol`` (None: no such rule).
+    ``color_tol`` (None: no such rule). A pixel in a backed pair is backed.
     """
     fg, bg = labels == 1, labels == 0
     log_depth = np.log(np.maximum(np.asarray(depth, np.float64), 1e-12))
@@ -325,9 +328,16 @@ def _unbacked_band(labels: np.ndarray, depth: np.ndarray, empty: np.ndarray, rgb
         for side in (p, q):
             backed[side] |= pair & ok
             loose[side] |= pair & ~ok
+    return loose & ~backed
+
+
+def _near_edge(edge: np.ndarray, labels: np.ndarray, band: int) -> np.ndarray:
+    """(H, W) bool: the pixels within ``band`` px of an ``edge`` pixel and with both labels in their window.
+
+    The window is (2 ``band`` + 1)^2 pixels, as in :func:`_mixed`.
+    """
     k = np.ones((2 * band + 1, 2 * band + 1), np.uint8)
-    near = cv2.dilate((loose & ~backed).astype(np.uint8), k) > 0
-    return near & (cv2.dilate(fg.astype(np.uint8), k) > 0) & (cv2.dilate(bg.astype(np.uint8), k) > 0)
+    return (cv2.dilate(edge.astype(np.uint8), k) > 0) & _mixed(labels, band)
 
 
 def _medial(fg: np.ndarray, reach: int) -> np.ndarray:
@@ -559,9 +569,7 @@ class GeometricTracker:
         self.boundary_band = _whole("boundary_band", boundary_band, 0)
         self.seed_band = None if seed_band is None else _whole("seed_band", seed_band, 0)
         self.fill_depth_jump = check_real("fill_depth_jump", fill_depth_jump, lo=0, lo_open=True)
-        if isinstance(fill_passes, bool) or int(fill_passes) != fill_passes or fill_passes < 1:
-            raise ValidationError(f"fill_passes must be an integer >= 1, got {fill_passes!r}")
-        self.fill_passes = int(fill_passes)
+        self.fill_passes = _whole("fill_passes", fill_passes, 1)
         self.support_alignment = check_real("support_alignment", support_alignment, lo=0, hi=1, lo_open=True)
         self.fill = bool(fill)
         self.refill = bool(refill)
@@ -679,12 +687,11 @@ class GeometricTracker:
 
     def _seed_band_pixels(self, frame, seed: np.ndarray) -> np.ndarray:
         """(H, W) bool: the seed's band in ``frame``, narrowed to keep half its object pixels (module docstring)."""
-        empty = np.asarray(frame.alpha) < self.alpha_min
-        slab = self._support_pixels(frame)[2]
+        edge = _unbacked_edge(seed, frame.depth, np.asarray(frame.alpha) < self.alpha_min, frame.rgb,
+                              self.fill_depth_jump, self.color_tol, self._support_pixels(frame)[2])
         n_object = np.count_nonzero(seed == 1)
         for band in range(self.seed_band, 0, -1):
-            out = _unbacked_band(seed, frame.depth, empty, frame.rgb, band, self.fill_depth_jump, self.color_tol,
-                                 slab)
+            out = _near_edge(edge, seed, band)
             if np.count_nonzero(out & (seed == 1)) <= n_object / 2:
                 return out & ~_medial(seed == 1, band + 1)
         return np.zeros(seed.shape, bool)
@@ -722,19 +729,20 @@ class GeometricTracker:
                                   f"got {plane!r}")
         return unit_vector("support_plane normal", normal), x
 
-    def with_support_plane(self, normal, point) -> "GeometricTracker":
-        """A copy of this tracker with ``support_plane=(normal, point)`` (this one is left as it is)."""
+    def _copy(self, **attrs) -> "GeometricTracker":
+        """A copy of this tracker with ``attrs`` set and no filled-label record (the frames are another run's)."""
         out = copy.copy(self)
-        out.support_plane = self._plane((normal, point))
+        out.__dict__.update(attrs)
         out._filled = {}
         return out
 
+    def with_support_plane(self, normal, point) -> "GeometricTracker":
+        """A copy of this tracker with ``support_plane=(normal, point)`` (this one is left as it is)."""
+        return self._copy(support_plane=self._plane((normal, point)))
+
     def with_seed_band(self, band: int) -> "GeometricTracker":
         """A copy of this tracker with ``seed_band=band`` (this one is left as it is)."""
-        out = copy.copy(self)
-        out.seed_band = _whole("seed_band", band, 0)
-        out._filled = {}
-        return out
+        return self._copy(seed_band=_whole("seed_band", band, 0))
 
     @staticmethod
     def _zone(zone) -> tuple:
@@ -746,10 +754,7 @@ class GeometricTracker:
 
     def with_contact_zone(self, height: float, radius: float) -> "GeometricTracker":
         """A copy of this tracker with ``contact_zone=(height, radius)`` (this one is left as it is)."""
-        out = copy.copy(self)
-        out.contact_zone = self._zone((height, radius))
-        out._filled = {}
-        return out
+        return self._copy(contact_zone=self._zone((height, radius)))
 
     def _filled_mask(self, frame):
         """The filled-label mask this tracker recorded for ``frame`` (None: unknown, all observed)."""

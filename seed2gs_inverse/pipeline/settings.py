@@ -235,9 +235,9 @@ class ExtractSettings:
         within that distance of an edge that the reference view does not
         back with a depth step or, at the contact, a colour step
         (``GeometricTracker(seed_band=)``, at the reference's resolution);
-        0: the mask is trusted to the pixel. Box and point seeds are cut
-        from the scene and trusted as they are; a tracker with a
-        ``seed_band`` of its own keeps it.
+        0: the mask is trusted to the pixel. Box and point seeds are
+        trusted as they are (they are cut from the scene); a tracker with
+        a ``seed_band`` of its own keeps it.
     threshold : float or None
         ``tau`` of Eq. 9, in [0, 1); None (default): the solver's own (0.5).
     lift_options : mapping (read-only)
